@@ -1,0 +1,64 @@
+//! Two-step calibration timings (\[P1\] IV.C) and the fixed-size kernels against faer.
+//!
+//! `cargo bench -p magcal-core --bench calibration`
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use faer::{Mat, Side};
+use magcal_core::attitude::Attitude;
+use magcal_core::rng::stream_rng;
+use magcal_core::{InformationMatrix, TwoStep, paper, small};
+use rand::RngExt;
+
+fn noisy_readings(m: usize) -> (Vec<magcal_core::Vec3>, f64) {
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let mut rng = stream_rng(1, 0);
+    let design: Vec<Attitude> = if m == 9 {
+        paper::uniformity_design()
+    } else {
+        (0..m)
+            .map(|_| {
+                Attitude::from_degrees(
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(-180.0..180.0),
+                    rng.random_range(-20.0..20.0),
+                )
+            })
+            .collect()
+    };
+    let readings = truth
+        .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
+        .unwrap();
+    (readings, field.magnitude())
+}
+
+fn two_step(c: &mut Criterion) {
+    let settings = TwoStep::default();
+    for m in [9, 100] {
+        let (readings, r) = noisy_readings(m);
+        c.bench_function(&format!("two_step/{m}_readings"), |b| {
+            b.iter(|| settings.calibrate(black_box(&readings), black_box(r)))
+        });
+    }
+}
+
+fn kernels(c: &mut Criterion) {
+    let (readings, r) = noisy_readings(9);
+    let info = InformationMatrix::from_readings(&readings, r);
+    let m = *info.matrix();
+    c.bench_function("ln_det_9x9/fixed_cholesky", |b| {
+        b.iter(|| small::ln_det_spd(black_box(&m)))
+    });
+    let fm: Mat<f64> = info.to_faer();
+    c.bench_function("ln_det_9x9/faer_llt", |b| {
+        b.iter(|| {
+            let llt = black_box(&fm).llt(Side::Lower).unwrap();
+            let l = llt.L();
+            (0..9).map(|i| 2.0 * l[(i, i)].ln()).sum::<f64>()
+        })
+    });
+}
+
+criterion_group!(benches, two_step, kernels);
+criterion_main!(benches);

@@ -1,0 +1,256 @@
+//! Attitudes, the direction cosine matrix of \[P1\] eq. (2) and attitude boxes, \[P1\] eq. (3)-(4).
+
+use crate::error::ParameterError;
+use crate::small::Mat3;
+
+/// A vehicle attitude: roll `r`, yaw `y`, pitch `p` in **radians** (the order of \[P1\] eq. (2) and
+/// of Table II, `[roll yaw pitch]`).
+///
+/// Build it from degrees with [`Attitude::from_degrees`]; files and tables use degrees.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Attitude {
+    /// Roll `r`, radians: rotation about the body x (nose) axis.
+    pub roll: f64,
+    /// Yaw `y`, radians: rotation about the up axis; 0 puts the nose on north.
+    pub yaw: f64,
+    /// Pitch `p`, radians: rotation about the body z (right) axis.
+    pub pitch: f64,
+}
+
+impl Attitude {
+    /// An attitude from roll, yaw and pitch in degrees (the column order of \[P1\] Table II).
+    pub fn from_degrees(roll_deg: f64, yaw_deg: f64, pitch_deg: f64) -> Self {
+        Self {
+            roll: roll_deg.to_radians(),
+            yaw: yaw_deg.to_radians(),
+            pitch: pitch_deg.to_radians(),
+        }
+    }
+
+    /// `(roll, yaw, pitch)` in degrees.
+    pub fn to_degrees(&self) -> [f64; 3] {
+        [self.roll.to_degrees(), self.yaw.to_degrees(), self.pitch.to_degrees()]
+    }
+
+    /// `true` when all three angles are finite.
+    pub fn is_finite(&self) -> bool {
+        self.roll.is_finite() && self.yaw.is_finite() && self.pitch.is_finite()
+    }
+
+    /// The direction cosine matrix `C_n^b = Rx(r) Rz(p) Ry(y)` of \[P1\] eq. (2), which takes a vector
+    /// in the n-frame (North, Up, East) to the b-frame (nose, up, right): `B^b = C_n^b B^n`
+    /// (\[P1\] eq. (1)).
+    pub fn dcm(&self) -> Mat3 {
+        let (sr, cr) = self.roll.sin_cos();
+        let (sy, cy) = self.yaw.sin_cos();
+        let (sp, cp) = self.pitch.sin_cos();
+        // Rz(p) Ry(y), then Rx(r) on the left; multiplied out to keep it exact and allocation-free.
+        let rz_ry = [[cp * cy, sp, -cp * sy], [-sp * cy, cp, sp * sy], [sy, 0.0, cy]];
+        [
+            rz_ry[0],
+            [
+                cr * rz_ry[1][0] + sr * rz_ry[2][0],
+                cr * rz_ry[1][1] + sr * rz_ry[2][1],
+                cr * rz_ry[1][2] + sr * rz_ry[2][2],
+            ],
+            [
+                -sr * rz_ry[1][0] + cr * rz_ry[2][0],
+                -sr * rz_ry[1][1] + cr * rz_ry[2][1],
+                -sr * rz_ry[1][2] + cr * rz_ry[2][2],
+            ],
+        ]
+    }
+}
+
+/// A closed interval of one Euler angle, radians, with `min < max`, both finite.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AngleRange {
+    min: f64,
+    max: f64,
+}
+
+impl AngleRange {
+    /// A range from degrees. `name` names the angle in the error (for example `"pitch"`).
+    ///
+    /// # Errors
+    /// [`ParameterError::NonFinite`] for a NaN or infinite bound, [`ParameterError::EmptyRange`]
+    /// when `min_deg >= max_deg`.
+    pub fn from_degrees(name: &'static str, min_deg: f64, max_deg: f64) -> Result<Self, ParameterError> {
+        for value in [min_deg, max_deg] {
+            if !value.is_finite() {
+                return Err(ParameterError::NonFinite { name, value });
+            }
+        }
+        if min_deg >= max_deg {
+            return Err(ParameterError::EmptyRange {
+                name,
+                min: min_deg,
+                max: max_deg,
+            });
+        }
+        Ok(Self {
+            min: min_deg.to_radians(),
+            max: max_deg.to_radians(),
+        })
+    }
+
+    /// Lower bound, radians.
+    pub fn min(&self) -> f64 {
+        self.min
+    }
+
+    /// Upper bound, radians.
+    pub fn max(&self) -> f64 {
+        self.max
+    }
+
+    /// `max - min`, radians.
+    pub fn width(&self) -> f64 {
+        self.max - self.min
+    }
+
+    /// `true` when the range covers a whole turn (360 degrees or more), so that the angle is
+    /// periodic inside it rather than bounded.
+    pub fn is_full_turn(&self) -> bool {
+        self.width() >= std::f64::consts::TAU * (1.0 - 1e-12)
+    }
+
+    /// `true` when `angle` (radians) lies in the closed range.
+    pub fn contains(&self, angle: f64) -> bool {
+        self.min <= angle && angle <= self.max
+    }
+
+    /// `angle` clamped into the range, or for a full-turn range wrapped into it.
+    pub fn confine(&self, angle: f64) -> f64 {
+        if self.is_full_turn() {
+            self.min + (angle - self.min).rem_euclid(std::f64::consts::TAU)
+        } else {
+            angle.clamp(self.min, self.max)
+        }
+    }
+}
+
+/// The attitudes a vehicle can take, \[P1\] eq. (3): a box in (roll, yaw, pitch).
+///
+/// Every range is validated on construction (finite, `min < max`), so a box that exists is usable.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AttitudeBox {
+    /// Roll range.
+    pub roll: AngleRange,
+    /// Yaw range; periodic when it spans a whole turn.
+    pub yaw: AngleRange,
+    /// Pitch range.
+    pub pitch: AngleRange,
+}
+
+impl AttitudeBox {
+    /// A box from `[min, max]` in degrees for roll, yaw and pitch.
+    ///
+    /// # Errors
+    /// The first invalid range, named `"roll"`, `"yaw"` or `"pitch"`.
+    pub fn from_degrees(roll: [f64; 2], yaw: [f64; 2], pitch: [f64; 2]) -> Result<Self, ParameterError> {
+        Ok(Self {
+            roll: AngleRange::from_degrees("roll", roll[0], roll[1])?,
+            yaw: AngleRange::from_degrees("yaw", yaw[0], yaw[1])?,
+            pitch: AngleRange::from_degrees("pitch", pitch[0], pitch[1])?,
+        })
+    }
+
+    /// The whole attitude space: roll and yaw in [-180, 180], pitch in [-90, 90] degrees.
+    pub fn full() -> Self {
+        Self::from_degrees([-180.0, 180.0], [-180.0, 180.0], [-90.0, 90.0]).expect("constant box is valid")
+    }
+
+    /// The three ranges in the order of \[P1\] eq. (16): roll, yaw, pitch.
+    pub fn ranges(&self) -> [AngleRange; 3] {
+        [self.roll, self.yaw, self.pitch]
+    }
+
+    /// `true` when the attitude lies inside the box (each angle in its closed range).
+    pub fn contains(&self, attitude: &Attitude) -> bool {
+        self.roll.contains(attitude.roll) && self.yaw.contains(attitude.yaw) && self.pitch.contains(attitude.pitch)
+    }
+
+    /// The attitude clamped into the box (yaw wrapped when the yaw range is a full turn).
+    pub fn confine(&self, attitude: &Attitude) -> Attitude {
+        Attitude {
+            roll: self.roll.confine(attitude.roll),
+            yaw: self.yaw.confine(attitude.yaw),
+            pitch: self.pitch.confine(attitude.pitch),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::small::{mat_mul, transpose};
+
+    fn rx(r: f64) -> Mat3 {
+        let (s, c) = r.sin_cos();
+        [[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]]
+    }
+    fn rz(p: f64) -> Mat3 {
+        let (s, c) = p.sin_cos();
+        [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]
+    }
+    fn ry(y: f64) -> Mat3 {
+        let (s, c) = y.sin_cos();
+        [[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]]
+    }
+
+    #[test]
+    fn dcm_is_the_product_of_eq_2_and_orthonormal() {
+        for (r, y, p) in [(0.1, -2.0, 0.3), (-3.0, 1.0, 1.5), (0.0, 0.0, 0.0), (2.5, 3.1, -1.2)] {
+            let a = Attitude {
+                roll: r,
+                yaw: y,
+                pitch: p,
+            };
+            let c = a.dcm();
+            let want = mat_mul(&mat_mul(&rx(r), &rz(p)), &ry(y));
+            let ctc = mat_mul(&transpose(&c), &c);
+            for i in 0..3 {
+                for j in 0..3 {
+                    assert!((c[i][j] - want[i][j]).abs() <= 4.0 * f64::EPSILON);
+                    let id = if i == j { 1.0 } else { 0.0 };
+                    assert!((ctc[i][j] - id).abs() <= 8.0 * f64::EPSILON);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn frames_follow_conventions() {
+        // Level, yaw 0: the nose points north, so the body field equals the NUE field.
+        let c = Attitude::from_degrees(0.0, 0.0, 0.0).dcm();
+        assert_eq!(c, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        // Pitch up 90 degrees: the nose points up, so the Up component of B^n appears on body x.
+        let c = Attitude::from_degrees(0.0, 0.0, 90.0).dcm();
+        let b = crate::small::mat_vec(&c, [0.0, 1.0, 0.0]);
+        assert!((b[0] - 1.0).abs() < 1e-15 && b[1].abs() < 1e-15 && b[2].abs() < 1e-15);
+    }
+
+    #[test]
+    fn boxes_validate_and_confine() {
+        assert!(matches!(
+            AttitudeBox::from_degrees([5.0, -5.0], [-180.0, 180.0], [-20.0, 20.0]),
+            Err(ParameterError::EmptyRange { name: "roll", .. })
+        ));
+        assert!(matches!(
+            AttitudeBox::from_degrees([-5.0, 5.0], [0.0, 0.0], [-20.0, 20.0]),
+            Err(ParameterError::EmptyRange { name: "yaw", .. })
+        ));
+        assert!(matches!(
+            AttitudeBox::from_degrees([-5.0, 5.0], [-180.0, 180.0], [f64::NAN, 20.0]),
+            Err(ParameterError::NonFinite { name: "pitch", .. })
+        ));
+        let b = AttitudeBox::from_degrees([-5.0, 5.0], [-180.0, 180.0], [-20.0, 20.0]).unwrap();
+        assert!(b.yaw.is_full_turn() && !b.roll.is_full_turn());
+        let c = b.confine(&Attitude::from_degrees(9.0, 190.0, -25.0));
+        let [r, y, p] = c.to_degrees();
+        assert!((r - 5.0).abs() < 1e-12 && (y + 170.0).abs() < 1e-12 && (p + 20.0).abs() < 1e-12);
+        assert!(b.contains(&c));
+        assert!(!b.contains(&Attitude::from_degrees(6.0, 0.0, 0.0)));
+    }
+}

@@ -1,0 +1,176 @@
+//! The two-step calibration of \[P1\] IV.C (after Gebre-Egziabher et al. 2006): a linear
+//! least-squares ellipsoid fit ([`step1`]), refined by nonlinear least squares ([`step2`]).
+//!
+//! ```
+//! use magcal_core::{TwoStep, paper};
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let field = paper::changsha_field();
+//! let truth = paper::true_error_model();
+//! let readings = truth.measure_all(&field.body_fields(&paper::uniformity_design()));
+//! let fit = TwoStep::default().calibrate(&readings, field.magnitude())?;
+//! assert!((fit.estimate().model.scale()[0] - 1.3).abs() < 1e-9);
+//! # Ok(())
+//! # }
+//! ```
+#![allow(non_snake_case)]
+
+mod errors;
+pub mod step1;
+pub mod step2;
+
+pub use errors::{CalibrationError, CalibrationStatus};
+pub use step2::Termination;
+
+use crate::linear_model::UNKNOWNS;
+use crate::sensor::ErrorModel;
+use crate::small::{Mat3, Vec3, mat_vec, norm, sub, upper_triangular_inverse};
+
+/// The estimate of one step: `P` and `O`, the error model they imply, and the fit's residual.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// `P = K^-1`, upper triangular with positive diagonal, dimensionless (\[P1\] eq. (6)).
+    pub p: Mat3,
+    /// `O`, nT (\[P1\] eq. (5)).
+    pub bias_nt: Vec3,
+    /// `(psi, S, O)` from `K = P^-1` (CONVENTIONS.md inverse map).
+    pub model: ErrorModel,
+    /// RMS of `|P (b_i - O)| - R` over the readings, nT.
+    pub rms_residual_nt: f64,
+}
+
+impl Estimate {
+    /// An estimate from `P` and `O`; the residual is evaluated on `readings`.
+    fn new(p: Mat3, bias_nt: Vec3, readings: &[Vec3], field_magnitude_nt: f64) -> Self {
+        Self::checked(p, bias_nt, readings, field_magnitude_nt).expect("P from a Cholesky factor is invertible")
+    }
+
+    /// As [`Self::new`], but a singular or non-finite `P` is an error rather than a bug.
+    fn checked(p: Mat3, bias_nt: Vec3, readings: &[Vec3], field_magnitude_nt: f64) -> Result<Self, CalibrationError> {
+        let k = upper_triangular_inverse(&p).ok_or(CalibrationError::NotPositiveDefinite {
+            reason: "estimated P is singular",
+        })?;
+        if !(p[0][0] > 0.0 && p[1][1] > 0.0 && p[2][2] > 0.0 && bias_nt.iter().all(|v| v.is_finite())) {
+            return Err(CalibrationError::NotPositiveDefinite {
+                reason: "estimated P or O is not finite",
+            });
+        }
+        let sum_sq: f64 = readings
+            .iter()
+            .map(|&b| (norm(mat_vec(&p, sub(b, bias_nt))) - field_magnitude_nt).powi(2))
+            .sum();
+        Ok(Self {
+            p,
+            bias_nt,
+            model: ErrorModel::from_k(&k, bias_nt),
+            rms_residual_nt: (sum_sq / readings.len() as f64).sqrt(),
+        })
+    }
+}
+
+/// Settings of the two-step calibration. The defaults suit readings in nT of any magnitude: the
+/// tolerances apply to the problem scaled by the field magnitude `R`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TwoStep {
+    /// Iteration limit of step 2. Default 100.
+    pub max_iterations: usize,
+    /// Step 2 stops when every component of `J^T r` (scaled problem) is at most this. Default 1e-13.
+    pub gradient_tolerance: f64,
+    /// Step 2 stops when `|h| <= tol (|x| + tol)`. Default 1e-12.
+    pub step_tolerance: f64,
+    /// Step 2 stops when an accepted step reduces the cost by at most `tol` times the cost.
+    /// Default 1e-12.
+    pub cost_tolerance: f64,
+}
+
+impl Default for TwoStep {
+    fn default() -> Self {
+        Self {
+            max_iterations: 100,
+            gradient_tolerance: 1e-13,
+            step_tolerance: 1e-12,
+            cost_tolerance: 1e-12,
+        }
+    }
+}
+
+/// The result of a successful two-step calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    /// Step 1, the linear fit of \[P1\] eq. (11).
+    pub step1: Estimate,
+    /// Step 2, refined from step 1; the estimate to use.
+    pub step2: Estimate,
+    /// Step 2 iterations (damped normal-equation solves).
+    pub iterations: usize,
+    /// Why step 2 stopped.
+    pub termination: Termination,
+}
+
+impl Calibration {
+    /// The final estimate (step 2).
+    pub fn estimate(&self) -> &Estimate {
+        &self.step2
+    }
+
+    /// [`CalibrationStatus::Ok`] or, when step 2 hit its iteration limit, `NotConverged`.
+    pub fn status(&self) -> CalibrationStatus {
+        if self.termination.converged() {
+            CalibrationStatus::Ok
+        } else {
+            CalibrationStatus::NotConverged
+        }
+    }
+}
+
+/// What a calibration attempt yields: estimates or the reason there are none.
+pub type CalibrationOutcome = Result<Calibration, CalibrationError>;
+
+impl TwoStep {
+    /// Calibrates from `readings` (nT, at least 9) of a field of magnitude `field_magnitude_nt`
+    /// (`R`, nT): step 1 ([`step1::linear_fit`]) then step 2 (Levenberg-Marquardt on
+    /// `|P (b_i - O)| - R`).
+    ///
+    /// # Errors
+    /// See [`CalibrationError`]; none of them panics, and step 2 reaching its iteration limit is not
+    /// an error but [`CalibrationStatus::NotConverged`].
+    pub fn calibrate(&self, readings: &[Vec3], field_magnitude_nt: f64) -> CalibrationOutcome {
+        let step1 = step1::linear_fit(readings, field_magnitude_nt)?;
+        let refined = step2::refine(self, &step1, readings, field_magnitude_nt)?;
+        Ok(Calibration {
+            step1,
+            step2: refined.estimate,
+            iterations: refined.iterations,
+            termination: refined.termination,
+        })
+    }
+}
+
+/// Checks the inputs common to both steps.
+fn validate(readings: &[Vec3], field_magnitude_nt: f64) -> Result<(), CalibrationError> {
+    if !(field_magnitude_nt.is_finite() && field_magnitude_nt > 0.0) {
+        return Err(CalibrationError::InvalidFieldMagnitude {
+            value: field_magnitude_nt,
+        });
+    }
+    if readings.len() < UNKNOWNS {
+        return Err(CalibrationError::TooFewReadings {
+            got: readings.len(),
+            needed: UNKNOWNS,
+        });
+    }
+    for (index, r) in readings.iter().enumerate() {
+        for (component, &value) in r.iter().enumerate() {
+            if !value.is_finite() {
+                return Err(CalibrationError::NonFiniteReading {
+                    index,
+                    component,
+                    value,
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

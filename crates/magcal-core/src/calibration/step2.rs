@@ -1,0 +1,204 @@
+//! Step 2: nonlinear least squares on the 9 parameters (6 of `P`, 3 of `O`) with residual
+//! `|P (b_i - O)| - R`, by Levenberg-Marquardt, started from step 1 (\[P1\] IV.C, after
+//! Gebre-Egziabher et al. 2006).
+//!
+//! Written here rather than taken from a crate: the Levenberg-Marquardt crates on crates.io are
+//! built on nalgebra (a second linear-algebra family, which the project excludes), and argmin's
+//! Gauss-Newton needs an argmin-math backend that faer is not. The problem has exactly 9
+//! parameters, so the damped normal equations are a fixed 9x9 system solved by
+//! [`crate::small::cholesky_in_place`] without allocation.
+// Index loops mirror the matrix algebra they implement.
+#![allow(clippy::needless_range_loop)]
+#![allow(non_snake_case)]
+
+use super::errors::CalibrationError;
+use super::{Estimate, TwoStep};
+use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_solve, mat_t_vec, mat_vec, norm, scale, sub};
+
+/// Number of parameters of step 2: `P11, P12, P13, P22, P23, P33, O1, O2, O3`.
+pub const PARAMETERS: usize = 9;
+
+/// Why step 2 stopped (the `TerminationReason` of the fit).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum Termination {
+    /// The gradient `J^T r` fell below the gradient tolerance (converged).
+    Gradient,
+    /// The step fell below the step tolerance relative to the parameters (converged).
+    StepSize,
+    /// An accepted step reduced the cost by less than the cost tolerance, relatively (converged).
+    CostReduction,
+    /// The iteration limit was reached before any convergence test passed.
+    MaxIterations,
+}
+
+impl Termination {
+    /// `true` for the three convergence tests, `false` for the iteration limit.
+    pub fn converged(&self) -> bool {
+        !matches!(self, Self::MaxIterations)
+    }
+
+    /// A stable snake_case name: `gradient`, `step_size`, `cost_reduction`, `max_iterations`.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Self::Gradient => "gradient",
+            Self::StepSize => "step_size",
+            Self::CostReduction => "cost_reduction",
+            Self::MaxIterations => "max_iterations",
+        }
+    }
+}
+
+/// Parameters `x` from `P` (upper triangle, row by row) and the scaled bias `o = O / R`.
+pub(crate) fn pack(P: &Mat3, o: Vec3) -> [f64; PARAMETERS] {
+    [P[0][0], P[0][1], P[0][2], P[1][1], P[1][2], P[2][2], o[0], o[1], o[2]]
+}
+
+/// `P` and `o` from the parameters.
+pub(crate) fn unpack(x: &[f64; PARAMETERS]) -> (Mat3, Vec3) {
+    (
+        [[x[0], x[1], x[2]], [0.0, x[3], x[4]], [0.0, 0.0, x[5]]],
+        [x[6], x[7], x[8]],
+    )
+}
+
+/// Residual `|P (u - o)| - 1` of one reading `u = b / R` and its gradient with respect to `x`:
+/// `d/dP_jk = v_j d_k / |v|`, `d/do = -P^T v / |v|`, with `d = u - o`, `v = P d`.
+#[inline]
+pub(crate) fn residual_and_gradient(x: &[f64; PARAMETERS], u: Vec3) -> (f64, [f64; PARAMETERS]) {
+    let (P, o) = unpack(x);
+    let d = sub(u, o);
+    let v = mat_vec(&P, d);
+    let n = norm(v);
+    let w = scale(1.0 / n, v);
+    let go = scale(-1.0, mat_t_vec(&P, w));
+    (
+        n - 1.0,
+        [
+            w[0] * d[0],
+            w[0] * d[1],
+            w[0] * d[2],
+            w[1] * d[1],
+            w[1] * d[2],
+            w[2] * d[2],
+            go[0],
+            go[1],
+            go[2],
+        ],
+    )
+}
+
+/// Half the sum of squared scaled residuals, `0.5 sum (|P(u_i - o)| - 1)^2`.
+fn cost(x: &[f64; PARAMETERS], u: &[Vec3]) -> f64 {
+    let (P, o) = unpack(x);
+    0.5 * u
+        .iter()
+        .map(|&ui| (norm(mat_vec(&P, sub(ui, o))) - 1.0).powi(2))
+        .sum::<f64>()
+}
+
+/// `J^T J` (lower triangle filled) and `J^T r` at `x`.
+fn normal_equations(x: &[f64; PARAMETERS], u: &[Vec3]) -> ([[f64; PARAMETERS]; PARAMETERS], [f64; PARAMETERS]) {
+    let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
+    let mut jtr = [0.0; PARAMETERS];
+    for &ui in u {
+        let (r, g) = residual_and_gradient(x, ui);
+        for i in 0..PARAMETERS {
+            jtr[i] += g[i] * r;
+            for j in 0..=i {
+                jtj[i][j] += g[i] * g[j];
+            }
+        }
+    }
+    (jtj, jtr)
+}
+
+/// The outcome of step 2.
+pub(crate) struct Refined {
+    pub estimate: Estimate,
+    pub iterations: usize,
+    pub termination: Termination,
+}
+
+/// Levenberg-Marquardt from `start` (step 1), with Marquardt's diagonal scaling and Nielsen's
+/// damping update (Madsen, Nielsen, Tingleff, *Methods for non-linear least squares problems*,
+/// 2004, Algorithm 3.16).
+pub(crate) fn refine(
+    settings: &TwoStep,
+    start: &Estimate,
+    readings: &[Vec3],
+    field_magnitude_nt: f64,
+) -> Result<Refined, CalibrationError> {
+    let R = field_magnitude_nt;
+    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
+    let mut x = pack(&start.p, scale(1.0 / R, start.bias_nt));
+    let mut f = cost(&x, &u);
+    let (mut jtj, mut g) = normal_equations(&x, &u);
+    let max_diag = (0..PARAMETERS).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
+    let mut mu = 1e-3 * max_diag;
+    let mut nu = 2.0;
+    let mut iterations = 0;
+    let termination = loop {
+        if g.iter().all(|gi| gi.abs() <= settings.gradient_tolerance) {
+            break Termination::Gradient;
+        }
+        if iterations >= settings.max_iterations {
+            break Termination::MaxIterations;
+        }
+        iterations += 1;
+        // (J^T J + mu diag(J^T J)) h = -J^T r
+        let mut damped = jtj;
+        let mut diag = [0.0; PARAMETERS];
+        for i in 0..PARAMETERS {
+            diag[i] = jtj[i][i].max(f64::MIN_POSITIVE);
+            damped[i][i] += mu * diag[i];
+        }
+        if !cholesky_in_place(&mut damped) {
+            // Only reachable with a degenerate Jacobian: more damping makes the system definite.
+            mu *= nu;
+            nu *= 2.0;
+            continue;
+        }
+        let h = cholesky_solve(&damped, &g.map(|v| -v));
+        let h_norm = h.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if h_norm <= settings.step_tolerance * (x_norm + settings.step_tolerance) {
+            break Termination::StepSize;
+        }
+        let x_new: [f64; PARAMETERS] = std::array::from_fn(|i| x[i] + h[i]);
+        let f_new = cost(&x_new, &u);
+        // Predicted reduction L(0) - L(h) = 0.5 h^T (mu D h - g).
+        let predicted: f64 = 0.5
+            * (0..PARAMETERS)
+                .map(|i| h[i] * (mu * diag[i] * h[i] - g[i]))
+                .sum::<f64>();
+        let rho = (f - f_new) / predicted;
+        if f_new.is_finite() && rho > 0.0 {
+            let reduction = f - f_new;
+            x = x_new;
+            f = f_new;
+            (jtj, g) = normal_equations(&x, &u);
+            mu *= (1.0_f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
+            nu = 2.0;
+            if reduction <= settings.cost_tolerance * f {
+                break Termination::CostReduction;
+            }
+        } else {
+            mu *= nu;
+            nu *= 2.0;
+        }
+    };
+
+    // |P d| is unchanged when a row of P changes sign; keep the positive-diagonal representative.
+    let (mut P, o) = unpack(&x);
+    for row in P.iter_mut() {
+        let diag_sign = row.iter().find(|v| **v != 0.0).copied().unwrap_or(1.0).signum();
+        *row = row.map(|v| v * diag_sign);
+    }
+    let estimate = Estimate::checked(P, scale(R, o), readings, R)?;
+    Ok(Refined {
+        estimate,
+        iterations,
+        termination,
+    })
+}

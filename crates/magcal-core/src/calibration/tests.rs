@@ -1,0 +1,243 @@
+use super::step2::{PARAMETERS, pack, residual_and_gradient};
+use super::*;
+use crate::attitude::{Attitude, AttitudeBox};
+use crate::metrics::RelativeErrors;
+use crate::paper;
+use crate::rng::stream_rng;
+use crate::small::scale;
+use proptest::prelude::*;
+use rand::{Rng, RngExt};
+
+fn random_attitudes<R: Rng>(b: &AttitudeBox, m: usize, rng: &mut R) -> Vec<Attitude> {
+    (0..m)
+        .map(|_| Attitude {
+            roll: rng.random_range(b.roll.min()..=b.roll.max()),
+            yaw: rng.random_range(b.yaw.min()..=b.yaw.max()),
+            pitch: rng.random_range(b.pitch.min()..=b.pitch.max()),
+        })
+        .collect()
+}
+
+fn random_truth<R: Rng>(rng: &mut R) -> ErrorModel {
+    let psi = std::array::from_fn(|_| rng.random_range(-5.0..5.0));
+    let s = std::array::from_fn(|_| rng.random_range(0.5..2.0));
+    // |O| <= 20000 nT: a uniform direction, magnitude uniform in [0, 20000].
+    let o = loop {
+        let v: Vec3 = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+        let n = crate::small::norm(v);
+        if n > 1e-3 && n <= 1.0 {
+            break scale(rng.random_range(0.0..20_000.0) / n, v);
+        }
+    };
+    ErrorModel::new(psi, s, o).unwrap()
+}
+
+fn max_relative_error(est: &ErrorModel, truth: &ErrorModel) -> f64 {
+    let e = RelativeErrors::between(est, truth);
+    // eta is in percent; relative = eta / 100. A zero bias makes eta_O undefined: use absolute nT / R.
+    let bias = if crate::small::norm(truth.bias_nt()) > 0.0 {
+        e.bias
+    } else {
+        0.0
+    };
+    e.psi.max(e.scale).max(bias) / 100.0
+}
+
+#[test]
+fn noise_free_recovery_of_the_paper_truth() {
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    for design in [paper::uniformity_design(), paper::table2_d_optimal()] {
+        let readings = truth.measure_all(&field.body_fields(&design));
+        let fit = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap();
+        for est in [&fit.step1, &fit.step2] {
+            let err = max_relative_error(&est.model, &truth);
+            assert!(err <= 1e-8, "relative error {err:e}");
+        }
+        assert_eq!(fit.status(), CalibrationStatus::Ok);
+    }
+}
+
+#[test]
+fn noise_free_recovery_of_random_truths_on_random_designs() {
+    // >= 100 random truths (psi within +-5 deg, S in [0.5, 2], |O| <= 20000 nT), each on a random
+    // design of 9 and one of 30 attitudes in the full attitude space. Every one must be recovered to
+    // 1e-8 relative by both steps.
+    let field = paper::changsha_field();
+    let full = AttitudeBox::full();
+    let mut rng = stream_rng(42, 0);
+    let mut worst: f64 = 0.0;
+    for _ in 0..200 {
+        let truth = random_truth(&mut rng);
+        for m in [9, 30] {
+            let design = random_attitudes(&full, m, &mut rng);
+            let readings = truth.measure_all(&field.body_fields(&design));
+            let fit = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap();
+            for est in [&fit.step1, &fit.step2] {
+                worst = worst.max(max_relative_error(&est.model, &truth));
+            }
+            assert!(fit.termination.converged());
+        }
+    }
+    assert!(worst <= 1e-8, "worst relative error {worst:e}");
+}
+
+#[test]
+fn step2_cannot_move_an_exact_nine_point_fit() {
+    // With m = 9 the quadric through the readings is exact (CONVENTIONS.md): step 2 must agree with
+    // step 1 to ~1e-9 even on noisy readings.
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let body = field.body_fields(&paper::uniformity_design());
+    let mut moved: f64 = 0.0;
+    for trial in 0..200 {
+        let mut rng = stream_rng(7, trial);
+        let readings = truth.noisy_readings(&body, 30.0, &mut rng).unwrap();
+        let Ok(fit) = TwoStep::default().calibrate(&readings, field.magnitude()) else {
+            continue;
+        };
+        assert!(fit.step1.rms_residual_nt <= 1e-6, "{}", fit.step1.rms_residual_nt);
+        for i in 0..3 {
+            for j in i..3 {
+                moved = moved.max((fit.step2.p[i][j] - fit.step1.p[i][j]).abs() / fit.step1.p[i][i].abs());
+            }
+            moved = moved.max((fit.step2.bias_nt[i] - fit.step1.bias_nt[i]).abs() / field.magnitude());
+        }
+    }
+    assert!(moved <= 1e-9, "step 2 moved by {moved:e}");
+}
+
+#[test]
+fn step2_never_increases_the_residual_with_thirty_readings() {
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let auv = paper::auv_box();
+    let mut improved = 0;
+    for trial in 0..300 {
+        let mut rng = stream_rng(9, trial);
+        let design = random_attitudes(&auv, 30, &mut rng);
+        let readings = truth
+            .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
+            .unwrap();
+        let Ok(fit) = TwoStep::default().calibrate(&readings, field.magnitude()) else {
+            continue;
+        };
+        let (r1, r2) = (fit.step1.rms_residual_nt, fit.step2.rms_residual_nt);
+        assert!(r2 <= r1 * (1.0 + 1e-12), "trial {trial}: step 2 {r2} > step 1 {r1}");
+        assert!(fit.termination.converged(), "trial {trial}: {:?}", fit.termination);
+        if r2 < r1 * (1.0 - 1e-6) {
+            improved += 1;
+        }
+    }
+    // Step 1 minimises the algebraic distance, not |P(b - O)| - R, so step 2 must actually improve
+    // the geometric residual in most noisy trials, else it is not doing its job.
+    assert!(improved >= 250, "step 2 improved only {improved} of 300 trials");
+}
+
+#[test]
+fn step2_reports_not_converged_at_its_iteration_limit() {
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let mut rng = stream_rng(10, 0);
+    let design = random_attitudes(&paper::auv_box(), 30, &mut rng);
+    let readings = truth
+        .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
+        .unwrap();
+    let settings = TwoStep {
+        max_iterations: 0,
+        ..TwoStep::default()
+    };
+    let fit = settings.calibrate(&readings, field.magnitude()).unwrap();
+    assert_eq!(fit.termination, Termination::MaxIterations);
+    assert_eq!(fit.status(), CalibrationStatus::NotConverged);
+    assert_eq!(fit.step2.p, fit.step1.p);
+    let fit = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap();
+    assert!(fit.iterations >= 1 && fit.iterations < 100, "{}", fit.iterations);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 256, .. ProptestConfig::default() })]
+
+    /// The analytic gradient of the step-2 residual against central differences.
+    #[test]
+    fn step2_jacobian_matches_central_differences(
+        p_diag in prop::array::uniform3(0.3f64..3.0),
+        p_off in prop::array::uniform3(-0.5f64..0.5),
+        o in prop::array::uniform3(-0.5f64..0.5),
+        u in prop::array::uniform3(-2.0f64..2.0),
+    ) {
+        let P = [[p_diag[0], p_off[0], p_off[1]], [0.0, p_diag[1], p_off[2]], [0.0, 0.0, p_diag[2]]];
+        let x = pack(&P, o);
+        let (r0, g) = residual_and_gradient(&x, u);
+        prop_assume!(r0 + 1.0 > 1e-2); // |P(u - o)| away from 0, where the residual is smooth
+        for k in 0..PARAMETERS {
+            let h = 1e-6 * x[k].abs().max(1.0);
+            let (mut xp, mut xm) = (x, x);
+            xp[k] += h;
+            xm[k] -= h;
+            let fd = (residual_and_gradient(&xp, u).0 - residual_and_gradient(&xm, u).0) / (2.0 * h);
+            // Central differences: truncation O(h^2 f'''), rounding O(eps |r| / h).
+            let tol = 1e-7 * (1.0 + g[k].abs());
+            prop_assert!((fd - g[k]).abs() <= tol, "parameter {}: analytic {} vs fd {}", k, g[k], fd);
+        }
+    }
+}
+
+#[test]
+fn fewer_than_nine_readings_is_an_error() {
+    let field = paper::changsha_field();
+    let readings = paper::true_error_model().measure_all(&field.body_fields(&paper::uniformity_design()[..8]));
+    let err = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap_err();
+    assert_eq!(err, CalibrationError::TooFewReadings { got: 8, needed: 9 });
+    assert_eq!(err.status(), CalibrationStatus::TooFewReadings);
+}
+
+#[test]
+fn all_readings_at_one_attitude_is_rank_deficient() {
+    let field = paper::changsha_field();
+    let design = vec![Attitude::from_degrees(1.0, 20.0, 3.0); 12];
+    let readings = paper::true_error_model().measure_all(&field.body_fields(&design));
+    let err = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap_err();
+    assert_eq!(err, CalibrationError::RankDeficient { rank: 1, needed: 9 });
+    assert_eq!(err.status().as_str(), "rank_deficient");
+}
+
+#[test]
+fn readings_on_a_hyperboloid_are_not_an_ellipsoid() {
+    // Points on x^2 + y^2 - z^2 = R^2 (a hyperboloid of one sheet), offset by a bias.
+    let r = 48_000.0;
+    let readings: Vec<Vec3> = (0..20)
+        .map(|i| {
+            let t = -1.0 + 0.1 * i as f64;
+            let phi = 0.7 * i as f64;
+            [
+                r * t.cosh() * phi.cos() + 1000.0,
+                r * t.cosh() * phi.sin() - 500.0,
+                r * t.sinh() + 200.0,
+            ]
+        })
+        .collect();
+    let err = TwoStep::default().calibrate(&readings, r).unwrap_err();
+    assert!(matches!(err, CalibrationError::NotPositiveDefinite { .. }), "{err:?}");
+    assert_eq!(err.status(), CalibrationStatus::NotPositiveDefinite);
+}
+
+#[test]
+fn non_finite_input_is_an_error() {
+    let field = paper::changsha_field();
+    let clean = paper::true_error_model().measure_all(&field.body_fields(&paper::uniformity_design()));
+    for (index, component, value) in [(3, 1, f64::NAN), (8, 2, f64::INFINITY), (0, 0, f64::NEG_INFINITY)] {
+        let mut readings = clean.clone();
+        readings[index][component] = value;
+        let err = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap_err();
+        assert!(
+            matches!(err, CalibrationError::NonFiniteReading { index: i, component: c, .. } if i == index && c == component),
+            "{err:?}"
+        );
+        assert_eq!(err.status(), CalibrationStatus::NonFiniteInput);
+    }
+    for bad_r in [0.0, -1.0, f64::NAN] {
+        let err = TwoStep::default().calibrate(&clean, bad_r).unwrap_err();
+        assert!(matches!(err, CalibrationError::InvalidFieldMagnitude { .. }));
+    }
+}

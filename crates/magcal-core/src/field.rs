@@ -1,0 +1,120 @@
+//! The reference geomagnetic field of \[P1\] eq. (1) and its projection into the body frame.
+
+use crate::attitude::Attitude;
+use crate::error::{ParameterError, finite};
+use crate::small::{Vec3, mat_vec, norm};
+
+/// The homogeneous reference field at the calibration site (\[P1\] II.A).
+///
+/// Given as the World Magnetic Model reports it, North-East-Down components in nT, and stored as
+/// `B^n = (X, -Z, Y)` in the paper's North-Up-East n-frame (CONVENTIONS.md).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReferenceField {
+    ned_nt: Vec3,
+    b_n: Vec3,
+    yaw_offset: f64,
+}
+
+impl ReferenceField {
+    /// The field from its WMM components: `x` north, `y` east, `z` down, all in nT.
+    ///
+    /// # Errors
+    /// A component that is not finite, or a zero field.
+    pub fn from_ned(x_nt: f64, y_nt: f64, z_nt: f64) -> Result<Self, ParameterError> {
+        let x = finite("field.north_nt", x_nt)?;
+        let y = finite("field.east_nt", y_nt)?;
+        let z = finite("field.down_nt", z_nt)?;
+        let b_n = [x, -z, y];
+        if norm(b_n) == 0.0 || !norm(b_n).is_finite() {
+            return Err(ParameterError::NotPositive {
+                name: "field magnitude",
+                value: norm(b_n),
+            });
+        }
+        Ok(Self {
+            ned_nt: [x, y, z],
+            b_n,
+            yaw_offset: 0.0,
+        })
+    }
+
+    /// The same field with `yaw_offset_deg` (degrees) added to every yaw before \[P1\] eq. (2).
+    /// Default 0: yaw 0 puts the nose on north (CONVENTIONS.md explains when 90 matters).
+    ///
+    /// # Errors
+    /// A non-finite offset.
+    pub fn with_yaw_offset_deg(mut self, yaw_offset_deg: f64) -> Result<Self, ParameterError> {
+        self.yaw_offset = finite("field.yaw_offset_deg", yaw_offset_deg)?.to_radians();
+        Ok(self)
+    }
+
+    /// `(X north, Y east, Z down)` in nT, as given.
+    pub fn ned_nt(&self) -> Vec3 {
+        self.ned_nt
+    }
+
+    /// `B^n` in (North, Up, East), nT.
+    pub fn b_n(&self) -> Vec3 {
+        self.b_n
+    }
+
+    /// `R = |B^n|`, nT (\[P1\] eq. (7)).
+    pub fn magnitude(&self) -> f64 {
+        norm(self.b_n)
+    }
+
+    /// The yaw offset, degrees.
+    pub fn yaw_offset_deg(&self) -> f64 {
+        self.yaw_offset.to_degrees()
+    }
+
+    /// The field in the body frame at `attitude`: `B^b = C_n^b B^n`, \[P1\] eq. (1)-(2), with the yaw
+    /// offset added to the attitude's yaw. nT.
+    pub fn body_field(&self, attitude: &Attitude) -> Vec3 {
+        let shifted = Attitude {
+            yaw: attitude.yaw + self.yaw_offset,
+            ..*attitude
+        };
+        mat_vec(&shifted.dcm(), self.b_n)
+    }
+
+    /// [`Self::body_field`] for every attitude of a design, in order.
+    pub fn body_fields(&self, attitudes: &[Attitude]) -> Vec<Vec3> {
+        attitudes.iter().map(|a| self.body_field(a)).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::paper;
+
+    #[test]
+    #[allow(clippy::float_cmp)] // B^n is a permutation of the given numbers: exact
+    fn changsha_magnitude_matches_check_value() {
+        // CONVENTIONS.md check value: R = 48277.79 nT.
+        let f = paper::changsha_field();
+        assert!((f.magnitude() - 48277.79).abs() < 0.005, "{}", f.magnitude());
+        assert_eq!(f.b_n(), [35272.34, -32897.67, -2085.74]);
+    }
+
+    #[test]
+    fn body_field_preserves_magnitude_and_applies_offset() {
+        let f = paper::changsha_field();
+        let g = f.with_yaw_offset_deg(90.0).unwrap();
+        let a = Attitude::from_degrees(3.0, 10.0, -7.0);
+        let b = Attitude::from_degrees(3.0, 100.0, -7.0);
+        let (fa, gb) = (g.body_field(&a), f.body_field(&b));
+        for i in 0..3 {
+            assert!((fa[i] - gb[i]).abs() <= 1e-10);
+        }
+        assert!((norm(fa) - f.magnitude()).abs() <= 8.0 * f64::EPSILON * f.magnitude());
+    }
+
+    #[test]
+    fn bad_fields_are_errors() {
+        assert!(ReferenceField::from_ned(f64::NAN, 0.0, 1.0).is_err());
+        assert!(ReferenceField::from_ned(0.0, 0.0, 0.0).is_err());
+        assert!(paper::changsha_field().with_yaw_offset_deg(f64::INFINITY).is_err());
+    }
+}

@@ -1,0 +1,290 @@
+//! Fixed-size kernels for the 3x3 sensor matrices and the 9x9 information matrix.
+//!
+//! faer works on heap-allocated matrices of any size; the per-trial and per-particle hot paths of
+//! magcal only ever need 3x3 and 9x9 symmetric matrices, where an allocation and faer's dispatch cost
+//! more than the arithmetic. These kernels are plain arrays, never allocate, and are tested against
+//! faer (see the tests at the bottom of this file and `benches/calibration.rs` for the timings).
+//! Everything of general size (the m x 9 regression matrix, its QR and SVD) goes through faer.
+// Index loops mirror the matrix algebra they implement.
+#![allow(clippy::needless_range_loop)]
+
+/// A 3-vector (nT for fields and biases, dimensionless for directions).
+pub type Vec3 = [f64; 3];
+/// A 3x3 matrix, row-major: `m[row][col]`.
+pub type Mat3 = [[f64; 3]; 3];
+/// A 9x9 matrix, row-major: the shape of the information matrix of \[P1\] eq. (12).
+pub type Mat9 = [[f64; 9]; 9];
+
+/// `a . b`.
+#[inline]
+pub fn dot(a: Vec3, b: Vec3) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Euclidean norm `|a|`.
+#[inline]
+pub fn norm(a: Vec3) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// `a - b`.
+#[inline]
+pub fn sub(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// `a + b`.
+#[inline]
+pub fn add(a: Vec3, b: Vec3) -> Vec3 {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// `s a`.
+#[inline]
+pub fn scale(s: f64, a: Vec3) -> Vec3 {
+    [s * a[0], s * a[1], s * a[2]]
+}
+
+/// `M v`.
+#[inline]
+pub fn mat_vec(m: &Mat3, v: Vec3) -> Vec3 {
+    [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
+}
+
+/// `M^T v`.
+#[inline]
+pub fn mat_t_vec(m: &Mat3, v: Vec3) -> Vec3 {
+    [
+        m[0][0] * v[0] + m[1][0] * v[1] + m[2][0] * v[2],
+        m[0][1] * v[0] + m[1][1] * v[1] + m[2][1] * v[2],
+        m[0][2] * v[0] + m[1][2] * v[1] + m[2][2] * v[2],
+    ]
+}
+
+/// `A B`.
+#[inline]
+pub fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
+    let mut c = [[0.0; 3]; 3];
+    for (i, row) in c.iter_mut().enumerate() {
+        for (j, cij) in row.iter_mut().enumerate() {
+            *cij = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+        }
+    }
+    c
+}
+
+/// `A^T`.
+#[inline]
+pub fn transpose(a: &Mat3) -> Mat3 {
+    [
+        [a[0][0], a[1][0], a[2][0]],
+        [a[0][1], a[1][1], a[2][1]],
+        [a[0][2], a[1][2], a[2][2]],
+    ]
+}
+
+/// Inverse of an upper-triangular 3x3 matrix, itself upper triangular.
+///
+/// Returns `None` when a diagonal entry is zero or the result is not finite.
+pub fn upper_triangular_inverse(u: &Mat3) -> Option<Mat3> {
+    let [[a, b, c], [_, d, e], [_, _, f]] = *u;
+    let inv = [
+        [1.0 / a, -b / (a * d), (b * e - c * d) / (a * d * f)],
+        [0.0, 1.0 / d, -e / (d * f)],
+        [0.0, 0.0, 1.0 / f],
+    ];
+    inv.iter().flatten().all(|x| x.is_finite()).then_some(inv)
+}
+
+/// Solves `A x = b` for a general 3x3 `A` by Cramer's rule (adequate at this size: the
+/// determinant is checked against the scale of `A`).
+///
+/// Returns `None` when `A` is singular to working precision.
+pub fn solve3(a: &Mat3, b: Vec3) -> Option<Vec3> {
+    let cof = |r0: usize, r1: usize, c0: usize, c1: usize| a[r0][c0] * a[r1][c1] - a[r0][c1] * a[r1][c0];
+    let det = a[0][0] * cof(1, 2, 1, 2) - a[0][1] * cof(1, 2, 0, 2) + a[0][2] * cof(1, 2, 0, 1);
+    let scale = a.iter().flatten().fold(0.0_f64, |m, x| m.max(x.abs()));
+    if !det.is_finite() || det.abs() <= 64.0 * f64::EPSILON * scale * scale * scale {
+        return None;
+    }
+    let replace = |col: usize| {
+        let mut m = *a;
+        for (row, bi) in m.iter_mut().zip(b) {
+            row[col] = bi;
+        }
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    Some([replace(0) / det, replace(1) / det, replace(2) / det])
+}
+
+/// Cholesky factor of a symmetric positive definite `N x N` matrix, in place: on success the lower
+/// triangle (diagonal included) holds `L` with `A = L L^T`; the strict upper triangle is untouched.
+///
+/// Only the lower triangle of `a` is read. Returns `false`, leaving `a` partly overwritten, when a
+/// pivot is not positive or not finite (the matrix is not positive definite to working precision).
+#[inline]
+pub fn cholesky_in_place<const N: usize>(a: &mut [[f64; N]; N]) -> bool {
+    for j in 0..N {
+        let mut d = a[j][j];
+        for k in 0..j {
+            d -= a[j][k] * a[j][k];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return false;
+        }
+        let d = d.sqrt();
+        a[j][j] = d;
+        for i in (j + 1)..N {
+            let mut s = a[i][j];
+            for k in 0..j {
+                s -= a[i][k] * a[j][k];
+            }
+            a[i][j] = s / d;
+        }
+    }
+    true
+}
+
+/// `ln det A` of a symmetric positive definite matrix via its Cholesky factor, or `None` when it is
+/// not positive definite to working precision.
+#[inline]
+pub fn ln_det_spd<const N: usize>(a: &[[f64; N]; N]) -> Option<f64> {
+    let mut l = *a;
+    cholesky_in_place(&mut l).then(|| (0..N).map(|i| 2.0 * l[i][i].ln()).sum())
+}
+
+/// Solves `L L^T x = b` given the factor `L` from [`cholesky_in_place`] (lower triangle of `l`).
+#[inline]
+pub fn cholesky_solve<const N: usize>(l: &[[f64; N]; N], b: &[f64; N]) -> [f64; N] {
+    let mut y = *b;
+    for i in 0..N {
+        let mut s = y[i];
+        for k in 0..i {
+            s -= l[i][k] * y[k];
+        }
+        y[i] = s / l[i][i];
+    }
+    for i in (0..N).rev() {
+        let mut s = y[i];
+        for k in (i + 1)..N {
+            s -= l[k][i] * y[k];
+        }
+        y[i] = s / l[i][i];
+    }
+    y
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use faer::{Mat, Side};
+    use rand::{RngExt, SeedableRng, rngs::ChaCha8Rng};
+
+    fn random_spd<const N: usize>(rng: &mut ChaCha8Rng) -> [[f64; N]; N] {
+        // B^T B + I for a random B: symmetric positive definite, moderately conditioned.
+        let b: Vec<f64> = (0..N * N).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let mut a = [[0.0; N]; N];
+        for i in 0..N {
+            for j in 0..N {
+                a[i][j] = (0..N).map(|k| b[k * N + i] * b[k * N + j]).sum::<f64>() + if i == j { 1.0 } else { 0.0 };
+            }
+        }
+        a
+    }
+
+    #[test]
+    fn cholesky9_matches_faer() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..200 {
+            let a = random_spd::<9>(&mut rng);
+            let fa = Mat::from_fn(9, 9, |i, j| a[i][j]);
+            let llt = fa.llt(Side::Lower).expect("faer: SPD by construction");
+            let fl = llt.L();
+            let mut l = a;
+            assert!(cholesky_in_place(&mut l));
+            let scale = a.iter().flatten().fold(0.0_f64, |m, x| m.max(x.abs()));
+            for i in 0..9 {
+                for j in 0..=i {
+                    assert!(
+                        (l[i][j] - fl[(i, j)]).abs() <= 64.0 * f64::EPSILON * scale,
+                        "L[{i}][{j}]"
+                    );
+                }
+            }
+            let faer_ln_det: f64 = (0..9).map(|i| 2.0 * fl[(i, i)].ln()).sum();
+            let ln_det = ln_det_spd(&a).expect("SPD");
+            assert!((ln_det - faer_ln_det).abs() <= 64.0 * f64::EPSILON * faer_ln_det.abs().max(1.0));
+            // And against faer's determinant of the dense matrix.
+            let det = fa.determinant();
+            assert!((ln_det - det.ln()).abs() <= 1e3 * f64::EPSILON * ln_det.abs().max(1.0));
+        }
+    }
+
+    #[test]
+    fn cholesky_solve_satisfies_the_system() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        for _ in 0..100 {
+            let a = random_spd::<9>(&mut rng);
+            let b: [f64; 9] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let mut l = a;
+            assert!(cholesky_in_place(&mut l));
+            let x = cholesky_solve(&l, &b);
+            let norm_a = a.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+            let norm_x = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+            for i in 0..9 {
+                let r: f64 = (0..9).map(|j| a[i][j] * x[j]).sum::<f64>() - b[i];
+                assert!(r.abs() <= 128.0 * 9.0 * f64::EPSILON * norm_a * norm_x, "row {i}: {r}");
+            }
+        }
+    }
+
+    #[test]
+    fn not_positive_definite_is_reported() {
+        let mut a = [[0.0; 3]; 3];
+        a[0][0] = 1.0;
+        a[1][1] = -1.0;
+        a[2][2] = 1.0;
+        assert!(ln_det_spd(&a).is_none());
+        let nan = [[f64::NAN; 3]; 3];
+        assert!(ln_det_spd(&nan).is_none());
+    }
+
+    #[test]
+    fn small_inverses_are_inverses() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..200 {
+            let mut u = [[0.0; 3]; 3];
+            for i in 0..3 {
+                u[i][i] = rng.random_range(0.5..2.0);
+                for j in (i + 1)..3 {
+                    u[i][j] = rng.random_range(-0.5..0.5);
+                }
+            }
+            let inv = upper_triangular_inverse(&u).expect("non-singular");
+            let id = mat_mul(&u, &inv);
+            for (i, row) in id.iter().enumerate() {
+                for (j, v) in row.iter().enumerate() {
+                    let want = if i == j { 1.0 } else { 0.0 };
+                    assert!((v - want).abs() <= 16.0 * f64::EPSILON * 8.0);
+                }
+            }
+            let a: Mat3 = std::array::from_fn(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)));
+            let b: Vec3 = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            if let Some(x) = solve3(&a, b) {
+                let fa = Mat::from_fn(3, 3, |i, j| a[i][j]);
+                let cond = {
+                    let s = fa.singular_values().expect("svd");
+                    s[0] / s[2]
+                };
+                let r = sub(mat_vec(&a, x), b);
+                assert!(
+                    norm(r) <= 64.0 * f64::EPSILON * cond * (norm(b) + 1.0),
+                    "residual {r:?}"
+                );
+            }
+        }
+        assert!(upper_triangular_inverse(&[[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
+        assert!(solve3(&[[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]], [1.0, 1.0, 1.0]).is_none());
+    }
+}
