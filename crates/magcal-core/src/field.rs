@@ -2,7 +2,7 @@
 
 use crate::attitude::Attitude;
 use crate::error::{ParameterError, finite};
-use crate::small::{Vec3, mat_vec, norm};
+use crate::small::{Vec3, norm};
 
 /// The homogeneous reference field at the calibration site (\[P1\] II.A).
 ///
@@ -70,12 +70,36 @@ impl ReferenceField {
 
     /// The field in the body frame at `attitude`: `B^b = C_n^b B^n`, \[P1\] eq. (1)-(2), with the yaw
     /// offset added to the attitude's yaw. nT.
+    ///
+    /// Applied as three plane rotations, `Rx(r) (Rz(p) (Ry(y) B^n))`, rather than by forming the
+    /// matrix: this is the inner loop of the design optimisers.
+    #[inline]
     pub fn body_field(&self, attitude: &Attitude) -> Vec3 {
-        let shifted = Attitude {
-            yaw: attitude.yaw + self.yaw_offset,
-            ..*attitude
-        };
-        mat_vec(&shifted.dcm(), self.b_n)
+        let [n, u, e] = self.b_n;
+        let (sr, cr) = attitude.roll.sin_cos();
+        let (sy, cy) = (attitude.yaw + self.yaw_offset).sin_cos();
+        let (sp, cp) = attitude.pitch.sin_cos();
+        let v1 = [cy * n - sy * e, u, sy * n + cy * e];
+        let v2 = [cp * v1[0] + sp * v1[1], -sp * v1[0] + cp * v1[1], v1[2]];
+        [v2[0], cr * v2[1] + sr * v2[2], -sr * v2[1] + cr * v2[2]]
+    }
+
+    /// The body field and its partial derivatives with respect to roll, yaw and pitch (nT per
+    /// radian), from \[P1\] eq. (2): with `v1 = Ry(y) B^n`, `v2 = Rz(p) v1`, `B^b = Rx(r) v2`,
+    /// `dB/dr = Rx'(r) v2`, `dB/dp = Rx(r) Rz'(p) v1`, `dB/dy = Rx(r) Rz(p) Ry'(y) B^n`.
+    pub fn body_field_and_derivatives(&self, attitude: &Attitude) -> (Vec3, [Vec3; 3]) {
+        let [n, u, e] = self.b_n;
+        let (sr, cr) = attitude.roll.sin_cos();
+        let (sy, cy) = (attitude.yaw + self.yaw_offset).sin_cos();
+        let (sp, cp) = attitude.pitch.sin_cos();
+        let v1 = [cy * n - sy * e, u, sy * n + cy * e];
+        let dv1 = [-sy * n - cy * e, 0.0, cy * n - sy * e];
+        let rz = |v: Vec3| [cp * v[0] + sp * v[1], -sp * v[0] + cp * v[1], v[2]];
+        let drz = |v: Vec3| [-sp * v[0] + cp * v[1], -cp * v[0] - sp * v[1], 0.0];
+        let rx = |v: Vec3| [v[0], cr * v[1] + sr * v[2], -sr * v[1] + cr * v[2]];
+        let drx = |v: Vec3| [0.0, -sr * v[1] + cr * v[2], -cr * v[1] - sr * v[2]];
+        let v2 = rz(v1);
+        (rx(v2), [drx(v2), rx(rz(dv1)), rx(drz(v1))])
     }
 
     /// [`Self::body_field`] for every attitude of a design, in order.
@@ -105,10 +129,46 @@ mod tests {
         let a = Attitude::from_degrees(3.0, 10.0, -7.0);
         let b = Attitude::from_degrees(3.0, 100.0, -7.0);
         let (fa, gb) = (g.body_field(&a), f.body_field(&b));
+        // The plane rotations agree with the matrix of [P1] eq. (2).
+        let via_dcm = crate::small::mat_vec(&a.dcm(), f.b_n());
+        let direct = f.body_field(&a);
+        for i in 0..3 {
+            assert!((via_dcm[i] - direct[i]).abs() <= 16.0 * f64::EPSILON * f.magnitude());
+        }
         for i in 0..3 {
             assert!((fa[i] - gb[i]).abs() <= 1e-10);
         }
         assert!((norm(fa) - f.magnitude()).abs() <= 8.0 * f64::EPSILON * f.magnitude());
+    }
+
+    #[test]
+    fn derivatives_match_central_differences() {
+        let f = paper::changsha_field().with_yaw_offset_deg(33.0).unwrap();
+        for a in [
+            Attitude::from_degrees(3.0, -120.0, 15.0),
+            Attitude::from_degrees(-170.0, 10.0, 80.0),
+            Attitude::from_degrees(0.0, 0.0, 0.0),
+        ] {
+            let (b, d) = f.body_field_and_derivatives(&a);
+            let b0 = f.body_field(&a);
+            for i in 0..3 {
+                assert!((b[i] - b0[i]).abs() <= 1e-10);
+            }
+            let h = 1e-6;
+            for (k, step) in [[h, 0.0, 0.0], [0.0, h, 0.0], [0.0, 0.0, h]].into_iter().enumerate() {
+                let shift = |s: f64| Attitude {
+                    roll: a.roll + s * step[0],
+                    yaw: a.yaw + s * step[1],
+                    pitch: a.pitch + s * step[2],
+                };
+                let (p, m) = (f.body_field(&shift(1.0)), f.body_field(&shift(-1.0)));
+                for i in 0..3 {
+                    let fd = (p[i] - m[i]) / (2.0 * h);
+                    // Truncation |B| h^2 / 6 plus rounding eps |B| / h, with |B| ~ 5e4 nT.
+                    assert!((fd - d[k][i]).abs() <= 1e-3, "angle {k} comp {i}: {fd} vs {}", d[k][i]);
+                }
+            }
+        }
     }
 
     #[test]

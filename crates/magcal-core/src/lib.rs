@@ -55,6 +55,7 @@
 
 pub mod attitude;
 pub mod calibration;
+pub mod design;
 pub mod error;
 pub mod field;
 pub mod linear_model;

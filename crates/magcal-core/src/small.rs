@@ -126,32 +126,47 @@ pub fn solve3(a: &Mat3, b: Vec3) -> Option<Vec3> {
 #[inline]
 pub fn cholesky_in_place<const N: usize>(a: &mut [[f64; N]; N]) -> bool {
     for j in 0..N {
-        let mut d = a[j][j];
-        for k in 0..j {
-            d -= a[j][k] * a[j][k];
-        }
+        let d = a[j][j] - dot_slices(&a[j][..j], &a[j][..j]);
         if !(d > 0.0 && d.is_finite()) {
             return false;
         }
         let d = d.sqrt();
         a[j][j] = d;
-        for i in (j + 1)..N {
-            let mut s = a[i][j];
-            for k in 0..j {
-                s -= a[i][k] * a[j][k];
-            }
-            a[i][j] = s / d;
+        // Column j below the diagonal: L[i][j] = (A[i][j] - L[i][..j] . L[j][..j]) / L[j][j].
+        let (upper, lower) = a.split_at_mut(j + 1);
+        let row_j = &upper[j][..j];
+        for row in lower.iter_mut() {
+            row[j] = (row[j] - dot_slices(&row[..j], row_j)) / d;
         }
     }
     true
 }
 
-/// `ln det A` of a symmetric positive definite matrix via its Cholesky factor, or `None` when it is
-/// not positive definite to working precision.
+/// `sum a_k b_k` over two slices of equal length.
+#[inline]
+fn dot_slices(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `ln det A` of a symmetric positive definite matrix, or `None` when it is not positive definite to
+/// working precision. Only the lower triangle is read.
+///
+/// Cholesky factorisation ([`cholesky_in_place`]) and one logarithm of the product of the squared
+/// pivots (the sum of logarithms only when that product would leave the normal range): this is the
+/// fitness kernel of the design optimisers, where nine logarithms would cost as much as the
+/// factorisation.
 #[inline]
 pub fn ln_det_spd<const N: usize>(a: &[[f64; N]; N]) -> Option<f64> {
     let mut l = *a;
-    cholesky_in_place(&mut l).then(|| (0..N).map(|i| 2.0 * l[i][i].ln()).sum())
+    if !cholesky_in_place(&mut l) {
+        return None;
+    }
+    let product: f64 = (0..N).map(|i| l[i][i] * l[i][i]).product();
+    if product.is_normal() {
+        Some(product.ln())
+    } else {
+        Some((0..N).map(|i| 2.0 * l[i][i].ln()).sum())
+    }
 }
 
 /// Solves `L L^T x = b` given the factor `L` from [`cholesky_in_place`] (lower triangle of `l`).

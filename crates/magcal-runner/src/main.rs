@@ -1,7 +1,7 @@
 //! `magcal`: the command line over `magcal-core`.
 //!
 //! The scenario runner (scenario files -> designs -> Monte Carlo trials -> CSV) is being built;
-//! see README.md "Status". Until it lands this binary prints the [P1] check values that the core
+//! see README.md "Status". Until it lands this binary prints the \[P1\] check values that the core
 //! reproduces, so that the command in the README does real work.
 
 use std::process::ExitCode;

@@ -1,0 +1,58 @@
+//! Design optimiser timings (\[P1\] III-IV): fitness per call, the paper's PSO (Table I), the
+//! multi-start optimum.
+//!
+//! `cargo bench -p magcal-core --bench design`. Thread count: rayon's default (all cores) unless
+//! `RAYON_NUM_THREADS` is set.
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use magcal_core::design::optimum::Optimum;
+use magcal_core::design::pso::Swarm;
+use magcal_core::design::{DesignCriterion, DesignProblem, to_vector};
+use magcal_core::paper;
+use magcal_core::rng::stream_rng;
+
+fn problem() -> DesignProblem {
+    DesignProblem::new(paper::changsha_field(), paper::true_error_model(), paper::auv_box(), 9).unwrap()
+}
+
+fn fitness(c: &mut Criterion) {
+    let p = problem();
+    let x = to_vector(&paper::table2_d_optimal());
+    c.bench_function("fitness/d_m9", |b| {
+        b.iter(|| p.fitness(DesignCriterion::D, black_box(&x)))
+    });
+    c.bench_function("fitness/a_m9", |b| {
+        b.iter(|| p.fitness(DesignCriterion::A, black_box(&x)))
+    });
+    let y = to_vector(&paper::uniformity_design());
+    c.bench_function("fitness/d_m9_lanes_x4", |b| {
+        b.iter(|| p.ln_det_lanes(black_box([x.as_slice(), y.as_slice(), x.as_slice(), y.as_slice()])))
+    });
+}
+
+fn optimisers(c: &mut Criterion) {
+    let p = problem();
+    let mut group = c.benchmark_group("optimiser");
+    group.sample_size(10);
+    let mut seed = 0;
+    group.bench_function("pso_table1_300x3000_m9", |b| {
+        b.iter(|| {
+            seed += 1;
+            Swarm::default().optimise(&p, &mut stream_rng(seed, 0)).unwrap().fitness
+        })
+    });
+    let mut seed = 0;
+    group.bench_function("optimum_default_m9", |b| {
+        b.iter(|| {
+            seed += 1;
+            let r = Optimum::default().optimise(&p, &mut stream_rng(seed, 0)).unwrap();
+            assert!(r.ln_det >= 314.5485, "seed {seed}: {}", r.ln_det);
+            r.ln_det
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, fitness, optimisers);
+criterion_main!(benches);
