@@ -6,6 +6,7 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use magcal_core::design::lanes::LANES;
 use magcal_core::design::optimum::Optimum;
 use magcal_core::design::pso::Swarm;
 use magcal_core::design::{DesignCriterion, DesignProblem, to_vector};
@@ -26,8 +27,9 @@ fn fitness(c: &mut Criterion) {
         b.iter(|| p.fitness(DesignCriterion::A, black_box(&x)))
     });
     let y = to_vector(&paper::uniformity_design());
-    c.bench_function("fitness/d_m9_lanes_x4", |b| {
-        b.iter(|| p.ln_det_lanes(black_box([x.as_slice(), y.as_slice(), x.as_slice(), y.as_slice()])))
+    let designs: [&[f64]; LANES] = std::array::from_fn(|l| if l % 2 == 0 { x.as_slice() } else { y.as_slice() });
+    c.bench_function(&format!("fitness/d_m9_lanes_x{LANES}"), |b| {
+        b.iter(|| p.ln_det_lanes(black_box(designs)))
     });
 }
 

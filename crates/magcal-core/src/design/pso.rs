@@ -90,9 +90,9 @@ pub struct RunSummary {
     pub evaluations: usize,
 }
 
-/// Chunks of [`LANES`] particles per rayon task: enough work per task (~10 us) that scheduling
-/// costs little.
-const CHUNKS_PER_TASK: usize = 4;
+/// Chunks of [`LANES`] particles per rayon task. One (the finest split) measured fastest on 2 threads:
+/// 0.30-0.33 s for the Table I swarm against 0.40 s with 2 and 0.43 s with 8 (`benches/design.rs`).
+const CHUNKS_PER_TASK: usize = 1;
 
 struct Particle {
     x: Vec<f64>,
@@ -170,6 +170,15 @@ impl Swarm {
     /// Invalid settings ([`Self::validate`]).
     pub fn optimise<R: Rng + ?Sized>(&self, problem: &DesignProblem, rng: &mut R) -> Result<PsoResult, ParameterError> {
         self.validate()?;
+        let seeds: Vec<u64> = (0..self.particles).map(|_| rng.random()).collect();
+        // Run the iterations on a worker of the current rayon pool: a parallel loop started from a
+        // thread outside the pool must wake a worker and then be woken itself, every iteration
+        // (3000 times); from inside the pool the loop forks and joins on its own thread.
+        Ok(rayon::scope(|_| self.run(problem, seeds)))
+    }
+
+    /// The iterations of [`Self::optimise`], particle `i` seeded by `seeds[i]`.
+    fn run(&self, problem: &DesignProblem, seeds: Vec<u64>) -> PsoResult {
         let dim = problem.dimension();
         let ranges = problem.bounds().ranges();
         let lo: Vec<f64> = (0..dim).map(|j| ranges[j % 3].min()).collect();
@@ -177,7 +186,6 @@ impl Swarm {
         let vmax: Vec<f64> = (0..dim).map(|j| self.vmax_fraction * ranges[j % 3].width()).collect();
         let criterion = self.criterion;
 
-        let seeds: Vec<u64> = (0..self.particles).map(|_| rng.random()).collect();
         let mut swarm: Vec<Particle> = seeds
             .into_iter()
             .map(|seed| {
@@ -241,13 +249,13 @@ impl Swarm {
             history.push(g_fitness);
         }
 
-        Ok(PsoResult {
+        PsoResult {
             design: from_vector(&g_x),
             fitness: g_fitness,
             history,
             evaluations,
             iterations,
-        })
+        }
     }
 
     /// `runs` independent runs, run `r` seeded by stream `r` of `seed`, in parallel across runs; the
