@@ -1,0 +1,274 @@
+//! scenario -> designs -> noisy trials (parallel, collected in trial order) -> statistics.
+//!
+//! Every random stream is `stream_rng(seed, id)` with a fixed id per purpose, so the numbers do not
+//! depend on the thread count: designs `[DESIGN_STREAM, design]`, trials `[design, sigma, trial]`,
+//! repeated PSO runs from a seed drawn on `[PSO_RUNS_STREAM, 0]`.
+
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use magcal_core::design::pso::RunSummary;
+use magcal_core::design::{DesignProblem, d_efficiency, sources};
+use magcal_core::rng::{stream_id, stream_rng};
+use magcal_core::{Attitude, CalibrationStatus, Conditioning, ErrorModel, RelativeErrors, Summary};
+use rand::RngExt;
+use rayon::prelude::*;
+
+use crate::scenario::{DesignSource, Scenario};
+
+/// Stream-id prefix of the design optimisers (design indices stay below it).
+const DESIGN_STREAM: u64 = 0xFFFF;
+/// Stream-id prefix of the repeated PSO runs.
+const PSO_RUNS_STREAM: u64 = 0xFFFE;
+/// The design that \[P1\] Table III compares against.
+pub const REFERENCE_DESIGN: &str = "uniform";
+
+/// A design with its attitudes and metrics.
+#[derive(Debug, Clone)]
+pub struct BuiltDesign {
+    /// Name from the scenario.
+    pub name: String,
+    /// Source kind.
+    pub kind: &'static str,
+    /// Its attitudes.
+    pub attitudes: Vec<Attitude>,
+    /// `ln det M_F`, nT (\[P1\] eq. (12), (14)).
+    pub ln_det_mf: f64,
+    /// `cond_2(H)` and `cond_2(M_F)`, `H` in nT.
+    pub conditioning: Conditioning,
+    /// `trace(M_F^-1)`, R-scaled readings.
+    pub a_criterion: f64,
+    /// `lambda_min(M_F)`, R-scaled readings.
+    pub e_criterion: f64,
+}
+
+/// One noisy trial.
+#[derive(Debug, Clone)]
+pub struct Trial {
+    /// Calibration status.
+    pub status: CalibrationStatus,
+    /// Step-2 iterations, when there is an estimate.
+    pub iterations: Option<usize>,
+    /// RMS of `|P(b - O)| - R`, nT, when there is an estimate.
+    pub rms_residual_nt: Option<f64>,
+    /// The estimate, when there is one.
+    pub estimate: Option<ErrorModel>,
+    /// Its relative errors, percent.
+    pub eta: Option<RelativeErrors>,
+}
+
+/// The trials of one design at one noise level.
+#[derive(Debug, Clone)]
+pub struct Cell {
+    /// Index into [`RunOutput::designs`].
+    pub design: usize,
+    /// Noise level, nT.
+    pub sigma_nt: f64,
+    /// Trials in order.
+    pub trials: Vec<Trial>,
+}
+
+impl Cell {
+    /// Failed trials (no estimate).
+    pub fn failed(&self) -> usize {
+        self.trials.iter().filter(|t| t.eta.is_none()).count()
+    }
+
+    /// Statistics of the three metrics, in the order eta_psi, eta_s, eta_o.
+    pub fn summaries(&self) -> [(&'static str, Summary); 3] {
+        let values = |f: fn(&RelativeErrors) -> f64| -> Vec<f64> {
+            self.trials.iter().filter_map(|t| t.eta.as_ref().map(f)).collect()
+        };
+        let failed = self.failed();
+        [
+            ("eta_psi", Summary::new(&values(|e| e.psi), failed)),
+            ("eta_s", Summary::new(&values(|e| e.scale), failed)),
+            ("eta_o", Summary::new(&values(|e| e.bias), failed)),
+        ]
+    }
+}
+
+/// Everything a run produces, before it is written anywhere.
+#[derive(Debug, Clone)]
+pub struct RunOutput {
+    /// Designs in scenario order.
+    pub designs: Vec<BuiltDesign>,
+    /// Trials per design and noise level, design-major.
+    pub cells: Vec<Cell>,
+    /// Repeated PSO runs, if asked.
+    pub pso_runs: Option<Vec<RunSummary>>,
+    /// Wall time per stage, seconds.
+    pub stages: Vec<(String, f64)>,
+}
+
+impl RunOutput {
+    /// `ln det M_F` of the best design of the run (the D-efficiency reference).
+    pub fn best_ln_det(&self) -> f64 {
+        self.designs
+            .iter()
+            .map(|d| d.ln_det_mf)
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+
+    /// The Table III reference design, if the scenario has one named `uniform`.
+    pub fn reference(&self) -> Option<&BuiltDesign> {
+        self.designs.iter().find(|d| d.name == REFERENCE_DESIGN)
+    }
+
+    /// D-efficiency of design `i` against the best of the run.
+    pub fn d_efficiency(&self, i: usize) -> f64 {
+        d_efficiency(self.designs[i].ln_det_mf, self.best_ln_det())
+    }
+}
+
+/// Options of a run that are not in the scenario.
+#[derive(Debug, Clone, Copy)]
+pub struct RunOptions {
+    /// Draw progress bars.
+    pub progress: bool,
+    /// Skip the noisy trials (`magcal design`).
+    pub designs_only: bool,
+}
+
+fn spinner(show: bool, message: String) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new_spinner().with_message(message);
+    bar.set_style(ProgressStyle::with_template("{spinner} {msg} [{elapsed}]").expect("valid template"));
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
+/// Builds the designs of the scenario and, unless `designs_only`, runs its trials.
+///
+/// # Errors
+/// A design that cannot be built (for example a singular one).
+pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
+    let mut stages = Vec::new();
+    let mut designs = Vec::with_capacity(scenario.designs.len());
+    for (i, spec) in scenario.designs.iter().enumerate() {
+        let t = Instant::now();
+        let bar = spinner(
+            options.progress,
+            format!("design {} ({})", spec.name, spec.source.kind()),
+        );
+        let mut rng = stream_rng(scenario.seed, stream_id(&[DESIGN_STREAM, i as u64]));
+        let problem = |m: usize| {
+            DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, m)
+                .with_context(|| format!("design {:?}", spec.name))
+        };
+        let attitudes = match &spec.source {
+            DesignSource::Explicit(list) => list.clone(),
+            DesignSource::Grid(levels) => sources::grid(&scenario.bounds, *levels)?,
+            DesignSource::Random { m } => sources::random(&scenario.bounds, *m, &mut rng),
+            DesignSource::Pso { m, swarm } => swarm.optimise(&problem(*m)?, &mut rng)?.design,
+            DesignSource::Optimum { m, settings } => settings.optimise(&problem(*m)?, &mut rng)?.design,
+        };
+        let metrics = problem(attitudes.len())?.evaluate(&attitudes);
+        let readings = scenario.truth.measure_all(&scenario.field.body_fields(&attitudes));
+        designs.push(BuiltDesign {
+            name: spec.name.clone(),
+            kind: spec.source.kind(),
+            conditioning: Conditioning::of_readings(&readings, scenario.field.magnitude()),
+            ln_det_mf: metrics.ln_det_mf,
+            a_criterion: metrics.a,
+            e_criterion: metrics.e,
+            attitudes,
+        });
+        bar.finish_and_clear();
+        stages.push((format!("design:{}", spec.name), t.elapsed().as_secs_f64()));
+    }
+
+    let pso_runs = match &scenario.pso_runs {
+        Some(spec) => {
+            let t = Instant::now();
+            let bar = spinner(
+                options.progress,
+                format!("{} repeated PSO runs of design {}", spec.runs, spec.design),
+            );
+            let problem = DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, spec.m)?;
+            let seed: u64 = stream_rng(scenario.seed, stream_id(&[PSO_RUNS_STREAM, 0])).random();
+            let runs = spec.swarm.repeated_runs(&problem, spec.runs, seed)?;
+            bar.finish_and_clear();
+            stages.push(("pso_runs".to_string(), t.elapsed().as_secs_f64()));
+            Some(runs)
+        }
+        None => None,
+    };
+
+    let mut cells = Vec::new();
+    if !options.designs_only {
+        let t = Instant::now();
+        let total = (designs.len() * scenario.sigmas_nt.len() * scenario.trials) as u64;
+        let bar = if options.progress {
+            let bar = ProgressBar::new(total);
+            bar.set_style(
+                ProgressStyle::with_template("trials {bar:40} {pos}/{len} [{elapsed} < {eta}]")
+                    .expect("valid template"),
+            );
+            bar
+        } else {
+            ProgressBar::hidden()
+        };
+        for (d, built) in designs.iter().enumerate() {
+            let body = scenario.field.body_fields(&built.attitudes);
+            for (s, &sigma) in scenario.sigmas_nt.iter().enumerate() {
+                let trials: Vec<Trial> = (0..scenario.trials)
+                    .into_par_iter()
+                    .map(|t| {
+                        let mut rng = stream_rng(scenario.seed, stream_id(&[d as u64, s as u64, t as u64]));
+                        let trial = one_trial(scenario, &body, sigma, &mut rng);
+                        bar.inc(1);
+                        trial
+                    })
+                    .collect::<Result<_>>()?;
+                cells.push(Cell {
+                    design: d,
+                    sigma_nt: sigma,
+                    trials,
+                });
+            }
+        }
+        bar.finish_and_clear();
+        stages.push(("trials".to_string(), t.elapsed().as_secs_f64()));
+    }
+    Ok(RunOutput {
+        designs,
+        cells,
+        pso_runs,
+        stages,
+    })
+}
+
+/// One noisy trial: readings of the design with noise `sigma`, two-step calibration, errors.
+fn one_trial(
+    scenario: &Scenario,
+    body: &[magcal_core::Vec3],
+    sigma: f64,
+    rng: &mut magcal_core::rng::MagcalRng,
+) -> Result<Trial> {
+    let readings = scenario.truth.noisy_readings(body, sigma, rng)?;
+    Ok(
+        match scenario.calibration.calibrate(&readings, scenario.field.magnitude()) {
+            Ok(fit) => {
+                let estimate = fit.estimate().model;
+                Trial {
+                    status: fit.status(),
+                    iterations: Some(fit.iterations),
+                    rms_residual_nt: Some(fit.estimate().rms_residual_nt),
+                    eta: Some(RelativeErrors::between(&estimate, &scenario.truth)),
+                    estimate: Some(estimate),
+                }
+            }
+            Err(e) => Trial {
+                status: e.status(),
+                iterations: None,
+                rms_residual_nt: None,
+                estimate: None,
+                eta: None,
+            },
+        },
+    )
+}

@@ -1,0 +1,291 @@
+//! End-to-end tests: the real `magcal` binary on temporary directories.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use assert_cmd::Command;
+use tempfile::TempDir;
+
+fn magcal() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_magcal"))
+}
+
+fn scenarios() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios")
+}
+
+fn smoke() -> PathBuf {
+    scenarios().join("smoke.toml")
+}
+
+/// Runs the smoke scenario into `dir` with `threads`.
+fn run_smoke(dir: &Path, threads: usize) {
+    magcal()
+        .args(["run", "--quiet", "--threads", &threads.to_string(), "--out"])
+        .arg(dir)
+        .arg(smoke())
+        .assert()
+        .success();
+}
+
+fn csv_rows(path: &Path) -> Vec<Vec<String>> {
+    let mut reader = csv::Reader::from_path(path).unwrap();
+    reader
+        .records()
+        .map(|r| r.unwrap().iter().map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn run_writes_every_file_with_the_expected_rows() {
+    let tmp = TempDir::new().unwrap();
+    run_smoke(tmp.path(), 2);
+    for f in [
+        "summary.csv",
+        "trials.csv",
+        "designs.csv",
+        "design_metrics.csv",
+        "pso_runs.csv",
+        "manifest.json",
+    ] {
+        assert!(tmp.path().join(f).is_file(), "{f} missing");
+    }
+    // 4 designs x 2 noise levels x 3 metrics.
+    let summary = csv_rows(&tmp.path().join("summary.csv"));
+    assert_eq!(summary.len(), 24);
+    // 4 designs x 2 noise levels x 200 trials, each with a status; failed ones counted in summary.
+    let trials = csv_rows(&tmp.path().join("trials.csv"));
+    assert_eq!(trials.len(), 1600);
+    let failed_in_trials = trials.iter().filter(|r| r[6].is_empty()).count();
+    let failed_in_summary: usize = summary
+        .iter()
+        .filter(|r| r[4] == "eta_psi")
+        .map(|r| r[3].parse::<usize>().unwrap())
+        .sum();
+    assert_eq!(failed_in_trials, failed_in_summary);
+    assert!(trials.iter().all(|r| !r[3].is_empty()));
+    // Explicit designs as given, [P1] Table II.
+    let designs = csv_rows(&tmp.path().join("designs.csv"));
+    assert_eq!(designs.len(), 36);
+    assert_eq!(designs[0][..5], ["uniform", "1", "-5", "-60", "-20"]);
+    // CONVENTIONS.md check values through the whole pipeline.
+    let metrics = csv_rows(&tmp.path().join("design_metrics.csv"));
+    let ln_det = |name: &str| {
+        metrics.iter().find(|r| r[0] == name).unwrap()[3]
+            .parse::<f64>()
+            .unwrap()
+    };
+    assert!((ln_det("uniform") - 303.4800).abs() < 5e-5);
+    assert!((ln_det("table2_dopt") - 298.9240).abs() < 5e-5);
+    assert!(ln_det("optimum") >= 314.5485);
+    assert_eq!(csv_rows(&tmp.path().join("pso_runs.csv")).len(), 4);
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&fs::read(tmp.path().join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["seed"], 7);
+    assert_eq!(manifest["threads"], 2);
+    assert_eq!(manifest["scenario_sha256"].as_str().unwrap().len(), 64);
+}
+
+#[test]
+fn same_seed_gives_byte_identical_csv_on_one_and_several_threads() {
+    let (a, b) = (TempDir::new().unwrap(), TempDir::new().unwrap());
+    run_smoke(a.path(), 1);
+    run_smoke(b.path(), 3);
+    for f in [
+        "summary.csv",
+        "trials.csv",
+        "designs.csv",
+        "design_metrics.csv",
+        "pso_runs.csv",
+    ] {
+        assert_eq!(
+            fs::read(a.path().join(f)).unwrap(),
+            fs::read(b.path().join(f)).unwrap(),
+            "{f} differs"
+        );
+    }
+}
+
+#[test]
+fn seed_override_changes_the_trials() {
+    let (a, b) = (TempDir::new().unwrap(), TempDir::new().unwrap());
+    run_smoke(a.path(), 2);
+    magcal()
+        .args(["run", "--quiet", "--seed", "8", "--out"])
+        .arg(b.path())
+        .arg(smoke())
+        .assert()
+        .success();
+    assert_ne!(
+        fs::read(a.path().join("trials.csv")).unwrap(),
+        fs::read(b.path().join("trials.csv")).unwrap()
+    );
+}
+
+#[test]
+fn check_passes_on_its_own_results_and_fails_when_they_move() {
+    let tmp = TempDir::new().unwrap();
+    run_smoke(tmp.path(), 2);
+    magcal()
+        .args(["check", "--quiet", "--baseline"])
+        .arg(tmp.path())
+        .arg(smoke())
+        .assert()
+        .code(0);
+
+    // Move one deterministic number (ln det of the pso design) by 1e-2: far beyond 1e-6 relative.
+    let path = tmp.path().join("design_metrics.csv");
+    let text = fs::read_to_string(&path).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let i = lines.iter().position(|l| l.starts_with("pso,")).unwrap();
+    let mut cols: Vec<String> = lines[i].split(',').map(str::to_string).collect();
+    cols[3] = (cols[3].parse::<f64>().unwrap() + 1e-2).to_string();
+    lines[i] = cols.join(",");
+    fs::write(&path, lines.join("\n") + "\n").unwrap();
+    let out = magcal()
+        .args(["check", "--quiet", "--baseline"])
+        .arg(tmp.path())
+        .arg(smoke())
+        .assert()
+        .code(1);
+    let stderr = String::from_utf8(out.get_output().stderr.clone()).unwrap();
+    assert!(
+        stderr.contains("design_metrics.csv pso") && stderr.contains("ln_det_mf"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn design_command_writes_designs_only() {
+    let tmp = TempDir::new().unwrap();
+    magcal()
+        .args(["design", "--quiet", "--out"])
+        .arg(tmp.path())
+        .arg(smoke())
+        .assert()
+        .success();
+    assert!(tmp.path().join("designs.csv").is_file() && tmp.path().join("design_metrics.csv").is_file());
+    assert!(!tmp.path().join("summary.csv").exists() && !tmp.path().join("trials.csv").exists());
+}
+
+#[test]
+fn help_and_usage() {
+    for sub in ["run", "design", "check"] {
+        magcal().args([sub, "--help"]).assert().code(0);
+    }
+    magcal().arg("frobnicate").assert().code(2);
+    magcal().args(["run"]).assert().code(2);
+}
+
+/// A copy of the smoke scenario with `from` replaced by `to` (which must occur).
+fn edited(dir: &Path, from: &str, to: &str) -> PathBuf {
+    static COUNT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let text = fs::read_to_string(smoke()).unwrap();
+    assert!(text.contains(from), "{from:?} not in smoke.toml");
+    let n = COUNT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let path = dir.join(format!("edited{n}.toml"));
+    fs::write(&path, text.replacen(from, to, 1)).unwrap();
+    path
+}
+
+/// Runs `scenario` into `out` (which holds earlier results), expects exit 2 and a message containing
+/// every one of `needles`, and checks that the earlier results are untouched.
+fn expect_bad_input(scenario: &Path, out: &Path, needles: &[&str]) {
+    let before: Vec<Vec<u8>> = ["summary.csv", "trials.csv"]
+        .iter()
+        .map(|f| fs::read(out.join(f)).unwrap())
+        .collect();
+    let assert = magcal()
+        .args(["run", "--quiet", "--out"])
+        .arg(out)
+        .arg(scenario)
+        .assert()
+        .code(2);
+    let stderr = String::from_utf8(assert.get_output().stderr.clone()).unwrap();
+    for n in needles {
+        assert!(stderr.contains(n), "{n:?} not in {stderr:?}");
+    }
+    assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr:?}");
+    assert!(!stderr.contains("panicked"));
+    let after: Vec<Vec<u8>> = ["summary.csv", "trials.csv"]
+        .iter()
+        .map(|f| fs::read(out.join(f)).unwrap())
+        .collect();
+    assert_eq!(before, after, "earlier results were touched");
+    let leftovers: Vec<_> = fs::read_dir(out)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty());
+}
+
+#[test]
+fn bad_input_is_a_clear_error_that_leaves_results_untouched() {
+    let tmp = TempDir::new().unwrap();
+    let out = tmp.path().join("out");
+    run_smoke(&out, 2);
+    let dir = tmp.path();
+    let cases: Vec<(PathBuf, Vec<&str>)> = vec![
+        (dir.join("missing.toml"), vec!["missing.toml", "cannot read"]),
+        (edited(dir, "seed = 7", "seed = [7"), vec!["toml:5:1", "expected `,`"]),
+        (
+            edited(dir, "seed = 7", "seed = 7\nbogus = 1"),
+            vec!["toml:5:1", "unknown field `bogus`"],
+        ),
+        (
+            edited(dir, "seed = 7", "seed = \"seven\""),
+            vec!["toml:4:8", "invalid type", "\"seven\""],
+        ),
+        (
+            edited(dir, "roll_deg = [-5.0, 5.0]", "roll_deg = [5.0, -5.0]"),
+            vec!["toml", "attitude_box.roll_deg = [5, -5]", "minimum must be below"],
+        ),
+        (
+            edited(dir, "sigma_nt = [10.0, 30.0]", "sigma_nt = [10.0, -30.0]"),
+            vec!["sigma_nt[1] = -30", "negative"],
+        ),
+        (
+            edited(dir, "trials = 200", "trials = 0"),
+            vec!["trials = 0", "at least 1"],
+        ),
+        (
+            edited(dir, "sigma_nt = [10.0, 30.0]", "sigma_nt = [nan]"),
+            vec!["sigma_nt[0] = NaN", "finite"],
+        ),
+        (
+            edited(dir, "north_nt = 35272.34", "north_nt = inf"),
+            vec!["field.north_nt = inf", "finite"],
+        ),
+        (
+            edited(dir, "  { roll_deg = 5.0, yaw_deg = 60.0, pitch_deg = 20.0 },\n]", "]"),
+            vec!["design[0].attitudes (count) = 8", "at least 9"],
+        ),
+        (
+            edited(
+                dir,
+                "{ roll_deg = 0.0, yaw_deg = 0.0, pitch_deg = 0.0 }",
+                "{ roll_deg = 0.0, yaw_deg = 0.0, pitch_deg = 25.0 }",
+            ),
+            vec!["design[0].attitudes[4]", "pitch", "25"],
+        ),
+        (
+            edited(dir, "m = 9\n# [P1] Table I", "m = 8\n# [P1] Table I"),
+            vec!["design[2].m = 8", "at least 9"],
+        ),
+        (
+            edited(dir, "particles = 40", "particles = 0"),
+            vec!["design[2]", "pso.particles", "0"],
+        ),
+        (
+            edited(dir, "design = \"pso\"", "design = \"uniform\""),
+            vec!["pso_runs.design = \"uniform\"", "explicit"],
+        ),
+        (
+            edited(dir, "name = \"optimum\"", "name = \"pso\""),
+            vec!["design[3].name = \"pso\"", "another design"],
+        ),
+    ];
+    for (scenario, needles) in cases {
+        expect_bad_input(&scenario, &out, &needles);
+    }
+}

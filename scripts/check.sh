@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Regression check of every shipped scenario against its committed results (results/<name>/).
+# Exit 1 when something moved beyond its tolerance. CI runs only the smoke scenario.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release --locked -p magcal-runner
+status=0
+for scenario in "${@:-smoke wu2014 wu2014-yaw90 noise-sweep}"; do
+  for s in $scenario; do
+    ./target/release/magcal check "scenarios/$s.toml" --quiet || status=$?
+  done
+done
+exit $status
