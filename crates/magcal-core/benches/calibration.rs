@@ -60,5 +60,27 @@ fn kernels(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, two_step, kernels);
+/// 1000 noisy trials of one design ([P1] IV.C), in parallel with one stream per trial, collected in
+/// order: what `magcal run` does per design and noise level.
+fn monte_carlo(c: &mut Criterion) {
+    use magcal_core::monte_carlo::trial;
+    use rayon::prelude::*;
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let body = field.body_fields(&paper::uniformity_design());
+    let settings = TwoStep::default();
+    let mut group = c.benchmark_group("monte_carlo");
+    group.sample_size(20);
+    group.bench_function("1000_trials_one_design", |b| {
+        b.iter(|| {
+            (0..1000u64)
+                .into_par_iter()
+                .map(|t| trial(&truth, &body, field.magnitude(), 30.0, &settings, &mut stream_rng(1, t)).unwrap())
+                .collect::<Vec<_>>()
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, two_step, kernels, monte_carlo);
 criterion_main!(benches);

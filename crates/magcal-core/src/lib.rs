@@ -41,6 +41,7 @@
 //! | eq. (21)-(23) | [`metrics::relative_error_percent`], [`RelativeErrors`] |
 //! | section IV.A, Table II | [`paper`] |
 //! | section IV.C, two-step method | [`TwoStep`], [`calibration::step2`] |
+//! | section IV.C, Monte Carlo trials | [`monte_carlo::trial`] |
 //!
 //! ## References
 //! - \[P1\] Z. Wu, X. Hu, M. Wu, P. Liu, "D-Optimal Design Applied to Calibration of Strapdown
@@ -60,6 +61,7 @@ pub mod error;
 pub mod field;
 pub mod linear_model;
 pub mod metrics;
+pub mod monte_carlo;
 pub mod paper;
 pub mod rng;
 pub mod sensor;

@@ -10,8 +10,9 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use magcal_core::design::pso::RunSummary;
 use magcal_core::design::{DesignProblem, d_efficiency, sources};
+use magcal_core::monte_carlo::{self, TrialOutcome};
 use magcal_core::rng::{stream_id, stream_rng};
-use magcal_core::{Attitude, CalibrationStatus, Conditioning, ErrorModel, RelativeErrors, Summary};
+use magcal_core::{Attitude, Conditioning, RelativeErrors, Summary};
 use rand::RngExt;
 use rayon::prelude::*;
 
@@ -43,21 +44,6 @@ pub struct BuiltDesign {
     pub e_criterion: f64,
 }
 
-/// One noisy trial.
-#[derive(Debug, Clone)]
-pub struct Trial {
-    /// Calibration status.
-    pub status: CalibrationStatus,
-    /// Step-2 iterations, when there is an estimate.
-    pub iterations: Option<usize>,
-    /// RMS of `|P(b - O)| - R`, nT, when there is an estimate.
-    pub rms_residual_nt: Option<f64>,
-    /// The estimate, when there is one.
-    pub estimate: Option<ErrorModel>,
-    /// Its relative errors, percent.
-    pub eta: Option<RelativeErrors>,
-}
-
 /// The trials of one design at one noise level.
 #[derive(Debug, Clone)]
 pub struct Cell {
@@ -66,7 +52,7 @@ pub struct Cell {
     /// Noise level, nT.
     pub sigma_nt: f64,
     /// Trials in order.
-    pub trials: Vec<Trial>,
+    pub trials: Vec<TrialOutcome>,
 }
 
 impl Cell {
@@ -141,6 +127,18 @@ fn spinner(show: bool, message: String) -> ProgressBar {
     bar
 }
 
+/// A bar counting to `len`, or a hidden one.
+fn counter(show: bool, len: u64, message: String) -> ProgressBar {
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len).with_message(message);
+    bar.set_style(
+        ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} [{elapsed} < {eta}]").expect("valid template"),
+    );
+    bar
+}
+
 /// Builds the designs of the scenario and, unless `designs_only`, runs its trials.
 ///
 /// # Errors
@@ -150,8 +148,10 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
     let mut designs = Vec::with_capacity(scenario.designs.len());
     for (i, spec) in scenario.designs.iter().enumerate() {
         let t = Instant::now();
+        // The PSO draws its own bar of iterations; two bars at once would overwrite each other.
+        let is_pso = matches!(spec.source, DesignSource::Pso { .. });
         let bar = spinner(
-            options.progress,
+            options.progress && !is_pso,
             format!("design {} ({})", spec.name, spec.source.kind()),
         );
         let mut rng = stream_rng(scenario.seed, stream_id(&[DESIGN_STREAM, i as u64]));
@@ -163,7 +163,17 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
             DesignSource::Explicit(list) => list.clone(),
             DesignSource::Grid(levels) => sources::grid(&scenario.bounds, *levels)?,
             DesignSource::Random { m } => sources::random(&scenario.bounds, *m, &mut rng),
-            DesignSource::Pso { m, swarm } => swarm.optimise(&problem(*m)?, &mut rng)?.design,
+            DesignSource::Pso { m, swarm } => {
+                let bar = counter(
+                    options.progress,
+                    swarm.iterations as u64,
+                    format!("design {} PSO iterations", spec.name),
+                );
+                let observe = |_: usize, _: f64| bar.inc(1);
+                let design = swarm.optimise_observed(&problem(*m)?, &mut rng, &observe)?.design;
+                bar.finish_and_clear();
+                design
+            }
             DesignSource::Optimum { m, settings } => settings.optimise(&problem(*m)?, &mut rng)?.design,
         };
         let metrics = problem(attitudes.len())?.evaluate(&attitudes);
@@ -184,13 +194,16 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
     let pso_runs = match &scenario.pso_runs {
         Some(spec) => {
             let t = Instant::now();
-            let bar = spinner(
+            let bar = counter(
                 options.progress,
-                format!("{} repeated PSO runs of design {}", spec.runs, spec.design),
+                spec.runs as u64,
+                format!("repeated PSO runs of design {}", spec.design),
             );
             let problem = DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, spec.m)?;
             let seed: u64 = stream_rng(scenario.seed, stream_id(&[PSO_RUNS_STREAM, 0])).random();
-            let runs = spec.swarm.repeated_runs(&problem, spec.runs, seed)?;
+            let runs = spec
+                .swarm
+                .repeated_runs_observed(&problem, spec.runs, seed, &|_| bar.inc(1))?;
             bar.finish_and_clear();
             stages.push(("pso_runs".to_string(), t.elapsed().as_secs_f64()));
             Some(runs)
@@ -215,15 +228,22 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         for (d, built) in designs.iter().enumerate() {
             let body = scenario.field.body_fields(&built.attitudes);
             for (s, &sigma) in scenario.sigmas_nt.iter().enumerate() {
-                let trials: Vec<Trial> = (0..scenario.trials)
+                let trials: Vec<TrialOutcome> = (0..scenario.trials)
                     .into_par_iter()
                     .map(|t| {
                         let mut rng = stream_rng(scenario.seed, stream_id(&[d as u64, s as u64, t as u64]));
-                        let trial = one_trial(scenario, &body, sigma, &mut rng);
+                        let trial = monte_carlo::trial(
+                            &scenario.truth,
+                            &body,
+                            scenario.field.magnitude(),
+                            sigma,
+                            &scenario.calibration,
+                            &mut rng,
+                        );
                         bar.inc(1);
                         trial
                     })
-                    .collect::<Result<_>>()?;
+                    .collect::<Result<_, _>>()?;
                 cells.push(Cell {
                     design: d,
                     sigma_nt: sigma,
@@ -240,35 +260,4 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         pso_runs,
         stages,
     })
-}
-
-/// One noisy trial: readings of the design with noise `sigma`, two-step calibration, errors.
-fn one_trial(
-    scenario: &Scenario,
-    body: &[magcal_core::Vec3],
-    sigma: f64,
-    rng: &mut magcal_core::rng::MagcalRng,
-) -> Result<Trial> {
-    let readings = scenario.truth.noisy_readings(body, sigma, rng)?;
-    Ok(
-        match scenario.calibration.calibrate(&readings, scenario.field.magnitude()) {
-            Ok(fit) => {
-                let estimate = fit.estimate().model;
-                Trial {
-                    status: fit.status(),
-                    iterations: Some(fit.iterations),
-                    rms_residual_nt: Some(fit.estimate().rms_residual_nt),
-                    eta: Some(RelativeErrors::between(&estimate, &scenario.truth)),
-                    estimate: Some(estimate),
-                }
-            }
-            Err(e) => Trial {
-                status: e.status(),
-                iterations: None,
-                rms_residual_nt: None,
-                estimate: None,
-                eta: None,
-            },
-        },
-    )
 }

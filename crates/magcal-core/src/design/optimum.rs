@@ -306,7 +306,7 @@ mod tests {
     use proptest::prelude::*;
 
     proptest! {
-        #![proptest_config(ProptestConfig { cases: 64, .. ProptestConfig::default() })]
+        #![proptest_config(ProptestConfig { cases: 2000, .. ProptestConfig::default() })]
 
         /// The analytic gradient of ln det M_F against central differences, on random designs of the
         /// full attitude space with a random yaw offset.
@@ -319,17 +319,32 @@ mod tests {
             let problem = DesignProblem::new(field, paper::true_error_model(), AttitudeBox::full(), 10).unwrap();
             let mut g = vec![0.0; 30];
             let f0 = ln_det_and_gradient(&problem, &angles, &mut g);
-            prop_assume!(f0.is_finite() && f0 > 250.0);
+            prop_assume!(f0.is_finite());
+            // Central differences of ln det are only as good as ln det's rounding, about
+            // cond(M_F) eps / h: keep to designs where that is far below the tolerance.
+            let m_f = problem.information_matrix(&crate::design::from_vector(&angles));
+            let cond = crate::linear_model::cond_2(m_f.to_faer().as_ref());
+            prop_assume!(cond < 1e7);
             let mut scratch = vec![0.0; 30];
             for k in 0..30 {
-                let h = 1e-6;
-                let (mut xp, mut xm) = (angles.clone(), angles.clone());
-                xp[k] += h;
-                xm[k] -= h;
-                let fd = (ln_det_and_gradient(&problem, &xp, &mut scratch)
-                    - ln_det_and_gradient(&problem, &xm, &mut scratch)) / (2.0 * h);
-                // Rounding of ln det (~1e-13 * 300) over 2h, plus O(h^2) truncation.
-                prop_assert!((fd - g[k]).abs() <= 1e-5 * (1.0 + g[k].abs()), "k {}: analytic {} fd {}", k, g[k], fd);
+                let mut at = |d: f64| {
+                    let mut x = angles.clone();
+                    x[k] += d;
+                    ln_det_and_gradient(&problem, &x, &mut scratch)
+                };
+                // Fourth-order central differences at h and h/2: their difference estimates the
+                // error of the finer one (random designs near a singular one have large higher
+                // derivatives, where no fixed h serves; measured: the differences converge to the
+                // analytic value as h shrinks).
+                let mut fourth = |h: f64| (8.0 * (at(h) - at(-h)) - (at(2.0 * h) - at(-2.0 * h))) / (12.0 * h);
+                let (coarse, fine) = (fourth(1e-4), fourth(5e-5));
+                // Truncation: estimated by the two steps. Rounding: ln det carries up to
+                // 9 cond(M_F) eps, which the stencil (weights summing to 1.5 in absolute value)
+                // divides by h.
+                let rounding = 1.5 * 2.0 * 9.0 * cond * f64::EPSILON / 5e-5;
+                let tol = 1e-7 * (1.0 + g[k].abs()) + 4.0 * (fine - coarse).abs() + rounding;
+                prop_assert!((fine - g[k]).abs() <= tol, "k {}: analytic {} fd {} tol {:e}", k, g[k], fine, tol);
+                prop_assume!(tol <= 1e-3 * (1.0 + g[k].abs()));
             }
             prop_assert!((f0 - problem.ln_det(&angles)).abs() <= 1e-12 * f0.abs());
         }

@@ -169,16 +169,30 @@ impl Swarm {
     /// # Errors
     /// Invalid settings ([`Self::validate`]).
     pub fn optimise<R: Rng + ?Sized>(&self, problem: &DesignProblem, rng: &mut R) -> Result<PsoResult, ParameterError> {
+        self.optimise_observed(problem, rng, &|_, _| {})
+    }
+
+    /// [`Self::optimise`], calling `observe(iteration, best_fitness)` after every iteration (for a
+    /// progress display; it must be cheap).
+    ///
+    /// # Errors
+    /// Invalid settings ([`Self::validate`]).
+    pub fn optimise_observed<R: Rng + ?Sized>(
+        &self,
+        problem: &DesignProblem,
+        rng: &mut R,
+        observe: &(dyn Fn(usize, f64) + Sync),
+    ) -> Result<PsoResult, ParameterError> {
         self.validate()?;
         let seeds: Vec<u64> = (0..self.particles).map(|_| rng.random()).collect();
         // Run the iterations on a worker of the current rayon pool: a parallel loop started from a
         // thread outside the pool must wake a worker and then be woken itself, every iteration
         // (3000 times); from inside the pool the loop forks and joins on its own thread.
-        Ok(rayon::scope(|_| self.run(problem, seeds)))
+        Ok(rayon::scope(|_| self.run(problem, seeds, observe)))
     }
 
     /// The iterations of [`Self::optimise`], particle `i` seeded by `seeds[i]`.
-    fn run(&self, problem: &DesignProblem, seeds: Vec<u64>) -> PsoResult {
+    fn run(&self, problem: &DesignProblem, seeds: Vec<u64>, observe: &(dyn Fn(usize, f64) + Sync)) -> PsoResult {
         let dim = problem.dimension();
         let ranges = problem.bounds().ranges();
         let lo: Vec<f64> = (0..dim).map(|j| ranges[j % 3].min()).collect();
@@ -247,6 +261,7 @@ impl Swarm {
                 g_x.copy_from_slice(&swarm[g_index].best_x);
             }
             history.push(g_fitness);
+            observe(iterations, g_fitness);
         }
 
         PsoResult {
@@ -269,11 +284,26 @@ impl Swarm {
         runs: usize,
         seed: u64,
     ) -> Result<Vec<RunSummary>, ParameterError> {
+        self.repeated_runs_observed(problem, runs, seed, &|_| {})
+    }
+
+    /// [`Self::repeated_runs`], calling `finished(run)` as each run ends (in any order).
+    ///
+    /// # Errors
+    /// Invalid settings.
+    pub fn repeated_runs_observed(
+        &self,
+        problem: &DesignProblem,
+        runs: usize,
+        seed: u64,
+        finished: &(dyn Fn(usize) + Sync),
+    ) -> Result<Vec<RunSummary>, ParameterError> {
         self.validate()?;
         (0..runs)
             .into_par_iter()
             .map(|run| {
                 let result = self.optimise(problem, &mut stream_rng(seed, run as u64))?;
+                finished(run);
                 Ok(RunSummary {
                     run,
                     fitness: result.fitness,
@@ -369,6 +399,20 @@ mod tests {
         assert_eq!(result.history.len(), 301);
         assert!(result.history.windows(2).all(|w| w[1] <= w[0]));
         assert_eq!(result.evaluations, 60 * 301);
+        // The observer sees every iteration, in order, with the history's values.
+        let seen = std::sync::Mutex::new(Vec::new());
+        let again = small_swarm()
+            .optimise_observed(&problem, &mut stream_rng(1, 0), &|k, f| {
+                seen.lock().unwrap().push((k, f))
+            })
+            .unwrap();
+        let seen = seen.into_inner().unwrap();
+        assert_eq!(seen.len(), 300);
+        assert!(
+            seen.iter()
+                .enumerate()
+                .all(|(i, &(k, f))| k == i + 1 && f.to_bits() == again.history[k].to_bits())
+        );
     }
 
     #[test]
