@@ -150,28 +150,13 @@ fn dispatch(cli: Cli) -> Result<(), Failure> {
     let default_dir = || PathBuf::from("results").join(&scenario.name);
 
     match &cli.command {
-        Command::Run(args) => {
+        Command::Run(RunArgs { out: dir, .. }) | Command::Design(DesignArgs { out: dir, .. }) => {
             let started = Instant::now();
-            let options = RunOptions {
-                progress,
-                designs_only: false,
-            };
+            let designs_only = matches!(cli.command, Command::Design(_));
+            let options = RunOptions { progress, designs_only };
             let mut out = pool.install(|| pipeline::run(&scenario, options))?;
-            let dir = args.out.clone().unwrap_or_else(default_dir);
-            write_results(&scenario, &mut out, &dir, threads, true, started)?;
-            if !common.quiet {
-                print_summary(&out, &dir);
-            }
-        }
-        Command::Design(args) => {
-            let started = Instant::now();
-            let options = RunOptions {
-                progress,
-                designs_only: true,
-            };
-            let mut out = pool.install(|| pipeline::run(&scenario, options))?;
-            let dir = args.out.clone().unwrap_or_else(default_dir);
-            write_results(&scenario, &mut out, &dir, threads, false, started)?;
+            let dir = dir.clone().unwrap_or_else(default_dir);
+            write_results(&scenario, &mut out, &dir, threads, !designs_only, started)?;
             if !common.quiet {
                 print_summary(&out, &dir);
             }
