@@ -60,7 +60,7 @@ fn kernels(c: &mut Criterion) {
     });
 }
 
-/// 1000 noisy trials of one design ([P1] IV.C), in parallel with one stream per trial, collected in
+/// 1000 noisy trials of one design (\[P1\] IV.C), in parallel with one stream per trial, collected in
 /// order: what `magcal run` does per design and noise level.
 fn monte_carlo(c: &mut Criterion) {
     use magcal_core::monte_carlo::trial;

@@ -1,4 +1,4 @@
-//! One noisy Monte Carlo trial of [P1] IV.C: readings of a design with noise, two-step calibration,
+//! One noisy Monte Carlo trial of \[P1\] IV.C: readings of a design with noise, two-step calibration,
 //! relative errors. A trial whose calibration fails is an outcome with its status, not an error.
 
 use rand::Rng;
@@ -20,7 +20,7 @@ pub struct TrialOutcome {
     pub rms_residual_nt: Option<f64>,
     /// The estimated sensor errors, when there are any.
     pub estimate: Option<ErrorModel>,
-    /// Their relative errors against the truth, percent ([P1] eq. (21)-(23)).
+    /// Their relative errors against the truth, percent (\[P1\] eq. (21)-(23)).
     pub eta: Option<RelativeErrors>,
 }
 

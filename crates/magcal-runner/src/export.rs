@@ -206,6 +206,8 @@ pub struct Manifest {
     pub field_ned_nt: [f64; 3],
     /// Yaw offset, degrees.
     pub yaw_offset_deg: f64,
+    /// The attitude box, roll, yaw, pitch `[min, max]` in degrees.
+    pub attitude_box_deg: [[f64; 2]; 3],
     /// Rayon threads.
     pub threads: usize,
     /// The command line.
@@ -237,6 +239,10 @@ impl Manifest {
             sigma_nt: scenario.sigmas_nt.clone(),
             field_ned_nt: scenario.field.ned_nt(),
             yaw_offset_deg: scenario.field.yaw_offset_deg(),
+            attitude_box_deg: scenario
+                .bounds
+                .ranges()
+                .map(|r| [r.min().to_degrees(), r.max().to_degrees()]),
             threads,
             command: std::env::args().collect(),
             git_revision: env!("MAGCAL_GIT_REVISION"),

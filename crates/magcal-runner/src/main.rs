@@ -6,6 +6,7 @@
 mod check;
 mod export;
 mod pipeline;
+mod plots;
 mod scenario;
 
 use std::io::IsTerminal;
@@ -36,6 +37,14 @@ enum Command {
     Design(DesignArgs),
     /// Run again and compare with committed results; exit 1 when something moved.
     Check(CheckArgs),
+    /// Redraw the figures of a results directory from its CSV files (into DIR/plots/).
+    Plot(PlotArgs),
+}
+
+#[derive(Debug, Args)]
+struct PlotArgs {
+    /// A results directory written by `magcal run` or `magcal design`.
+    dir: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -126,6 +135,11 @@ fn dispatch(cli: Cli) -> Result<(), Failure> {
         Command::Run(a) => &a.common,
         Command::Design(a) => &a.common,
         Command::Check(a) => &a.common,
+        Command::Plot(a) => {
+            let pngs = plots::plot_dir(&a.dir)?;
+            println!("{} figures drawn in {}", pngs.len(), a.dir.join("plots").display());
+            return Ok(());
+        }
     };
     let mut scenario = scenario::load(&common.scenario)?;
     if let Some(seed) = common.seed {
@@ -157,10 +171,13 @@ fn dispatch(cli: Cli) -> Result<(), Failure> {
             let mut out = pool.install(|| pipeline::run(&scenario, options))?;
             let dir = dir.clone().unwrap_or_else(default_dir);
             write_results(&scenario, &mut out, &dir, threads, !designs_only, started)?;
+            let pngs = plots::plot_dir(&dir).context("the results are written; drawing their figures failed")?;
             if !common.quiet {
                 print_summary(&out, &dir);
+                println!("{} figures in {}", pngs.len(), dir.join("plots").display());
             }
         }
+        Command::Plot(_) => unreachable!("handled above"),
         Command::Check(args) => {
             let dir = args.baseline.clone().unwrap_or_else(default_dir);
             if !dir.is_dir() {

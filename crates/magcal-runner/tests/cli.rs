@@ -289,3 +289,69 @@ fn bad_input_is_a_clear_error_that_leaves_results_untouched() {
         expect_bad_input(&scenario, &out, &needles);
     }
 }
+
+#[test]
+fn run_draws_every_figure_as_valid_non_blank_png_and_svg() {
+    let tmp = TempDir::new().unwrap();
+    run_smoke(tmp.path(), 2);
+    let plots = tmp.path().join("plots");
+    let mut stems: Vec<String> = vec!["eta_psi", "eta_s", "eta_o", "pso_runs"]
+        .into_iter()
+        .map(String::from)
+        .collect();
+    stems.extend(
+        ["uniform", "table2_dopt", "pso", "optimum"]
+            .iter()
+            .map(|d| format!("design_{d}")),
+    );
+    // Two noise levels: the sweep is drawn too.
+    stems.extend(["eta_psi", "eta_s", "eta_o"].iter().map(|m| format!("noise_sweep_{m}")));
+    for stem in &stems {
+        let png = image::open(plots.join(format!("{stem}.png")))
+            .unwrap_or_else(|e| panic!("{stem}.png: {e}"))
+            .to_rgb8();
+        assert_eq!(png.dimensions(), (960, 600), "{stem}");
+        // Not blank: a white background with a substantial share of drawn (non-white) pixels.
+        let drawn = png.pixels().filter(|p| p.0 != [255, 255, 255]).count();
+        let share = drawn as f64 / (960.0 * 600.0);
+        assert!(share > 0.01 && share < 0.9, "{stem}.png: {share} of pixels drawn");
+        let svg = fs::read_to_string(plots.join(format!("{stem}.svg"))).unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>") && svg.contains("<text"),
+            "{stem}.svg"
+        );
+    }
+}
+
+#[test]
+fn plot_redraws_from_csv_and_names_a_bad_file() {
+    let tmp = TempDir::new().unwrap();
+    run_smoke(tmp.path(), 2);
+    fs::remove_dir_all(tmp.path().join("plots")).unwrap();
+    magcal().arg("plot").arg(tmp.path()).assert().success();
+    assert!(tmp.path().join("plots/eta_psi.png").is_file());
+
+    // A malformed number in summary.csv: exit 2, the file and the value named, no panic.
+    let summary = tmp.path().join("summary.csv");
+    let text = fs::read_to_string(&summary).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let mut cols: Vec<String> = lines[1].split(',').map(str::to_string).collect();
+    cols[5] = "twelve".into();
+    lines[1] = cols.join(",");
+    fs::write(&summary, lines.join("\n")).unwrap();
+    let out = magcal().arg("plot").arg(tmp.path()).assert().code(2);
+    let stderr = String::from_utf8(out.get_output().stderr.clone()).unwrap();
+    assert!(
+        stderr.contains("summary.csv") && stderr.contains("\"twelve\"") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+
+    // A missing file.
+    fs::remove_file(tmp.path().join("designs.csv")).unwrap();
+    let out = magcal().arg("plot").arg(tmp.path()).assert().code(2);
+    let stderr = String::from_utf8(out.get_output().stderr.clone()).unwrap();
+    assert!(
+        stderr.contains("designs.csv") && stderr.contains("cannot read"),
+        "{stderr}"
+    );
+}
