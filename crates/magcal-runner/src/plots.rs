@@ -295,7 +295,13 @@ where
         .max(lo * 10.0);
     let n = rows.len();
     let mut chart = ChartBuilder::on(root)
-        .caption(format!("{scenario}: {label} at sigma = {sigma} nT"), (FONT, 24))
+        .caption(
+            format!(
+                "{scenario}: {label}, sigma = {sigma} nT, {} trials per design",
+                rows.first().map_or(0, |s| s.trials)
+            ),
+            (FONT, 22),
+        )
         .margin(16)
         .x_label_area_size(80)
         .y_label_area_size(80)
@@ -318,7 +324,6 @@ where
             }
         })
         .y_desc(format!("{label} (log scale)"))
-        .x_desc(format!("design ({} trials each)", rows.first().map_or(0, |s| s.trials)))
         .label_style((FONT, 16))
         .axis_desc_style((FONT, 18))
         .draw()
