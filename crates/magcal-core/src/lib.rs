@@ -28,7 +28,7 @@
 //! ## Equation index
 //! | \[P1\] | item |
 //! |---|---|
-//! | eq. (1) | [`ReferenceField::body_field`] |
+//! | eq. (1) | [`ReferenceField::body_field`]; `B^n` from the WMM: [`wmm::field_ned`] |
 //! | eq. (2) | [`Attitude::dcm`] |
 //! | eq. (3)-(4) | [`AttitudeBox`] |
 //! | eq. (5) | [`ErrorModel`], [`ErrorModel::K`], [`ErrorModel::noisy_readings`] |
@@ -66,6 +66,7 @@ pub mod paper;
 pub mod rng;
 pub mod sensor;
 pub mod small;
+pub mod wmm;
 
 pub use attitude::{AngleRange, Attitude, AttitudeBox};
 pub use calibration::{

@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use magcal_core::design::optimum::Optimum;
 use magcal_core::design::pso::Swarm;
 use magcal_core::design::sources;
-use magcal_core::{Attitude, AttitudeBox, ErrorModel, ReferenceField, TwoStep};
+use magcal_core::{Attitude, AttitudeBox, ErrorModel, ReferenceField, TwoStep, wmm};
 use sha2::{Digest, Sha256};
 
 /// The schema version this build reads.
@@ -46,10 +46,16 @@ mod raw {
 
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]
+    /// Either the NED components, or a World Magnetic Model site and date.
     pub struct Field {
-        pub north_nt: f64,
-        pub east_nt: f64,
-        pub down_nt: f64,
+        pub north_nt: Option<f64>,
+        pub east_nt: Option<f64>,
+        pub down_nt: Option<f64>,
+        pub model: Option<String>,
+        pub lat_deg: Option<f64>,
+        pub lon_deg: Option<f64>,
+        pub alt_m: Option<f64>,
+        pub year: Option<f64>,
         #[serde(default)]
         pub yaw_offset_deg: f64,
     }
@@ -293,18 +299,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         }
     }
 
-    let f = &raw.field;
-    for (key, v) in [
-        ("field.north_nt", f.north_nt),
-        ("field.east_nt", f.east_nt),
-        ("field.down_nt", f.down_nt),
-        ("field.yaw_offset_deg", f.yaw_offset_deg),
-    ] {
-        finite(key, v)?;
-    }
-    let field = ReferenceField::from_ned(f.north_nt, f.east_nt, f.down_nt)
-        .and_then(|field| field.with_yaw_offset_deg(f.yaw_offset_deg))
-        .context("field")?;
+    let field = reference_field(&raw.field)?;
 
     let s = &raw.sensor;
     for (key, values) in [
@@ -394,6 +389,64 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         designs,
         pso_runs,
     })
+}
+
+/// The reference field from `[field]`: NED numbers (nT), or `model, lat_deg, lon_deg, alt_m, year`
+/// evaluated with the World Magnetic Model; then the yaw offset.
+fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
+    finite("field.yaw_offset_deg", f.yaw_offset_deg)?;
+    let ned = [f.north_nt, f.east_nt, f.down_nt];
+    let site = [f.lat_deg, f.lon_deg, f.alt_m, f.year];
+    let field = match (&f.model, ned.iter().any(Option::is_some)) {
+        (Some(_), true) => bail!("[field]: give either north_nt, east_nt, down_nt or a model and site, not both"),
+        (None, _) => {
+            let keys = ["field.north_nt", "field.east_nt", "field.down_nt"];
+            let mut v = [0.0; 3];
+            for ((key, value), slot) in keys.iter().zip(ned).zip(&mut v) {
+                let Some(value) = value else {
+                    bail!("{key} is missing (or give field.model with lat_deg, lon_deg, alt_m, year)");
+                };
+                *slot = finite(key, value)?;
+            }
+            if site.iter().any(Option::is_some) {
+                bail!("[field]: lat_deg, lon_deg, alt_m and year need field.model");
+            }
+            ReferenceField::from_ned(v[0], v[1], v[2]).context("field")?
+        }
+        (Some(name), false) => {
+            let Some(model) = wmm::Model::from_name(name) else {
+                let known: Vec<&str> = wmm::Model::ALL.iter().map(|m| m.name()).collect();
+                bail!("field.model = {name:?}: unknown model; known: {}", known.join(", "));
+            };
+            let keys = ["field.lat_deg", "field.lon_deg", "field.alt_m", "field.year"];
+            let mut v = [0.0; 4];
+            for ((key, value), slot) in keys.iter().zip(site).zip(&mut v) {
+                let Some(value) = value else {
+                    bail!("{key} is missing (needed with field.model)")
+                };
+                *slot = finite(key, value)?;
+            }
+            let site = wmm::Site {
+                lat_deg: v[0],
+                lon_deg: v[1],
+                alt_m: v[2],
+                year: v[3],
+            };
+            wmm::reference_field(model, &site).map_err(|e| match e {
+                magcal_core::ParameterError::OutOfRange {
+                    name: "field.year",
+                    value,
+                    ..
+                } => {
+                    anyhow::anyhow!(
+                        "field.year = {value}: outside the validity window of {name} (its epoch to 5 years after)"
+                    )
+                }
+                other => anyhow::anyhow!("{other}"),
+            })?
+        }
+    };
+    field.with_yaw_offset_deg(f.yaw_offset_deg).context("field")
 }
 
 fn check_name(key: &str, name: &str) -> Result<()> {
