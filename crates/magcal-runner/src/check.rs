@@ -1,7 +1,8 @@
 //! `magcal check`: run a scenario again and compare with committed results.
 //!
 //! Monte Carlo statistics are compared within statistical tolerances (4 combined standard errors);
-//! deterministic numbers (a design's `ln det M_F`, condition numbers) within a relative 1e-6. The
+//! a design's `ln det M_F` within a relative 1e-6, the condition numbers of designs that are not
+//! optimised within 1e-3 (see [`compare`]). The
 //! same code and seed reproduce the baseline exactly; the tolerances exist so that a legitimate
 //! change of rounding does not fail, while a change of behaviour does.
 
@@ -124,7 +125,16 @@ pub fn compare(out: &RunOutput, baseline: &Path) -> Result<Vec<Moved>> {
     compare_keys(&base, &now, "design_metrics.csv", &mut moved);
     for (key, b) in &base {
         let Some(n) = now.get(key) else { continue };
-        for quantity in ["m", "ln_det_mf", "cond_h", "cond_mf"] {
+        // ln det M_F is what the optimisers optimise: tight. Condition numbers only for designs that
+        // are not optimised (many designs share the optimal ln det, with different conditioning),
+        // and at 1e-3 relative: cond_2 of an ill-conditioned H (1e9 for the printed Table II design)
+        // moved 2e-6 relative when the field moved 1e-8 relative (measured).
+        let optimised = matches!(b.get("kind").map(String::as_str), Some("pso" | "optimum"));
+        let mut checks = vec![("m", 0.0), ("ln_det_mf", 1e-6)];
+        if !optimised {
+            checks.extend([("cond_h", 1e-3), ("cond_mf", 2e-3)]);
+        }
+        for (quantity, relative) in checks {
             let (bv, nv) = (value(b, quantity, &what)?, value(n, quantity, &what)?);
             check_value(
                 &mut moved,
@@ -132,7 +142,7 @@ pub fn compare(out: &RunOutput, baseline: &Path) -> Result<Vec<Moved>> {
                 quantity,
                 bv,
                 nv,
-                1e-6 * bv.abs(),
+                relative * bv.abs(),
             );
         }
     }
