@@ -1,29 +1,15 @@
 //! The World Magnetic Model: the reference field of \[P1\] eq. (1) at any site and date.
 //!
-//! \[P1\] IV.A takes its reference field from the WMM at the calibration site. This module evaluates
-//! the model's degree-12 spherical-harmonic expansion from its coefficient files (public domain,
-//! NOAA NCEI and the British Geological Survey; shipped in `data/wmm/` and compiled in, so no file is
-//! read at run time): WGS 84 geodetic to geocentric coordinates, Schmidt semi-normalised associated
-//! Legendre functions, secular variation from the model epoch, and the rotation of the geocentric
-//! components back to the geodetic North, East, Down frame (NOAA technical report "The US/UK World
-//! Magnetic Model for 2020-2025", section 1.2, equations 7-19).
-//!
-//! Written here rather than taken from a crate: `world_magnetic_model` is f32 and carries WMM2020
-//! and later only; `magnetics` had no release that builds with the project's dependency set.
-// Index loops mirror the recurrences of the spherical-harmonic synthesis.
-#![allow(clippy::needless_range_loop)]
+//! \[P1\] IV.A takes its reference field from the WMM at the calibration site. The coefficient files
+//! of each release (public domain, NOAA NCEI and the British Geological Survey) ship in `data/wmm/`
+//! and are compiled in, so no file is read at run time. They are evaluated by the `magnetics` crate
+//! (f64; WGS 84 geodetic to geocentric coordinates, Schmidt semi-normalised spherical harmonics to
+//! degree 12, secular variation, rotation to geodetic North, East, Down: the steps of the NOAA WMM
+//! report); this module adds the model list, the validity window and the checks of its input.
 
 use crate::error::ParameterError;
 use crate::field::ReferenceField;
 
-/// Maximum degree of the WMM expansion.
-const N: usize = 12;
-/// Geomagnetic reference radius, km.
-const A_REF: f64 = 6371.2;
-/// WGS 84 semi-major axis, km.
-const WGS84_A: f64 = 6378.137;
-/// WGS 84 flattening.
-const WGS84_F: f64 = 1.0 / 298.257_223_563;
 /// Years a model is valid after its epoch.
 const VALIDITY_YEARS: f64 = 5.0;
 
@@ -79,46 +65,10 @@ impl Model {
         }
     }
 
-    /// The model's epoch (decimal year) and its Gauss coefficients `g, h` (nT) and their secular
-    /// variation `g_dot, h_dot` (nT / year), indexed `[n][m]`.
-    fn coefficients(&self) -> Coefficients {
-        let mut lines = self.cof().lines();
-        let header = lines.next().expect("shipped COF file has a header");
-        let epoch: f64 = header
-            .split_whitespace()
-            .next()
-            .and_then(|t| t.parse().ok())
-            .expect("shipped COF header starts with the epoch");
-        let mut c = Coefficients {
-            epoch,
-            g: [[0.0; N + 1]; N + 1],
-            h: [[0.0; N + 1]; N + 1],
-            g_dot: [[0.0; N + 1]; N + 1],
-            h_dot: [[0.0; N + 1]; N + 1],
-        };
-        for line in lines {
-            let f: Vec<&str> = line.split_whitespace().collect();
-            if f.len() < 6 {
-                break; // the 9999... terminator
-            }
-            let n: usize = f[0].parse().expect("shipped COF degree");
-            let m: usize = f[1].parse().expect("shipped COF order");
-            let v: Vec<f64> = f[2..6].iter().map(|t| t.parse().expect("shipped COF number")).collect();
-            c.g[n][m] = v[0];
-            c.h[n][m] = v[1];
-            c.g_dot[n][m] = v[2];
-            c.h_dot[n][m] = v[3];
-        }
-        c
+    /// The model, read from its shipped coefficient file.
+    fn load(&self) -> magnetics::main_field::Model {
+        magnetics::main_field::read_cof(self.cof()).expect("shipped COF files are valid")
     }
-}
-
-struct Coefficients {
-    epoch: f64,
-    g: [[f64; N + 1]; N + 1],
-    h: [[f64; N + 1]; N + 1],
-    g_dot: [[f64; N + 1]; N + 1],
-    h_dot: [[f64; N + 1]; N + 1],
 }
 
 /// A site and date: WGS 84 geodetic latitude and longitude (degrees), height above the ellipsoid
@@ -157,8 +107,8 @@ pub fn field_ned(model: Model, site: &Site) -> Result<[f64; 3], ParameterError> 
             value: site.lat_deg,
         });
     }
-    let c = model.coefficients();
-    let t = site.year - c.epoch;
+    let m = model.load();
+    let t = site.year - m.epoch;
     if !(0.0..=VALIDITY_YEARS).contains(&t) {
         return Err(ParameterError::OutOfRange {
             name: "field.year",
@@ -166,69 +116,11 @@ pub fn field_ned(model: Model, site: &Site) -> Result<[f64; 3], ParameterError> 
             value: site.year,
         });
     }
-
-    // Geodetic to geocentric spherical coordinates (WGS 84).
-    // At a pole the east component is a limit; evaluate a nano-degree away (changes < 1e-6 nT).
+    // At a pole the east component is a limit (it divides by the cosine of the latitude): evaluate
+    // a nano-degree away, which changes the field by less than 1e-6 nT.
     let lat = site.lat_deg.clamp(-90.0 + 1e-9, 90.0 - 1e-9).to_radians();
-    let lon = site.lon_deg.to_radians();
-    let h_km = site.alt_m / 1000.0;
-    let e2 = WGS84_F * (2.0 - WGS84_F);
-    let (sin_lat, cos_lat) = lat.sin_cos();
-    let rc = WGS84_A / (1.0 - e2 * sin_lat * sin_lat).sqrt();
-    let p = (rc + h_km) * cos_lat;
-    let z = (rc * (1.0 - e2) + h_km) * sin_lat;
-    let r = (p * p + z * z).sqrt();
-    let lat_c = (z / r).asin();
-
-    // Schmidt semi-normalised associated Legendre functions P[n][m] of sin(lat_c) and their
-    // derivatives with respect to lat_c, by the standard recurrences.
-    let (sin_c, cos_c) = lat_c.sin_cos();
-    let mut pnm = [[0.0; N + 1]; N + 1];
-    let mut dpnm = [[0.0; N + 1]; N + 1];
-    pnm[0][0] = 1.0;
-    for n in 1..=N {
-        for m in 0..=n {
-            let nf = n as f64;
-            if n == m {
-                let k = if n == 1 {
-                    1.0
-                } else {
-                    ((2.0 * nf - 1.0) / (2.0 * nf)).sqrt()
-                };
-                pnm[n][n] = k * cos_c * pnm[n - 1][n - 1];
-                dpnm[n][n] = k * (cos_c * dpnm[n - 1][n - 1] - sin_c * pnm[n - 1][n - 1]);
-            } else {
-                let mf = m as f64;
-                let a = (2.0 * nf - 1.0) / (nf * nf - mf * mf).sqrt();
-                let b = (((nf - 1.0) * (nf - 1.0) - mf * mf) / (nf * nf - mf * mf)).sqrt();
-                let p2 = if n >= 2 { pnm[n - 2][m] } else { 0.0 };
-                let dp2 = if n >= 2 { dpnm[n - 2][m] } else { 0.0 };
-                pnm[n][m] = a * sin_c * pnm[n - 1][m] - b * p2;
-                dpnm[n][m] = a * (sin_c * dpnm[n - 1][m] + cos_c * pnm[n - 1][m]) - b * dp2;
-            }
-        }
-    }
-
-    // Synthesis (NOAA report eq. 10-12): geocentric North X', East Y', Down Z'.
-    let (mut xc, mut yc, mut zc) = (0.0, 0.0, 0.0);
-    let ratio = A_REF / r;
-    let mut rn = ratio * ratio; // (a/r)^(n+2) for n = 0
-    for n in 1..=N {
-        rn *= ratio;
-        for m in 0..=n {
-            let g = c.g[n][m] + t * c.g_dot[n][m];
-            let h = c.h[n][m] + t * c.h_dot[n][m];
-            let (sm, cm) = (m as f64 * lon).sin_cos();
-            let gc = g * cm + h * sm;
-            xc -= rn * gc * dpnm[n][m];
-            yc += rn * m as f64 * (g * sm - h * cm) * pnm[n][m] / cos_c;
-            zc -= (n as f64 + 1.0) * rn * gc * pnm[n][m];
-        }
-    }
-    // Rotate from geocentric to geodetic (NOAA report eq. 17).
-    let d = lat_c - lat;
-    let (sd, cd) = d.sin_cos();
-    Ok([xc * cd - zc * sd, yc, xc * sd + zc * cd])
+    let e = m.elements(site.year, lat, site.lon_deg.to_radians(), site.alt_m);
+    Ok([e.x, e.y, e.z])
 }
 
 /// The reference field of `model` at `site`, as [`ReferenceField::from_ned`] takes it.

@@ -1,3 +1,6 @@
+// Index loops over the three components read best here.
+#![allow(clippy::needless_range_loop)]
+
 use super::*;
 
 type Row = (Model, f64, f64, f64, f64, [f64; 3]);
