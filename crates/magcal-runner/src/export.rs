@@ -21,17 +21,17 @@ pub const SUMMARY_HEADER: [&str; 11] = [
 /// The header of `design_metrics.csv`.
 pub const DESIGN_METRICS_HEADER: [&str; 13] = [
     "design",
-    "kind",
     "m",
     "ln_det_mf",
     "d_efficiency",
     "cond_h",
     "cond_mf",
-    "a_criterion",
-    "e_criterion",
     "det_inv_ratio_vs_uniform",
     "cond_h_ratio_vs_uniform",
     "cond_mf_ratio_vs_uniform",
+    "kind",
+    "a_criterion",
+    "e_criterion",
     "best_in_run",
 ];
 
@@ -78,8 +78,6 @@ pub fn trials_csv(out: &RunOutput, w: impl Write) -> Result<()> {
         "sigma_nt",
         "trial",
         "status",
-        "step2_iterations",
-        "rms_residual_nt",
         "eta_psi",
         "eta_s",
         "eta_o",
@@ -92,6 +90,8 @@ pub fn trials_csv(out: &RunOutput, w: impl Write) -> Result<()> {
         "o1_nt",
         "o2_nt",
         "o3_nt",
+        "step2_iterations",
+        "rms_residual_nt",
     ])?;
     for cell in &out.cells {
         let design = &out.designs[cell.design].name;
@@ -101,8 +101,6 @@ pub fn trials_csv(out: &RunOutput, w: impl Write) -> Result<()> {
                 num(cell.sigma_nt),
                 t.to_string(),
                 trial.status.as_str().to_string(),
-                trial.iterations.map(|i| i.to_string()).unwrap_or_default(),
-                opt(trial.rms_residual_nt),
                 opt(trial.eta.map(|e| e.psi)),
                 opt(trial.eta.map(|e| e.scale)),
                 opt(trial.eta.map(|e| e.bias)),
@@ -111,6 +109,8 @@ pub fn trials_csv(out: &RunOutput, w: impl Write) -> Result<()> {
                 Some(m) => row.extend(m.psi_deg().into_iter().chain(m.scale()).chain(m.bias_nt()).map(num)),
                 None => row.extend(std::iter::repeat_n(String::new(), 9)),
             }
+            row.push(trial.iterations.map(|i| i.to_string()).unwrap_or_default());
+            row.push(opt(trial.rms_residual_nt));
             csv.write_record(row)?;
         }
     }
@@ -156,17 +156,17 @@ pub fn design_metrics_csv(out: &RunOutput, w: impl Write) -> Result<()> {
         });
         csv.write_record([
             d.name.clone(),
-            d.kind.to_string(),
             d.attitudes.len().to_string(),
             num(d.ln_det_mf),
             num(out.d_efficiency(i)),
             num(d.conditioning.cond_h),
             num(d.conditioning.cond_mf),
-            num(d.a_criterion),
-            num(d.e_criterion),
             opt(ratios.map(|r| r.0)),
             opt(ratios.map(|r| r.1)),
             opt(ratios.map(|r| r.2)),
+            d.kind.to_string(),
+            num(d.a_criterion),
+            num(d.e_criterion),
             (d.ln_det_mf.to_bits() == best.to_bits()).to_string(),
         ])?;
     }

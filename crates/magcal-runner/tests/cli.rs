@@ -56,7 +56,7 @@ fn run_writes_every_file_with_the_expected_rows() {
     // 4 designs x 2 noise levels x 200 trials, each with a status; failed ones counted in summary.
     let trials = csv_rows(&tmp.path().join("trials.csv"));
     assert_eq!(trials.len(), 1600);
-    let failed_in_trials = trials.iter().filter(|r| r[6].is_empty()).count();
+    let failed_in_trials = trials.iter().filter(|r| r[4].is_empty()).count();
     let failed_in_summary: usize = summary
         .iter()
         .filter(|r| r[4] == "eta_psi")
@@ -71,7 +71,7 @@ fn run_writes_every_file_with_the_expected_rows() {
     // CONVENTIONS.md check values through the whole pipeline.
     let metrics = csv_rows(&tmp.path().join("design_metrics.csv"));
     let ln_det = |name: &str| {
-        metrics.iter().find(|r| r[0] == name).unwrap()[3]
+        metrics.iter().find(|r| r[0] == name).unwrap()[2]
             .parse::<f64>()
             .unwrap()
     };
@@ -139,7 +139,7 @@ fn check_passes_on_its_own_results_and_fails_when_they_move() {
     let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
     let i = lines.iter().position(|l| l.starts_with("pso,")).unwrap();
     let mut cols: Vec<String> = lines[i].split(',').map(str::to_string).collect();
-    cols[3] = (cols[3].parse::<f64>().unwrap() + 1e-2).to_string();
+    cols[2] = (cols[2].parse::<f64>().unwrap() + 1e-2).to_string();
     lines[i] = cols.join(",");
     fs::write(&path, lines.join("\n") + "\n").unwrap();
     let out = magcal()
