@@ -6,9 +6,9 @@ use std::hint::black_box;
 use criterion::{Criterion, criterion_group, criterion_main};
 use faer::{Mat, Side};
 use magcal_core::attitude::Attitude;
+use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{InformationMatrix, TwoStep, paper, small};
-use rand::RngExt;
 
 fn noisy_readings(m: usize) -> (Vec<magcal_core::Vec3>, f64) {
     let field = paper::changsha_field();
@@ -17,15 +17,7 @@ fn noisy_readings(m: usize) -> (Vec<magcal_core::Vec3>, f64) {
     let design: Vec<Attitude> = if m == 9 {
         paper::uniformity_design()
     } else {
-        (0..m)
-            .map(|_| {
-                Attitude::from_degrees(
-                    rng.random_range(-5.0..5.0),
-                    rng.random_range(-180.0..180.0),
-                    rng.random_range(-20.0..20.0),
-                )
-            })
-            .collect()
+        sources::random(&paper::auv_box(), m, &mut rng)
     };
     let readings = truth
         .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)

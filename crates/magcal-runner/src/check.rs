@@ -172,23 +172,17 @@ pub fn compare(out: &RunOutput, baseline: &Path) -> Result<Vec<Moved>> {
 }
 
 fn compare_keys(base: &Rows, now: &Rows, file: &str, moved: &mut Vec<Moved>) {
-    for key in base.keys().filter(|k| !now.contains_key(*k)) {
-        moved.push(Moved {
+    for (from, other, what) in [
+        (base, now, "row missing in this run"),
+        (now, base, "row not in the baseline"),
+    ] {
+        moved.extend(from.keys().filter(|k| !other.contains_key(*k)).map(|key| Moved {
             key: format!("{file} {key}"),
-            quantity: "row missing in this run".into(),
+            quantity: what.into(),
             baseline: f64::NAN,
             now: f64::NAN,
             tolerance: 0.0,
-        });
-    }
-    for key in now.keys().filter(|k| !base.contains_key(*k)) {
-        moved.push(Moved {
-            key: format!("{file} {key}"),
-            quantity: "row not in the baseline".into(),
-            baseline: f64::NAN,
-            now: f64::NAN,
-            tolerance: 0.0,
-        });
+        }));
     }
 }
 

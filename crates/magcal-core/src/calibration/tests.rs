@@ -1,22 +1,13 @@
 use super::step2::{PARAMETERS, pack, residual_and_gradient};
 use super::*;
 use crate::attitude::{Attitude, AttitudeBox};
+use crate::design::sources;
 use crate::metrics::RelativeErrors;
 use crate::paper;
 use crate::rng::stream_rng;
 use crate::small::scale;
 use proptest::prelude::*;
 use rand::{Rng, RngExt};
-
-fn random_attitudes<R: Rng>(b: &AttitudeBox, m: usize, rng: &mut R) -> Vec<Attitude> {
-    (0..m)
-        .map(|_| Attitude {
-            roll: rng.random_range(b.roll.min()..=b.roll.max()),
-            yaw: rng.random_range(b.yaw.min()..=b.yaw.max()),
-            pitch: rng.random_range(b.pitch.min()..=b.pitch.max()),
-        })
-        .collect()
-}
 
 fn random_truth<R: Rng>(rng: &mut R) -> ErrorModel {
     let psi = std::array::from_fn(|_| rng.random_range(-5.0..5.0));
@@ -70,7 +61,7 @@ fn noise_free_recovery_of_random_truths_on_random_designs() {
     for _ in 0..200 {
         let truth = random_truth(&mut rng);
         for m in [9, 30] {
-            let design = random_attitudes(&full, m, &mut rng);
+            let design = sources::random(&full, m, &mut rng);
             let readings = truth.measure_all(&field.body_fields(&design));
             let fit = TwoStep::default().calibrate(&readings, field.magnitude()).unwrap();
             for est in [&fit.step1, &fit.step2] {
@@ -115,7 +106,7 @@ fn step2_never_increases_the_residual_with_thirty_readings() {
     let mut improved = 0;
     for trial in 0..300 {
         let mut rng = stream_rng(9, trial);
-        let design = random_attitudes(&auv, 30, &mut rng);
+        let design = sources::random(&auv, 30, &mut rng);
         let readings = truth
             .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
             .unwrap();
@@ -139,7 +130,7 @@ fn step2_reports_not_converged_at_its_iteration_limit() {
     let field = paper::changsha_field();
     let truth = paper::true_error_model();
     let mut rng = stream_rng(10, 0);
-    let design = random_attitudes(&paper::auv_box(), 30, &mut rng);
+    let design = sources::random(&paper::auv_box(), 30, &mut rng);
     let readings = truth
         .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
         .unwrap();

@@ -103,7 +103,7 @@ impl DesignProblem {
         let [n, u, e] = self.field().b_n();
         let yaw_offset = self.field().yaw_offset_deg().to_radians();
         let k = self.k_scaled();
-        let o = self.model().bias_nt().map(|v| v / self.field().magnitude());
+        let o = self.o_scaled();
         let mut moments = [[0.0; LANES]; MOMENTS];
         for a in 0..self.m() {
             let mut roll = [0.0; LANES];

@@ -149,6 +149,11 @@ impl DesignProblem {
         &self.k_scaled
     }
 
+    /// `O / R`.
+    pub(crate) fn o_scaled(&self) -> Vec3 {
+        self.o_scaled
+    }
+
     /// `M_F` of the R-scaled readings of `x` (\[P1\] eq. (16) layout), both triangles, through
     /// [`Moments`]. Allocation-free.
     #[inline]
@@ -185,18 +190,23 @@ impl DesignProblem {
     #[track_caller]
     pub fn fitness(&self, criterion: DesignCriterion, x: &[f64]) -> f64 {
         assert_eq!(x.len(), self.dimension(), "design vector length must be 3m");
-        let mut L = self.information(x);
+        self.criterion_of(criterion, &self.information(x))
+    }
+
+    /// The value of `criterion` for the R-scaled information matrix `M`.
+    fn criterion_of(&self, criterion: DesignCriterion, M: &Mat9) -> f64 {
         match criterion {
-            DesignCriterion::D => -self.ln_det_of(&L),
+            DesignCriterion::D => -self.ln_det_of(M),
             DesignCriterion::A => {
+                let mut L = *M;
                 if !cholesky_in_place(&mut L) {
                     return f64::INFINITY;
                 }
                 trace_of_inverse(&L)
             }
             DesignCriterion::E => {
-                let M = faer::Mat::from_fn(UNKNOWNS, UNKNOWNS, |i, j| L[i][j]);
-                match M.self_adjoint_eigenvalues(Side::Lower) {
+                let faer_m = faer::Mat::from_fn(UNKNOWNS, UNKNOWNS, |i, j| M[i][j]);
+                match faer_m.self_adjoint_eigenvalues(Side::Lower) {
                     Ok(ev) if ev[0] > 0.0 => -ev[0],
                     _ => f64::INFINITY,
                 }
@@ -211,10 +221,12 @@ impl DesignProblem {
     #[track_caller]
     pub fn evaluate(&self, design: &[Attitude]) -> DesignMetrics {
         let x = to_vector(design);
+        assert_eq!(x.len(), self.dimension(), "design must have m attitudes");
+        let M = self.information(&x);
         DesignMetrics {
-            ln_det_mf: self.ln_det(&x),
-            a: self.fitness(DesignCriterion::A, &x),
-            e: -self.fitness(DesignCriterion::E, &x),
+            ln_det_mf: self.ln_det_of(&M),
+            a: self.criterion_of(DesignCriterion::A, &M),
+            e: -self.criterion_of(DesignCriterion::E, &M),
         }
     }
 

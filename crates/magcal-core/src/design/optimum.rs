@@ -46,7 +46,7 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
     let ln_det: f64 = (0..UNKNOWNS).map(|i| 2.0 * L[i][i].ln()).sum::<f64>() + 30.0 * problem.ln_r();
     let Ks = problem.k_scaled();
     let field = problem.field();
-    let o = problem.model().bias_nt().map(|v| v / field.magnitude());
+    let o = problem.o_scaled();
     for (a, g) in x.chunks_exact(3).zip(grad.chunks_exact_mut(3)) {
         let attitude = Attitude {
             roll: a[0],
