@@ -30,7 +30,6 @@ use std::f64::consts::FRAC_2_PI;
 
 use super::DesignProblem;
 use crate::linear_model::{MOMENTS, Moments, UNKNOWNS};
-use crate::small::{Mat3, Vec3};
 
 /// Designs evaluated together (see the measurements above).
 pub const LANES: usize = 8;
@@ -108,29 +107,8 @@ impl DesignProblem {
         for x in &xs {
             assert_eq!(x.len(), dim, "design vector length must be 3m");
         }
-        ln_det_lanes_kernel(&self.kernel_input(), self.m(), xs)
+        ln_det_lanes_kernel(self, xs)
     }
-
-    fn kernel_input(&self) -> KernelInput {
-        KernelInput {
-            b_n: self.field().b_n(),
-            yaw_offset: self.field().yaw_offset_deg().to_radians(),
-            k: *self.k_scaled(),
-            o: self.o_scaled(),
-            shift: 30.0 * self.ln_r(),
-        }
-    }
-}
-
-/// What the kernel needs of a [`DesignProblem`], by value (the multiversioned kernel cannot be a
-/// method).
-#[derive(Clone, Copy)]
-struct KernelInput {
-    b_n: Vec3,
-    yaw_offset: f64,
-    k: Mat3,
-    o: Vec3,
-    shift: f64,
 }
 
 /// [`ln_det_lanes_body`] compiled for AVX2 and for baseline x86-64, the one the CPU can run chosen
@@ -141,29 +119,31 @@ struct KernelInput {
 /// `+ - * / sqrt` are correctly rounded at any vector width (the test
 /// `every_target_gives_the_same_bits` checks the run-time clone against the baseline one).
 #[multiversion::multiversion(targets("x86_64+avx2+avx"))]
-fn ln_det_lanes_kernel(input: &KernelInput, m: usize, xs: [&[f64]; LANES]) -> Lanes {
-    ln_det_lanes_body(input, m, xs)
+fn ln_det_lanes_kernel(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
+    ln_det_lanes_body(problem, xs)
 }
 
 /// The kernel for the baseline target only (the reference of the bit-identity test).
 #[cfg(test)]
-fn ln_det_lanes_baseline(input: &KernelInput, m: usize, xs: [&[f64]; LANES]) -> Lanes {
-    ln_det_lanes_body(input, m, xs)
+fn ln_det_lanes_baseline(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
+    ln_det_lanes_body(problem, xs)
 }
 
 /// `ln det M_F` of [`LANES`] designs of `m` attitudes, with the loops over the lanes innermost.
 #[inline(always)]
-fn ln_det_lanes_body(input: &KernelInput, m: usize, xs: [&[f64]; LANES]) -> Lanes {
-    let [n, u, e] = input.b_n;
-    let (k, o) = (&input.k, &input.o);
+fn ln_det_lanes_body(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
+    let [n, u, e] = problem.field().b_n();
+    let yaw_offset = problem.field().yaw_offset_deg().to_radians();
+    let k = problem.k_scaled();
+    let o = problem.o_scaled();
     let mut moments = [[0.0; LANES]; MOMENTS];
-    for a in 0..m {
+    for a in 0..problem.m() {
         let mut roll = [0.0; LANES];
         let mut yaw = [0.0; LANES];
         let mut pitch = [0.0; LANES];
         for l in 0..LANES {
             roll[l] = xs[l][3 * a];
-            yaw[l] = xs[l][3 * a + 1] + input.yaw_offset;
+            yaw[l] = xs[l][3 * a + 1] + yaw_offset;
             pitch[l] = xs[l][3 * a + 2];
         }
         let (sr, cr) = sin_cos(&roll);
@@ -222,14 +202,15 @@ fn ln_det_lanes_body(input: &KernelInput, m: usize, xs: [&[f64]; LANES]) -> Lane
             }
         }
     }
+    let shift = 30.0 * problem.ln_r();
     let mut out = [0.0; LANES];
     for l in 0..LANES {
         out[l] = if !ok[l] {
             f64::NEG_INFINITY
         } else if product[l].is_normal() {
-            product[l].ln() + input.shift
+            product[l].ln() + shift
         } else {
-            (0..UNKNOWNS).map(|j| 2.0 * a[j][j][l].ln()).sum::<f64>() + input.shift
+            (0..UNKNOWNS).map(|j| 2.0 * a[j][j][l].ln()).sum::<f64>() + shift
         };
     }
     out
@@ -310,15 +291,14 @@ mod tests {
         let field = paper::changsha_field().with_yaw_offset_deg(90.0).unwrap();
         for (bounds, m) in [(paper::auv_box(), 9), (AttitudeBox::full(), 12)] {
             let p = DesignProblem::new(field, paper::true_error_model(), bounds, m).unwrap();
-            let input = p.kernel_input();
             let mut rng = stream_rng(3, m as u64);
             for _ in 0..500 {
                 let designs: Vec<Vec<f64>> = (0..LANES)
                     .map(|_| to_vector(&sources::random(&bounds, m, &mut rng)))
                     .collect();
                 let xs = std::array::from_fn(|l| designs[l].as_slice());
-                let fast = ln_det_lanes_kernel(&input, m, xs);
-                let base = ln_det_lanes_baseline(&input, m, xs);
+                let fast = ln_det_lanes_kernel(&p, xs);
+                let base = ln_det_lanes_baseline(&p, xs);
                 assert_eq!(fast.map(f64::to_bits), base.map(f64::to_bits));
             }
         }
