@@ -26,6 +26,9 @@ fn fitness(c: &mut Criterion) {
     c.bench_function("fitness/a_m9", |b| {
         b.iter(|| p.fitness(DesignCriterion::A, black_box(&x)))
     });
+    c.bench_function("fitness/e_m9", |b| {
+        b.iter(|| p.fitness(DesignCriterion::E, black_box(&x)))
+    });
     let y = to_vector(&paper::uniformity_design());
     let designs: [&[f64]; LANES] = std::array::from_fn(|l| if l % 2 == 0 { x.as_slice() } else { y.as_slice() });
     c.bench_function(&format!("fitness/d_m9_lanes_x{LANES}"), |b| {

@@ -13,8 +13,6 @@ pub mod optimum;
 pub mod pso;
 pub mod sources;
 
-use faer::Side;
-
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::error::ParameterError;
 use crate::field::ReferenceField;
@@ -183,7 +181,7 @@ impl DesignProblem {
     /// The value of `criterion` for design `x` (radians, \[P1\] eq. (16) layout): the fitness the
     /// optimisers minimise. `+inf` for a singular design.
     ///
-    /// D and A allocate nothing; E calls faer's symmetric eigenvalue solver, which allocates.
+    /// Allocation-free for every criterion (tested in `tests/no_allocation.rs`).
     ///
     /// # Panics
     /// If `x.len() != 3m` (a caller bug).
@@ -204,13 +202,10 @@ impl DesignProblem {
                 }
                 trace_of_inverse(&L)
             }
-            DesignCriterion::E => {
-                let faer_m = faer::Mat::from_fn(UNKNOWNS, UNKNOWNS, |i, j| M[i][j]);
-                match faer_m.self_adjoint_eigenvalues(Side::Lower) {
-                    Ok(ev) if ev[0] > 0.0 => -ev[0],
-                    _ => f64::INFINITY,
-                }
-            }
+            DesignCriterion::E => match smallest_eigenvalue(M) {
+                Some(lambda) if lambda > 0.0 => -lambda,
+                _ => f64::INFINITY,
+            },
         }
     }
 
@@ -235,6 +230,41 @@ impl DesignProblem {
         let readings = self.model.measure_all(&self.field.body_fields(design));
         InformationMatrix::from_readings(&readings, self.field.magnitude())
     }
+}
+
+/// Bytes of stack scratch for faer's 9x9 eigenvalue solver: what `self_adjoint_evd_scratch` asks
+/// (about 2 KiB in faer 0.24), with room to spare; a test checks that it fits.
+const EVD_SCRATCH_BYTES: usize = 8192;
+
+/// The smallest eigenvalue of the symmetric `M` (lower triangle read), by faer's self-adjoint
+/// eigenvalue solver (eigenvalues only, ascending) with its scratch space on the stack rather than
+/// in the `MemBuffer` faer's convenience method allocates. `None` if the solver does not converge.
+fn smallest_eigenvalue(M: &Mat9) -> Option<f64> {
+    use faer::dyn_stack::{MemBuffer, MemStack};
+    use faer::linalg::evd::{ComputeEigenvectors, self_adjoint_evd, self_adjoint_evd_scratch};
+
+    let params = Default::default();
+    let req = self_adjoint_evd_scratch::<f64>(UNKNOWNS, ComputeEigenvectors::No, faer::Par::Seq, params);
+    let mut scratch = [std::mem::MaybeUninit::<u8>::uninit(); EVD_SCRATCH_BYTES];
+    // Only if a future faer asked for more: correct, but allocating.
+    let mut heap;
+    let stack = if MemStack::new(&mut scratch).can_hold(req) {
+        MemStack::new(&mut scratch)
+    } else {
+        heap = MemBuffer::new(req);
+        MemStack::new(&mut heap)
+    };
+    let mut eigenvalues = [0.0; UNKNOWNS];
+    self_adjoint_evd(
+        faer::MatRef::from_row_major_slice(M.as_flattened(), UNKNOWNS, UNKNOWNS),
+        faer::ColMut::from_slice_mut(&mut eigenvalues).as_diagonal_mut(),
+        None,
+        faer::Par::Seq,
+        stack,
+        params,
+    )
+    .ok()?;
+    Some(eigenvalues[0])
 }
 
 /// `trace(M^-1)` from the Cholesky factor `L` (lower triangle): the squared Frobenius norm of `L^-1`.
@@ -302,6 +332,7 @@ pub fn from_vector(x: &[f64]) -> Vec<Attitude> {
 mod tests {
     use super::*;
     use crate::paper;
+    use faer::Side;
     use faer::linalg::solvers::DenseSolveCore;
 
     pub(crate) fn paper_problem() -> DesignProblem {
@@ -351,6 +382,19 @@ mod tests {
             // A and E are positive and ordered as their definitions demand: trace(M^-1) >= 1/lambda_min.
             assert!(metrics.a >= 1.0 / metrics.e * (1.0 - 1e-12));
         }
+    }
+
+    #[test]
+    fn the_eigenvalue_scratch_fits_on_the_stack() {
+        use faer::linalg::evd::{ComputeEigenvectors, self_adjoint_evd_scratch};
+        let req =
+            self_adjoint_evd_scratch::<f64>(UNKNOWNS, ComputeEigenvectors::No, faer::Par::Seq, Default::default());
+        // What a buffer of EVD_SCRATCH_BYTES can hold whatever its start address.
+        assert!(
+            req.unaligned_bytes_required() <= EVD_SCRATCH_BYTES,
+            "{} bytes",
+            req.unaligned_bytes_required()
+        );
     }
 
     #[test]
