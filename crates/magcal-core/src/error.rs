@@ -1,5 +1,9 @@
 //! Errors for invalid parameters (the caller's input), as opposed to failures of a fit, which live in
 //! [`crate::calibration::CalibrationError`].
+//!
+//! Each variant names the core parameter (`"particles"`, `"lat_deg"`, `"psi_deg"`): the name of the
+//! field or argument of this crate, never a key of some input file. A front end that knows which
+//! key it passed adds it, as globset's `Error { glob, kind }` does.
 
 /// A parameter outside its domain. Each variant names the parameter and carries the offending value,
 /// so that a front end can report it against the key of its input file.
@@ -50,6 +54,16 @@ pub enum ParameterError {
         /// The value given.
         value: usize,
     },
+    /// A count above what can be represented or computed.
+    #[error("{name} must be at most {max}, got {value}")]
+    TooLarge {
+        /// Parameter name.
+        name: &'static str,
+        /// Largest allowed value.
+        max: usize,
+        /// The value given (saturated at `usize::MAX` when it overflowed).
+        value: usize,
+    },
     /// A value outside an open or closed interval.
     #[error("{name} must lie in {allowed}, got {value}")]
     OutOfRange {
@@ -60,6 +74,34 @@ pub enum ParameterError {
         /// The value given.
         value: f64,
     },
+}
+
+impl ParameterError {
+    /// The core parameter the error is about.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::NonFinite { name, .. }
+            | Self::EmptyRange { name, .. }
+            | Self::NotPositive { name, .. }
+            | Self::Negative { name, .. }
+            | Self::TooSmall { name, .. }
+            | Self::TooLarge { name, .. }
+            | Self::OutOfRange { name, .. } => name,
+        }
+    }
+
+    /// What the parameter must satisfy, without its name or value: `"must be at least 1"`.
+    pub fn requirement(&self) -> String {
+        match self {
+            Self::NonFinite { .. } => "must be a finite number".into(),
+            Self::EmptyRange { .. } => "the minimum must be below the maximum".into(),
+            Self::NotPositive { .. } => "must be positive".into(),
+            Self::Negative { .. } => "must not be negative".into(),
+            Self::TooSmall { min, .. } => format!("must be at least {min}"),
+            Self::TooLarge { max, .. } => format!("must be at most {max}"),
+            Self::OutOfRange { allowed, .. } => format!("must lie in {allowed}"),
+        }
+    }
 }
 
 /// `Ok(value)` when finite, else [`ParameterError::NonFinite`].

@@ -21,13 +21,13 @@ impl ReferenceField {
     /// # Errors
     /// A component that is not finite, or a zero field.
     pub fn from_ned(x_nt: f64, y_nt: f64, z_nt: f64) -> Result<Self, ParameterError> {
-        let x = finite("field.north_nt", x_nt)?;
-        let y = finite("field.east_nt", y_nt)?;
-        let z = finite("field.down_nt", z_nt)?;
+        let x = finite("north_nt", x_nt)?;
+        let y = finite("east_nt", y_nt)?;
+        let z = finite("down_nt", z_nt)?;
         let b_n = [x, -z, y];
         if norm(b_n) == 0.0 || !norm(b_n).is_finite() {
             return Err(ParameterError::NotPositive {
-                name: "field magnitude",
+                name: "magnitude",
                 value: norm(b_n),
             });
         }
@@ -44,7 +44,7 @@ impl ReferenceField {
     /// # Errors
     /// A non-finite offset.
     pub fn with_yaw_offset_deg(mut self, yaw_offset_deg: f64) -> Result<Self, ParameterError> {
-        self.yaw_offset = finite("field.yaw_offset_deg", yaw_offset_deg)?.to_radians();
+        self.yaw_offset = finite("yaw_offset_deg", yaw_offset_deg)?.to_radians();
         Ok(self)
     }
 

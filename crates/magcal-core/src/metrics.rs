@@ -3,20 +3,22 @@
 use crate::sensor::ErrorModel;
 use crate::small::{Vec3, norm, sub};
 
-/// `100 |v_hat - v| / |v|`, percent: \[P1\] eq. (21)-(23).
-pub fn relative_error_percent(estimate: Vec3, truth: Vec3) -> f64 {
-    100.0 * norm(sub(estimate, truth)) / norm(truth)
+/// `100 |v_hat - v| / |v|`, percent: \[P1\] eq. (21)-(23). `None` where the truth is zero (a
+/// nominal sensor: psi = 0 or O = 0), for which a relative error is undefined.
+pub fn relative_error_percent(estimate: Vec3, truth: Vec3) -> Option<f64> {
+    let scale = norm(truth);
+    (scale > 0.0).then(|| 100.0 * norm(sub(estimate, truth)) / scale)
 }
 
-/// The three criteria of \[P1\] IV.B, percent.
+/// The three criteria of \[P1\] IV.B, percent; each `None` where its truth is zero.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RelativeErrors {
     /// `eta_psi`, \[P1\] eq. (21), from psi in degrees.
-    pub psi: f64,
+    pub psi: Option<f64>,
     /// `eta_S`, \[P1\] eq. (22).
-    pub scale: f64,
+    pub scale: Option<f64>,
     /// `eta_O`, \[P1\] eq. (23).
-    pub bias: f64,
+    pub bias: Option<f64>,
 }
 
 impl RelativeErrors {
@@ -123,11 +125,19 @@ mod tests {
         )
         .unwrap();
         let e = RelativeErrors::between(&est, &truth);
-        assert!((e.psi - 10.0).abs() < 1e-12, "{}", e.psi);
-        assert!(e.scale.abs() < 1e-12 && e.bias.abs() < 1e-12);
-        assert!(
-            (relative_error_percent([3.0, 4.0, 0.0], [0.0, 0.0, 10.0]) - 100.0 * 125f64.sqrt() / 10.0).abs() < 1e-12
-        );
+        assert!((e.psi.unwrap() - 10.0).abs() < 1e-12, "{:?}", e.psi);
+        assert!(e.scale.unwrap().abs() < 1e-12 && e.bias.unwrap().abs() < 1e-12);
+        let eta = relative_error_percent([3.0, 4.0, 0.0], [0.0, 0.0, 10.0]).unwrap();
+        assert!((eta - 100.0 * 125f64.sqrt() / 10.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn relative_error_of_a_zero_truth_is_undefined_not_nan() {
+        let nominal = ErrorModel::new([0.0; 3], [1.0; 3], [0.0; 3]).unwrap();
+        let est = ErrorModel::new([0.1, 0.0, 0.0], [1.01, 1.0, 1.0], [5.0, 0.0, 0.0]).unwrap();
+        let e = RelativeErrors::between(&est, &nominal);
+        assert_eq!((e.psi, e.bias), (None, None));
+        assert!((e.scale.unwrap() - 100.0 * 0.01 / 3f64.sqrt()).abs() < 1e-12);
     }
 
     #[test]

@@ -82,7 +82,7 @@ mod tests {
                     &mut stream_rng(seed, t),
                 )
                 .unwrap();
-                o.eta.expect("small noise: every calibration succeeds").psi
+                o.eta.expect("small noise: every calibration succeeds").psi.unwrap()
             })
             .collect();
         Summary::new(&values, 0)

@@ -13,10 +13,12 @@ use magcal_core::design::{DesignProblem, d_efficiency, sources};
 use magcal_core::monte_carlo::{self, TrialOutcome};
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::{Attitude, Conditioning, RelativeErrors, Summary};
+
+use crate::output::Metric;
 use rand::RngExt;
 use rayon::prelude::*;
 
-use crate::scenario::{DesignSource, Scenario};
+use crate::scenario::{DesignKind, DesignSource, Scenario};
 
 /// Stream-id prefix of the design optimisers (design indices stay below it).
 const DESIGN_STREAM: u64 = 0xFFFF;
@@ -31,7 +33,7 @@ pub struct BuiltDesign {
     /// Name from the scenario.
     pub name: String,
     /// Source kind.
-    pub kind: &'static str,
+    pub kind: DesignKind,
     /// Its attitudes.
     pub attitudes: Vec<Attitude>,
     /// `ln det M_F`, nT (\[P1\] eq. (12), (14)).
@@ -61,17 +63,21 @@ impl Cell {
         self.trials.iter().filter(|t| t.eta.is_none()).count()
     }
 
-    /// Statistics of the three metrics, in the order eta_psi, eta_s, eta_o.
-    pub fn summaries(&self) -> [(&'static str, Summary); 3] {
-        let values = |f: fn(&RelativeErrors) -> f64| -> Vec<f64> {
-            self.trials.iter().filter_map(|t| t.eta.as_ref().map(f)).collect()
+    /// Statistics of the three metrics, in the order of [`Metric::ALL`], over the trials that
+    /// produced the metric (a metric whose truth is zero has none: every statistic undefined).
+    pub fn summaries(&self) -> [(Metric, Summary); 3] {
+        let values = |f: fn(&RelativeErrors) -> Option<f64>| -> Vec<f64> {
+            self.trials.iter().filter_map(|t| t.eta.as_ref().and_then(f)).collect()
         };
         let failed = self.failed();
-        [
-            ("eta_psi", Summary::new(&values(|e| e.psi), failed)),
-            ("eta_s", Summary::new(&values(|e| e.scale), failed)),
-            ("eta_o", Summary::new(&values(|e| e.bias), failed)),
-        ]
+        Metric::ALL.map(|metric| {
+            let v = match metric {
+                Metric::EtaPsi => values(|e| e.psi),
+                Metric::EtaS => values(|e| e.scale),
+                Metric::EtaO => values(|e| e.bias),
+            };
+            (metric, Summary::new(&v, failed))
+        })
     }
 }
 
@@ -152,7 +158,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         let is_pso = matches!(spec.source, DesignSource::Pso { .. });
         let bar = spinner(
             options.progress && !is_pso,
-            format!("design {} ({})", spec.name, spec.source.kind()),
+            format!("design {} ({})", spec.name, spec.source.kind().as_str()),
         );
         let mut rng = stream_rng(scenario.seed, stream_id(&[DESIGN_STREAM, i as u64]));
         let problem = |m: usize| {

@@ -1,26 +1,32 @@
-//! Figures from a results directory's CSV files and manifest alone, as SVG and PNG under `plots/`:
-//! \[P1\] Figs. 1-3 (relative errors per design), Fig. 4 (final fitness of repeated PSO runs), the
-//! noise sweep, and each design's attitudes and field directions.
+//! Figures from a result set's CSV files and manifest alone, as SVG and PNG: \[P1\] Figs. 1-3
+//! (relative errors per design), Fig. 4 (final fitness of repeated PSO runs), the noise sweep, and
+//! each design's attitudes and field directions.
 //!
-//! PNG text is drawn with a bundled DejaVu Sans through plotters' `ab_glyph` feature, so no system
-//! font library is needed. Each file is written to a temporary name and renamed.
+//! Every figure is rendered in memory and handed to the [`ResultSet`] being written, so figures are
+//! replaced with the rest of the set or not at all. Axis ranges are built from finite values only:
+//! a cell with no successful trial, or a non-finite value, is drawn as absent and its label says
+//! so. PNG text is drawn with a bundled DejaVu Sans through plotters' `ab_glyph` feature, so no
+//! system font library is needed.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Once;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use magcal_core::{Attitude, ReferenceField};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
-use crate::export::write_atomic;
+use crate::output::manifest::Manifest;
+use crate::output::staging::ResultSet;
+use crate::output::{DesignPointRow, Metric, PsoRunRow, SummaryRow, read_csv};
 
 /// Figure size, pixels: readable at 800 px wide.
 const SIZE: (u32, u32) = (960, 600);
 const FONT: &str = "sans-serif";
 static FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+/// Decades a log axis spans at most; values further below its top are drawn at its bottom.
+const MAX_DECADES: f64 = 12.0;
 
 fn register() {
     static ONCE: Once = Once::new();
@@ -29,14 +35,19 @@ fn register() {
     });
 }
 
-/// One row of `summary.csv`.
+/// One cell of `summary.csv` with its statistics, all finite, or `None` when absent.
 #[derive(Debug, Clone)]
 struct Stat {
     design: String,
+    metric: Metric,
     sigma: f64,
     trials: usize,
     failed: usize,
-    metric: String,
+    values: Option<Values>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Values {
     mean: f64,
     std: f64,
     median: f64,
@@ -44,210 +55,184 @@ struct Stat {
     p95: f64,
 }
 
-/// What the manifest says that the figures need.
-#[derive(Debug, serde::Deserialize)]
-struct ManifestIn {
-    name: String,
-    field_ned_nt: [f64; 3],
-    yaw_offset_deg: f64,
-    /// Roll, yaw, pitch `[min, max]`, degrees (absent in manifests of older runs: no box drawn).
-    attitude_box_deg: Option<[[f64; 2]; 3]>,
+impl Stat {
+    fn of(row: &SummaryRow) -> Self {
+        let get = |v: Option<crate::output::Real>| v.map(|r| r.0).filter(|x| x.is_finite());
+        let values = match (get(row.mean), get(row.median), get(row.p05), get(row.p95)) {
+            (Some(mean), Some(median), Some(p05), Some(p95)) => Some(Values {
+                mean,
+                // One value has no spread.
+                std: get(row.std).unwrap_or(0.0),
+                median,
+                p05,
+                p95,
+            }),
+            _ => None,
+        };
+        Self {
+            design: row.design.clone(),
+            metric: row.metric,
+            sigma: row.sigma_nt.0,
+            trials: row.trials,
+            failed: row.failed,
+            values,
+        }
+    }
+
+    fn label(&self) -> String {
+        match self.values {
+            Some(_) => format!("{} ({} failed)", self.design, self.failed),
+            None => format!("{} (no value: {} of {} failed)", self.design, self.failed, self.trials),
+        }
+    }
 }
 
-fn read_csv(path: &Path) -> Result<Vec<BTreeMap<String, String>>> {
-    let mut reader = csv::Reader::from_path(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    let headers = reader
-        .headers()
-        .with_context(|| format!("{}: no header", path.display()))?
-        .clone();
-    reader
-        .records()
-        .enumerate()
-        .map(|(i, r)| {
-            let r = r.with_context(|| format!("{}: row {}", path.display(), i + 2))?;
-            Ok(headers
-                .iter()
-                .zip(r.iter())
-                .map(|(h, v)| (h.to_string(), v.to_string()))
-                .collect())
-        })
-        .collect()
+/// A log-axis range `[lo, hi]` over the positive finite `values`, at most [`MAX_DECADES`] wide;
+/// `None` when there is none.
+fn log_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
+    let (lo, hi) = values
+        .into_iter()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, 0.0_f64), |(a, b), v| (a.min(v), b.max(v)));
+    if !(lo.is_finite() && hi > 0.0) {
+        return None;
+    }
+    let lo = lo.max(hi * 10f64.powf(-MAX_DECADES)).min(hi / 10.0);
+    Some((lo, hi))
 }
 
-fn field<T: std::str::FromStr>(row: &BTreeMap<String, String>, key: &str, path: &Path, line: usize) -> Result<T> {
-    let text = row
-        .get(key)
-        .with_context(|| format!("{}: no column {key:?}", path.display()))?;
-    text.parse()
-        .map_err(|_| anyhow::anyhow!("{}: row {line}: {key} = {text:?} is not a valid number", path.display()))
-}
-
-fn read_summary(path: &Path) -> Result<Vec<Stat>> {
-    read_csv(path)?
-        .iter()
-        .enumerate()
-        .map(|(i, r)| {
-            let line = i + 2;
-            Ok(Stat {
-                design: r
-                    .get("design")
-                    .with_context(|| format!("{}: no column \"design\"", path.display()))?
-                    .clone(),
-                sigma: field(r, "sigma_nt", path, line)?,
-                trials: field(r, "trials", path, line)?,
-                failed: field(r, "failed", path, line)?,
-                metric: r
-                    .get("metric")
-                    .with_context(|| format!("{}: no column \"metric\"", path.display()))?
-                    .clone(),
-                mean: field(r, "mean", path, line)?,
-                std: field(r, "std", path, line)?,
-                median: field(r, "median", path, line)?,
-                p05: field(r, "p05", path, line)?,
-                p95: field(r, "p95", path, line)?,
-            })
-        })
-        .collect()
-}
-
-/// Renders `draw` into `plots/<stem>.svg` and `plots/<stem>.png`; evaluates to the PNG's path.
+/// Renders the body (a drawing on `root`, evaluating to `Result<()>`) twice, as
+/// `<prefix><stem>.svg` and `.png`, into the result set.
 macro_rules! render {
-    ($dir:expr, $stem:expr, $draw:expr) => {{
-        let dir: &Path = $dir;
+    ($set:expr, $prefix:expr, $stem:expr, |$root:ident| $body:expr) => {{
         let stem: &str = $stem;
         let mut svg = String::new();
         {
-            let root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
-            $draw(&root)?;
-            root.present().map_err(|e| anyhow::anyhow!("{stem}.svg: {e}"))?;
+            let $root = SVGBackend::with_string(&mut svg, SIZE).into_drawing_area();
+            $body?;
+            $root.present().map_err(|e| anyhow::anyhow!("{stem}.svg: {e}"))?;
         }
-        write_atomic(&dir.join(format!("{stem}.svg")), svg.as_bytes())?;
-        let png = dir.join(format!("{stem}.png"));
-        let tmp = dir.join(format!(".{stem}.{}.tmp.png", std::process::id()));
+        $set.put(&format!("{}{stem}.svg", $prefix), svg.as_bytes())?;
+        let mut rgb = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
         {
-            let root = BitMapBackend::new(&tmp, SIZE).into_drawing_area();
-            $draw(&root)?;
-            root.present().map_err(|e| anyhow::anyhow!("{stem}.png: {e}"))?;
+            let $root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
+            $body?;
+            $root.present().map_err(|e| anyhow::anyhow!("{stem}.png: {e}"))?;
         }
-        std::fs::rename(&tmp, &png).with_context(|| format!("{}: cannot rename into place", png.display()))?;
-        png
+        $set.put(&format!("{}{stem}.png", $prefix), &png(&rgb, stem)?)?;
     }};
 }
 
-/// Draws every figure the results directory supports into `<dir>/plots/`; returns the PNG paths.
+/// PNG bytes of an RGB image of [`SIZE`].
+fn png(rgb: &[u8], stem: &str) -> Result<Vec<u8>> {
+    let mut png = Vec::new();
+    image::ImageEncoder::write_image(
+        image::codecs::png::PngEncoder::new(&mut png),
+        rgb,
+        SIZE.0,
+        SIZE.1,
+        image::ColorType::Rgb8,
+    )
+    .with_context(|| format!("{stem}.png: cannot encode"))?;
+    Ok(png)
+}
+
+/// Draws every figure that the result set in `src` supports (only files its manifest lists) into
+/// `set`, each under `prefix` (`"plots/"` inside a result set, `""` for a set that is the plots
+/// directory itself); returns the stems drawn.
 ///
 /// # Errors
-/// A missing or malformed `summary.csv`, `designs.csv` or `manifest.json` (named in the message); a
-/// malformed `pso_runs.csv` when it exists.
-pub fn plot_dir(dir: &Path) -> Result<Vec<PathBuf>> {
+/// A missing or malformed file of the set (named in the message).
+pub fn draw(src: &Path, manifest: &Manifest, set: &mut ResultSet, prefix: &str) -> Result<Vec<String>> {
     register();
-    let manifest_path = dir.join("manifest.json");
-    let manifest: ManifestIn = serde_json::from_slice(
-        &std::fs::read(&manifest_path).with_context(|| format!("{}: cannot read", manifest_path.display()))?,
-    )
-    .with_context(|| format!("{}: malformed", manifest_path.display()))?;
-    let out = dir.join("plots");
-    std::fs::create_dir_all(&out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let mut written = Vec::new();
+    let mut drawn = Vec::new();
     let name = manifest.name.as_str();
 
-    // Designs first: they exist for `magcal design` too.
-    let designs_path = dir.join("designs.csv");
-    let designs = read_designs(&designs_path)?;
+    let designs = read_designs(&src.join("designs.csv"))?;
     let f = manifest.field_ned_nt;
     let reference = ReferenceField::from_ned(f[0], f[1], f[2])
         .and_then(|x| x.with_yaw_offset_deg(manifest.yaw_offset_deg))
-        .map_err(|e| anyhow::anyhow!("{}: field: {e}", manifest_path.display()))?;
+        .map_err(|e| anyhow::anyhow!("{}: field: {e}", src.join("manifest.json").display()))?;
     for (design, attitudes) in &designs {
-        written.push(render!(&out, &format!("design_{design}"), |root: &DrawingArea<
-            _,
-            Shift,
-        >| {
-            draw_design(root, name, design, attitudes, &reference, manifest.attitude_box_deg)
-        }));
+        let stem = format!("design_{design}");
+        render!(set, prefix, &stem, |root| draw_design(
+            &root,
+            name,
+            design,
+            attitudes,
+            &reference,
+            manifest.attitude_box_deg
+        ));
+        drawn.push(stem);
     }
 
-    let summary_path = dir.join("summary.csv");
-    if summary_path.exists() {
-        let stats = read_summary(&summary_path)?;
-        if stats.is_empty() {
-            bail!("{}: no rows", summary_path.display());
-        }
-        let sigmas: Vec<f64> = {
-            let mut s: Vec<f64> = stats.iter().map(|s| s.sigma).collect();
-            s.sort_by(f64::total_cmp);
-            s.dedup_by(|a, b| a.to_bits() == b.to_bits());
-            s
-        };
+    if manifest.lists("summary.csv") {
+        let stats: Vec<Stat> = read_csv::<SummaryRow>(&src.join("summary.csv"))?
+            .iter()
+            .map(Stat::of)
+            .collect();
+        let mut sigmas: Vec<f64> = stats.iter().map(|s| s.sigma).filter(|s| s.is_finite()).collect();
+        sigmas.sort_by(f64::total_cmp);
+        sigmas.dedup_by(|a, b| a.to_bits() == b.to_bits());
         // [P1] Figs. 1-3 at the paper's 30 nT when present, else the first noise level.
         let sigma = sigmas
             .iter()
             .copied()
             .find(|s| (*s - 30.0).abs() < 1e-9)
-            .unwrap_or(sigmas[0]);
-        for (metric, label) in METRICS {
-            let rows: Vec<&Stat> = stats
+            .or(sigmas.first().copied());
+        let sweep = sigmas.iter().filter(|s| **s > 0.0).count() > 1;
+        for metric in Metric::ALL.into_iter().filter(|_| sigma.is_some()) {
+            let sigma = sigma.unwrap_or_default();
+            let of_metric: Vec<&Stat> = stats.iter().filter(|s| s.metric == metric).collect();
+            let rows: Vec<&Stat> = of_metric
                 .iter()
-                .filter(|s| s.metric == metric && s.sigma.to_bits() == sigma.to_bits())
+                .copied()
+                .filter(|s| s.sigma.to_bits() == sigma.to_bits())
                 .collect();
-            written.push(render!(&out, metric, |root: &DrawingArea<_, Shift>| draw_errors(
-                root, name, label, sigma, &rows
-            )));
-            if sigmas.len() > 1 {
-                let rows: Vec<&Stat> = stats.iter().filter(|s| s.metric == metric).collect();
-                written.push(render!(&out, &format!("noise_sweep_{metric}"), |root: &DrawingArea<
-                    _,
-                    Shift,
-                >| {
-                    draw_sweep(root, name, label, &rows)
-                }));
+            render!(set, prefix, metric.as_str(), |root| draw_errors(
+                &root,
+                name,
+                metric.label(),
+                sigma,
+                &rows
+            ));
+            drawn.push(metric.as_str().to_string());
+            if sweep {
+                let stem = format!("noise_sweep_{}", metric.as_str());
+                render!(set, prefix, &stem, |root| draw_sweep(
+                    &root,
+                    name,
+                    metric.label(),
+                    &of_metric
+                ));
+                drawn.push(stem);
             }
         }
     }
 
-    let runs_path = dir.join("pso_runs.csv");
-    if runs_path.exists() {
-        let rows = read_csv(&runs_path)?;
-        let values: Vec<f64> = rows
+    if manifest.lists("pso_runs.csv") {
+        let values: Vec<f64> = read_csv::<PsoRunRow>(&src.join("pso_runs.csv"))?
             .iter()
-            .enumerate()
-            .map(|(i, r)| field(r, "final_ln_det", &runs_path, i + 2))
-            .collect::<Result<_>>()?;
-        if values.is_empty() {
-            bail!("{}: no rows", runs_path.display());
-        }
-        written.push(render!(&out, "pso_runs", |root: &DrawingArea<_, Shift>| draw_runs(
-            root, name, &values
-        )));
+            .map(|r| r.final_ln_det.0)
+            .collect();
+        render!(set, prefix, "pso_runs", |root| draw_runs(&root, name, &values));
+        drawn.push("pso_runs".into());
     }
-    Ok(written)
+    Ok(drawn)
 }
-
-const METRICS: [(&str, &str); 3] = [
-    ("eta_psi", "eta_psi, non-orthogonality error (%)"),
-    ("eta_s", "eta_S, scale factor error (%)"),
-    ("eta_o", "eta_O, bias error (%)"),
-];
 
 fn read_designs(path: &Path) -> Result<Vec<(String, Vec<Attitude>)>> {
     let mut designs: Vec<(String, Vec<Attitude>)> = Vec::new();
-    for (i, r) in read_csv(path)?.iter().enumerate() {
-        let line = i + 2;
-        let name = r
-            .get("design")
-            .with_context(|| format!("{}: no column \"design\"", path.display()))?;
-        let a = Attitude::from_degrees(
-            field(r, "roll_deg", path, line)?,
-            field(r, "yaw_deg", path, line)?,
-            field(r, "pitch_deg", path, line)?,
-        );
-        match designs.last_mut() {
-            Some((n, list)) if n == name => list.push(a),
-            _ => designs.push((name.clone(), vec![a])),
+    for (i, r) in read_csv::<DesignPointRow>(path)?.into_iter().enumerate() {
+        let [roll, yaw, pitch] = [r.roll_deg.0, r.yaw_deg.0, r.pitch_deg.0];
+        if ![roll, yaw, pitch].iter().all(|v| v.is_finite()) {
+            anyhow::bail!("{}: line {}: an attitude angle is not finite", path.display(), i + 2);
         }
-    }
-    if designs.is_empty() {
-        bail!("{}: no rows", path.display());
+        let a = Attitude::from_degrees(roll, yaw, pitch);
+        match designs.last_mut() {
+            Some((n, list)) if *n == r.design => list.push(a),
+            _ => designs.push((r.design, vec![a])),
+        }
     }
     Ok(designs)
 }
@@ -288,7 +273,8 @@ fn palette(i: usize) -> RGBColor {
 }
 
 /// \[P1\] Figs. 1-3: per design, the p05-p95 range (bar), the median (white line), and the mean with
-/// +- one standard deviation (black marker and whisker). Logarithmic axis: the tails are heavy.
+/// +- one standard deviation (black marker and whisker). Logarithmic axis: the tails are heavy. A
+/// design without values (no successful trial) keeps its place, labelled, with nothing drawn.
 fn draw_errors<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     scenario: &str,
@@ -300,34 +286,30 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(err)?;
-    let lo = rows
-        .iter()
-        .map(|s| s.p05.min(s.median))
-        .fold(f64::INFINITY, f64::min)
-        .max(1e-6);
-    let hi = rows
-        .iter()
-        .map(|s| s.p95.max(s.mean + s.std))
-        .fold(0.0_f64, f64::max)
-        .max(lo * 10.0);
-    let n = rows.len();
+    let values: Vec<Values> = rows.iter().filter_map(|s| s.values).collect();
+    let (lo, hi) = log_range(
+        values
+            .iter()
+            .flat_map(|v| [v.p05, v.median, v.mean, v.p95, v.mean + v.std]),
+    )
+    .unwrap_or((0.1, 10.0));
+    let (lo, hi) = (lo / 1.5, hi * 1.5);
+    let n = rows.len().max(1);
+    let mut caption = format!(
+        "{scenario}: {label}, sigma = {sigma} nT, {} trials per design",
+        rows.first().map_or(0, |s| s.trials)
+    );
+    if values.len() < rows.len() {
+        caption.push_str(&format!(" ({} without a value)", rows.len() - values.len()));
+    }
     let mut chart = ChartBuilder::on(root)
-        .caption(
-            format!(
-                "{scenario}: {label}, sigma = {sigma} nT, {} trials per design",
-                rows.first().map_or(0, |s| s.trials)
-            ),
-            (FONT, 22),
-        )
+        .caption(caption, (FONT, 20))
         .margin(16)
         .x_label_area_size(80)
         .y_label_area_size(80)
-        .build_cartesian_2d(-0.5f64..(n as f64 - 0.5), (lo / 1.5..hi * 1.5).log_scale())
+        .build_cartesian_2d(-0.5f64..(n as f64 - 0.5), (lo..hi).log_scale())
         .map_err(err)?;
-    let names: Vec<String> = rows
-        .iter()
-        .map(|s| format!("{} ({} failed)", s.design, s.failed))
-        .collect();
+    let names: Vec<String> = rows.iter().map(|s| s.label()).collect();
     chart
         .configure_mesh()
         .disable_x_mesh()
@@ -345,30 +327,31 @@ where
         .axis_desc_style((FONT, 18))
         .draw()
         .map_err(err)?;
+    let clip = |v: f64| v.clamp(lo, hi);
     for (i, s) in rows.iter().enumerate() {
+        let Some(v) = s.values else { continue };
         let x = i as f64;
         let color = palette(i);
         chart
             .draw_series(std::iter::once(Rectangle::new(
-                [(x - 0.3, s.p05.max(lo / 1.5)), (x + 0.3, s.p95)],
+                [(x - 0.3, clip(v.p05)), (x + 0.3, clip(v.p95))],
                 color.mix(0.45).filled(),
             )))
             .map_err(err)?;
         chart
             .draw_series(std::iter::once(PathElement::new(
-                vec![(x - 0.3, s.median), (x + 0.3, s.median)],
+                vec![(x - 0.3, clip(v.median)), (x + 0.3, clip(v.median))],
                 WHITE.stroke_width(3),
             )))
             .map_err(err)?;
-        let (a, b) = ((s.mean - s.std).max(lo / 1.5), s.mean + s.std);
         chart
             .draw_series(std::iter::once(PathElement::new(
-                vec![(x, a), (x, b)],
+                vec![(x, clip(v.mean - v.std)), (x, clip(v.mean + v.std))],
                 BLACK.stroke_width(2),
             )))
             .map_err(err)?;
         chart
-            .draw_series(std::iter::once(Circle::new((x, s.mean), 6, BLACK.filled())))
+            .draw_series(std::iter::once(Circle::new((x, clip(v.mean)), 6, BLACK.filled())))
             .map_err(err)?;
     }
     // A legend drawn as text: what each mark means.
@@ -381,7 +364,9 @@ where
     Ok(())
 }
 
-/// The noise sweep: median against sigma with the p05-p95 band, log-log, one line per design.
+/// The noise sweep: median against sigma with the p05-p95 band, log-log, one line per design, over
+/// the positive noise levels. A level without values is a gap; a design without any is named in
+/// the legend as such.
 fn draw_sweep<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     scenario: &str,
@@ -392,25 +377,26 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(err)?;
-    let positive: Vec<&&Stat> = rows.iter().filter(|s| s.sigma > 0.0).collect();
-    let (smin, smax) = positive
+    let positive: Vec<&Stat> = rows
         .iter()
-        .fold((f64::INFINITY, 0.0_f64), |(a, b), s| (a.min(s.sigma), b.max(s.sigma)));
-    let lo = positive
-        .iter()
-        .map(|s| s.p05)
-        .filter(|v| *v > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    let hi = positive.iter().map(|s| s.p95).fold(0.0_f64, f64::max);
-    if !(smin < smax && lo < hi) {
-        bail!("noise sweep: needs two positive noise levels and positive errors");
-    }
+        .copied()
+        .filter(|s| s.sigma > 0.0 && s.sigma.is_finite())
+        .collect();
+    let (smin, smax) = log_range(positive.iter().map(|s| s.sigma)).unwrap_or((1.0, 10.0));
+    let (lo, hi) = log_range(
+        positive
+            .iter()
+            .filter_map(|s| s.values)
+            .flat_map(|v| [v.p05, v.median, v.p95]),
+    )
+    .unwrap_or((0.1, 10.0));
+    let (lo, hi) = (lo / 1.5, hi * 1.5);
     let mut chart = ChartBuilder::on(root)
         .caption(format!("{scenario}: {label} against noise"), (FONT, 24))
         .margin(16)
         .x_label_area_size(50)
         .y_label_area_size(80)
-        .build_cartesian_2d((smin / 1.3..smax * 1.3).log_scale(), (lo / 1.5..hi * 1.5).log_scale())
+        .build_cartesian_2d((smin / 1.3..smax * 1.3).log_scale(), (lo..hi).log_scale())
         .map_err(err)?;
     chart
         .configure_mesh()
@@ -420,6 +406,7 @@ where
         .axis_desc_style((FONT, 18))
         .draw()
         .map_err(err)?;
+    let clip = |v: f64| v.clamp(lo, hi);
     let mut names: Vec<&str> = Vec::new();
     for s in &positive {
         if !names.contains(&s.design.as_str()) {
@@ -427,42 +414,68 @@ where
         }
     }
     for (i, name) in names.iter().enumerate() {
-        let mut pts: Vec<&&&Stat> = positive.iter().filter(|s| s.design == *name).collect();
-        pts.sort_by(|a, b| a.sigma.total_cmp(&b.sigma));
+        let mut pts: Vec<(f64, Values)> = positive
+            .iter()
+            .filter(|s| s.design == *name)
+            .filter_map(|s| s.values.map(|v| (s.sigma, v)))
+            .collect();
+        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
         let color = palette(i);
-        let mut band: Vec<(f64, f64)> = pts.iter().map(|s| (s.sigma, s.p95)).collect();
-        band.extend(pts.iter().rev().map(|s| (s.sigma, s.p05.max(lo / 1.5))));
-        chart
-            .draw_series(std::iter::once(Polygon::new(band, color.mix(0.15).filled())))
-            .map_err(err)?;
+        let missing = positive.iter().filter(|s| s.design == *name).count() - pts.len();
+        let label = match (pts.is_empty(), missing) {
+            (true, _) => format!("{name} (no successful trial)"),
+            (false, 0) => name.to_string(),
+            (false, k) => format!("{name} ({k} levels without a value)"),
+        };
+        let mut band: Vec<(f64, f64)> = pts.iter().map(|(s, v)| (*s, clip(v.p95))).collect();
+        band.extend(pts.iter().rev().map(|(s, v)| (*s, clip(v.p05))));
+        if !band.is_empty() {
+            chart
+                .draw_series(std::iter::once(Polygon::new(band, color.mix(0.15).filled())))
+                .map_err(err)?;
+        }
         chart
             .draw_series(LineSeries::new(
-                pts.iter().map(|s| (s.sigma, s.median)),
+                pts.iter().map(|(s, v)| (*s, clip(v.median))),
                 color.stroke_width(3),
             ))
             .map_err(err)?
-            .label(name.to_string())
+            .label(label)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], color.stroke_width(3)));
         chart
-            .draw_series(pts.iter().map(|s| Circle::new((s.sigma, s.median), 4, color.filled())))
+            .draw_series(
+                pts.iter()
+                    .map(|(s, v)| Circle::new((*s, clip(v.median)), 4, color.filled())),
+            )
             .map_err(err)?;
     }
     legend(&mut chart, SeriesLabelPosition::UpperLeft)
 }
 
-/// \[P1\] Fig. 4: the final `ln det M_F` of each repeated PSO run, and the best known optimum.
+/// \[P1\] Fig. 4: the final `ln det M_F` of each repeated PSO run, and the best known optimum of
+/// \[P1\]'s problem. A run that ended without a finite value (a singular design) is not drawn; the
+/// caption counts it.
 fn draw_runs<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, scenario: &str, values: &[f64]) -> Result<()>
 where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(err)?;
     let best = magcal_core::paper::BEST_KNOWN_LN_DET;
-    let lo = values.iter().copied().fold(f64::INFINITY, f64::min).min(best);
-    let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max).max(best);
+    let finite: Vec<(usize, f64)> = values
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|(_, v)| v.is_finite())
+        .collect();
+    let (lo, hi) = finite.iter().fold((best, best), |(a, b), &(_, v)| (a.min(v), b.max(v)));
     let pad = ((hi - lo) * 0.1).max(1e-3);
     let n = values.len();
+    let mut caption = format!("{scenario}: final ln det M_F of {n} PSO runs");
+    if finite.len() < n {
+        caption.push_str(&format!(" ({} not finite, not drawn)", n - finite.len()));
+    }
     let mut chart = ChartBuilder::on(root)
-        .caption(format!("{scenario}: final ln det M_F of {n} PSO runs"), (FONT, 24))
+        .caption(caption, (FONT, 22))
         .margin(16)
         .x_label_area_size(50)
         .y_label_area_size(90)
@@ -487,10 +500,9 @@ where
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], RED.stroke_width(2)));
     chart
         .draw_series(
-            values
+            finite
                 .iter()
-                .enumerate()
-                .map(|(i, v)| Circle::new((i as f64 + 1.0, *v), 4, palette(0).filled())),
+                .map(|&(i, v)| Circle::new((i as f64 + 1.0, v), 4, palette(0).filled())),
         )
         .map_err(err)?
         .label("final value of a run")
@@ -593,15 +605,15 @@ mod tests {
     use super::*;
 
     #[test]
-    fn malformed_summary_names_the_file_and_value() {
-        let dir = tempfile::TempDir::new().unwrap();
-        let p = dir.path().join("summary.csv");
-        std::fs::write(
-            &p,
-            "design,sigma_nt,trials,failed,metric,mean,std,median,p05,p95,se_mean\nu,30,10,0,eta_psi,abc,1,1,1,1,1\n",
-        )
-        .unwrap();
-        let e = read_summary(&p).unwrap_err().to_string();
-        assert!(e.contains("summary.csv") && e.contains("mean = \"abc\""), "{e}");
+    fn log_ranges_are_finite_and_bounded() {
+        assert_eq!(log_range([f64::NAN, f64::INFINITY, -1.0, 0.0]), None);
+        let (lo, hi) = log_range([1e-300, 5.0, f64::INFINITY]).unwrap();
+        assert!(
+            (hi - 5.0).abs() < 1e-12 && (lo / (5e-12) - 1.0).abs() < 1e-12,
+            "{lo} {hi}"
+        );
+        // One value: a decade below it.
+        let (lo, hi) = log_range([2.0]).unwrap();
+        assert!((lo - 0.2).abs() < 1e-15 && (hi - 2.0).abs() < 1e-15);
     }
 }

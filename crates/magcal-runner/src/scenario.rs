@@ -1,14 +1,17 @@
 //! Scenario files: the raw TOML schema (`raw`), and its validation into a [`Scenario`] whose every
-//! value is usable. Errors name the file, the key and the value.
+//! value is usable and every size bounded ([`crate::limits`]). Errors name the file, the key and the
+//! value as written.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use magcal_core::design::optimum::Optimum;
 use magcal_core::design::pso::Swarm;
-use magcal_core::design::sources;
-use magcal_core::{Attitude, AttitudeBox, ErrorModel, ReferenceField, TwoStep, wmm};
+use magcal_core::{Attitude, AttitudeBox, ErrorModel, ParameterError, ReferenceField, TwoStep, wmm};
+use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
+
+use crate::limits::{self, show};
 
 /// The schema version this build reads.
 pub const SCHEMA: u32 = 1;
@@ -16,9 +19,53 @@ pub const SCHEMA: u32 = 1;
 /// Default noisy trials per design and noise level (\[P1\] IV.C: one thousand).
 pub const DEFAULT_TRIALS: usize = 1000;
 
-/// The raw file, as TOML gives it. Every table denies unknown keys.
+/// The raw file, as TOML gives it. Every table denies unknown keys; fixed-length arrays take
+/// exactly their length.
 mod raw {
     use serde::Deserialize;
+    use serde::de::{self, Deserializer, SeqAccess, Visitor};
+
+    /// Exactly `N` numbers (serde's arrays ignore extra elements).
+    fn exact<'de, D: Deserializer<'de>, const N: usize>(d: D) -> Result<[f64; N], D::Error> {
+        let v = Vec::<f64>::deserialize(d)?;
+        let n = v.len();
+        v.try_into()
+            .map_err(|_| de::Error::invalid_length(n, &format!("exactly {N} numbers").as_str()))
+    }
+
+    /// A number (one noise level) or a list of numbers (a sweep).
+    fn one_or_many<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = Vec<f64>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a number or a list of numbers")
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Self::Value, E> {
+                Ok(vec![v])
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Self::Value, E> {
+                Ok(vec![v as f64])
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                Ok(vec![v as f64])
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut v = Vec::new();
+                while let Some(x) = seq.next_element::<f64>()? {
+                    if v.len() >= super::limits::MAX_SIGMAS {
+                        return Err(de::Error::invalid_length(
+                            v.len() + 1,
+                            &format!("at most {} noise levels", super::limits::MAX_SIGMAS).as_str(),
+                        ));
+                    }
+                    v.push(x);
+                }
+                Ok(v)
+            }
+        }
+        d.deserialize_any(V)
+    }
 
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]
@@ -30,6 +77,7 @@ mod raw {
         pub seed: u64,
         #[serde(default = "default_trials")]
         pub trials: usize,
+        #[serde(deserialize_with = "one_or_many")]
         pub sigma_nt: Vec<f64>,
         pub field: Field,
         pub sensor: Sensor,
@@ -63,16 +111,22 @@ mod raw {
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]
     pub struct Sensor {
+        #[serde(deserialize_with = "exact")]
         pub psi_deg: [f64; 3],
+        #[serde(deserialize_with = "exact")]
         pub scale: [f64; 3],
+        #[serde(deserialize_with = "exact")]
         pub bias_nt: [f64; 3],
     }
 
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]
     pub struct AttitudeBox {
+        #[serde(deserialize_with = "exact")]
         pub roll_deg: [f64; 2],
+        #[serde(deserialize_with = "exact")]
         pub yaw_deg: [f64; 2],
+        #[serde(deserialize_with = "exact")]
         pub pitch_deg: [f64; 2],
     }
 
@@ -142,6 +196,42 @@ mod raw {
     }
 }
 
+/// The kind of a design source, as `design_metrics.csv` names it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DesignKind {
+    /// Attitudes listed in the scenario.
+    #[default]
+    Explicit,
+    /// A uniform grid.
+    Grid,
+    /// Uniform random attitudes.
+    Random,
+    /// The paper's PSO.
+    Pso,
+    /// The multi-start optimum optimiser.
+    Optimum,
+}
+
+impl DesignKind {
+    /// Whether an optimiser chose the attitudes. Many designs share the optimal `ln det M_F` with
+    /// different attitudes and conditioning, so `check` compares only `ln det` for these.
+    pub fn is_optimised(self) -> bool {
+        matches!(self, Self::Pso | Self::Optimum)
+    }
+
+    /// The name used in files.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Explicit => "explicit",
+            Self::Grid => "grid",
+            Self::Random => "random",
+            Self::Pso => "pso",
+            Self::Optimum => "optimum",
+        }
+    }
+}
+
 /// How a design's attitudes are obtained.
 #[derive(Debug, Clone)]
 pub enum DesignSource {
@@ -171,14 +261,23 @@ pub enum DesignSource {
 }
 
 impl DesignSource {
-    /// `explicit`, `grid`, `random`, `pso` or `optimum`.
-    pub fn kind(&self) -> &'static str {
+    /// Its kind.
+    pub fn kind(&self) -> DesignKind {
         match self {
-            Self::Explicit(_) => "explicit",
-            Self::Grid(_) => "grid",
-            Self::Random { .. } => "random",
-            Self::Pso { .. } => "pso",
-            Self::Optimum { .. } => "optimum",
+            Self::Explicit(_) => DesignKind::Explicit,
+            Self::Grid(_) => DesignKind::Grid,
+            Self::Random { .. } => DesignKind::Random,
+            Self::Pso { .. } => DesignKind::Pso,
+            Self::Optimum { .. } => DesignKind::Optimum,
+        }
+    }
+
+    /// The number of attitudes it gives.
+    pub fn m(&self) -> usize {
+        match self {
+            Self::Explicit(list) => list.len(),
+            Self::Grid(l) => l.iter().product(),
+            Self::Random { m } | Self::Pso { m, .. } | Self::Optimum { m, .. } => *m,
         }
     }
 }
@@ -239,13 +338,31 @@ pub struct Scenario {
 /// Reads and validates a scenario file.
 ///
 /// # Errors
-/// A missing or unreadable file, a TOML syntax error (with line and column), an unknown key, a
-/// wrong type, or an invalid value; each message names the file, the key and the value.
+/// A missing, unreadable or oversized file, a TOML syntax error (with line and column), an unknown
+/// key, a wrong type, or an invalid value; each message names the file, the key and the value.
 pub fn load(path: &Path) -> Result<Scenario> {
+    let size = std::fs::metadata(path)
+        .with_context(|| format!("{}: cannot read scenario file", path.display()))?
+        .len();
+    if size > limits::MAX_SCENARIO_BYTES {
+        bail!(
+            "{}: {size} bytes; a scenario file may have at most {} bytes",
+            path.display(),
+            limits::MAX_SCENARIO_BYTES
+        );
+    }
     let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read scenario file", path.display()))?;
-    let text = String::from_utf8(bytes.clone()).with_context(|| format!("{}: not UTF-8 text", path.display()))?;
-    let raw: raw::Scenario = toml::from_str(&text).map_err(|e| toml_error(path, &text, &e))?;
-    let hash = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
+    parse(&bytes, path)
+}
+
+/// Validates the bytes of a scenario file read from `path` (named in errors).
+///
+/// # Errors
+/// As [`load`].
+pub fn parse(bytes: &[u8], path: &Path) -> Result<Scenario> {
+    let text = std::str::from_utf8(bytes).with_context(|| format!("{}: not UTF-8 text", path.display()))?;
+    let raw: raw::Scenario = toml::from_str(text).map_err(|e| toml_error(path, text, &e))?;
+    let hash = Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect();
     validate(raw, path, hash).with_context(|| format!("{}: invalid scenario", path.display()))
 }
 
@@ -254,28 +371,65 @@ fn toml_error(path: &Path, text: &str, e: &toml::de::Error) -> anyhow::Error {
     let message = e.message().trim().replace('\n', " ");
     match e.span() {
         Some(span) => {
-            let before = &text[..span.start.min(text.len())];
+            let start = floor_char_boundary(text, span.start);
+            let before = &text[..start];
             let line = before.matches('\n').count() + 1;
             let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
-            let source = text.lines().nth(line - 1).unwrap_or("").trim();
+            let source: String = text
+                .lines()
+                .nth(line - 1)
+                .unwrap_or("")
+                .trim()
+                .chars()
+                .take(120)
+                .collect();
             anyhow::anyhow!("{}:{line}:{column}: {message} (in: {source})", path.display())
         }
         None => anyhow::anyhow!("{}: {message}", path.display()),
     }
 }
 
+fn floor_char_boundary(text: &str, i: usize) -> usize {
+    let mut i = i.min(text.len());
+    while !text.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
 fn finite(key: &str, value: f64) -> Result<f64> {
     if !value.is_finite() {
-        bail!("{key} = {value}: must be a finite number");
+        bail!("{key} = {}: must be a finite number", show(value));
     }
     Ok(value)
 }
 
-fn at_least(key: &str, value: usize, min: usize) -> Result<usize> {
+fn within(key: &str, value: f64, min: f64, max: f64, unit: &str) -> Result<f64> {
+    finite(key, value)?;
+    if !(min..=max).contains(&value) {
+        bail!(
+            "{key} = {}: must lie in [{}, {}]{unit}",
+            show(value),
+            show(min),
+            show(max)
+        );
+    }
+    Ok(value)
+}
+
+fn count(key: &str, value: usize, min: usize, max: usize) -> Result<usize> {
     if value < min {
         bail!("{key} = {value}: must be at least {min}");
     }
+    if value > max {
+        bail!("{key} = {value}: must be at most {max}");
+    }
     Ok(value)
+}
+
+/// A core parameter error against the key that carried it: `key = value: requirement`.
+fn keyed(prefix: &str, e: &ParameterError, value: &str) -> anyhow::Error {
+    anyhow::anyhow!("{prefix}{} = {value}: {}", e.name(), e.requirement())
 }
 
 fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
@@ -283,35 +437,44 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         bail!("schema = {}: this magcal reads schema {SCHEMA}", raw.schema);
     }
     check_name("name", &raw.name)?;
-    at_least("trials", raw.trials, 1)?;
+    count("trials", raw.trials, 1, limits::MAX_TRIALS)?;
     if raw.sigma_nt.is_empty() {
         bail!("sigma_nt = []: give at least one noise level");
     }
     for (i, &s) in raw.sigma_nt.iter().enumerate() {
-        finite(&format!("sigma_nt[{i}]"), s)?;
+        let key = format!("sigma_nt[{i}]");
+        finite(&key, s)?;
         if s < 0.0 {
-            bail!("sigma_nt[{i}] = {s}: a noise level cannot be negative");
+            bail!("{key} = {}: a noise level cannot be negative", show(s));
+        }
+        if s != 0.0 && !(limits::MIN_SIGMA_NT..=limits::MAX_SIGMA_NT).contains(&s) {
+            bail!(
+                "{key} = {}: must be 0 or lie in [{}, {}] nT",
+                show(s),
+                show(limits::MIN_SIGMA_NT),
+                show(limits::MAX_SIGMA_NT)
+            );
+        }
+        if raw.sigma_nt[..i].contains(&s) {
+            bail!("{key} = {}: listed twice", show(s));
         }
     }
-    for (i, s) in raw.sigma_nt.iter().enumerate() {
-        if raw.sigma_nt[..i].iter().any(|t| t.to_bits() == s.to_bits()) {
-            bail!("sigma_nt[{i}] = {s}: listed twice");
-        }
-    }
+    // -0 and 0 are one level, written as 0.
+    let sigmas_nt: Vec<f64> = raw.sigma_nt.iter().map(|&s| if s == 0.0 { 0.0 } else { s }).collect();
 
     let field = reference_field(&raw.field)?;
 
     let s = &raw.sensor;
-    for (key, values) in [
-        ("sensor.psi_deg", s.psi_deg),
-        ("sensor.scale", s.scale),
-        ("sensor.bias_nt", s.bias_nt),
+    for (key, values, min, max) in [
+        ("sensor.psi_deg", s.psi_deg, -89.999, 89.999),
+        ("sensor.scale", s.scale, limits::MIN_SCALE, limits::MAX_SCALE),
+        ("sensor.bias_nt", s.bias_nt, -limits::MAX_BIAS_NT, limits::MAX_BIAS_NT),
     ] {
         for (i, v) in values.into_iter().enumerate() {
-            finite(&format!("{key}[{i}]"), v)?;
+            within(&format!("{key}[{i}]"), v, min, max, "")?;
         }
     }
-    let truth = ErrorModel::new(s.psi_deg, s.scale, s.bias_nt).map_err(|e| anyhow::anyhow!("sensor: {e}"))?;
+    let truth = ErrorModel::new(s.psi_deg, s.scale, s.bias_nt).map_err(|e| keyed("sensor.", &e, "the values given"))?;
 
     let b = &raw.attitude_box;
     for (key, range) in [
@@ -319,32 +482,37 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         ("attitude_box.yaw_deg", b.yaw_deg),
         ("attitude_box.pitch_deg", b.pitch_deg),
     ] {
-        finite(&format!("{key}[0]"), range[0])?;
-        finite(&format!("{key}[1]"), range[1])?;
+        let shown = format!("[{}, {}]", show(range[0]), show(range[1]));
+        for v in range {
+            if !v.is_finite() {
+                bail!("{key} = {shown}: must be finite numbers");
+            }
+            if v.abs() > 360.0 {
+                bail!("{key} = {shown}: each end must lie in [-360, 360] degrees");
+            }
+        }
         if range[0] >= range[1] {
-            bail!(
-                "{key} = [{}, {}]: the minimum must be below the maximum",
-                range[0],
-                range[1]
-            );
+            bail!("{key} = {shown}: the minimum must be below the maximum");
         }
         if range[1] - range[0] > 360.0 {
-            bail!("{key} = [{}, {}]: spans more than 360 degrees", range[0], range[1]);
+            bail!("{key} = {shown}: spans more than 360 degrees");
         }
     }
-    let bounds = AttitudeBox::from_degrees(b.roll_deg, b.yaw_deg, b.pitch_deg).context("attitude_box")?;
+    let bounds = AttitudeBox::from_degrees(b.roll_deg, b.yaw_deg, b.pitch_deg)
+        .map_err(|e| keyed("attitude_box.", &e, "the range given"))?;
 
     let mut calibration = TwoStep::default();
     if let Some(n) = raw.calibration.max_iterations {
-        calibration.max_iterations = at_least("calibration.max_iterations", n, 1)?;
+        calibration.max_iterations = count("calibration.max_iterations", n, 1, limits::MAX_STEP2_ITERATIONS)?;
     }
 
     if raw.design.is_empty() {
         bail!("no [[design]]: give at least one design");
     }
+    count("[[design]] (count)", raw.design.len(), 1, limits::MAX_DESIGNS)?;
     let mut designs: Vec<DesignSpec> = Vec::with_capacity(raw.design.len());
     for (i, d) in raw.design.into_iter().enumerate() {
-        let spec = design(i, d, &bounds)?;
+        let spec = design(i, d, &raw.attitude_box)?;
         if designs.iter().any(|other| other.name == spec.name) {
             bail!("design[{i}].name = {:?}: another design has this name", spec.name);
         }
@@ -354,7 +522,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
     let pso_runs = match raw.pso_runs {
         None => None,
         Some(r) => {
-            at_least("pso_runs.runs", r.runs, 1)?;
+            count("pso_runs.runs", r.runs, 1, limits::MAX_PSO_RUNS)?;
             let Some(spec) = designs.iter().find(|d| d.name == r.design) else {
                 bail!("pso_runs.design = {:?}: no design has this name", r.design);
             };
@@ -362,7 +530,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
                 bail!(
                     "pso_runs.design = {:?}: that design is {}, not pso",
                     r.design,
-                    spec.source.kind()
+                    spec.source.kind().as_str()
                 );
             };
             Some(PsoRunsSpec {
@@ -381,7 +549,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         description: raw.description,
         seed: raw.seed,
         trials: raw.trials,
-        sigmas_nt: raw.sigma_nt,
+        sigmas_nt,
         field,
         truth,
         bounds,
@@ -394,7 +562,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
 /// The reference field from `[field]`: NED numbers (nT), or `model, lat_deg, lon_deg, alt_m, year`
 /// evaluated with the World Magnetic Model; then the yaw offset.
 fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
-    finite("field.yaw_offset_deg", f.yaw_offset_deg)?;
+    within("field.yaw_offset_deg", f.yaw_offset_deg, -360.0, 360.0, " degrees")?;
     let ned = [f.north_nt, f.east_nt, f.down_nt];
     let site = [f.lat_deg, f.lon_deg, f.alt_m, f.year];
     let field = match (&f.model, ned.iter().any(Option::is_some)) {
@@ -406,25 +574,35 @@ fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
                 let Some(value) = value else {
                     bail!("{key} is missing (or give field.model with lat_deg, lon_deg, alt_m, year)");
                 };
-                *slot = finite(key, value)?;
+                *slot = within(key, value, -limits::MAX_FIELD_NT, limits::MAX_FIELD_NT, " nT")?;
             }
             if site.iter().any(Option::is_some) {
                 bail!("[field]: lat_deg, lon_deg, alt_m and year need field.model");
             }
-            ReferenceField::from_ned(v[0], v[1], v[2]).context("field")?
+            let magnitude = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if magnitude < limits::MIN_FIELD_NT {
+                bail!(
+                    "[field] north_nt, east_nt, down_nt = [{}, {}, {}]: the field magnitude must be at least {} nT",
+                    show(v[0]),
+                    show(v[1]),
+                    show(v[2]),
+                    show(limits::MIN_FIELD_NT)
+                );
+            }
+            ReferenceField::from_ned(v[0], v[1], v[2]).map_err(|e| keyed("field.", &e, "the values given"))?
         }
         (Some(name), false) => {
             let Some(model) = wmm::Model::from_name(name) else {
                 let known: Vec<&str> = wmm::Model::ALL.iter().map(|m| m.name()).collect();
                 bail!("field.model = {name:?}: unknown model; known: {}", known.join(", "));
             };
-            let keys = ["field.lat_deg", "field.lon_deg", "field.alt_m", "field.year"];
+            let keys = ["lat_deg", "lon_deg", "alt_m", "year"];
             let mut v = [0.0; 4];
             for ((key, value), slot) in keys.iter().zip(site).zip(&mut v) {
                 let Some(value) = value else {
-                    bail!("{key} is missing (needed with field.model)")
+                    bail!("field.{key} is missing (needed with field.model)")
                 };
-                *slot = finite(key, value)?;
+                *slot = finite(&format!("field.{key}"), value)?;
             }
             let site = wmm::Site {
                 lat_deg: v[0],
@@ -432,71 +610,111 @@ fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
                 alt_m: v[2],
                 year: v[3],
             };
-            wmm::reference_field(model, &site).map_err(|e| match e {
-                magcal_core::ParameterError::OutOfRange {
-                    name: "field.year",
-                    value,
-                    ..
-                } => {
-                    anyhow::anyhow!(
-                        "field.year = {value}: outside the validity window of {name} (its epoch to 5 years after)"
-                    )
+            wmm::reference_field(model, &site).map_err(|e| {
+                // The core names its parameter; the key is the same under [field], and its value
+                // is the one given.
+                let given = keys
+                    .iter()
+                    .position(|k| *k == e.name())
+                    .map_or(String::new(), |i| show(v[i]));
+                match e {
+                    ParameterError::OutOfRange { name: "year", .. } => anyhow::anyhow!(
+                        "field.year = {given}: outside the validity window of {name} (its epoch to 5 years after)"
+                    ),
+                    other => keyed("field.", &other, &given),
                 }
-                other => anyhow::anyhow!("{other}"),
             })?
         }
     };
-    field.with_yaw_offset_deg(f.yaw_offset_deg).context("field")
+    field
+        .with_yaw_offset_deg(f.yaw_offset_deg)
+        .map_err(|e| keyed("field.", &e, &show(f.yaw_offset_deg)))
 }
 
 fn check_name(key: &str, name: &str) -> Result<()> {
+    let shown: String = name.chars().take(80).collect();
+    let shown = if shown.len() < name.len() {
+        format!("{shown:?}... ({} characters)", name.chars().count())
+    } else {
+        format!("{name:?}")
+    };
     let ok = !name.is_empty()
+        && !name.starts_with('.')
         && name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
     if !ok {
-        bail!("{key} = {name:?}: use letters, digits, '_', '-' or '.' (it names files and CSV rows)");
+        bail!(
+            "{key} = {shown}: use letters, digits, '_', '-' or '.', not starting with '.' (it names files and CSV rows)"
+        );
+    }
+    if name.len() > limits::MAX_NAME {
+        bail!("{key} = {shown}: at most {} characters", limits::MAX_NAME);
     }
     Ok(())
 }
 
-fn design(i: usize, d: raw::Design, bounds: &AttitudeBox) -> Result<DesignSpec> {
-    let key = |field: &str| format!("design[{i}].{field}");
-    let (name, source) = match d {
-        raw::Design::Explicit { name, attitudes } => {
-            at_least(&key("attitudes (count)"), attitudes.len(), 9)?;
+fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<DesignSpec> {
+    let name = match &d {
+        raw::Design::Explicit { name, .. }
+        | raw::Design::Grid { name, .. }
+        | raw::Design::Random { name, .. }
+        | raw::Design::Pso { name, .. }
+        | raw::Design::Optimum { name, .. } => name.clone(),
+    };
+    check_name(&format!("design[{i}].name"), &name)?;
+    // `design[2] ("pso").particles`
+    let prefix = format!("design[{i}] ({name:?}).");
+    let key = |field: &str| format!("{prefix}{field}");
+    let m_of = |m: usize| count(&key("m"), m, 9, limits::MAX_M);
+    let source = match d {
+        raw::Design::Explicit { attitudes, .. } => {
+            count(&key("attitudes (count)"), attitudes.len(), 9, limits::MAX_M)?;
             let mut list = Vec::with_capacity(attitudes.len());
             for (j, a) in attitudes.iter().enumerate() {
-                for (field, v) in [
-                    ("roll_deg", a.roll_deg),
-                    ("yaw_deg", a.yaw_deg),
-                    ("pitch_deg", a.pitch_deg),
+                for (field, v, range) in [
+                    ("roll_deg", a.roll_deg, raw_box.roll_deg),
+                    ("yaw_deg", a.yaw_deg, raw_box.yaw_deg),
+                    ("pitch_deg", a.pitch_deg, raw_box.pitch_deg),
                 ] {
-                    finite(&key(&format!("attitudes[{j}].{field}")), v)?;
+                    let k = key(&format!("attitudes[{j}].{field}"));
+                    finite(&k, v)?;
+                    // Half a micro-degree of slack, as the core's check in radians.
+                    if v < range[0] - limits::BOX_SLACK_DEG || v > range[1] + limits::BOX_SLACK_DEG {
+                        bail!(
+                            "{k} = {}: outside the attitude box [{}, {}]",
+                            show(v),
+                            show(range[0]),
+                            show(range[1])
+                        );
+                    }
                 }
                 list.push(Attitude::from_degrees(a.roll_deg, a.yaw_deg, a.pitch_deg));
             }
-            if let Err((j, e)) = sources::check_explicit(&list, bounds) {
-                bail!("{}: {e}", key(&format!("attitudes[{j}]")));
-            }
-            (name, DesignSource::Explicit(list))
+            DesignSource::Explicit(list)
         }
-        raw::Design::Grid { name, levels } => {
+        raw::Design::Grid { levels, .. } => {
             let l = [levels.roll, levels.yaw, levels.pitch];
             for (field, n) in ["levels.roll", "levels.yaw", "levels.pitch"].iter().zip(l) {
-                at_least(&key(field), n, 1)?;
+                count(&key(field), n, 1, limits::MAX_M)?;
             }
-            at_least(&key("levels (roll * yaw * pitch)"), l.iter().product(), 9)?;
-            (name, DesignSource::Grid(l))
+            let product = l.iter().try_fold(1usize, |a, &n| a.checked_mul(n));
+            match product {
+                Some(p) if (9..=limits::MAX_M).contains(&p) => {}
+                _ => bail!(
+                    "{} = {} x {} x {}{}: must be at least 9 and at most {}",
+                    key("levels (roll x yaw x pitch)"),
+                    l[0],
+                    l[1],
+                    l[2],
+                    product.map_or(String::new(), |p| format!(" = {p}")),
+                    limits::MAX_M
+                ),
+            }
+            DesignSource::Grid(l)
         }
-        raw::Design::Random { name, m } => (
-            name,
-            DesignSource::Random {
-                m: at_least(&key("m"), m, 9)?,
-            },
-        ),
+        raw::Design::Random { m, .. } => DesignSource::Random { m: m_of(m)? },
         raw::Design::Pso {
-            name,
             m,
             particles,
             iterations,
@@ -506,11 +724,22 @@ fn design(i: usize, d: raw::Design, bounds: &AttitudeBox) -> Result<DesignSpec> 
             c2,
             vmax_fraction,
             threshold,
+            ..
         } => {
             let d = Swarm::default();
             let swarm = Swarm {
-                particles: particles.unwrap_or(d.particles),
-                iterations: iterations.unwrap_or(d.iterations),
+                particles: count(
+                    &key("particles"),
+                    particles.unwrap_or(d.particles),
+                    1,
+                    limits::MAX_PARTICLES,
+                )?,
+                iterations: count(
+                    &key("iterations"),
+                    iterations.unwrap_or(d.iterations),
+                    1,
+                    limits::MAX_PSO_ITERATIONS,
+                )?,
                 w_max: w_max.unwrap_or(d.w_max),
                 w_min: w_min.unwrap_or(d.w_min),
                 c1: c1.unwrap_or(d.c1),
@@ -519,39 +748,111 @@ fn design(i: usize, d: raw::Design, bounds: &AttitudeBox) -> Result<DesignSpec> 
                 threshold,
                 criterion: d.criterion,
             };
-            swarm.validate().map_err(|e| anyhow::anyhow!("{}: {e}", key("")))?;
-            (
-                name,
-                DesignSource::Pso {
-                    m: at_least(&key("m"), m, 9)?,
-                    swarm,
-                },
-            )
+            for (field, v) in [
+                ("w_max", swarm.w_max),
+                ("w_min", swarm.w_min),
+                ("c1", swarm.c1),
+                ("c2", swarm.c2),
+            ] {
+                within(&key(field), v, 0.0, 10.0, "")?;
+            }
+            swarm.validate().map_err(|e| {
+                let value = match &e {
+                    ParameterError::EmptyRange { min, max, .. } => format!("{} (w_max = {})", show(*min), show(*max)),
+                    ParameterError::NonFinite { value, .. }
+                    | ParameterError::NotPositive { value, .. }
+                    | ParameterError::Negative { value, .. }
+                    | ParameterError::OutOfRange { value, .. } => show(*value),
+                    ParameterError::TooSmall { value, .. } | ParameterError::TooLarge { value, .. } => {
+                        value.to_string()
+                    }
+                    other => other.to_string(),
+                };
+                keyed(&prefix, &e, &value)
+            })?;
+            DesignSource::Pso { m: m_of(m)?, swarm }
         }
         raw::Design::Optimum {
-            name,
             m,
             starts,
             max_iterations,
             gradient_tolerance,
+            ..
         } => {
             let d = Optimum::default();
             let settings = Optimum {
-                starts: starts.unwrap_or(d.starts),
-                max_iterations: max_iterations.unwrap_or(d.max_iterations),
+                starts: count(&key("starts"), starts.unwrap_or(d.starts), 1, limits::MAX_STARTS)?,
+                max_iterations: count(
+                    &key("max_iterations"),
+                    max_iterations.unwrap_or(d.max_iterations),
+                    1,
+                    limits::MAX_OPTIMUM_ITERATIONS,
+                )?,
                 gradient_tolerance: gradient_tolerance.unwrap_or(d.gradient_tolerance),
                 memory: d.memory,
             };
-            settings.validate().map_err(|e| anyhow::anyhow!("{}: {e}", key("")))?;
-            (
-                name,
-                DesignSource::Optimum {
-                    m: at_least(&key("m"), m, 9)?,
-                    settings,
-                },
-            )
+            if !(settings.gradient_tolerance.is_finite() && settings.gradient_tolerance > 0.0) {
+                bail!(
+                    "{} = {}: must be positive and finite",
+                    key("gradient_tolerance"),
+                    show(settings.gradient_tolerance)
+                );
+            }
+            settings.validate().map_err(|e| keyed(&prefix, &e, "the value given"))?;
+            DesignSource::Optimum { m: m_of(m)?, settings }
         }
     };
-    check_name(&key("name"), &name)?;
     Ok(DesignSpec { name, source })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn smoke() -> String {
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/smoke.toml")).unwrap()
+    }
+
+    fn error_of(text: &str) -> String {
+        format!("{:#}", parse(text.as_bytes(), Path::new("s.toml")).unwrap_err())
+    }
+
+    #[test]
+    fn a_single_noise_level_may_be_a_number() {
+        let text = smoke().replace("sigma_nt = [10.0, 30.0]", "sigma_nt = 30.0");
+        let s = parse(text.as_bytes(), Path::new("s.toml")).unwrap();
+        assert_eq!(s.sigmas_nt, [30.0]);
+        let text = smoke().replace("sigma_nt = [10.0, 30.0]", "sigma_nt = 30");
+        assert_eq!(parse(text.as_bytes(), Path::new("s.toml")).unwrap().sigmas_nt, [30.0]);
+    }
+
+    #[test]
+    fn fixed_length_arrays_take_exactly_their_length() {
+        let e = error_of(&smoke().replace("psi_deg = [1.5, 0.8, 1.4]", "psi_deg = [1.5, 0.8, 1.4, 2.0]"));
+        assert!(
+            e.contains("s.toml:") && e.contains("invalid length 4") && e.contains("exactly 3"),
+            "{e}"
+        );
+        let e = error_of(&smoke().replace("roll_deg = [-5.0, 5.0]", "roll_deg = [-5.0, 5.0, 99.0]"));
+        assert!(e.contains("invalid length 3") && e.contains("exactly 2"), "{e}");
+    }
+
+    #[test]
+    fn messages_show_the_value_as_written() {
+        let e = error_of(&smoke().replace(
+            "{ roll_deg = 0.0, yaw_deg = 0.0, pitch_deg = 0.0 }",
+            "{ roll_deg = 0.0, yaw_deg = 0.0, pitch_deg = -60 }",
+        ));
+        assert!(
+            e.contains("attitudes[4].pitch_deg = -60: outside the attitude box [-20, 20]"),
+            "{e}"
+        );
+        let e = error_of(&smoke().replace("north_nt = 35272.34", "north_nt = 1e308"));
+        assert!(e.contains("field.north_nt = 1e308: must lie in"), "{e}");
+        let e = error_of(&smoke().replace("particles = 40", "particles = 0"));
+        assert!(
+            e.contains("design[2] (\"pso\").particles = 0: must be at least 1"),
+            "{e}"
+        );
+    }
 }

@@ -77,6 +77,21 @@ impl CalibrationStatus {
         }
     }
 
+    /// Every status, in the order of [`Self::as_str`]'s match.
+    pub const ALL: [Self; 6] = [
+        Self::Ok,
+        Self::NotConverged,
+        Self::TooFewReadings,
+        Self::NonFiniteInput,
+        Self::RankDeficient,
+        Self::NotPositiveDefinite,
+    ];
+
+    /// The status named `name` (as [`Self::as_str`] writes it).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.as_str() == name)
+    }
+
     /// `true` when the calibration produced estimates (`Ok` or `NotConverged`).
     pub fn has_estimate(&self) -> bool {
         matches!(self, Self::Ok | Self::NotConverged)

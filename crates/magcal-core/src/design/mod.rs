@@ -76,7 +76,7 @@ impl DesignProblem {
     ) -> Result<Self, ParameterError> {
         if m < UNKNOWNS {
             return Err(ParameterError::TooSmall {
-                name: "m (attitudes per design)",
+                name: "m",
                 min: UNKNOWNS,
                 value: m,
             });

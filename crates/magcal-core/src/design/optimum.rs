@@ -117,9 +117,9 @@ impl Optimum {
     /// Zero starts, iterations or memory; a tolerance that is not positive and finite.
     pub fn validate(&self) -> Result<(), ParameterError> {
         for (name, value) in [
-            ("optimum.starts", self.starts),
-            ("optimum.max_iterations", self.max_iterations),
-            ("optimum.memory", self.memory),
+            ("starts", self.starts),
+            ("max_iterations", self.max_iterations),
+            ("memory", self.memory),
         ] {
             if value == 0 {
                 return Err(ParameterError::TooSmall { name, min: 1, value });
@@ -128,7 +128,7 @@ impl Optimum {
         let t = self.gradient_tolerance;
         if !(t.is_finite() && t > 0.0) {
             return Err(ParameterError::NotPositive {
-                name: "optimum.gradient_tolerance",
+                name: "gradient_tolerance",
                 value: t,
             });
         }

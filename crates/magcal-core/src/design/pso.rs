@@ -107,23 +107,23 @@ impl Swarm {
     pub fn validate(&self) -> Result<(), ParameterError> {
         if self.particles == 0 {
             return Err(ParameterError::TooSmall {
-                name: "pso.particles",
+                name: "particles",
                 min: 1,
                 value: 0,
             });
         }
         if self.iterations == 0 {
             return Err(ParameterError::TooSmall {
-                name: "pso.iterations",
+                name: "iterations",
                 min: 1,
                 value: 0,
             });
         }
         for (name, value) in [
-            ("pso.w_max", self.w_max),
-            ("pso.w_min", self.w_min),
-            ("pso.c1", self.c1),
-            ("pso.c2", self.c2),
+            ("w_max", self.w_max),
+            ("w_min", self.w_min),
+            ("c1", self.c1),
+            ("c2", self.c2),
         ] {
             crate::error::finite(name, value)?;
             if value < 0.0 {
@@ -132,14 +132,14 @@ impl Swarm {
         }
         if self.w_min > self.w_max {
             return Err(ParameterError::EmptyRange {
-                name: "pso.w_min..pso.w_max",
+                name: "w_min",
                 min: self.w_min,
                 max: self.w_max,
             });
         }
         if !(self.vmax_fraction > 0.0 && self.vmax_fraction <= 1.0) {
             return Err(ParameterError::OutOfRange {
-                name: "pso.vmax_fraction",
+                name: "vmax_fraction",
                 allowed: "(0, 1]",
                 value: self.vmax_fraction,
             });
@@ -148,7 +148,7 @@ impl Swarm {
             && t.is_nan()
         {
             return Err(ParameterError::NonFinite {
-                name: "pso.threshold",
+                name: "threshold",
                 value: t,
             });
         }

@@ -53,25 +53,34 @@ fn levels(range: &AngleRange, n: usize) -> Vec<f64> {
 /// pitch fastest. A full-turn yaw range takes its levels over `[min, max)`.
 ///
 /// # Errors
-/// A level count of zero.
+/// A level count of zero ([`ParameterError::TooSmall`] naming `"roll"`, `"yaw"` or `"pitch"`); a
+/// product of the counts that overflows `usize` ([`ParameterError::TooLarge`] naming `"levels"`).
 pub fn grid(bounds: &AttitudeBox, levels_per_axis: [usize; 3]) -> Result<Vec<Attitude>, ParameterError> {
-    for (name, n) in ["grid.roll", "grid.yaw", "grid.pitch"].into_iter().zip(levels_per_axis) {
+    for (name, n) in ["roll", "yaw", "pitch"].into_iter().zip(levels_per_axis) {
         if n == 0 {
             return Err(ParameterError::TooSmall { name, min: 1, value: n });
         }
     }
+    let size = levels_per_axis
+        .iter()
+        .try_fold(1usize, |acc, &n| acc.checked_mul(n))
+        .ok_or(ParameterError::TooLarge {
+            name: "levels",
+            max: usize::MAX,
+            value: usize::MAX,
+        })?;
     let [r, y, p] = [
         levels(&bounds.roll, levels_per_axis[0]),
         levels(&bounds.yaw, levels_per_axis[1]),
         levels(&bounds.pitch, levels_per_axis[2]),
     ];
-    Ok(r.iter()
-        .flat_map(|&roll| {
-            let p = &p;
-            y.iter()
-                .flat_map(move |&yaw| p.iter().map(move |&pitch| Attitude { roll, yaw, pitch }))
-        })
-        .collect())
+    let mut out = Vec::with_capacity(size);
+    for &roll in &r {
+        for &yaw in &y {
+            out.extend(p.iter().map(|&pitch| Attitude { roll, yaw, pitch }));
+        }
+    }
+    Ok(out)
 }
 
 /// `m` attitudes drawn uniformly in the box, each angle independently, in the order roll, yaw,

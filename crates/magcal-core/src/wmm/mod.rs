@@ -85,33 +85,45 @@ pub struct Site {
     pub year: f64,
 }
 
+/// Lowest height the WMM is valid at, metres above the ellipsoid (1 km below).
+pub const MIN_ALT_M: f64 = -1_000.0;
+/// Highest height the WMM is valid at, metres above the ellipsoid (850 km).
+pub const MAX_ALT_M: f64 = 850_000.0;
+
 /// The field of `model` at `site`: North, East, Down components in nT (X, Y, Z as the WMM reports
 /// them).
 ///
 /// # Errors
-/// A non-finite input, a latitude outside [-90, 90], or a date outside the model's five-year
+/// A non-finite input, a latitude outside [-90, 90], a height outside [[`MIN_ALT_M`], [`MAX_ALT_M`]], or a date outside the model's five-year
 /// validity window.
 pub fn field_ned(model: Model, site: &Site) -> Result<[f64; 3], ParameterError> {
     for (name, v) in [
-        ("field.lat_deg", site.lat_deg),
-        ("field.lon_deg", site.lon_deg),
-        ("field.alt_m", site.alt_m),
-        ("field.year", site.year),
+        ("lat_deg", site.lat_deg),
+        ("lon_deg", site.lon_deg),
+        ("alt_m", site.alt_m),
+        ("year", site.year),
     ] {
         crate::error::finite(name, v)?;
     }
     if site.lat_deg.abs() > 90.0 {
         return Err(ParameterError::OutOfRange {
-            name: "field.lat_deg",
+            name: "lat_deg",
             allowed: "[-90, 90] degrees",
             value: site.lat_deg,
+        });
+    }
+    if !(MIN_ALT_M..=MAX_ALT_M).contains(&site.alt_m) {
+        return Err(ParameterError::OutOfRange {
+            name: "alt_m",
+            allowed: "[-1000, 850000] m, the WMM's validity range",
+            value: site.alt_m,
         });
     }
     let m = model.load();
     let t = site.year - m.epoch;
     if !(0.0..=VALIDITY_YEARS).contains(&t) {
         return Err(ParameterError::OutOfRange {
-            name: "field.year",
+            name: "year",
             allowed: "the model's validity window (epoch to epoch + 5 years)",
             value: site.year,
         });

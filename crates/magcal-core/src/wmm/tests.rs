@@ -236,17 +236,26 @@ fn invalid_sites_and_dates_are_errors() {
     };
     assert!(field_ned(Model::Wmm2020, &ok).is_ok());
     for (model, s, name) in [
-        (Model::Wmm2020, Site { year: 2019.99, ..ok }, "field.year"),
-        (Model::Wmm2020, Site { year: 2025.01, ..ok }, "field.year"),
-        (Model::Wmm2010, ok, "field.year"),
-        (Model::Wmm2020, Site { lat_deg: 90.5, ..ok }, "field.lat_deg"),
+        (Model::Wmm2020, Site { year: 2019.99, ..ok }, "year"),
+        (Model::Wmm2020, Site { year: 2025.01, ..ok }, "year"),
+        (Model::Wmm2010, ok, "year"),
+        (Model::Wmm2020, Site { lat_deg: 90.5, ..ok }, "lat_deg"),
+        (
+            Model::Wmm2020,
+            Site {
+                alt_m: -6378137.0,
+                ..ok
+            },
+            "alt_m",
+        ),
+        (Model::Wmm2020, Site { alt_m: 850_001.0, ..ok }, "alt_m"),
         (
             Model::Wmm2020,
             Site {
                 lat_deg: f64::NAN,
                 ..ok
             },
-            "field.lat_deg",
+            "lat_deg",
         ),
         (
             Model::Wmm2020,
@@ -254,7 +263,7 @@ fn invalid_sites_and_dates_are_errors() {
                 alt_m: f64::INFINITY,
                 ..ok
             },
-            "field.alt_m",
+            "alt_m",
         ),
     ] {
         let e = field_ned(model, &s).unwrap_err();

@@ -1,0 +1,134 @@
+//! The command line: raw flags (clap types that reject what can never be valid, such as
+//! `--threads 0`) and the one `match` over the commands.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+
+use crate::commands;
+use crate::limits;
+
+/// Calibration of strapdown three-axis magnetometers and D-optimal calibration manoeuvres, after
+/// Wu, Hu, Wu, Liu, "D-Optimal Design Applied to Calibration of Strapdown Three-axis Magnetometer".
+#[derive(Debug, Parser)]
+#[command(name = "magcal", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Build the designs, run the noisy trials, write statistics, designs, figures and a manifest.
+    Run(RunArgs),
+    /// Build the designs and write only their attitudes, metrics and figures.
+    Design(DesignArgs),
+    /// Run again with the baseline's seed and trials and compare; exit 1 when something moved.
+    Check(CheckArgs),
+    /// Redraw the figures of a results directory from its CSV files (into DIR/plots/).
+    Plot(PlotArgs),
+}
+
+/// `magcal plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// A results directory written by `magcal run` or `magcal design`.
+    pub dir: PathBuf,
+}
+
+/// Flags every scenario command takes.
+#[derive(Debug, Args)]
+pub struct Common {
+    /// The scenario file (TOML; see README "Scenario files").
+    pub scenario: PathBuf,
+    /// Override the scenario's seed.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Worker threads, 1 to 256 (default: all cores). Results do not depend on it.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=limits::MAX_THREADS as u64))]
+    pub threads: Option<u64>,
+    /// No progress bars and no summary table.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// `magcal run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub common: Common,
+    /// Output directory (default: results/SCENARIO_NAME/). Replaced whole, and only if it is
+    /// missing, empty or an earlier magcal result set.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Override the scenario's trials per design and noise level (1 to 10,000,000).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=limits::MAX_TRIALS as u64))]
+    pub trials: Option<u64>,
+}
+
+/// `magcal design`.
+#[derive(Debug, Args)]
+pub struct DesignArgs {
+    #[command(flatten)]
+    pub common: Common,
+    /// Output directory (default: results/SCENARIO_NAME/), replaced as for `run`.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `magcal check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    pub common: Common,
+    /// The committed results to compare with (default: results/SCENARIO_NAME/).
+    #[arg(long)]
+    pub baseline: Option<PathBuf>,
+}
+
+/// A failure with its exit code.
+#[derive(Debug)]
+pub enum Failure {
+    /// Bad input or usage: exit 2.
+    Input(anyhow::Error),
+    /// `check` found a regression: exit 1 (the table of what moved).
+    Regression(String),
+}
+
+impl From<anyhow::Error> for Failure {
+    fn from(e: anyhow::Error) -> Self {
+        Self::Input(e)
+    }
+}
+
+/// Parses the command line, runs the command, prints an error as one line; the exit code.
+pub fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return match e.kind() {
+                clap::error::ErrorKind::DisplayHelp | clap::error::ErrorKind::DisplayVersion => ExitCode::SUCCESS,
+                _ => ExitCode::from(2),
+            };
+        }
+    };
+    let result = match cli.command {
+        Command::Run(args) => commands::run::run(&args),
+        Command::Design(args) => commands::design::run(&args),
+        Command::Check(args) => commands::check::run(&args),
+        Command::Plot(args) => commands::plot::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(Failure::Input(e)) => {
+            eprintln!("magcal: error: {}", format!("{e:#}").replace('\n', " "));
+            ExitCode::from(2)
+        }
+        Err(Failure::Regression(table)) => {
+            eprintln!("magcal: regression: these results moved beyond their tolerance:\n{table}");
+            ExitCode::from(1)
+        }
+    }
+}

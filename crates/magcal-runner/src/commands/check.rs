@@ -1,0 +1,441 @@
+//! `magcal check`: run a scenario again, with the seed and trial count its baseline's manifest
+//! records, and compare with the baseline.
+//!
+//! Monte Carlo statistics are compared within statistical tolerances (4 combined standard errors);
+//! trial status counts within 4 sqrt(count); a design's `ln det M_F` within a relative 1e-6; the
+//! attitudes and condition numbers of designs that are not optimised within 1e-9 degree and 1e-3
+//! (see [`compare`]). The baseline is also checked against itself: its `trials.csv` must give its
+//! `summary.csv`, and its `designs.csv` the `ln det M_F` of its `design_metrics.csv`, so an edit to
+//! any of them shows. Identical values match, non-finite ones included; a statistic that is
+//! undefined (one successful trial has no standard error) is compared to 1e-9 relative; a
+//! non-finite standard error in the baseline is an error of the baseline (exit 2).
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use magcal_core::design::DesignProblem;
+use magcal_core::{Attitude, CalibrationStatus, Summary};
+
+use crate::cli::{CheckArgs, Failure};
+use crate::output::manifest::Manifest;
+use crate::output::{self, DesignMetricsRow, DesignPointRow, Metric, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
+use crate::pipeline::{self, RunOptions, RunOutput};
+use crate::scenario::{self, Scenario};
+
+/// Runs the command.
+///
+/// # Errors
+/// A bad scenario, a missing or malformed baseline; a regression is [`Failure::Regression`].
+pub fn run(args: &CheckArgs) -> Result<(), Failure> {
+    let common = &args.common;
+    let loaded = scenario::load(&common.scenario)?;
+    let dir = args
+        .baseline
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("results").join(&loaded.name));
+    if !dir.is_dir() {
+        return Err(anyhow::anyhow!("{}: baseline directory not found", dir.display()).into());
+    }
+    let manifest = Manifest::read(&dir)?;
+    if manifest.scenario_sha256 != loaded.hash {
+        eprintln!(
+            "magcal: note: {} has changed since {} was made (SHA-256 differs)",
+            common.scenario.display(),
+            dir.display()
+        );
+    }
+    let with_trials = manifest.lists("summary.csv");
+    let setup = super::setup_with(
+        common,
+        loaded,
+        Some(common.seed.unwrap_or(manifest.seed)),
+        Some(manifest.trials),
+        with_trials,
+    )?;
+    let options = RunOptions {
+        progress: setup.progress,
+        designs_only: !with_trials,
+    };
+    let out = setup
+        .pool
+        .install(|| pipeline::run(&setup.scenario, options))
+        .with_context(|| format!("{}", setup.scenario.path.display()))?;
+    let moved = compare(&setup.scenario, &out, &dir, &manifest)?;
+    if !moved.is_empty() {
+        return Err(Failure::Regression(report(&moved)));
+    }
+    if !common.quiet {
+        println!(
+            "magcal check: {} matches {} within tolerance (seed {}, {} trials)",
+            common.scenario.display(),
+            dir.display(),
+            setup.scenario.seed,
+            setup.scenario.trials
+        );
+    }
+    Ok(())
+}
+
+/// One quantity that moved beyond its tolerance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Moved {
+    /// Which file and row.
+    pub key: String,
+    /// Which column.
+    pub quantity: String,
+    /// Baseline value (`None`: absent or empty).
+    pub baseline: Option<f64>,
+    /// Value now.
+    pub now: Option<f64>,
+    /// Allowed absolute difference.
+    pub tolerance: f64,
+}
+
+#[derive(Default)]
+struct Findings(Vec<Moved>);
+
+impl Findings {
+    /// Records a move unless the values are identical (non-finite ones too), both absent, or
+    /// finite and within `tolerance`.
+    fn value(&mut self, key: &str, quantity: &str, baseline: Option<f64>, now: Option<f64>, tolerance: f64) {
+        let same = match (baseline, now) {
+            (None, None) => true,
+            (Some(b), Some(n)) => {
+                b.to_bits() == n.to_bits() || (b.is_finite() && n.is_finite() && (b - n).abs() <= tolerance)
+            }
+            _ => false,
+        };
+        if !same {
+            self.0.push(Moved {
+                key: key.to_string(),
+                quantity: quantity.to_string(),
+                baseline,
+                now,
+                tolerance,
+            });
+        }
+    }
+
+    fn missing(&mut self, key: &str, what: &str) {
+        self.0.push(Moved {
+            key: key.to_string(),
+            quantity: what.to_string(),
+            baseline: None,
+            now: None,
+            tolerance: 0.0,
+        });
+    }
+}
+
+fn real(x: Option<Real>) -> Option<f64> {
+    x.map(|r| r.0)
+}
+
+/// A standard error from the baseline: `Ok(None)` when undefined (empty), an error when present
+/// and not a finite non-negative number.
+fn standard_error(x: Option<Real>, file: &str, key: &str) -> Result<Option<f64>> {
+    match x {
+        None => Ok(None),
+        Some(Real(v)) if v.is_finite() && v >= 0.0 => Ok(Some(v)),
+        Some(Real(v)) => bail!("{file}: {key}: se_mean = {v} is not a standard error; the baseline is damaged"),
+    }
+}
+
+/// Key of a cell: design and noise level.
+fn cell_key(design: &str, sigma: f64) -> String {
+    format!("{design} / {sigma}")
+}
+
+/// Compares `out` with the baseline directory; returns what moved (empty: no regression).
+///
+/// # Errors
+/// A missing or malformed baseline file, or a baseline whose tolerance is not finite.
+pub fn compare(scenario: &Scenario, out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<Vec<Moved>> {
+    let mut f = Findings::default();
+    let file = |name: &str| baseline.join(name);
+
+    // --- summary.csv and trials.csv
+    if manifest.lists("summary.csv") {
+        let shown = file("summary.csv").display().to_string();
+        let base: Vec<SummaryRow> = read_csv(&file("summary.csv"))?;
+        let now: Vec<SummaryRow> = output::summary_rows(out).collect();
+        let key = |r: &SummaryRow| {
+            format!(
+                "summary.csv {} / {}",
+                cell_key(&r.design, r.sigma_nt.0),
+                r.metric.as_str()
+            )
+        };
+        let now_by: BTreeMap<String, &SummaryRow> = now.iter().map(|r| (key(r), r)).collect();
+        let base_by: BTreeMap<String, &SummaryRow> = base.iter().map(|r| (key(r), r)).collect();
+        keys_match(&mut f, &base_by, &now_by);
+        for (k, b) in &base_by {
+            let Some(n) = now_by.get(k) else { continue };
+            let se_b = standard_error(b.se_mean, &shown, k)?;
+            let se_n = standard_error(n.se_mean, "this run", k)?;
+            // An undefined standard error (fewer than two values): no statistical tolerance.
+            let se = se_b.zip(se_n).map(|(a, c)| (a * a + c * c).sqrt());
+            let exact = |v: Option<Real>| 1e-9 * real(v).map_or(0.0, f64::abs);
+            f.value(k, "trials", Some(b.trials as f64), Some(n.trials as f64), 0.0);
+            // Binomial count: 4 standard deviations.
+            let failed_tol = 4.0 * (b.failed.max(1) as f64).sqrt();
+            f.value(k, "failed", Some(b.failed as f64), Some(n.failed as f64), failed_tol);
+            f.value(
+                k,
+                "mean",
+                real(b.mean),
+                real(n.mean),
+                se.map_or(exact(b.mean), |se| 4.0 * se),
+            );
+            // The median's standard error is about sqrt(pi/2) times the mean's for a smooth density.
+            let median_tol = se.map_or(exact(b.median), |se| 4.0 * 1.2533 * se);
+            f.value(k, "median", real(b.median), real(n.median), median_tol);
+            // Std of a sample std: about std / sqrt(2 (n - 1)).
+            let succeeded = b.trials.saturating_sub(b.failed) as f64;
+            let std_tol = match (real(b.std), se) {
+                (Some(s), Some(_)) if s.is_finite() => 4.0 * s / (2.0 * (succeeded - 1.0).max(1.0)).sqrt(),
+                _ => exact(b.std),
+            };
+            f.value(k, "std", real(b.std), real(n.std), std_tol);
+        }
+        if manifest.lists("trials.csv") {
+            let trials: Vec<TrialRow> = read_csv(&file("trials.csv"))?;
+            compare_statuses(&mut f, &trials, out);
+            baseline_consistency(&mut f, &base, &trials);
+        }
+    }
+
+    // --- designs.csv and design_metrics.csv
+    let base_metrics: Vec<DesignMetricsRow> = read_csv(&file("design_metrics.csv"))?;
+    let now_metrics: Vec<DesignMetricsRow> = output::design_metrics_rows(out).collect();
+    let base_points = group_points(read_csv::<DesignPointRow>(&file("designs.csv"))?);
+    let now_points = group_points(output::design_rows(out).collect());
+    let by = |rows: &[DesignMetricsRow]| -> BTreeMap<String, DesignMetricsRow> {
+        rows.iter()
+            .map(|r| (format!("design_metrics.csv {}", r.design), r.clone()))
+            .collect()
+    };
+    let (base_by, now_by) = (by(&base_metrics), by(&now_metrics));
+    keys_match(&mut f, &base_by, &now_by);
+    for (k, b) in &base_by {
+        let Some(n) = now_by.get(k) else { continue };
+        f.value(k, "m", Some(b.m as f64), Some(n.m as f64), 0.0);
+        f.value(
+            k,
+            "ln_det_mf",
+            Some(b.ln_det_mf.0),
+            Some(n.ln_det_mf.0),
+            1e-6 * b.ln_det_mf.0.abs(),
+        );
+        // Condition numbers only for designs that are not optimised (many designs share the optimal
+        // ln det with different conditioning), at 1e-3 relative: cond_2 of an ill-conditioned H
+        // (1e9 for the printed Table II design) moved 2e-6 relative when the field moved 1e-8.
+        if !b.kind.is_optimised() {
+            f.value(k, "cond_h", Some(b.cond_h.0), Some(n.cond_h.0), 1e-3 * b.cond_h.0.abs());
+            f.value(
+                k,
+                "cond_mf",
+                Some(b.cond_mf.0),
+                Some(n.cond_mf.0),
+                2e-3 * b.cond_mf.0.abs(),
+            );
+        }
+        let design = &b.design;
+        let key = format!("designs.csv {design}");
+        let Some(points) = base_points.get(design) else {
+            f.missing(&key, "design missing in the baseline's designs.csv");
+            continue;
+        };
+        f.value(&key, "attitudes", Some(points.len() as f64), Some(b.m as f64), 0.0);
+        // The baseline against itself: its attitudes give its ln det M_F.
+        if points.len() >= 9 {
+            let attitudes: Vec<Attitude> = points
+                .iter()
+                .map(|p| Attitude::from_degrees(p[0], p[1], p[2]))
+                .collect();
+            let problem = DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, attitudes.len())?;
+            let recomputed = problem.evaluate(&attitudes).ln_det_mf;
+            f.value(
+                &key,
+                "ln det M_F of these attitudes vs design_metrics.csv",
+                Some(b.ln_det_mf.0),
+                Some(recomputed),
+                1e-6 * b.ln_det_mf.0.abs(),
+            );
+        }
+        if !b.kind.is_optimised()
+            && let Some(now) = now_points.get(design)
+            && now.len() == points.len()
+        {
+            const ANGLES: [&str; 3] = ["roll_deg", "yaw_deg", "pitch_deg"];
+            for (i, (p, q)) in points.iter().zip(now).enumerate() {
+                for (j, angle) in ANGLES.iter().enumerate() {
+                    f.value(&format!("{key} point {}", i + 1), angle, Some(p[j]), Some(q[j]), 1.5e-9);
+                }
+            }
+        }
+    }
+
+    // --- pso_runs.csv: the runs are chaotic, so compare their mean final ln det M_F.
+    match (manifest.lists("pso_runs.csv"), out.pso_runs.is_some()) {
+        (true, true) => {
+            let base: Vec<f64> = read_csv::<PsoRunRow>(&file("pso_runs.csv"))?
+                .iter()
+                .map(|r| r.final_ln_det.0)
+                .collect();
+            let now: Vec<f64> = output::pso_run_rows(out).map(|r| r.final_ln_det.0).collect();
+            f.value(
+                "pso_runs.csv",
+                "runs",
+                Some(base.len() as f64),
+                Some(now.len() as f64),
+                0.0,
+            );
+            if base.iter().chain(&now).all(|v| v.is_finite()) {
+                let (mb, seb) = mean_se(&base);
+                let (mn, sen) = mean_se(&now);
+                let tol = 4.0 * (seb * seb + sen * sen).sqrt() + 1e-9 * mb.abs();
+                f.value("pso_runs.csv", "mean final_ln_det", Some(mb), Some(mn), tol);
+            } else {
+                // Non-finite finals: the same runs must end the same way.
+                let sorted = |v: &[f64]| {
+                    let mut v = v.to_vec();
+                    v.sort_by(f64::total_cmp);
+                    v
+                };
+                for (i, (b, n)) in sorted(&base).iter().zip(sorted(&now)).enumerate() {
+                    f.value(
+                        "pso_runs.csv",
+                        &format!("final_ln_det, {}-th smallest", i + 1),
+                        Some(*b),
+                        Some(n),
+                        0.0,
+                    );
+                }
+            }
+        }
+        (false, true) => f.missing("pso_runs.csv", "not in the baseline"),
+        (true, false) => f.missing("pso_runs.csv", "not made by this run"),
+        (false, false) => {}
+    }
+    Ok(f.0)
+}
+
+fn keys_match<V, W>(f: &mut Findings, base: &BTreeMap<String, V>, now: &BTreeMap<String, W>) {
+    for k in base.keys().filter(|k| !now.contains_key(*k)) {
+        f.missing(k, "row missing in this run");
+    }
+    for k in now.keys().filter(|k| !base.contains_key(*k)) {
+        f.missing(k, "row not in the baseline");
+    }
+}
+
+fn mean_se(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(1) as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// Attitudes per design, degrees, in file order.
+fn group_points(rows: Vec<DesignPointRow>) -> BTreeMap<String, Vec<[f64; 3]>> {
+    let mut by: BTreeMap<String, Vec<[f64; 3]>> = BTreeMap::new();
+    for r in rows {
+        by.entry(r.design)
+            .or_default()
+            .push([r.roll_deg.0, r.yaw_deg.0, r.pitch_deg.0]);
+    }
+    by
+}
+
+/// Status counts per cell, baseline `trials.csv` against this run, within 4 sqrt(count).
+fn compare_statuses(f: &mut Findings, trials: &[TrialRow], out: &RunOutput) {
+    let mut base: BTreeMap<(String, CalibrationStatus), usize> = BTreeMap::new();
+    for t in trials {
+        *base.entry((cell_key(&t.design, t.sigma_nt.0), t.status.0)).or_default() += 1;
+    }
+    let mut now: BTreeMap<(String, CalibrationStatus), usize> = BTreeMap::new();
+    for c in &out.cells {
+        for t in &c.trials {
+            *now.entry((cell_key(&out.designs[c.design].name, c.sigma_nt), t.status))
+                .or_default() += 1;
+        }
+    }
+    let keys: std::collections::BTreeSet<_> = base.keys().chain(now.keys()).cloned().collect();
+    for key in keys {
+        let b = base.get(&key).copied().unwrap_or(0);
+        let n = now.get(&key).copied().unwrap_or(0);
+        f.value(
+            &format!("trials.csv {}", key.0),
+            &format!("status {}", key.1.as_str()),
+            Some(b as f64),
+            Some(n as f64),
+            4.0 * (b.max(1) as f64).sqrt(),
+        );
+    }
+}
+
+/// The baseline's `summary.csv` must be the statistics of its `trials.csv`.
+fn baseline_consistency(f: &mut Findings, summary: &[SummaryRow], trials: &[TrialRow]) {
+    let mut cells: BTreeMap<String, Vec<&TrialRow>> = BTreeMap::new();
+    for t in trials {
+        cells.entry(cell_key(&t.design, t.sigma_nt.0)).or_default().push(t);
+    }
+    for row in summary {
+        let cell = cell_key(&row.design, row.sigma_nt.0);
+        let key = format!("baseline trials.csv vs summary.csv {cell} / {}", row.metric.as_str());
+        let Some(rows) = cells.get(&cell) else {
+            f.missing(&key, "no trials in the baseline's trials.csv");
+            continue;
+        };
+        let failed = rows.iter().filter(|t| !t.status.0.has_estimate()).count();
+        f.value(&key, "trials", Some(row.trials as f64), Some(rows.len() as f64), 0.0);
+        f.value(&key, "failed", Some(row.failed as f64), Some(failed as f64), 0.0);
+        let values: Vec<f64> = rows
+            .iter()
+            .filter_map(|t| match row.metric {
+                Metric::EtaPsi => t.eta_psi,
+                Metric::EtaS => t.eta_s,
+                Metric::EtaO => t.eta_o,
+            })
+            .map(|r| r.0)
+            .filter(|v| v.is_finite())
+            .collect();
+        let s = Summary::new(&values, failed);
+        let defined = |x: f64| (!x.is_nan()).then_some(x);
+        for (quantity, b, n) in [
+            ("mean", real(row.mean), defined(s.mean)),
+            ("std", real(row.std), defined(s.std)),
+            ("median", real(row.median), defined(s.median)),
+            ("p05", real(row.p05), defined(s.p05)),
+            ("p95", real(row.p95), defined(s.p95)),
+        ] {
+            f.value(&key, quantity, b, n, 1e-9 * b.map_or(0.0, f64::abs));
+        }
+    }
+}
+
+/// A readable table of what moved.
+pub fn report(moved: &[Moved]) -> String {
+    let show = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.6}"));
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "{:<60} {:<36} {:>16} {:>16} {:>12}",
+        "row", "quantity", "baseline", "now", "tolerance"
+    );
+    for m in moved {
+        let _ = writeln!(
+            s,
+            "{:<60} {:<36} {:>16} {:>16} {:>12.3e}",
+            m.key,
+            m.quantity,
+            show(m.baseline),
+            show(m.now),
+            m.tolerance
+        );
+    }
+    s
+}

@@ -1,0 +1,76 @@
+//! One module per command. `run` and `design` share [`run::produce`]; every command that reads a
+//! scenario starts from [`setup`].
+
+pub mod check;
+pub mod design;
+pub mod plot;
+pub mod run;
+
+use std::io::IsTerminal;
+
+use anyhow::{Context, Result};
+
+use crate::cli::Common;
+use crate::limits;
+use crate::scenario::{self, Scenario};
+
+/// A validated scenario with its overrides applied, and the workers to run it.
+pub struct Setup {
+    /// The scenario.
+    pub scenario: Scenario,
+    /// Worker threads.
+    pub threads: usize,
+    /// The pool they form.
+    pub pool: rayon::ThreadPool,
+    /// Draw progress bars.
+    pub progress: bool,
+}
+
+/// Loads the scenario, applies `seed` and `trials`, checks the memory the run needs (with trials
+/// or without), and starts the workers.
+///
+/// # Errors
+/// A bad scenario, a run too large for the machine, or threads that cannot start.
+pub fn setup(common: &Common, seed: Option<u64>, trials: Option<usize>, with_trials: bool) -> Result<Setup> {
+    setup_with(common, scenario::load(&common.scenario)?, seed, trials, with_trials)
+}
+
+/// [`setup`] for a scenario already loaded.
+///
+/// # Errors
+/// As [`setup`].
+pub fn setup_with(
+    common: &Common,
+    mut scenario: Scenario,
+    seed: Option<u64>,
+    trials: Option<usize>,
+    with_trials: bool,
+) -> Result<Setup> {
+    if let Some(seed) = seed {
+        scenario.seed = seed;
+    }
+    if let Some(t) = trials {
+        scenario.trials = t;
+    }
+    let threads = match common.threads {
+        Some(n) => n as usize,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get().min(limits::MAX_THREADS)),
+    };
+    limits::check_memory(&scenario, with_trials, threads).with_context(|| {
+        format!(
+            "{}: trials = {}, threads {threads}",
+            common.scenario.display(),
+            scenario.trials
+        )
+    })?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("cannot start worker threads")?;
+    Ok(Setup {
+        scenario,
+        threads,
+        pool,
+        progress: !common.quiet && std::io::stderr().is_terminal(),
+    })
+}

@@ -1,0 +1,23 @@
+//! `magcal plot DIR`: redraws the figures of a result set from its files into `DIR/plots/`, which
+//! is replaced whole.
+
+use anyhow::Result;
+
+use crate::cli::{Failure, PlotArgs};
+use crate::output::manifest::Manifest;
+use crate::output::staging::{ResultSet, Target};
+use crate::plots;
+
+/// Runs the command.
+///
+/// # Errors
+/// A directory that is not a result set, or a missing or malformed file of it.
+pub fn run(args: &PlotArgs) -> Result<(), Failure> {
+    let manifest = Manifest::read(&args.dir)?;
+    let target = args.dir.join("plots");
+    let mut set = ResultSet::begin(&target, Target::Owned)?;
+    let drawn = plots::draw(&args.dir, &manifest, &mut set, "")?;
+    set.commit()?;
+    println!("{} figures drawn in {}", 2 * drawn.len(), target.display());
+    Ok(())
+}

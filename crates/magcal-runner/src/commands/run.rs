@@ -1,0 +1,95 @@
+//! `magcal run`: designs, trials, statistics, figures and a manifest, written as one result set.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+
+use crate::cli::{Common, Failure, RunArgs};
+use crate::output::manifest::Manifest;
+use crate::output::staging::{ResultSet, Target};
+use crate::output::{self, print};
+use crate::pipeline::{self, RunOptions, RunOutput};
+use crate::plots;
+use crate::scenario::Scenario;
+
+/// Runs the command.
+///
+/// # Errors
+/// As [`produce`].
+pub fn run(args: &RunArgs) -> Result<(), Failure> {
+    produce(
+        &args.common,
+        args.out.as_deref(),
+        args.trials.map(|t| t as usize),
+        false,
+    )
+}
+
+/// Builds the designs and, unless `designs_only`, runs the trials; writes the result set to `out`
+/// (default `results/<name>/`) and swaps it in whole.
+///
+/// # Errors
+/// A bad scenario, an output directory that may not be replaced (checked before any work), a run
+/// too large for the machine, or a file that cannot be written; the earlier set is then untouched.
+pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, designs_only: bool) -> Result<(), Failure> {
+    let started = Instant::now();
+    let setup = super::setup(common, common.seed, trials, !designs_only)?;
+    let scenario = &setup.scenario;
+    let dir = out.map_or_else(|| PathBuf::from("results").join(&scenario.name), Path::to_path_buf);
+    let mut set = ResultSet::begin(&dir, Target::Results)?;
+    let options = RunOptions {
+        progress: setup.progress,
+        designs_only,
+    };
+    let mut run = setup
+        .pool
+        .install(|| pipeline::run(scenario, options))
+        .with_context(|| format!("{}", scenario.path.display()))?;
+    let manifest = write_set(scenario, &mut run, &mut set, setup.threads, !designs_only, started)?;
+    let staged = set.dir().to_path_buf();
+    let drawn = plots::draw(&staged, &manifest, &mut set, "plots/").context("drawing the figures")?;
+    set.commit()?;
+    if !common.quiet {
+        print::summary(&run, &dir);
+        println!("{} figures in {}", 2 * drawn.len(), dir.join("plots").display());
+    }
+    Ok(())
+}
+
+/// Writes every file of the set but the figures; returns the manifest.
+fn write_set(
+    scenario: &Scenario,
+    out: &mut RunOutput,
+    set: &mut ResultSet,
+    threads: usize,
+    with_trials: bool,
+    started: Instant,
+) -> Result<Manifest> {
+    let mut files = Vec::new();
+    let mut put = |name: &str, bytes: Vec<u8>| -> Result<()> {
+        set.put(name, &bytes)?;
+        files.push(name.to_string());
+        Ok(())
+    };
+    put("designs.csv", output::csv_bytes(output::design_rows(out))?)?;
+    put(
+        "design_metrics.csv",
+        output::csv_bytes(output::design_metrics_rows(out))?,
+    )?;
+    if with_trials {
+        put("summary.csv", output::csv_bytes(output::summary_rows(out))?)?;
+    }
+    if out.pso_runs.is_some() {
+        put("pso_runs.csv", output::csv_bytes(output::pso_run_rows(out))?)?;
+    }
+    if with_trials {
+        // The largest file: streamed, not formatted in memory.
+        set.put_with("trials.csv", |w| output::write_csv(output::trial_rows(out), w))?;
+        files.push("trials.csv".into());
+    }
+    out.stages.push(("total".into(), started.elapsed().as_secs_f64()));
+    let manifest = Manifest::new(scenario, out, threads, files);
+    set.put("manifest.json", &manifest.to_bytes()?)?;
+    Ok(manifest)
+}

@@ -1,0 +1,18 @@
+//! `magcal`: scenario files -> designs -> noisy Monte Carlo trials -> CSV statistics, figures and a
+//! manifest, and regression checks against committed results. The mathematics lives in
+//! `magcal-core`; this crate is glue, a library so that its tests and fuzz targets call it directly.
+//!
+//! Data flows one way: [`scenario`] (raw TOML -> validated, sizes bounded by [`limits`]) ->
+//! [`pipeline`] (designs, parallel trials collected in trial order) -> [`output`] (typed rows, the
+//! manifest, the result set swapped in whole) and [`plots`]. [`cli`] parses the command line and
+//! matches the command once; each command is a module of [`commands`].
+//!
+//! Exit codes: 0 success, 1 regression found by `check`, 2 bad input or usage.
+
+pub mod cli;
+pub mod commands;
+pub mod limits;
+pub mod output;
+pub mod pipeline;
+pub mod plots;
+pub mod scenario;

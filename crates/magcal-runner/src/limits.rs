@@ -1,0 +1,191 @@
+//! Every size a scenario or command line can set is bounded twice: by a sane range (the constants
+//! below, checked while the scenario is validated), and by an estimate of the memory the run needs,
+//! checked against what the machine has before any work starts ([`check_memory`]). A refusal names
+//! the number, the estimate and the limit.
+
+use anyhow::{Result, bail};
+use magcal_core::monte_carlo::TrialOutcome;
+
+use crate::scenario::{DesignSource, Scenario};
+
+/// Largest scenario file read, bytes.
+pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+/// Longest scenario or design name (it names files).
+pub const MAX_NAME: usize = 64;
+/// Noisy trials per design and noise level.
+pub const MAX_TRIALS: usize = 10_000_000;
+/// Noise levels of a sweep.
+pub const MAX_SIGMAS: usize = 1_000;
+/// Designs of a scenario.
+pub const MAX_DESIGNS: usize = 1_000;
+/// Attitudes of one design (and grid points).
+pub const MAX_M: usize = 100_000;
+/// PSO particles.
+pub const MAX_PARTICLES: usize = 100_000;
+/// PSO iterations.
+pub const MAX_PSO_ITERATIONS: usize = 10_000_000;
+/// Starts of the optimum optimiser.
+pub const MAX_STARTS: usize = 100_000;
+/// Iterations of one start of the optimum optimiser.
+pub const MAX_OPTIMUM_ITERATIONS: usize = 1_000_000;
+/// Repeated PSO runs.
+pub const MAX_PSO_RUNS: usize = 100_000;
+/// Step-2 iterations of one calibration.
+pub const MAX_STEP2_ITERATIONS: usize = 1_000_000;
+/// Worker threads.
+pub const MAX_THREADS: usize = 256;
+/// Smallest positive noise level, nT: 1e-6 nT is still 1e5 times the rounding of a 50,000 nT
+/// reading; below it the figures' log axes would span hundreds of decades for nothing.
+pub const MIN_SIGMA_NT: f64 = 1e-6;
+/// Largest noise level, nT (0.1 T).
+pub const MAX_SIGMA_NT: f64 = 1e8;
+/// Largest reference field component, nT (0.01 T; the Earth's is below 70,000 nT).
+pub const MAX_FIELD_NT: f64 = 1e7;
+/// Smallest reference field magnitude, nT.
+pub const MIN_FIELD_NT: f64 = 1.0;
+/// Scale factors are in `[MIN_SCALE, MAX_SCALE]`.
+pub const MIN_SCALE: f64 = 1e-3;
+/// See [`MIN_SCALE`].
+pub const MAX_SCALE: f64 = 1e3;
+/// Largest bias component, nT (0.01 T).
+pub const MAX_BIAS_NT: f64 = 1e7;
+/// Slack of the explicit attitudes' box check, degrees (1e-8 rad, as the core's check).
+pub const BOX_SLACK_DEG: f64 = 5.8e-7;
+
+/// A number as a person wrote it: `-60`, `0.25`, `1e308`, `5e-324` (never 309 digits).
+pub fn show(x: f64) -> String {
+    let a = x.abs();
+    if x != 0.0 && a.is_finite() && !(1e-4..1e16).contains(&a) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+/// Bytes, for people.
+fn bytes(n: u64) -> String {
+    const GIB: f64 = (1u64 << 30) as f64;
+    const MIB: f64 = (1u64 << 20) as f64;
+    let x = n as f64;
+    if x >= GIB {
+        format!("{:.1} GiB", x / GIB)
+    } else {
+        format!("{:.1} MiB", x / MIB)
+    }
+}
+
+/// The memory a run of `scenario` needs, item by item: (what, bytes).
+pub fn estimate(scenario: &Scenario, with_trials: bool, threads: usize) -> Vec<(String, u64)> {
+    let mut items = Vec::new();
+    let f = 8u64; // bytes per f64
+    // Thread stacks (virtual memory, counted by an address-space limit).
+    items.push((format!("{threads} worker threads"), threads as u64 * (8 << 20)));
+    for d in &scenario.designs {
+        let m = d.source.m() as u64;
+        let dim = 3 * m;
+        let need = match &d.source {
+            DesignSource::Pso { swarm, .. } => {
+                swarm.particles as u64 * (3 * dim * f + 512) + swarm.iterations as u64 * f
+            }
+            DesignSource::Optimum { settings, .. } => {
+                settings.starts as u64 * dim * f * 3 + threads as u64 * (2 * settings.memory as u64 + 8) * dim * f
+            }
+            _ => 0,
+        };
+        // The design's readings, H and its SVD for the conditioning.
+        items.push((format!("design {:?}", d.name), need + m * 600));
+    }
+    if let Some(runs) = &scenario.pso_runs {
+        let dim = 3 * runs.m as u64;
+        let concurrent = runs.runs.min(threads) as u64;
+        let swarm = runs.swarm.particles as u64 * (3 * dim * f + 512) + runs.swarm.iterations as u64 * f;
+        items.push((
+            format!("{} PSO runs, {concurrent} at a time", runs.runs),
+            concurrent * swarm,
+        ));
+    }
+    if with_trials {
+        let rows = (scenario.designs.len() * scenario.sigmas_nt.len()) as u64 * scenario.trials as u64;
+        // Every outcome is kept until the statistics and files are written; the statistics sort a
+        // copy of each metric of one cell.
+        let per_row = std::mem::size_of::<TrialOutcome>() as u64 + 32;
+        let largest_m = scenario.designs.iter().map(|d| d.source.m()).max().unwrap_or(0) as u64;
+        items.push((
+            format!("{rows} trial outcomes x {per_row} B"),
+            rows * per_row + 3 * scenario.trials as u64 * f + threads as u64 * largest_m * 1200,
+        ));
+    }
+    items
+}
+
+/// What this process may use: the smallest of the memory the system reports available and the
+/// address-space and data limits (`setrlimit`) of the process; `None` where none is known.
+pub fn available_memory() -> Option<(u64, &'static str)> {
+    let mut best: Option<(u64, &'static str)> = None;
+    let mut take = |v: u64, what: &'static str| {
+        if best.is_none_or(|(b, _)| v < b) {
+            best = Some((v, what));
+        }
+    };
+    if let Ok(text) = std::fs::read_to_string("/proc/meminfo")
+        && let Some(kib) = text
+            .lines()
+            .find_map(|l| l.strip_prefix("MemAvailable:"))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+    {
+        take(kib * 1024, "memory available (MemAvailable)");
+    }
+    #[cfg(unix)]
+    {
+        use rustix::process::{Resource, getrlimit};
+        for (resource, what) in [
+            (Resource::As, "the address-space limit (RLIMIT_AS)"),
+            (Resource::Data, "the data limit (RLIMIT_DATA)"),
+        ] {
+            if let Some(v) = getrlimit(resource).current {
+                take(v, what);
+            }
+        }
+    }
+    best
+}
+
+/// Refuses a run whose estimated memory exceeds half of what the process may use.
+///
+/// # Errors
+/// The estimate, its largest item and the limit.
+pub fn check_memory(scenario: &Scenario, with_trials: bool, threads: usize) -> Result<()> {
+    let items = estimate(scenario, with_trials, threads);
+    let total: u64 = items.iter().map(|(_, b)| b).sum();
+    let Some((available, what)) = available_memory() else {
+        return Ok(());
+    };
+    let limit = available / 2;
+    if total > limit {
+        let (item, b) = items.iter().max_by_key(|(_, b)| *b).expect("at least the threads");
+        bail!(
+            "the run needs about {} of memory, most of it for {item} ({}); the limit is {}, half of {} {what}",
+            bytes(total),
+            bytes(*b),
+            bytes(limit),
+            bytes(available)
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_are_shown_as_written() {
+        assert_eq!(show(-60.0), "-60");
+        assert_eq!(show(0.25), "0.25");
+        assert_eq!(show(1e308), "1e308");
+        assert_eq!(show(5e-324), "5e-324");
+        assert_eq!(show(0.0), "0");
+        assert_eq!(show(f64::INFINITY), "inf");
+        assert_eq!(show(48277.79), "48277.79");
+    }
+}

@@ -1,0 +1,118 @@
+//! `manifest.json`: what is needed to rebuild a result set, written beside it and read back by
+//! `check` (seed, trials) and `plot` (field, box, the files of the set).
+
+use serde::{Deserialize, Serialize};
+
+use crate::pipeline::RunOutput;
+use crate::scenario::Scenario;
+
+/// The fields that mark a directory as a magcal result set.
+#[derive(Debug, Deserialize)]
+pub struct Identity {
+    /// Scenario name.
+    pub name: String,
+    /// SHA-256 of the scenario file.
+    pub scenario_sha256: String,
+}
+
+/// What `manifest.json` records.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// The scenario file, as given on the command line.
+    pub scenario: String,
+    /// Scenario name.
+    pub name: String,
+    /// Scenario description.
+    pub description: String,
+    /// SHA-256 of the scenario file.
+    pub scenario_sha256: String,
+    /// The seed used.
+    pub seed: u64,
+    /// Trials per design and noise level.
+    pub trials: usize,
+    /// Noise levels, nT.
+    pub sigma_nt: Vec<f64>,
+    /// The reference field used: WMM north, east, down, nT.
+    pub field_ned_nt: [f64; 3],
+    /// Yaw offset, degrees.
+    pub yaw_offset_deg: f64,
+    /// The attitude box, roll, yaw, pitch `[min, max]` in degrees.
+    #[serde(default)]
+    pub attitude_box_deg: Option<[[f64; 2]; 3]>,
+    /// Rayon threads.
+    pub threads: usize,
+    /// The command line.
+    pub command: Vec<String>,
+    /// Git revision the binary was built from (`-dirty` with uncommitted changes).
+    pub git_revision: String,
+    /// `rustc --version` of the build.
+    pub rustc: String,
+    /// Target triple.
+    pub target: String,
+    /// Crate versions.
+    pub crates: Vec<(String, String)>,
+    /// Wall time per stage, seconds.
+    pub stages: Vec<(String, f64)>,
+    /// The files of the result set beside this one (figures excepted).
+    pub files: Vec<String>,
+}
+
+impl Manifest {
+    /// The manifest of a run.
+    pub fn new(scenario: &Scenario, out: &RunOutput, threads: usize, files: Vec<String>) -> Self {
+        let version = env!("CARGO_PKG_VERSION").to_string();
+        Self {
+            scenario: scenario.path.display().to_string(),
+            name: scenario.name.clone(),
+            description: scenario.description.clone(),
+            scenario_sha256: scenario.hash.clone(),
+            seed: scenario.seed,
+            trials: scenario.trials,
+            sigma_nt: scenario.sigmas_nt.clone(),
+            field_ned_nt: scenario.field.ned_nt(),
+            yaw_offset_deg: scenario.field.yaw_offset_deg(),
+            attitude_box_deg: Some(
+                scenario
+                    .bounds
+                    .ranges()
+                    .map(|r| [r.min().to_degrees(), r.max().to_degrees()]),
+            ),
+            threads,
+            command: std::env::args().collect(),
+            git_revision: env!("MAGCAL_GIT_REVISION").into(),
+            rustc: env!("MAGCAL_RUSTC_VERSION").into(),
+            target: env!("MAGCAL_TARGET").into(),
+            // Both crates share the workspace version.
+            crates: vec![
+                ("magcal-core".into(), version.clone()),
+                ("magcal-runner".into(), version),
+            ],
+            stages: out.stages.clone(),
+            files,
+        }
+    }
+
+    /// Pretty JSON.
+    ///
+    /// # Errors
+    /// Only a failure of serde_json.
+    pub fn to_bytes(&self) -> anyhow::Result<Vec<u8>> {
+        Ok(serde_json::to_vec_pretty(self)?)
+    }
+
+    /// Reads `dir/manifest.json`.
+    ///
+    /// # Errors
+    /// A missing or malformed file, named.
+    pub fn read(dir: &std::path::Path) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        let path = dir.join("manifest.json");
+        let bytes = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+        serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal manifest", path.display()))
+    }
+
+    /// Whether the set lists `file`.
+    pub fn lists(&self, file: &str) -> bool {
+        self.files.iter().any(|f| f == file)
+    }
+}

@@ -1,0 +1,437 @@
+//! The output layer: one typed row per CSV file, shared by the writer and by every reader (`check`,
+//! `plot`, the tests), so that a column is added in one place; the manifest; the result set that is
+//! written into a staging directory and swapped in whole ([`staging`]); and the screen table.
+//!
+//! Numbers are written with Rust's shortest round-trip formatting ([`Real`]): exact, and the same
+//! bytes for the same value on every platform and thread count. A statistic that is undefined (no
+//! successful trial, or a standard deviation of one value) is an empty cell, never `NaN`.
+
+pub mod manifest;
+pub mod print;
+pub mod staging;
+
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use magcal_core::CalibrationStatus;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+use crate::pipeline::RunOutput;
+use crate::scenario::DesignKind;
+
+/// A number in a CSV cell, written with `{}` (shortest round trip, never an exponent: the format
+/// of the committed baselines) and read back exactly; `inf`, `-inf` and `NaN` round-trip too.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Real(pub f64);
+
+impl Serialize for Real {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(&self.0)
+    }
+}
+
+impl<'de> Deserialize<'de> for Real {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        f64::deserialize(d).map(Real)
+    }
+}
+
+impl From<f64> for Real {
+    fn from(x: f64) -> Self {
+        Self(x)
+    }
+}
+
+/// A trial's calibration status, by the name [`CalibrationStatus::as_str`] gives it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Status(pub CalibrationStatus);
+
+impl Default for Status {
+    fn default() -> Self {
+        Self(CalibrationStatus::Ok)
+    }
+}
+
+impl Serialize for Status {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.0.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for Status {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        CalibrationStatus::from_name(&text)
+            .map(Status)
+            .ok_or_else(|| serde::de::Error::custom(format!("{text:?} is not a trial status")))
+    }
+}
+
+/// The Monte Carlo metrics of `summary.csv` (\[P1\] eq. (21)-(23)), percent.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Metric {
+    /// `eta_psi`, \[P1\] eq. (21).
+    #[default]
+    EtaPsi,
+    /// `eta_S`, \[P1\] eq. (22).
+    EtaS,
+    /// `eta_O`, \[P1\] eq. (23).
+    EtaO,
+}
+
+impl Metric {
+    /// In file order.
+    pub const ALL: [Self; 3] = [Self::EtaPsi, Self::EtaS, Self::EtaO];
+
+    /// The column name (`eta_psi`, `eta_s`, `eta_o`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::EtaPsi => "eta_psi",
+            Self::EtaS => "eta_s",
+            Self::EtaO => "eta_o",
+        }
+    }
+
+    /// An axis label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::EtaPsi => "eta_psi, non-orthogonality error (%)",
+            Self::EtaS => "eta_S, scale factor error (%)",
+            Self::EtaO => "eta_O, bias error (%)",
+        }
+    }
+}
+
+/// `summary.csv`: one row per design, noise level and metric; statistics over the trials that
+/// produced the metric, `failed` beside them. Values in percent; empty where undefined.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SummaryRow {
+    pub design: String,
+    pub sigma_nt: Real,
+    pub trials: usize,
+    pub failed: usize,
+    pub metric: Metric,
+    pub mean: Option<Real>,
+    pub std: Option<Real>,
+    pub median: Option<Real>,
+    pub p05: Option<Real>,
+    pub p95: Option<Real>,
+    pub se_mean: Option<Real>,
+}
+
+/// `trials.csv`: one row per trial, its status, errors and estimates (empty when it has none).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrialRow {
+    pub design: String,
+    pub sigma_nt: Real,
+    pub trial: usize,
+    pub status: Status,
+    pub eta_psi: Option<Real>,
+    pub eta_s: Option<Real>,
+    pub eta_o: Option<Real>,
+    pub psi1_deg: Option<Real>,
+    pub psi2_deg: Option<Real>,
+    pub psi3_deg: Option<Real>,
+    pub s1: Option<Real>,
+    pub s2: Option<Real>,
+    pub s3: Option<Real>,
+    pub o1_nt: Option<Real>,
+    pub o2_nt: Option<Real>,
+    pub o3_nt: Option<Real>,
+    pub step2_iterations: Option<usize>,
+    pub rms_residual_nt: Option<Real>,
+}
+
+/// `designs.csv`: one row per attitude, degrees (to 1e-9 degree).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DesignPointRow {
+    pub design: String,
+    /// 1-based.
+    pub point: usize,
+    pub roll_deg: Real,
+    pub yaw_deg: Real,
+    pub pitch_deg: Real,
+}
+
+/// `design_metrics.csv`: information and conditioning of a design; D-efficiency against the best
+/// design of the run; the \[P1\] Table III ratios against the design named `uniform` (empty when
+/// there is none).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DesignMetricsRow {
+    pub design: String,
+    pub m: usize,
+    pub ln_det_mf: Real,
+    pub d_efficiency: Real,
+    pub cond_h: Real,
+    pub cond_mf: Real,
+    pub det_inv_ratio_vs_uniform: Option<Real>,
+    pub cond_h_ratio_vs_uniform: Option<Real>,
+    pub cond_mf_ratio_vs_uniform: Option<Real>,
+    pub kind: DesignKind,
+    pub a_criterion: Real,
+    pub e_criterion: Real,
+    pub best_in_run: bool,
+}
+
+/// `pso_runs.csv`: the final `ln det M_F` of each repeated PSO run (\[P1\] Fig. 4).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PsoRunRow {
+    pub run: usize,
+    pub final_ln_det: Real,
+    pub evaluations: usize,
+}
+
+/// The header of a row type: its field names, in order, taken from serialising a default row (so
+/// that the struct is the only place that lists them).
+pub fn header<T: Serialize + Default>() -> Result<csv::StringRecord> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.serialize(T::default())?;
+    let bytes = w.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut r = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .from_reader(bytes.as_slice());
+    Ok(r.records().next().context("no header")??)
+}
+
+/// Writes `rows` as CSV with their header (also when there are none).
+pub fn write_csv<T: Serialize + Default>(rows: impl IntoIterator<Item = T>, w: impl Write) -> Result<()> {
+    let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(w);
+    csv.write_record(&header::<T>()?)?;
+    for row in rows {
+        csv.serialize(row)?;
+    }
+    csv.flush()?;
+    Ok(())
+}
+
+/// Formats rows into memory.
+pub fn csv_bytes<T: Serialize + Default>(rows: impl IntoIterator<Item = T>) -> Result<Vec<u8>> {
+    let mut buf = Vec::new();
+    write_csv(rows, &mut buf)?;
+    Ok(buf)
+}
+
+/// Reads a CSV file of `T` rows; an error names the file, the line, the column and the value.
+pub fn read_csv<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
+    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_csv(&bytes, &path.display().to_string())
+}
+
+/// Parses CSV bytes of `T` rows; errors are prefixed with `what` (a file name).
+pub fn parse_csv<T: DeserializeOwned>(bytes: &[u8], what: &str) -> Result<Vec<T>> {
+    let mut reader = csv::Reader::from_reader(bytes);
+    let headers = reader.headers().with_context(|| format!("{what}: no header"))?.clone();
+    if headers.is_empty() {
+        bail!("{what}: empty file");
+    }
+    let mut rows = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+        let line = record.position().map_or(0, |p| p.line());
+        let row = record.deserialize::<T>(Some(&headers)).map_err(|e| {
+            let (column, message) = match e.kind() {
+                csv::ErrorKind::Deserialize { err, .. } => {
+                    let column = err.field().map_or(String::new(), |f| {
+                        let name = headers.get(f as usize).unwrap_or("?");
+                        let value = record.get(f as usize).unwrap_or("");
+                        format!("{name} = {value:?}: ")
+                    });
+                    let message = match err.kind() {
+                        csv::DeserializeErrorKind::Message(m) => m.clone(),
+                        csv::DeserializeErrorKind::ParseFloat(_) => "not a number".into(),
+                        other => other.to_string(),
+                    };
+                    (column, message)
+                }
+                _ => (String::new(), e.to_string()),
+            };
+            anyhow::anyhow!("{what}: line {line}: {column}{message}")
+        })?;
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// A statistic as a cell: empty where undefined (NaN).
+fn defined(x: f64) -> Option<Real> {
+    (!x.is_nan()).then_some(Real(x))
+}
+
+/// Degrees rounded to 1e-9 (a nano-degree, 2e-11 rad): angles given in degrees come back as written
+/// rather than as the last bits of a round trip through radians.
+fn degrees(x: f64) -> Real {
+    Real((x * 1e9).round() / 1e9)
+}
+
+/// The rows of `summary.csv`.
+pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
+    out.cells.iter().flat_map(move |cell| {
+        let design = &out.designs[cell.design].name;
+        cell.summaries().map(move |(metric, s)| SummaryRow {
+            design: design.clone(),
+            sigma_nt: Real(cell.sigma_nt),
+            trials: cell.trials.len(),
+            failed: s.failed,
+            metric,
+            mean: defined(s.mean),
+            std: defined(s.std),
+            median: defined(s.median),
+            p05: defined(s.p05),
+            p95: defined(s.p95),
+            se_mean: defined(s.se_mean),
+        })
+    })
+}
+
+/// The rows of `trials.csv`.
+pub fn trial_rows(out: &RunOutput) -> impl Iterator<Item = TrialRow> + '_ {
+    out.cells.iter().flat_map(move |cell| {
+        let design = &out.designs[cell.design].name;
+        cell.trials.iter().enumerate().map(move |(t, trial)| {
+            let eta = |f: fn(&magcal_core::RelativeErrors) -> Option<f64>| trial.eta.as_ref().and_then(f).map(Real);
+            let est =
+                |f: fn(&magcal_core::ErrorModel) -> [f64; 3], i: usize| trial.estimate.as_ref().map(|m| Real(f(m)[i]));
+            TrialRow {
+                design: design.clone(),
+                sigma_nt: Real(cell.sigma_nt),
+                trial: t,
+                status: Status(trial.status),
+                eta_psi: eta(|e| e.psi),
+                eta_s: eta(|e| e.scale),
+                eta_o: eta(|e| e.bias),
+                psi1_deg: est(|m| m.psi_deg(), 0),
+                psi2_deg: est(|m| m.psi_deg(), 1),
+                psi3_deg: est(|m| m.psi_deg(), 2),
+                s1: est(|m| m.scale(), 0),
+                s2: est(|m| m.scale(), 1),
+                s3: est(|m| m.scale(), 2),
+                o1_nt: est(|m| m.bias_nt(), 0),
+                o2_nt: est(|m| m.bias_nt(), 1),
+                o3_nt: est(|m| m.bias_nt(), 2),
+                step2_iterations: trial.iterations,
+                rms_residual_nt: trial.rms_residual_nt.map(Real),
+            }
+        })
+    })
+}
+
+/// The rows of `designs.csv`.
+pub fn design_rows(out: &RunOutput) -> impl Iterator<Item = DesignPointRow> + '_ {
+    out.designs.iter().flat_map(|d| {
+        d.attitudes.iter().enumerate().map(move |(i, a)| {
+            let [r, y, p] = a.to_degrees();
+            DesignPointRow {
+                design: d.name.clone(),
+                point: i + 1,
+                roll_deg: degrees(r),
+                yaw_deg: degrees(y),
+                pitch_deg: degrees(p),
+            }
+        })
+    })
+}
+
+/// The rows of `design_metrics.csv`.
+pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetricsRow> + '_ {
+    let best = out.best_ln_det();
+    let reference = out.reference();
+    out.designs.iter().enumerate().map(move |(i, d)| {
+        let ratios = reference.map(|u| {
+            (
+                (u.ln_det_mf - d.ln_det_mf).exp(),
+                d.conditioning.cond_h / u.conditioning.cond_h,
+                d.conditioning.cond_mf / u.conditioning.cond_mf,
+            )
+        });
+        DesignMetricsRow {
+            design: d.name.clone(),
+            m: d.attitudes.len(),
+            ln_det_mf: Real(d.ln_det_mf),
+            d_efficiency: Real(out.d_efficiency(i)),
+            cond_h: Real(d.conditioning.cond_h),
+            cond_mf: Real(d.conditioning.cond_mf),
+            det_inv_ratio_vs_uniform: ratios.map(|r| Real(r.0)),
+            cond_h_ratio_vs_uniform: ratios.map(|r| Real(r.1)),
+            cond_mf_ratio_vs_uniform: ratios.map(|r| Real(r.2)),
+            kind: d.kind,
+            a_criterion: Real(d.a_criterion),
+            e_criterion: Real(d.e_criterion),
+            best_in_run: d.ln_det_mf.to_bits() == best.to_bits(),
+        }
+    })
+}
+
+/// The rows of `pso_runs.csv`.
+pub fn pso_run_rows(out: &RunOutput) -> impl Iterator<Item = PsoRunRow> + '_ {
+    out.pso_runs.iter().flatten().map(|r| PsoRunRow {
+        run: r.run,
+        final_ln_det: Real(-r.fitness),
+        evaluations: r.evaluations,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn headers_come_from_the_row_types() {
+        let h = header::<SummaryRow>().unwrap();
+        assert_eq!(
+            h.iter().collect::<Vec<_>>(),
+            [
+                "design", "sigma_nt", "trials", "failed", "metric", "mean", "std", "median", "p05", "p95", "se_mean"
+            ]
+        );
+        assert_eq!(header::<PsoRunRow>().unwrap().len(), 3);
+        // A file with no rows still has its header.
+        assert_eq!(
+            csv_bytes(Vec::<PsoRunRow>::new()).unwrap(),
+            b"run,final_ln_det,evaluations\n"
+        );
+    }
+
+    #[test]
+    fn rows_round_trip_with_exact_numbers() {
+        let row = SummaryRow {
+            design: "u".into(),
+            sigma_nt: Real(30.0),
+            trials: 10,
+            failed: 1,
+            metric: Metric::EtaO,
+            mean: Some(Real(0.1 + 0.2)),
+            std: None,
+            median: Some(Real(f64::INFINITY)),
+            p05: Some(Real(-0.0)),
+            p95: Some(Real(2.5)),
+            se_mean: None,
+        };
+        let bytes = csv_bytes([row.clone()]).unwrap();
+        let text = String::from_utf8(bytes.clone()).unwrap();
+        assert_eq!(
+            text.lines().nth(1),
+            Some("u,30,10,1,eta_o,0.30000000000000004,,inf,-0,2.5,")
+        );
+        let back: Vec<SummaryRow> = parse_csv(&bytes, "x").unwrap();
+        assert_eq!(back, [row]);
+    }
+
+    #[test]
+    fn a_bad_cell_is_named_by_line_column_and_value() {
+        let text = "run,final_ln_det,evaluations\n0,1.5,3\n1,twelve,3\n";
+        let e = parse_csv::<PsoRunRow>(text.as_bytes(), "pso_runs.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("pso_runs.csv") && e.contains("line 3") && e.contains("final_ln_det = \"twelve\": not a number"),
+            "{e}"
+        );
+        let e = parse_csv::<PsoRunRow>(b"run,evaluations\n0,3\n", "p")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("final_ln_det"), "{e}");
+    }
+}

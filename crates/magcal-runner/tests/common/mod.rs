@@ -1,0 +1,83 @@
+//! Helpers of the end-to-end tests: the real binary under a memory limit, scenario edits, and
+//! snapshots of a result set.
+#![allow(dead_code)]
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+
+/// Address space the binary may use in these tests: a regression that allocates without bound
+/// fails fast instead of eating the machine.
+pub const MEMORY_LIMIT: u64 = 4 << 30;
+
+/// `magcal` under [`MEMORY_LIMIT`] (setrlimit RLIMIT_AS in the child before exec).
+pub fn magcal() -> assert_cmd::Command {
+    magcal_with_limits(MEMORY_LIMIT, None)
+}
+
+/// `magcal` under an address-space limit and, optionally, a file-size limit (RLIMIT_FSIZE, with
+/// SIGXFSZ ignored so that a write past it fails with EFBIG as on a full disk).
+pub fn magcal_with_limits(address_space: u64, file_size: Option<u64>) -> assert_cmd::Command {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_magcal"));
+    // SAFETY: only async-signal-safe calls (setrlimit, signal) between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            let limit = libc::rlimit {
+                rlim_cur: address_space,
+                rlim_max: address_space,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if let Some(size) = file_size {
+                let limit = libc::rlimit {
+                    rlim_cur: size,
+                    rlim_max: size,
+                };
+                libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+                if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+            }
+            Ok(())
+        });
+    }
+    assert_cmd::Command::from_std(cmd)
+}
+
+pub fn scenarios() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios")
+}
+
+pub fn smoke() -> PathBuf {
+    scenarios().join("smoke.toml")
+}
+
+/// Every file below `dir` (relative path -> bytes).
+pub fn snapshot(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        for e in fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else {
+                let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+                out.insert(rel, fs::read(&p).unwrap());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// Entries beside `dir` that a staging or set-aside step left.
+pub fn leftovers(dir: &Path) -> Vec<String> {
+    let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+    fs::read_dir(dir.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|f| f.starts_with(&format!(".{name}.")) || f.ends_with(".tmp"))
+        .collect()
+}
