@@ -47,6 +47,9 @@ pub const MIN_FIELD_NT: f64 = 1.0;
 pub const MIN_SCALE: f64 = 1e-3;
 /// See [`MIN_SCALE`].
 pub const MAX_SCALE: f64 = 1e3;
+/// Largest non-orthogonality angle, degrees. Real sensors are off by a few degrees; near 90 two
+/// axes coincide and `K` is singular to working precision.
+pub const MAX_PSI_DEG: f64 = 45.0;
 /// Largest bias component, nT (0.01 T).
 pub const MAX_BIAS_NT: f64 = 1e7;
 /// Slack of the explicit attitudes' box check, degrees (1e-8 rad, as the core's check).

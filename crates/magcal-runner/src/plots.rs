@@ -425,6 +425,7 @@ where
         let label = match (pts.is_empty(), missing) {
             (true, _) => format!("{name} (no successful trial)"),
             (false, 0) => name.to_string(),
+            (false, 1) => format!("{name} (1 level without a value)"),
             (false, k) => format!("{name} ({k} levels without a value)"),
         };
         let mut band: Vec<(f64, f64)> = pts.iter().map(|(s, v)| (*s, clip(v.p95))).collect();

@@ -9,7 +9,6 @@ use magcal_core::design::optimum::Optimum;
 use magcal_core::design::pso::Swarm;
 use magcal_core::{Attitude, AttitudeBox, ErrorModel, ParameterError, ReferenceField, TwoStep, wmm};
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use crate::limits::{self, show};
 
@@ -362,7 +361,7 @@ pub fn load(path: &Path) -> Result<Scenario> {
 pub fn parse(bytes: &[u8], path: &Path) -> Result<Scenario> {
     let text = std::str::from_utf8(bytes).with_context(|| format!("{}: not UTF-8 text", path.display()))?;
     let raw: raw::Scenario = toml::from_str(text).map_err(|e| toml_error(path, text, &e))?;
-    let hash = Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect();
+    let hash = crate::output::manifest::sha256_hex(bytes);
     validate(raw, path, hash).with_context(|| format!("{}: invalid scenario", path.display()))
 }
 
@@ -466,7 +465,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
 
     let s = &raw.sensor;
     for (key, values, min, max) in [
-        ("sensor.psi_deg", s.psi_deg, -89.999, 89.999),
+        ("sensor.psi_deg", s.psi_deg, -limits::MAX_PSI_DEG, limits::MAX_PSI_DEG),
         ("sensor.scale", s.scale, limits::MIN_SCALE, limits::MAX_SCALE),
         ("sensor.bias_nt", s.bias_nt, -limits::MAX_BIAS_NT, limits::MAX_BIAS_NT),
     ] {

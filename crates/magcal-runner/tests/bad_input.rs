@@ -211,7 +211,7 @@ fn scenario_cases() -> Vec<Case> {
         ),
         case(
             smoke_with("psi_deg = [1.5, 0.8, 1.4]", "psi_deg = [95.0, 0.8, 1.4]"),
-            &["sensor.psi_deg[0] = 95"],
+            &["sensor.psi_deg[0] = 95", "[-45, 45]"],
         ),
         case(
             smoke_with("scale = [1.3, 0.7, 1.2]", "scale = [1.3, 0.0, 1.2]"),

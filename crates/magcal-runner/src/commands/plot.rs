@@ -18,6 +18,6 @@ pub fn run(args: &PlotArgs) -> Result<(), Failure> {
     let mut set = ResultSet::begin(&target, Target::Owned)?;
     let drawn = plots::draw(&args.dir, &manifest, &mut set, "")?;
     set.commit()?;
-    println!("{} figures drawn in {}", 2 * drawn.len(), target.display());
+    println!("{} figures (SVG and PNG) drawn in {}", drawn.len(), target.display());
     Ok(())
 }

@@ -1,12 +1,13 @@
 //! `magcal run`: designs, trials, statistics, figures and a manifest, written as one result set.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 
 use crate::cli::{Common, Failure, RunArgs};
-use crate::output::manifest::Manifest;
+use crate::output::manifest::{Hashing, Manifest, sha256_hex};
 use crate::output::staging::{ResultSet, Target};
 use crate::output::{self, print};
 use crate::pipeline::{self, RunOptions, RunOutput};
@@ -52,7 +53,11 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     set.commit()?;
     if !common.quiet {
         print::summary(&run, &dir);
-        println!("{} figures in {}", 2 * drawn.len(), dir.join("plots").display());
+        println!(
+            "{} figures (SVG and PNG) in {}",
+            drawn.len(),
+            dir.join("plots").display()
+        );
     }
     Ok(())
 }
@@ -66,10 +71,10 @@ fn write_set(
     with_trials: bool,
     started: Instant,
 ) -> Result<Manifest> {
-    let mut files = Vec::new();
+    let mut files = BTreeMap::new();
     let mut put = |name: &str, bytes: Vec<u8>| -> Result<()> {
         set.put(name, &bytes)?;
-        files.push(name.to_string());
+        files.insert(name.to_string(), sha256_hex(&bytes));
         Ok(())
     };
     put("designs.csv", output::csv_bytes(output::design_rows(out))?)?;
@@ -84,9 +89,15 @@ fn write_set(
         put("pso_runs.csv", output::csv_bytes(output::pso_run_rows(out))?)?;
     }
     if with_trials {
-        // The largest file: streamed, not formatted in memory.
-        set.put_with("trials.csv", |w| output::write_csv(output::trial_rows(out), w))?;
-        files.push("trials.csv".into());
+        // The largest file: streamed, not formatted in memory, and hashed on the way.
+        let mut hex = String::new();
+        set.put_with("trials.csv", |w| {
+            let mut w = Hashing::new(w);
+            output::write_csv(output::trial_rows(out), &mut w)?;
+            hex = w.hex();
+            Ok(())
+        })?;
+        files.insert("trials.csv".into(), hex);
     }
     out.stages.push(("total".into(), started.elapsed().as_secs_f64()));
     let manifest = Manifest::new(scenario, out, threads, files);

@@ -1,7 +1,10 @@
 //! `manifest.json`: what is needed to rebuild a result set, written beside it and read back by
 //! `check` (seed, trials) and `plot` (field, box, the files of the set).
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use crate::pipeline::RunOutput;
 use crate::scenario::Scenario;
@@ -55,11 +58,57 @@ pub struct Manifest {
     pub stages: Vec<(String, f64)>,
     /// The files of the result set beside this one (figures excepted).
     pub files: Vec<String>,
+    /// SHA-256 of each of those files as written (absent in manifests of older runs).
+    #[serde(default)]
+    pub file_sha256: BTreeMap<String, String>,
+}
+
+/// SHA-256 of `bytes`, lower-case hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A writer that hashes what passes through it.
+pub struct Hashing<W> {
+    inner: W,
+    hash: Sha256,
+}
+
+impl<W: std::io::Write> Hashing<W> {
+    /// Wraps `inner`.
+    pub fn new(inner: W) -> Self {
+        Self {
+            inner,
+            hash: Sha256::new(),
+        }
+    }
+
+    /// The SHA-256 of everything written, lower-case hex.
+    pub fn hex(&self) -> String {
+        self.hash
+            .clone()
+            .finalize()
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
+    }
+}
+
+impl<W: std::io::Write> std::io::Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
 }
 
 impl Manifest {
     /// The manifest of a run.
-    pub fn new(scenario: &Scenario, out: &RunOutput, threads: usize, files: Vec<String>) -> Self {
+    pub fn new(scenario: &Scenario, out: &RunOutput, threads: usize, file_sha256: BTreeMap<String, String>) -> Self {
         let version = env!("CARGO_PKG_VERSION").to_string();
         Self {
             scenario: scenario.path.display().to_string(),
@@ -88,7 +137,8 @@ impl Manifest {
                 ("magcal-runner".into(), version),
             ],
             stages: out.stages.clone(),
-            files,
+            files: file_sha256.keys().cloned().collect(),
+            file_sha256,
         }
     }
 

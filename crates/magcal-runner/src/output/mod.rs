@@ -158,21 +158,22 @@ pub struct DesignPointRow {
 
 /// `design_metrics.csv`: information and conditioning of a design; D-efficiency against the best
 /// design of the run; the \[P1\] Table III ratios against the design named `uniform` (empty when
-/// there is none).
+/// there is none). A value that is undefined (the efficiency or a ratio of two singular designs)
+/// is empty.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct DesignMetricsRow {
     pub design: String,
     pub m: usize,
     pub ln_det_mf: Real,
-    pub d_efficiency: Real,
-    pub cond_h: Real,
-    pub cond_mf: Real,
+    pub d_efficiency: Option<Real>,
+    pub cond_h: Option<Real>,
+    pub cond_mf: Option<Real>,
     pub det_inv_ratio_vs_uniform: Option<Real>,
     pub cond_h_ratio_vs_uniform: Option<Real>,
     pub cond_mf_ratio_vs_uniform: Option<Real>,
     pub kind: DesignKind,
-    pub a_criterion: Real,
-    pub e_criterion: Real,
+    pub a_criterion: Option<Real>,
+    pub e_criterion: Option<Real>,
     pub best_in_run: bool,
 }
 
@@ -350,15 +351,15 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             design: d.name.clone(),
             m: d.attitudes.len(),
             ln_det_mf: Real(d.ln_det_mf),
-            d_efficiency: Real(out.d_efficiency(i)),
-            cond_h: Real(d.conditioning.cond_h),
-            cond_mf: Real(d.conditioning.cond_mf),
-            det_inv_ratio_vs_uniform: ratios.map(|r| Real(r.0)),
-            cond_h_ratio_vs_uniform: ratios.map(|r| Real(r.1)),
-            cond_mf_ratio_vs_uniform: ratios.map(|r| Real(r.2)),
+            d_efficiency: defined(out.d_efficiency(i)),
+            cond_h: defined(d.conditioning.cond_h),
+            cond_mf: defined(d.conditioning.cond_mf),
+            det_inv_ratio_vs_uniform: ratios.and_then(|r| defined(r.0)),
+            cond_h_ratio_vs_uniform: ratios.and_then(|r| defined(r.1)),
+            cond_mf_ratio_vs_uniform: ratios.and_then(|r| defined(r.2)),
             kind: d.kind,
-            a_criterion: Real(d.a_criterion),
-            e_criterion: Real(d.e_criterion),
+            a_criterion: defined(d.a_criterion),
+            e_criterion: defined(d.e_criterion),
             best_in_run: d.ln_det_mf.to_bits() == best.to_bits(),
         }
     })
