@@ -13,7 +13,7 @@ pub const UNKNOWNS: usize = 9;
 
 /// Exponent of the unit in `det M_F`: six quadratic columns (nT^2 each, nT^4 in `M_F`'s diagonal)
 /// and three linear ones (nT, nT^2), so `det M_F` carries nT^(2 (6*2 + 3*1)) = nT^30.
-const LN_DET_UNIT_POWER: f64 = 30.0;
+pub(crate) const LN_DET_UNIT_POWER: f64 = 30.0;
 
 /// The regression row of one reading `b`, \[P1\] eq. (9):
 /// `h = (bx^2, bx by, bx bz, by^2, by bz, bz^2, bx, by, bz)`.

@@ -8,7 +8,7 @@ mod common;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::{leftovers, magcal, scenarios, smoke, snapshot};
+use common::{leftovers, magcal, run_into, scenarios, smoke, snapshot};
 use tempfile::TempDir;
 
 /// A scenario case: the text of the file, and what its error line must contain (besides its name).
@@ -434,12 +434,7 @@ fn expect_refusal(args: &[&std::ffi::OsStr], out: &Path, needles: &[String], one
 fn every_bad_scenario_is_one_clear_line_and_leaves_results_untouched() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("out");
-    magcal()
-        .args(["run", "--quiet", "--trials", "20", "--out"])
-        .arg(&out)
-        .arg(smoke())
-        .assert()
-        .success();
+    run_into(&out, 7);
     let cases = scenario_cases();
     assert!(cases.len() >= 70, "{} cases", cases.len());
     let mut wrong = Vec::new();
@@ -484,12 +479,7 @@ fn every_bad_scenario_is_one_clear_line_and_leaves_results_untouched() {
 fn bad_command_lines_and_outputs_are_refused_before_any_work() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("out");
-    magcal()
-        .args(["run", "--quiet", "--trials", "20", "--out"])
-        .arg(&out)
-        .arg(smoke())
-        .assert()
-        .success();
+    run_into(&out, 7);
     let s = smoke();
     let s = s.as_os_str();
     let o = out.as_os_str();

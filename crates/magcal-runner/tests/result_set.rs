@@ -6,18 +6,8 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::Path;
 
-use common::{leftovers, magcal, magcal_with_limits, smoke, snapshot};
+use common::{leftovers, magcal, magcal_with_limits, run_into, smoke, snapshot};
 use tempfile::TempDir;
-
-fn run_into(out: &Path, seed: u64, extra: &[&str]) {
-    magcal()
-        .args(["run", "--quiet", "--trials", "20", "--seed", &seed.to_string(), "--out"])
-        .arg(out)
-        .args(extra)
-        .arg(smoke())
-        .assert()
-        .success();
-}
 
 fn without_manifest(mut s: BTreeMap<String, Vec<u8>>) -> BTreeMap<String, Vec<u8>> {
     s.remove("manifest.json");
@@ -39,10 +29,10 @@ fn restore(dir: &Path, files: &BTreeMap<String, Vec<u8>>) {
 fn a_kill_at_any_step_of_the_write_phase_leaves_one_complete_set() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("out");
-    run_into(&out, 7, &[]);
+    run_into(&out, 7);
     let old = snapshot(&out);
     let reference = tmp.path().join("reference");
-    run_into(&reference, 8, &[]);
+    run_into(&reference, 8);
     let new = without_manifest(snapshot(&reference));
     // Each file of the set is a step, and so is each rename of the swap (two on Linux).
     let steps = new.len() + 1 + 2;
@@ -81,7 +71,7 @@ fn a_kill_at_any_step_of_the_write_phase_leaves_one_complete_set() {
         .assert()
         .failure();
     assert_eq!(leftovers(&out).len(), 1, "{:?}", leftovers(&out));
-    run_into(&out, 7, &[]);
+    run_into(&out, 7);
     assert!(leftovers(&out).is_empty(), "{:?}", leftovers(&out));
     assert_eq!(without_manifest(snapshot(&out)), without_manifest(old));
 }
@@ -90,7 +80,7 @@ fn a_kill_at_any_step_of_the_write_phase_leaves_one_complete_set() {
 fn a_full_disk_leaves_the_earlier_set_and_exits_2() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("out");
-    run_into(&out, 7, &[]);
+    run_into(&out, 7);
     let old = snapshot(&out);
     // Every file may have 16 KiB: trials.csv and the figures need more.
     let assert = magcal_with_limits(common::MEMORY_LIMIT, Some(16 << 10))
@@ -109,7 +99,7 @@ fn a_full_disk_leaves_the_earlier_set_and_exits_2() {
 fn nothing_of_an_earlier_set_survives_beside_a_new_one() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("out");
-    run_into(&out, 7, &[]);
+    run_into(&out, 7);
     // `design` into a run's directory: no trials, summary or eta figures remain.
     magcal()
         .args(["design", "--quiet", "--out"])
@@ -207,7 +197,7 @@ fn edit_cell(file: &Path, first: &str, column: &str, value: &str) {
 fn check_detects_edits_of_every_file_and_rejects_a_damaged_baseline() {
     let tmp = TempDir::new().unwrap();
     let base = tmp.path().join("base");
-    run_into(&base, 7, &[]);
+    run_into(&base, 7);
     let pristine = snapshot(&base);
     let check = || {
         magcal()
@@ -269,4 +259,30 @@ fn check_detects_edits_of_every_file_and_rejects_a_damaged_baseline() {
         stderr.contains("se_mean = inf") && stderr.contains("summary.csv"),
         "{stderr}"
     );
+}
+
+#[test]
+fn plot_draws_non_finite_values_as_absent_and_replaces_a_plots_file() {
+    let tmp = TempDir::new().unwrap();
+    let out = tmp.path().join("out");
+    run_into(&out, 7);
+    // inf in a statistic, -inf as a PSO run's final value: drawn as absent, never a hang.
+    edit_cell(&out.join("summary.csv"), "uniform", "mean", "inf");
+    edit_cell(&out.join("pso_runs.csv"), "0", "final_ln_det", "-inf");
+    fs::remove_dir_all(out.join("plots")).unwrap();
+    fs::write(out.join("plots"), "not a directory").unwrap();
+    let assert = magcal()
+        .arg("plot")
+        .arg(&out)
+        .timeout(std::time::Duration::from_secs(60))
+        .assert()
+        .success();
+    let stdout = String::from_utf8(assert.get_output().stdout.clone()).unwrap();
+    assert!(stdout.starts_with("11 figures"), "{stdout}");
+    let svg = fs::read_to_string(out.join("plots/pso_runs.svg")).unwrap();
+    assert!(
+        svg.contains("1 not finite, not drawn"),
+        "the caption counts the absent run"
+    );
+    assert!(leftovers(&out.join("plots")).is_empty());
 }

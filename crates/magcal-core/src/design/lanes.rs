@@ -7,16 +7,12 @@
 //! polynomial below, the moments and the Cholesky factorisation then run as SIMD instructions on
 //! baseline x86-64 (SSE2) without any `unsafe` or hand-written intrinsics.
 //!
-//! Measured on the 2-core machine (`benches/design.rs`): one design at a time 0.46 us; 4 lanes 0.44 us
-//! per design; 8 lanes 0.30 us; 16 lanes 0.29 us, but then the 300 particles make too few chunks to
-//! balance two threads. The full PSO's median went from 0.48 s (one at a time) to 0.30-0.33 s (8).
+//! Eight lanes: fewer do not fill the vector units, more leave too few chunks of the 300 particles
+//! to balance two threads (`benches/design.rs`; the numbers are in the README's benchmark table).
 //!
-//! The kernel is then compiled a second time for AVX2 and chosen at run time when the CPU has it
-//! (the `multiversion` crate; baseline x86-64 elsewhere): 4 lanes per instruction instead of SSE2's 2.
-//! Same session, same machine, alternating the two builds: 8 designs 2.18 us -> 1.57 us (0.72x); the
-//! full PSO on 2 threads 0.245 s -> 0.200 s (medians of three; 0.82x with the change in
-//! `pso.rs` of the same commit). An AVX-512 clone (8 lanes in one register) measured no faster
-//! (1.57 us) and the PSO 0.21 s, so it is not built.
+//! The kernel is compiled a second time for AVX2 and chosen at run time when the CPU has it (the
+//! `multiversion` crate; baseline x86-64 elsewhere): 4 lanes per instruction instead of SSE2's 2.
+//! An AVX-512 clone measured no faster, so none is built.
 //!
 //! Each lane's arithmetic is the same sequence of operations whatever the other lanes hold, so a
 //! design's value does not depend on the lane or the batch it is evaluated in (the PSO stays
@@ -202,7 +198,7 @@ fn ln_det_lanes_body(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
             }
         }
     }
-    let shift = 30.0 * problem.ln_r();
+    let shift = problem.ln_det_shift();
     let mut out = [0.0; LANES];
     for l in 0..LANES {
         out[l] = if !ok[l] {
@@ -286,7 +282,7 @@ mod tests {
 
     #[test]
     fn every_target_gives_the_same_bits() {
-        // The run-time clone (AVX-512 or AVX2 where the CPU has them) against the baseline clone,
+        // The run-time clone (AVX2 where the CPU has it) against the baseline clone,
         // on the AUV box and the full attitude space, yaw offset included.
         let field = paper::changsha_field().with_yaw_offset_deg(90.0).unwrap();
         for (bounds, m) in [(paper::auv_box(), 9), (AttitudeBox::full(), 12)] {

@@ -16,13 +16,9 @@ pub mod sources;
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::error::ParameterError;
 use crate::field::ReferenceField;
-use crate::linear_model::{InformationMatrix, Moments, UNKNOWNS};
+use crate::linear_model::{InformationMatrix, LN_DET_UNIT_POWER, Moments, UNKNOWNS};
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Mat9, Vec3, cholesky_in_place, ln_det_spd, mat_vec};
-
-/// `ln det M_F` in nT is `ln det` of the R-scaled matrix plus `30 ln R` (see
-/// [`InformationMatrix::ln_det_nt`]).
-const LN_DET_UNIT_POWER: f64 = 30.0;
 
 /// An optimality criterion of the linear model's information matrix, \[P1\] III.A. Every criterion is
 /// a value to **minimise**.
@@ -118,9 +114,10 @@ impl DesignProblem {
         3 * self.m
     }
 
-    /// `ln det M_F` in nT of the zero-information-loss affine map: the constant `30 ln R`.
-    pub(crate) fn ln_r(&self) -> f64 {
-        self.ln_r
+    /// What turns `ln det` of the R-scaled information into `ln det M_F` in nT: `30 ln R` (see
+    /// [`InformationMatrix::ln_det_nt`]).
+    pub(crate) fn ln_det_shift(&self) -> f64 {
+        LN_DET_UNIT_POWER * self.ln_r
     }
 
     /// The body-frame field direction at angles `(roll, yaw, pitch)` (radians), with the field's yaw
@@ -173,7 +170,7 @@ impl DesignProblem {
     #[inline]
     fn ln_det_of(&self, M: &Mat9) -> f64 {
         match ln_det_spd(M) {
-            Some(v) => v + LN_DET_UNIT_POWER * self.ln_r,
+            Some(v) => v + self.ln_det_shift(),
             None => f64::NEG_INFINITY,
         }
     }

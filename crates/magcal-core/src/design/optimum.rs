@@ -43,7 +43,7 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
     if !cholesky_in_place(&mut L) {
         return f64::NEG_INFINITY;
     }
-    let ln_det: f64 = (0..UNKNOWNS).map(|i| 2.0 * L[i][i].ln()).sum::<f64>() + 30.0 * problem.ln_r();
+    let ln_det: f64 = (0..UNKNOWNS).map(|i| 2.0 * L[i][i].ln()).sum::<f64>() + problem.ln_det_shift();
     let Ks = problem.k_scaled();
     let field = problem.field();
     let o = problem.o_scaled();

@@ -81,3 +81,13 @@ pub fn leftovers(dir: &Path) -> Vec<String> {
         .filter(|f| f.starts_with(&format!(".{name}.")) || f.ends_with(".tmp"))
         .collect()
 }
+
+/// Runs the smoke scenario with 20 trials and `seed` into `out` (a result set to compare against).
+pub fn run_into(out: &Path, seed: u64) {
+    magcal()
+        .args(["run", "--quiet", "--trials", "20", "--seed", &seed.to_string(), "--out"])
+        .arg(out)
+        .arg(smoke())
+        .assert()
+        .success();
+}
