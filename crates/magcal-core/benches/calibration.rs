@@ -74,5 +74,46 @@ fn monte_carlo(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, two_step, kernels, monte_carlo);
+/// The Cramer-Rao bound and identifiability verdict of one design (target: 50 us for m = 9), and
+/// the heading error of one calibration over 360 yaws, with this crate's `atan2` and with the
+/// standard library's (the ratio justifies the former; see `heading.rs`).
+fn metrics(c: &mut Criterion) {
+    use magcal_core::heading::{HeadingProbe, YAWS};
+    use magcal_core::{CramerRao, PhysicalScales};
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let body = field.body_fields(&paper::uniformity_design());
+    let scales = PhysicalScales::default();
+    c.bench_function("crb_and_verdict/9_readings", |b| {
+        b.iter(|| CramerRao::new(black_box(&truth), black_box(&body), 30.0, &scales))
+    });
+    let probe = HeadingProbe::new(&field, &truth);
+    let (readings, r) = noisy_readings(9);
+    let fit = TwoStep::default().calibrate(&readings, r).unwrap();
+    let (p, o) = (fit.estimate().p, fit.estimate().bias_nt);
+    c.bench_function("heading_error/one_trial", |b| {
+        b.iter(|| probe.error(black_box(&p), black_box(o)))
+    });
+    // The same loop with f64::atan2, for the comparison only.
+    let body: Vec<magcal_core::Vec3> = (0..YAWS)
+        .map(|k| field.body_field(&Attitude::from_degrees(0.0, k as f64, 0.0)))
+        .collect();
+    let s = truth.measure_all(&body);
+    c.bench_function("heading_error/one_trial_std_atan2", |b| {
+        b.iter(|| {
+            let (p, o) = (black_box(&p), black_box(o));
+            let mut sum = 0.0;
+            let mut max: f64 = 0.0;
+            for (s, t) in s.iter().zip(&body) {
+                let u = small::mat_vec(p, small::sub(*s, o));
+                let e = (t[0] * u[2] - t[2] * u[0]).atan2(t[0] * u[0] + t[2] * u[2]);
+                sum += e * e;
+                max = max.max(e.abs());
+            }
+            (sum, max)
+        })
+    });
+}
+
+criterion_group!(benches, two_step, kernels, monte_carlo, metrics);
 criterion_main!(benches);

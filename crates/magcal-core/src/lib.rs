@@ -42,6 +42,8 @@
 //! | section IV.A, Table II | [`paper`] |
 //! | section IV.C, two-step method | [`TwoStep`], [`calibration::step2`] |
 //! | section IV.C, Monte Carlo trials | [`monte_carlo::trial`] |
+//! | eq. (5), (13): the Cramer-Rao floor and identifiability | [`identifiability::CramerRao`] |
+//! | eq. (1)-(2), (5)-(6): heading error of a calibration | [`heading::HeadingProbe`] |
 //!
 //! ## References
 //! - \[P1\] Z. Wu, X. Hu, M. Wu, P. Liu, "D-Optimal Design Applied to Calibration of Strapdown
@@ -59,6 +61,8 @@ pub mod calibration;
 pub mod design;
 pub mod error;
 pub mod field;
+pub mod heading;
+pub mod identifiability;
 pub mod linear_model;
 pub mod metrics;
 pub mod monte_carlo;
@@ -74,6 +78,7 @@ pub use calibration::{
 };
 pub use error::ParameterError;
 pub use field::ReferenceField;
+pub use identifiability::{CramerRao, PhysicalScales, Verdict};
 pub use linear_model::{Conditioning, InformationMatrix};
 pub use metrics::{RelativeErrors, Summary};
 pub use sensor::ErrorModel;

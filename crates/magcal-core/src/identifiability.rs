@@ -1,0 +1,453 @@
+//! The Cramer-Rao floor of a calibration design and its identifiability verdict
+//! (CONVENTIONS.md "Identifiability and the Cramer-Rao floor").
+//!
+//! The calibration is attitude-independent: each reading has an unknown body direction, and only
+//! `r_i = |P (b_i - O)| - R` carries information. With the noise `n ~ N(0, sigma^2 I3)` of
+//! \[P1\] eq. (5), `r_i` has variance `sigma^2 |grad_b r_i|^2` to first order, so the Fisher
+//! information of the nine parameters `theta = (psi1, psi2, psi3, S1, S2, S3, O1, O2, O3)` is
+//!
+//! `F = sum_i J_i J_i^T / (sigma^2 |g_i|^2)`, `J_i = d r_i / d theta`, `g_i = grad_b r_i = P^T w_i`,
+//!
+//! with `w_i = P (b_i - O) / |P (b_i - O)|`. At the noise-free readings of the truth,
+//! `P (b_i - O) = B_i`, the body field, and the chain rule through `K = diag(S) N(psi)` and
+//! `dP = -P dK P` gives `d r_i / d psi_a = -g_i^T (dK / d psi_a) B_i`, the same for `S_a`, and
+//! `d r_i / d O = -g_i`: the information is formed directly in the physical units (degrees, -, nT)
+//! and no Jacobian of the inverse map (CONVENTIONS.md) is needed. Treating the body directions as
+//! nuisance parameters of the full readings gives the same bound (CONVENTIONS.md).
+//!
+//! # The verdict
+//! A design is **identifiable** at a noise level when its information is regular to working
+//! precision and every parameter's predicted standard deviation is below its physical scale
+//! ([`PhysicalScales`]: 10 degrees for a non-orthogonality angle, half the true scale factor, the
+//! field magnitude `|B|` for a bias). Beyond those, the estimate of that parameter says nothing.
+//! The weakest combination is the eigenvector of the smallest eigenvalue of the information in
+//! units of those scales; [`Verdict::weakest`] names its largest components in words.
+
+#![allow(non_snake_case)]
+
+use faer::{Mat, Side};
+
+use crate::sensor::ErrorModel;
+use crate::small::{Mat3, Vec3, dot, mat_t_vec, mat_vec, norm};
+
+/// The nine physical parameters, in the order of [`CramerRao::covariance`].
+pub const PARAMETERS: [&str; 9] = [
+    "psi1_deg", "psi2_deg", "psi3_deg", "s1", "s2", "s3", "o1_nt", "o2_nt", "o3_nt",
+];
+
+/// The unit of each of [`PARAMETERS`].
+pub const UNITS: [&str; 9] = ["deg", "deg", "deg", "-", "-", "-", "nT", "nT", "nT"];
+
+/// Body axes of the sensor axes (the sensor's axes are the body's, to first order): x nose, y up,
+/// z right (\[P1\] II.A).
+const AXES: [&str; 3] = ["1 (nose)", "2 (up)", "3 (right)"];
+
+/// Scales beyond which a parameter is not determined.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhysicalScales {
+    /// Non-orthogonality angle, degrees. Default 10.
+    pub psi_deg: f64,
+    /// Scale factor, as a fraction of the true one. Default 0.5.
+    pub scale_fraction: f64,
+    /// Bias, as a multiple of the field magnitude `|B|`. Default 1.
+    pub bias_fraction_of_field: f64,
+}
+
+impl Default for PhysicalScales {
+    fn default() -> Self {
+        Self {
+            psi_deg: 10.0,
+            scale_fraction: 0.5,
+            bias_fraction_of_field: 1.0,
+        }
+    }
+}
+
+/// The Cramer-Rao bound of a design at one noise level.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CramerRao {
+    /// Covariance of `(psi_deg, S, O_nt)`, row-major 9x9, or `None` when the information is
+    /// singular to working precision.
+    pub covariance: Option<[[f64; 9]; 9]>,
+    /// Predicted standard deviation of each of [`PARAMETERS`] (NaN-free: `None` when singular).
+    pub std: Option<[f64; 9]>,
+    /// The verdict.
+    pub verdict: Verdict,
+    /// The truth the bound is about.
+    truth: ErrorModel,
+}
+
+/// Whether a design determines every parameter, and its weakest combination.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verdict {
+    /// Every parameter's predicted std below its physical scale, and the information regular.
+    pub identifiable: bool,
+    /// The weakest combination in words: "scale and bias of sensor axis 2 (up) are confounded".
+    pub weakest: String,
+    /// The weakest combination: unit eigenvector in units of the physical scales.
+    pub direction: [f64; 9],
+    /// Its predicted standard deviation in units of the physical scales (`inf` when singular).
+    pub std_in_scales: f64,
+}
+
+impl CramerRao {
+    /// The bound for readings of `truth` at the body fields `body_fields` (nT; the design's
+    /// attitudes through \[P1\] eq. (1)-(2)), noise `sigma_nt` per component.
+    ///
+    /// # Panics
+    /// If `sigma_nt` is negative or not finite (a caller bug: scenarios are validated).
+    #[track_caller]
+    pub fn new(truth: &ErrorModel, body_fields: &[Vec3], sigma_nt: f64, scales: &PhysicalScales) -> Self {
+        assert!(
+            sigma_nt.is_finite() && sigma_nt >= 0.0,
+            "sigma_nt must be finite and >= 0"
+        );
+        let info = information_per_unit_variance(truth, body_fields);
+        let field = body_fields.first().map_or(1.0, |&b| norm(b));
+        let d = scale_vector(truth, field, scales);
+        // F in units of the physical scales: F_s = D F D.
+        let Fs = Mat::from_fn(9, 9, |i, j| d[i] * info[i][j] * d[j]);
+        let (direction, std_in_scales, covariance) = match Fs.self_adjoint_eigen(Side::Lower) {
+            Ok(evd) => {
+                let s: Vec<f64> = (0..9).map(|i| evd.S()[i]).collect();
+                let max = s.iter().copied().fold(0.0_f64, f64::max);
+                let (k, min) = s
+                    .iter()
+                    .copied()
+                    .enumerate()
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .expect("nine eigenvalues");
+                let direction: [f64; 9] = std::array::from_fn(|i| evd.U()[(i, k)]);
+                // Regular to working precision: the smallest eigenvalue above the rounding of
+                // the largest (the entries are sums of m products, each good to a few ulps).
+                let regular = max > 0.0 && min > 1e3 * 9.0 * f64::EPSILON * max;
+                if regular {
+                    // Cov_s = V diag(1/lambda) V^T per unit variance; Cov = sigma^2 D Cov_s D.
+                    let cov: [[f64; 9]; 9] = std::array::from_fn(|i| {
+                        std::array::from_fn(|j| {
+                            let c: f64 = (0..9).map(|l| evd.U()[(i, l)] * evd.U()[(j, l)] / s[l]).sum();
+                            sigma_nt * sigma_nt * d[i] * c * d[j]
+                        })
+                    });
+                    (direction, sigma_nt / min.sqrt(), Some(cov))
+                } else {
+                    (direction, f64::INFINITY, None)
+                }
+            }
+            Err(_) => ([0.0; 9], f64::INFINITY, None),
+        };
+        let std = covariance.map(|c| std::array::from_fn(|i| c[i][i].max(0.0).sqrt()));
+        let within = std.is_some_and(|s: [f64; 9]| (0..9).all(|i| s[i] <= d[i]));
+        let verdict = Verdict {
+            identifiable: within,
+            weakest: describe(&direction, std.as_ref(), &d, sigma_nt),
+            direction,
+            std_in_scales,
+        };
+        Self {
+            covariance,
+            std,
+            verdict,
+            truth: *truth,
+        }
+    }
+
+    /// Predicted rms of the relative errors `eta_psi, eta_S, eta_O` of \[P1\] eq. (21)-(23),
+    /// percent: `100 sqrt(trace Cov(v)) / |v|`; `None` where the truth is zero or the bound
+    /// does not exist.
+    pub fn rms_eta(&self) -> [Option<f64>; 3] {
+        let truth = [self.truth.psi_deg(), self.truth.scale(), self.truth.bias_nt()];
+        let abs = self.rms_abs();
+        std::array::from_fn(|g| {
+            let n = norm(truth[g]);
+            abs[g].filter(|_| n > 0.0).map(|a| 100.0 * a / n)
+        })
+    }
+
+    /// Predicted rms of the absolute errors `|psi_hat - psi|` (deg), `|S_hat - S|`,
+    /// `|O_hat - O|` (nT): `sqrt(trace Cov(v))`.
+    pub fn rms_abs(&self) -> [Option<f64>; 3] {
+        std::array::from_fn(|g| {
+            self.covariance
+                .map(|c| (0..3).map(|i| c[3 * g + i][3 * g + i].max(0.0)).sum::<f64>().sqrt())
+        })
+    }
+}
+
+/// Physical scales per parameter: psi degrees, scale factors, biases (nT).
+fn scale_vector(truth: &ErrorModel, field_nt: f64, s: &PhysicalScales) -> [f64; 9] {
+    let S = truth.scale();
+    [
+        s.psi_deg,
+        s.psi_deg,
+        s.psi_deg,
+        s.scale_fraction * S[0],
+        s.scale_fraction * S[1],
+        s.scale_fraction * S[2],
+        s.bias_fraction_of_field * field_nt,
+        s.bias_fraction_of_field * field_nt,
+        s.bias_fraction_of_field * field_nt,
+    ]
+}
+
+/// `dK / d theta_a` for the six parameters of `K = diag(S) N(psi)` (psi per degree).
+fn dK(truth: &ErrorModel) -> [Mat3; 6] {
+    let [p1, p2, p3] = truth.psi_deg().map(f64::to_radians);
+    let S = truth.scale();
+    let N = truth.N();
+    let deg = std::f64::consts::PI / 180.0;
+    let (s1, c1) = p1.sin_cos();
+    let (s2, c2) = p2.sin_cos();
+    let (s3, c3) = p3.sin_cos();
+    let z = [0.0; 3];
+    [
+        [z, [0.0, -s1 * S[1] * deg, c1 * S[1] * deg], z],
+        [[-s2 * c3 * S[0] * deg, -s2 * s3 * S[0] * deg, c2 * S[0] * deg], z, z],
+        [[-c2 * s3 * S[0] * deg, c2 * c3 * S[0] * deg, 0.0], z, z],
+        [N[0], z, z],
+        [z, N[1], z],
+        [z, z, N[2]],
+    ]
+}
+
+/// The Fisher information of `(psi_deg, S, O_nt)` for unit noise variance (nT^2).
+pub fn information_per_unit_variance(truth: &ErrorModel, body_fields: &[Vec3]) -> [[f64; 9]; 9] {
+    let P = truth.P();
+    let dk = dK(truth);
+    let mut F = [[0.0; 9]; 9];
+    for &B in body_fields {
+        let R = norm(B);
+        // w = P (b - O) / |P (b - O)| = B / |B| at the truth; g = grad_b r = P^T w.
+        let w = B.map(|v| v / R);
+        let g = mat_t_vec(&P, w);
+        let weight = 1.0 / dot(g, g);
+        let mut J = [0.0; 9];
+        for (a, dka) in dk.iter().enumerate() {
+            J[a] = -dot(g, mat_vec(dka, B));
+        }
+        for i in 0..3 {
+            J[6 + i] = -g[i];
+        }
+        for i in 0..9 {
+            for j in 0..9 {
+                F[i][j] += weight * J[i] * J[j];
+            }
+        }
+    }
+    F
+}
+
+/// The name of parameter `i` in words.
+fn parameter_words(i: usize) -> String {
+    const PSI: [&str; 3] = ["psi1 (axes 2-3)", "psi2 (axes 1-3)", "psi3 (axes 1-2)"];
+    match i {
+        0..=2 => format!("non-orthogonality {}", PSI[i]),
+        3..=5 => format!("scale of axis {}", AXES[i - 3]),
+        _ => format!("bias of axis {}", AXES[i - 6]),
+    }
+}
+
+/// The weakest direction in words, with the predicted std of its worst parameter.
+fn describe(direction: &[f64; 9], std: Option<&[f64; 9]>, scales: &[f64; 9], sigma_nt: f64) -> String {
+    let mut order: Vec<usize> = (0..9).collect();
+    order.sort_by(|&a, &b| direction[b].abs().total_cmp(&direction[a].abs()));
+    let top: Vec<usize> = order
+        .iter()
+        .copied()
+        .take(3)
+        // A component that carries at least 4 % of the direction's squared length.
+        .filter(|&i| direction[i].abs() >= 0.2)
+        .collect();
+    let top = if top.is_empty() { vec![order[0]] } else { top };
+    // A scale and the bias of the same axis in the direction: the classic confusion of an axis
+    // that barely turns against the field.
+    let pair = (0..3).find(|k| top.contains(&(3 + k)) && top.contains(&(6 + k)));
+    let others: Vec<String> = top
+        .iter()
+        .filter(|&&i| pair.is_none_or(|k| i != 3 + k && i != 6 + k))
+        .map(|&i| parameter_words(i))
+        .collect();
+    let what = match (pair, others.as_slice()) {
+        (Some(k), []) => format!("scale and bias of sensor axis {} are confounded", AXES[k]),
+        (Some(k), rest) => format!(
+            "scale and bias of sensor axis {} are confounded, with {}",
+            AXES[k],
+            rest.join(" and ")
+        ),
+        (None, [one]) => format!("{one} is weakest"),
+        (None, rest) => format!("{} are confounded", rest.join(" and ")),
+    };
+    match std {
+        None => format!("{what}: the information is singular"),
+        Some(s) => {
+            let worst = (0..9)
+                .max_by(|&a, &b| (s[a] / scales[a]).total_cmp(&(s[b] / scales[b])))
+                .expect("nine");
+            format!(
+                "{what}; largest predicted std: {} {:.4} {} at {sigma_nt} nT",
+                PARAMETERS[worst], s[worst], UNITS[worst]
+            )
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::attitude::Attitude;
+    use crate::paper;
+
+    fn optimum_of_conventions() -> Vec<Attitude> {
+        [
+            [-5.0, -39.440, -20.0],
+            [-5.0, -124.369, 20.0],
+            [-5.0, 30.364, 20.0],
+            [-4.243, 174.298, -10.117],
+            [3.778, -0.309, -3.253],
+            [5.0, 37.236, -20.0],
+            [5.0, 93.384, 7.939],
+            [5.0, -58.296, 20.0],
+            [5.0, 157.595, 20.0],
+        ]
+        .map(|[r, y, p]| Attitude::from_degrees(r, y, p))
+        .to_vec()
+    }
+
+    fn bound(yaw_offset: f64, design: &[Attitude]) -> CramerRao {
+        let field = paper::changsha_field().with_yaw_offset_deg(yaw_offset).unwrap();
+        CramerRao::new(
+            &paper::true_error_model(),
+            &field.body_fields(design),
+            30.0,
+            &PhysicalScales::default(),
+        )
+    }
+
+    /// Agreement to the digits a check value is printed with: half a unit of its last digit.
+    fn close(got: f64, want: f64, decimals: i32) -> bool {
+        (got - want).abs() <= 0.5 * 10f64.powi(-decimals) + 1e-12
+    }
+
+    #[test]
+    fn conventions_check_values() {
+        // CONVENTIONS.md "Identifiability and the Cramer-Rao floor", 30 nT, [P1] truth: yaw offset,
+        // design, rms eta and its printed decimals, std and its printed decimals per group.
+        type Row = (f64, Vec<Attitude>, [f64; 3], [i32; 3], [f64; 9], [i32; 3]);
+        let cases: [Row; 3] = [
+            (
+                90.0,
+                paper::uniformity_design(),
+                [31.19, 0.836, 8.62],
+                [2, 3, 2],
+                [0.6271, 0.1676, 0.2247, 0.00728, 0.01241, 0.00676, 173.3, 561.5, 418.1],
+                [4, 5, 1],
+            ),
+            (
+                0.0,
+                paper::uniformity_design(),
+                [106.68, 7.455, 62.43],
+                [2, 3, 2],
+                [0.8411, 0.3397, 2.1672, 0.06674, 0.10913, 0.06129, 1519.0, 4969.5, 527.3],
+                [4, 5, 1],
+            ),
+            (
+                0.0,
+                optimum_of_conventions(),
+                [10.69, 0.684, 5.92],
+                [2, 3, 2],
+                [0.1845, 0.0450, 0.1390, 0.00500, 0.01079, 0.00530, 78.0, 479.1, 99.1],
+                [4, 5, 1],
+            ),
+        ];
+        for (offset, design, eta, eta_decimals, std, std_decimals) in cases {
+            let b = bound(offset, &design);
+            let rms = b.rms_eta().map(Option::unwrap);
+            for g in 0..3 {
+                assert!(
+                    close(rms[g], eta[g], eta_decimals[g]),
+                    "offset {offset}: rms eta {rms:?} vs {eta:?}"
+                );
+            }
+            let s = b.std.unwrap();
+            for i in 0..9 {
+                assert!(
+                    close(s[i], std[i], std_decimals[i / 3]),
+                    "offset {offset}: std {} = {} vs {}",
+                    PARAMETERS[i],
+                    s[i],
+                    std[i]
+                );
+            }
+            assert!(b.verdict.identifiable, "{}", b.verdict.weakest);
+        }
+    }
+
+    #[test]
+    fn the_bound_scales_with_sigma_and_is_zero_without_noise() {
+        let field = paper::changsha_field();
+        let body = field.body_fields(&paper::uniformity_design());
+        let truth = paper::true_error_model();
+        let s = PhysicalScales::default();
+        let a = CramerRao::new(&truth, &body, 1.0, &s).std.unwrap();
+        let b = CramerRao::new(&truth, &body, 3.0, &s).std.unwrap();
+        for i in 0..9 {
+            assert!((b[i] - 3.0 * a[i]).abs() <= 1e-12 * b[i], "{i}");
+        }
+        let zero = CramerRao::new(&truth, &body, 0.0, &s);
+        assert!(zero.std.unwrap().iter().all(|v| *v == 0.0) && zero.verdict.identifiable);
+    }
+
+    #[test]
+    fn a_level_box_confounds_the_up_axis_scale_and_bias() {
+        // Ground vehicle: roll and pitch +-1 degree, any yaw. The up axis barely turns against
+        // the field, so its scale and bias cannot be told apart.
+        let field = paper::changsha_field();
+        let design: Vec<Attitude> = (0..12)
+            .map(|i| {
+                let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+                Attitude::from_degrees(sign, i as f64 * 30.0 - 180.0, -sign * ((i / 2) % 2) as f64)
+            })
+            .collect();
+        let b = CramerRao::new(
+            &paper::true_error_model(),
+            &field.body_fields(&design),
+            30.0,
+            &PhysicalScales::default(),
+        );
+        assert!(!b.verdict.identifiable);
+        assert!(
+            b.verdict
+                .weakest
+                .starts_with("scale and bias of sensor axis 2 (up) are confounded"),
+            "{}",
+            b.verdict.weakest
+        );
+        // A yaw-only design: the information is singular.
+        let flat: Vec<Attitude> = (0..12)
+            .map(|i| Attitude::from_degrees(0.0, i as f64 * 30.0, 0.0))
+            .collect();
+        let b = CramerRao::new(
+            &paper::true_error_model(),
+            &field.body_fields(&flat),
+            30.0,
+            &PhysicalScales::default(),
+        );
+        assert!(!b.verdict.identifiable && b.std.is_none() && b.rms_eta() == [None; 3]);
+        assert!(b.verdict.weakest.contains("singular"), "{}", b.verdict.weakest);
+    }
+
+    #[test]
+    fn a_zero_truth_has_no_relative_bound() {
+        let nominal = ErrorModel::new([0.0; 3], [1.0; 3], [0.0; 3]).unwrap();
+        let field = paper::changsha_field();
+        let b = CramerRao::new(
+            &nominal,
+            &field.body_fields(&paper::uniformity_design()),
+            30.0,
+            &PhysicalScales::default(),
+        );
+        let [psi, s, o] = b.rms_eta();
+        assert!(psi.is_none() && s.is_some() && o.is_none());
+        assert!(b.rms_abs().iter().all(|v| v.is_some_and(f64::is_finite)));
+    }
+}
