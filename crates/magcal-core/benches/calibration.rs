@@ -61,13 +61,25 @@ fn monte_carlo(c: &mut Criterion) {
     let truth = paper::true_error_model();
     let body = field.body_fields(&paper::uniformity_design());
     let settings = TwoStep::default();
+    let probe = magcal_core::heading::HeadingProbe::new(&field, &truth);
     let mut group = c.benchmark_group("monte_carlo");
     group.sample_size(20);
     group.bench_function("1000_trials_one_design", |b| {
         b.iter(|| {
             (0..1000u64)
                 .into_par_iter()
-                .map(|t| trial(&truth, &body, field.magnitude(), 30.0, &settings, &mut stream_rng(1, t)).unwrap())
+                .map(|t| {
+                    trial(
+                        &truth,
+                        &body,
+                        field.magnitude(),
+                        30.0,
+                        &settings,
+                        &probe,
+                        &mut stream_rng(1, t),
+                    )
+                    .unwrap()
+                })
                 .collect::<Vec<_>>()
         })
     });

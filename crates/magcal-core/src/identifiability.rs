@@ -140,7 +140,7 @@ impl CramerRao {
         let within = std.is_some_and(|s: [f64; 9]| (0..9).all(|i| s[i] <= d[i]));
         let verdict = Verdict {
             identifiable: within,
-            weakest: describe(&direction, std.as_ref(), &d, sigma_nt),
+            weakest: describe(&direction, std.as_ref(), &d, sigma_nt, within),
             direction,
             std_in_scales,
         };
@@ -248,7 +248,16 @@ fn parameter_words(i: usize) -> String {
 }
 
 /// The weakest direction in words, with the predicted std of its worst parameter.
-fn describe(direction: &[f64; 9], std: Option<&[f64; 9]>, scales: &[f64; 9], sigma_nt: f64) -> String {
+///
+/// An identifiable design's weakest direction is named as such ("weakest: ..."); a design that is
+/// not identifiable has its parameters "confounded".
+fn describe(
+    direction: &[f64; 9],
+    std: Option<&[f64; 9]>,
+    scales: &[f64; 9],
+    sigma_nt: f64,
+    identifiable: bool,
+) -> String {
     let mut order: Vec<usize> = (0..9).collect();
     order.sort_by(|&a, &b| direction[b].abs().total_cmp(&direction[a].abs()));
     let top: Vec<usize> = order
@@ -267,15 +276,19 @@ fn describe(direction: &[f64; 9], std: Option<&[f64; 9]>, scales: &[f64; 9], sig
         .filter(|&&i| pair.is_none_or(|k| i != 3 + k && i != 6 + k))
         .map(|&i| parameter_words(i))
         .collect();
-    let what = match (pair, others.as_slice()) {
-        (Some(k), []) => format!("scale and bias of sensor axis {} are confounded", AXES[k]),
-        (Some(k), rest) => format!(
-            "scale and bias of sensor axis {} are confounded, with {}",
-            AXES[k],
-            rest.join(" and ")
-        ),
-        (None, [one]) => format!("{one} is weakest"),
-        (None, rest) => format!("{} are confounded", rest.join(" and ")),
+    let with = |rest: &[String]| {
+        if rest.is_empty() {
+            String::new()
+        } else {
+            format!(", with {}", rest.join(" and "))
+        }
+    };
+    let what = match (identifiable, pair, others.as_slice()) {
+        (true, Some(k), rest) => format!("weakest: scale and bias of sensor axis {}{}", AXES[k], with(rest)),
+        (true, None, rest) => format!("weakest: {}", rest.join(" and ")),
+        (false, Some(k), rest) => format!("scale and bias of sensor axis {} are confounded{}", AXES[k], with(rest)),
+        (false, None, [one]) => format!("{one} is not determined"),
+        (false, None, rest) => format!("{} are confounded", rest.join(" and ")),
     };
     match std {
         None => format!("{what}: the information is singular"),

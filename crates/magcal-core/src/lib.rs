@@ -80,6 +80,6 @@ pub use error::ParameterError;
 pub use field::ReferenceField;
 pub use identifiability::{CramerRao, PhysicalScales, Verdict};
 pub use linear_model::{Conditioning, InformationMatrix};
-pub use metrics::{RelativeErrors, Summary};
+pub use metrics::{AbsoluteErrors, RelativeErrors, Summary};
 pub use sensor::ErrorModel;
 pub use small::{Mat3, Vec3};

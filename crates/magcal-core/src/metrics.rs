@@ -32,6 +32,29 @@ impl RelativeErrors {
     }
 }
 
+/// The absolute errors beside the relative ones: `|psi_hat - psi|` (degrees), `|S_hat - S|`,
+/// `|O_hat - O|` (nT). Defined for every truth, a nominal one included.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AbsoluteErrors {
+    /// `|psi_hat - psi|`, degrees.
+    pub psi_deg: f64,
+    /// `|S_hat - S|`.
+    pub scale: f64,
+    /// `|O_hat - O|`, nT.
+    pub bias_nt: f64,
+}
+
+impl AbsoluteErrors {
+    /// The errors of `estimate` against `truth`.
+    pub fn between(estimate: &ErrorModel, truth: &ErrorModel) -> Self {
+        Self {
+            psi_deg: norm(sub(estimate.psi_deg(), truth.psi_deg())),
+            scale: norm(sub(estimate.scale(), truth.scale())),
+            bias_nt: norm(sub(estimate.bias_nt(), truth.bias_nt())),
+        }
+    }
+}
+
 /// Summary statistics of one metric over the trials that succeeded, with the failed count beside
 /// them (CONVENTIONS.md "Metrics").
 ///
@@ -137,6 +160,8 @@ mod tests {
         let est = ErrorModel::new([0.1, 0.0, 0.0], [1.01, 1.0, 1.0], [5.0, 0.0, 0.0]).unwrap();
         let e = RelativeErrors::between(&est, &nominal);
         assert_eq!((e.psi, e.bias), (None, None));
+        let a = AbsoluteErrors::between(&est, &nominal);
+        assert!((a.psi_deg - 0.1).abs() < 1e-12 && (a.scale - 0.01).abs() < 1e-12 && (a.bias_nt - 5.0).abs() < 1e-9);
         assert!((e.scale.unwrap() - 100.0 * 0.01 / 3f64.sqrt()).abs() < 1e-12);
     }
 

@@ -5,7 +5,8 @@ use rand::Rng;
 
 use crate::calibration::{CalibrationStatus, TwoStep};
 use crate::error::ParameterError;
-use crate::metrics::RelativeErrors;
+use crate::heading::{HeadingError, HeadingProbe};
+use crate::metrics::{AbsoluteErrors, RelativeErrors};
 use crate::sensor::ErrorModel;
 use crate::small::Vec3;
 
@@ -22,11 +23,16 @@ pub struct TrialOutcome {
     pub estimate: Option<ErrorModel>,
     /// Their relative errors against the truth, percent (\[P1\] eq. (21)-(23)).
     pub eta: Option<RelativeErrors>,
+    /// Their absolute errors against the truth.
+    pub abs: Option<AbsoluteErrors>,
+    /// The heading error the estimate leaves (CONVENTIONS.md "Heading error of a calibration").
+    pub heading: Option<HeadingError>,
 }
 
 /// Draws noisy readings of `body_fields` (nT) from `truth` with noise `sigma_nt` per component,
 /// calibrates them with `calibration` against a field of magnitude `field_magnitude_nt`, and scores
-/// the estimate against `truth`.
+/// the estimate against `truth`: relative and absolute errors, and the heading error over the
+/// level yaws of `probe` (built from the same field and truth).
 ///
 /// # Errors
 /// Only an invalid `sigma_nt` (negative or not finite); a calibration that fails is an outcome.
@@ -36,18 +42,21 @@ pub fn trial<R: Rng + ?Sized>(
     field_magnitude_nt: f64,
     sigma_nt: f64,
     calibration: &TwoStep,
+    probe: &HeadingProbe,
     rng: &mut R,
 ) -> Result<TrialOutcome, ParameterError> {
     let readings = truth.noisy_readings(body_fields, sigma_nt, rng)?;
     Ok(match calibration.calibrate(&readings, field_magnitude_nt) {
         Ok(fit) => {
-            let estimate = fit.estimate().model;
+            let e = fit.estimate();
             TrialOutcome {
                 status: fit.status(),
                 iterations: Some(fit.iterations),
-                rms_residual_nt: Some(fit.estimate().rms_residual_nt),
-                eta: Some(RelativeErrors::between(&estimate, truth)),
-                estimate: Some(estimate),
+                rms_residual_nt: Some(e.rms_residual_nt),
+                eta: Some(RelativeErrors::between(&e.model, truth)),
+                abs: Some(AbsoluteErrors::between(&e.model, truth)),
+                heading: Some(probe.error(&e.p, e.bias_nt)),
+                estimate: Some(e.model),
             }
         }
         Err(e) => TrialOutcome {
@@ -56,6 +65,8 @@ pub fn trial<R: Rng + ?Sized>(
             rms_residual_nt: None,
             estimate: None,
             eta: None,
+            abs: None,
+            heading: None,
         },
     })
 }
@@ -71,6 +82,7 @@ mod tests {
         let field = paper::changsha_field().with_yaw_offset_deg(90.0).unwrap();
         let truth = paper::true_error_model();
         let body = field.body_fields(&paper::uniformity_design());
+        let probe = HeadingProbe::new(&field, &truth);
         let values: Vec<f64> = (0..trials)
             .map(|t| {
                 let o = trial(
@@ -79,6 +91,7 @@ mod tests {
                     field.magnitude(),
                     sigma,
                     &TwoStep::default(),
+                    &probe,
                     &mut stream_rng(seed, t),
                 )
                 .unwrap();
@@ -120,6 +133,7 @@ mod tests {
             field.magnitude(),
             -1.0,
             &TwoStep::default(),
+            &HeadingProbe::new(&field, &paper::true_error_model()),
             &mut stream_rng(0, 0),
         );
         assert!(r.is_err());

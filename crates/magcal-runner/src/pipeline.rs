@@ -10,9 +10,10 @@ use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use magcal_core::design::pso::RunSummary;
 use magcal_core::design::{DesignProblem, d_efficiency, sources};
+use magcal_core::heading::HeadingProbe;
 use magcal_core::monte_carlo::{self, TrialOutcome};
 use magcal_core::rng::{stream_id, stream_rng};
-use magcal_core::{Attitude, Conditioning, RelativeErrors, Summary};
+use magcal_core::{Attitude, CalibrationStatus, Conditioning, CramerRao, PhysicalScales, Summary, Verdict};
 
 use crate::output::Metric;
 use rand::RngExt;
@@ -44,6 +45,15 @@ pub struct BuiltDesign {
     pub a_criterion: f64,
     /// `lambda_min(M_F)`, R-scaled readings.
     pub e_criterion: f64,
+    /// The identifiability verdict at the scenario's largest noise level.
+    pub verdict: Verdict,
+}
+
+impl BuiltDesign {
+    /// `ln det (M_F / m)`: the information per reading, which designs of different sizes share.
+    pub fn ln_det_per_reading(&self) -> f64 {
+        self.ln_det_mf - 9.0 * (self.attitudes.len() as f64).ln()
+    }
 }
 
 /// The trials of one design at one noise level.
@@ -55,29 +65,55 @@ pub struct Cell {
     pub sigma_nt: f64,
     /// Trials in order.
     pub trials: Vec<TrialOutcome>,
+    /// The Cramer-Rao bound of the design at this noise level.
+    pub bound: CramerRao,
+}
+
+/// How the trials of a cell ended. Every trial is in exactly one class.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Outcomes {
+    /// Converged: the trials the statistics are over.
+    pub ok: usize,
+    /// Step 2 hit its iteration limit: an estimate exists but is not a minimum; not in the
+    /// statistics.
+    pub not_converged: usize,
+    /// No estimate (no ellipsoid, rank deficient, non-finite input).
+    pub failed: usize,
 }
 
 impl Cell {
-    /// Failed trials (no estimate).
-    pub fn failed(&self) -> usize {
-        self.trials.iter().filter(|t| t.eta.is_none()).count()
+    /// The outcome counts.
+    pub fn outcomes(&self) -> Outcomes {
+        let count = |f: fn(&CalibrationStatus) -> bool| self.trials.iter().filter(|t| f(&t.status)).count();
+        Outcomes {
+            ok: count(|s| *s == CalibrationStatus::Ok),
+            not_converged: count(|s| *s == CalibrationStatus::NotConverged),
+            failed: count(|s| !s.has_estimate()),
+        }
     }
 
-    /// Statistics of the three metrics, in the order of [`Metric::ALL`], over the trials that
-    /// produced the metric (a metric whose truth is zero has none: every statistic undefined).
-    pub fn summaries(&self) -> [(Metric, Summary); 3] {
-        let values = |f: fn(&RelativeErrors) -> Option<f64>| -> Vec<f64> {
-            self.trials.iter().filter_map(|t| t.eta.as_ref().and_then(f)).collect()
-        };
-        let failed = self.failed();
-        Metric::ALL.map(|metric| {
-            let v = match metric {
-                Metric::EtaPsi => values(|e| e.psi),
-                Metric::EtaS => values(|e| e.scale),
-                Metric::EtaO => values(|e| e.bias),
-            };
-            (metric, Summary::new(&v, failed))
-        })
+    /// Failed trials (no estimate).
+    pub fn failed(&self) -> usize {
+        self.outcomes().failed
+    }
+
+    /// Statistics of every metric, in the order of [`Metric::ALL`], over the `ok` trials that
+    /// produced the metric (a relative error of a zero truth has none: every statistic undefined).
+    /// `failed` beside them counts every trial that is not `ok`.
+    pub fn summaries(&self) -> Vec<(Metric, Summary)> {
+        let ok: Vec<&TrialOutcome> = self
+            .trials
+            .iter()
+            .filter(|t| t.status == CalibrationStatus::Ok)
+            .collect();
+        let not_counted = self.trials.len() - ok.len();
+        Metric::ALL
+            .iter()
+            .map(|&metric| {
+                let v: Vec<f64> = ok.iter().filter_map(|t| metric.of(t)).collect();
+                (metric, Summary::new(&v, not_counted))
+            })
+            .collect()
     }
 }
 
@@ -90,17 +126,38 @@ pub struct RunOutput {
     pub cells: Vec<Cell>,
     /// Repeated PSO runs, if asked.
     pub pso_runs: Option<Vec<RunSummary>>,
+    /// Attitudes per design of the repeated PSO runs (0 without them).
+    pub pso_runs_m: usize,
     /// Wall time per stage, seconds.
     pub stages: Vec<(String, f64)>,
 }
 
 impl RunOutput {
-    /// `ln det M_F` of the best design of the run (the D-efficiency reference).
-    pub fn best_ln_det(&self) -> f64 {
-        self.designs
-            .iter()
-            .map(|d| d.ln_det_mf)
-            .fold(f64::NEG_INFINITY, f64::max)
+    /// The D-efficiency reference: the largest information per reading among the identifiable
+    /// designs (among all when none is): an optimiser's design that is not identifiable is not
+    /// called optimal.
+    pub fn best_ln_det_per_reading(&self) -> f64 {
+        let best = |identifiable_only: bool| {
+            self.designs
+                .iter()
+                .filter(|d| d.verdict.identifiable || !identifiable_only)
+                .map(BuiltDesign::ln_det_per_reading)
+                .fold(f64::NEG_INFINITY, f64::max)
+        };
+        let identifiable = best(true);
+        if identifiable > f64::NEG_INFINITY {
+            identifiable
+        } else {
+            best(false)
+        }
+    }
+
+    /// Whether design `i` is the reference of [`Self::best_ln_det_per_reading`].
+    pub fn is_best(&self, i: usize) -> bool {
+        let d = &self.designs[i];
+        let any_identifiable = self.designs.iter().any(|d| d.verdict.identifiable);
+        (d.verdict.identifiable || !any_identifiable)
+            && d.ln_det_per_reading().to_bits() == self.best_ln_det_per_reading().to_bits()
     }
 
     /// The Table III reference design, if the scenario has one named `uniform`.
@@ -108,9 +165,10 @@ impl RunOutput {
         self.designs.iter().find(|d| d.name == REFERENCE_DESIGN)
     }
 
-    /// D-efficiency of design `i` against the best of the run.
+    /// D-efficiency of design `i` per reading, `(det(M_F/m) / det(M_F*/m*))^(1/9)`, against the
+    /// best design of the run.
     pub fn d_efficiency(&self, i: usize) -> f64 {
-        d_efficiency(self.designs[i].ln_det_mf, self.best_ln_det())
+        d_efficiency(self.designs[i].ln_det_per_reading(), self.best_ln_det_per_reading())
     }
 }
 
@@ -183,7 +241,10 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
             DesignSource::Optimum { m, settings } => settings.optimise(&problem(*m)?, &mut rng)?.design,
         };
         let metrics = problem(attitudes.len())?.evaluate(&attitudes);
-        let readings = scenario.truth.measure_all(&scenario.field.body_fields(&attitudes));
+        let body = scenario.field.body_fields(&attitudes);
+        let readings = scenario.truth.measure_all(&body);
+        let loudest = scenario.sigmas_nt.iter().copied().fold(0.0, f64::max);
+        let verdict = CramerRao::new(&scenario.truth, &body, loudest, &PhysicalScales::default()).verdict;
         designs.push(BuiltDesign {
             name: spec.name.clone(),
             kind: spec.source.kind(),
@@ -191,6 +252,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
             ln_det_mf: metrics.ln_det_mf,
             a_criterion: metrics.a,
             e_criterion: metrics.e,
+            verdict,
             attitudes,
         });
         bar.finish_and_clear();
@@ -231,6 +293,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         } else {
             ProgressBar::hidden()
         };
+        let probe = HeadingProbe::new(&scenario.field, &scenario.truth);
         for (d, built) in designs.iter().enumerate() {
             let body = scenario.field.body_fields(&built.attitudes);
             for (s, &sigma) in scenario.sigmas_nt.iter().enumerate() {
@@ -244,6 +307,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                             scenario.field.magnitude(),
                             sigma,
                             &scenario.calibration,
+                            &probe,
                             &mut rng,
                         );
                         bar.inc(1);
@@ -254,6 +318,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                     design: d,
                     sigma_nt: sigma,
                     trials,
+                    bound: CramerRao::new(&scenario.truth, &body, sigma, &PhysicalScales::default()),
                 });
             }
         }
@@ -264,6 +329,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         designs,
         cells,
         pso_runs,
+        pso_runs_m: scenario.pso_runs.as_ref().map_or(0, |r| r.m),
         stages,
     })
 }

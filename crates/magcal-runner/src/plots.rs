@@ -19,7 +19,7 @@ use plotters::style::{FontStyle, register_font};
 
 use crate::output::manifest::Manifest;
 use crate::output::staging::ResultSet;
-use crate::output::{DesignPointRow, Metric, PsoRunRow, SummaryRow, read_csv};
+use crate::output::{DesignMetricsRow, DesignPointRow, Metric, PsoRunRow, SummaryRow, read_csv};
 
 /// Figure size, pixels: readable at 800 px wide.
 const SIZE: (u32, u32) = (960, 600);
@@ -42,6 +42,8 @@ struct Stat {
     metric: Metric,
     sigma: f64,
     trials: usize,
+    ok: usize,
+    not_converged: usize,
     failed: usize,
     values: Option<Values>,
 }
@@ -74,15 +76,19 @@ impl Stat {
             metric: row.metric,
             sigma: row.sigma_nt.0,
             trials: row.trials,
+            ok: row.ok,
+            not_converged: row.not_converged,
             failed: row.failed,
             values,
         }
     }
 
+    /// The design with its outcome counts: `pso (ok 196, n.c. 0, failed 4)`.
     fn label(&self) -> String {
+        let counts = format!("ok {}, n.c. {}, failed {}", self.ok, self.not_converged, self.failed);
         match self.values {
-            Some(_) => format!("{} ({} failed)", self.design, self.failed),
-            None => format!("{} (no value: {} of {} failed)", self.design, self.failed, self.trials),
+            Some(_) => format!("{} ({counts})", self.design),
+            None => format!("{} (no value; {counts})", self.design),
         }
     }
 }
@@ -211,11 +217,31 @@ pub fn draw(src: &Path, manifest: &Manifest, set: &mut ResultSet, prefix: &str) 
     }
 
     if manifest.lists("pso_runs.csv") {
-        let values: Vec<f64> = read_csv::<PsoRunRow>(&src.join("pso_runs.csv"))?
+        let runs = read_csv::<PsoRunRow>(&src.join("pso_runs.csv"))?;
+        let values: Vec<f64> = runs.iter().map(|r| r.final_ln_det.0).collect();
+        // The reference line: the run's own best, over the runs and the designs of the same size.
+        let m = runs.first().map_or(0, |r| r.m);
+        let best_design = read_csv::<DesignMetricsRow>(&src.join("design_metrics.csv"))?
             .iter()
-            .map(|r| r.final_ln_det.0)
-            .collect();
-        render!(set, prefix, "pso_runs", |root| draw_runs(&root, name, &values));
+            .filter(|d| d.m == m && d.ln_det_mf.0.is_finite())
+            .map(|d| (d.ln_det_mf.0, d.design.clone()))
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        let best_run = values
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .fold(f64::NEG_INFINITY, f64::max);
+        let reference = match best_design {
+            Some((v, design)) if v >= best_run => Some((v, format!("best of this run: design {design}"))),
+            _ if best_run.is_finite() => Some((best_run, "best of this run: a PSO run".to_string())),
+            _ => None,
+        };
+        render!(set, prefix, "pso_runs", |root| draw_runs(
+            &root,
+            name,
+            &values,
+            reference.as_ref()
+        ));
         drawn.push("pso_runs".into());
     }
     Ok(drawn)
@@ -453,22 +479,27 @@ where
     legend(&mut chart, SeriesLabelPosition::UpperLeft)
 }
 
-/// \[P1\] Fig. 4: the final `ln det M_F` of each repeated PSO run, and the best known optimum of
-/// \[P1\]'s problem. A run that ended without a finite value (a singular design) is not drawn; the
-/// caption counts it.
-fn draw_runs<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, scenario: &str, values: &[f64]) -> Result<()>
+/// \[P1\] Fig. 4: the final `ln det M_F` of each repeated PSO run, and the best of the run (the
+/// best design of the same size or the best run) as a reference line. A run that ended without a
+/// finite value (a singular design) is not drawn; the caption counts it.
+fn draw_runs<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    scenario: &str,
+    values: &[f64],
+    reference: Option<&(f64, String)>,
+) -> Result<()>
 where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(err)?;
-    let best = magcal_core::paper::BEST_KNOWN_LN_DET;
     let finite: Vec<(usize, f64)> = values
         .iter()
         .copied()
         .enumerate()
         .filter(|(_, v)| v.is_finite())
         .collect();
-    let (lo, hi) = finite.iter().fold((best, best), |(a, b), &(_, v)| (a.min(v), b.max(v)));
+    let start = reference.map_or(finite.first().map_or((0.0, 1.0), |&(_, v)| (v, v)), |r| (r.0, r.0));
+    let (lo, hi) = finite.iter().fold(start, |(a, b), &(_, v)| (a.min(v), b.max(v)));
     let pad = ((hi - lo) * 0.1).max(1e-3);
     let n = values.len();
     let mut caption = format!("{scenario}: final ln det M_F of {n} PSO runs");
@@ -491,14 +522,16 @@ where
         .axis_desc_style((FONT, 18))
         .draw()
         .map_err(err)?;
-    chart
-        .draw_series(std::iter::once(PathElement::new(
-            vec![(0.0, best), (n as f64 + 1.0, best)],
-            RED.stroke_width(2),
-        )))
-        .map_err(err)?
-        .label(format!("best known optimum {best}"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], RED.stroke_width(2)));
+    if let Some((best, what)) = reference {
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                vec![(0.0, *best), (n as f64 + 1.0, *best)],
+                RED.stroke_width(2),
+            )))
+            .map_err(err)?
+            .label(format!("{what}, {best:.5}"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], RED.stroke_width(2)));
+    }
     chart
         .draw_series(
             finite

@@ -4,6 +4,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
+use magcal_core::CalibrationStatus;
+use magcal_runner::output::{Metric, SummaryRow, TrialRow, read_csv};
 use tempfile::TempDir;
 
 fn magcal() -> Command {
@@ -43,6 +45,7 @@ fn run_writes_every_file_with_the_expected_rows() {
     for f in [
         "summary.csv",
         "trials.csv",
+        "crb.csv",
         "designs.csv",
         "design_metrics.csv",
         "pso_runs.csv",
@@ -50,20 +53,27 @@ fn run_writes_every_file_with_the_expected_rows() {
     ] {
         assert!(tmp.path().join(f).is_file(), "{f} missing");
     }
-    // 4 designs x 2 noise levels x 3 metrics.
-    let summary = csv_rows(&tmp.path().join("summary.csv"));
-    assert_eq!(summary.len(), 24);
-    // 4 designs x 2 noise levels x 200 trials, each with a status; failed ones counted in summary.
-    let trials = csv_rows(&tmp.path().join("trials.csv"));
+    // 4 designs x 2 noise levels x 8 metrics, read with the runner's own typed rows.
+    let summary: Vec<SummaryRow> = read_csv(&tmp.path().join("summary.csv")).unwrap();
+    assert_eq!(summary.len(), 64);
+    // 4 designs x 2 noise levels x 200 trials, each with a status; every outcome counted once.
+    let trials: Vec<TrialRow> = read_csv(&tmp.path().join("trials.csv")).unwrap();
     assert_eq!(trials.len(), 1600);
-    let failed_in_trials = trials.iter().filter(|r| r[4].is_empty()).count();
-    let failed_in_summary: usize = summary
-        .iter()
-        .filter(|r| r[4] == "eta_psi")
-        .map(|r| r[3].parse::<usize>().unwrap())
-        .sum();
-    assert_eq!(failed_in_trials, failed_in_summary);
-    assert!(trials.iter().all(|r| !r[3].is_empty()));
+    for row in summary.iter().filter(|r| r.metric == Metric::EtaPsi) {
+        let cell: Vec<&TrialRow> = trials
+            .iter()
+            .filter(|t| t.design == row.design && t.sigma_nt == row.sigma_nt)
+            .collect();
+        let count = |s: CalibrationStatus| cell.iter().filter(|t| t.status.0 == s).count();
+        assert_eq!(row.ok + row.not_converged + row.failed, row.trials);
+        assert_eq!(row.ok, count(CalibrationStatus::Ok));
+        assert_eq!(row.not_converged, count(CalibrationStatus::NotConverged));
+        assert_eq!(row.failed, cell.iter().filter(|t| t.eta_psi.is_none()).count());
+        // The Cramer-Rao prediction sits beside every relative error.
+        assert!(row.crb_rms.is_some_and(|v| v.0 > 0.0));
+    }
+    let crb = fs::read_to_string(tmp.path().join("crb.csv")).unwrap();
+    assert_eq!(crb.lines().count(), 1 + 4 * 2 * 9);
     // Explicit designs as given, [P1] Table II.
     let designs = csv_rows(&tmp.path().join("designs.csv"));
     assert_eq!(designs.len(), 36);

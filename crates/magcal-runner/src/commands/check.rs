@@ -19,7 +19,7 @@ use magcal_core::{CalibrationStatus, Summary};
 
 use crate::cli::{CheckArgs, Failure};
 use crate::output::manifest::{Manifest, sha256_hex};
-use crate::output::{self, DesignMetricsRow, DesignPointRow, Metric, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
+use crate::output::{self, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
 use crate::pipeline::{self, RunOptions, RunOutput};
 use crate::scenario;
 
@@ -192,9 +192,20 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             let se = se_b.zip(se_n).map(|(a, c)| (a * a + c * c).sqrt());
             let exact = |v: Option<Real>| 1e-9 * real(v).map_or(0.0, f64::abs);
             f.value(k, "trials", Some(b.trials as f64), Some(n.trials as f64), 0.0);
-            // Binomial count: 4 standard deviations.
-            let failed_tol = 4.0 * (b.failed.max(1) as f64).sqrt();
-            f.value(k, "failed", Some(b.failed as f64), Some(n.failed as f64), failed_tol);
+            // Binomial counts: 4 standard deviations.
+            for (quantity, bc, nc) in [
+                ("ok", b.ok, n.ok),
+                ("not_converged", b.not_converged, n.not_converged),
+                ("failed", b.failed, n.failed),
+            ] {
+                f.value(
+                    k,
+                    quantity,
+                    Some(bc as f64),
+                    Some(nc as f64),
+                    4.0 * (bc.max(1) as f64).sqrt(),
+                );
+            }
             f.value(
                 k,
                 "mean",
@@ -206,7 +217,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             let median_tol = se.map_or(exact(b.median), |se| 4.0 * 1.2533 * se);
             f.value(k, "median", real(b.median), real(n.median), median_tol);
             // Std of a sample std: about std / sqrt(2 (n - 1)).
-            let succeeded = b.trials.saturating_sub(b.failed) as f64;
+            let succeeded = b.ok as f64;
             let std_tol = match (real(b.std), se) {
                 (Some(s), Some(_)) if s.is_finite() => 4.0 * s / (2.0 * (succeeded - 1.0).max(1.0)).sqrt(),
                 _ => exact(b.std),
@@ -224,7 +235,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
     let base_metrics: Vec<DesignMetricsRow> = read_csv(&file("design_metrics.csv"))?;
     let now_metrics: Vec<DesignMetricsRow> = output::design_metrics_rows(out).collect();
     let base_points = group_points(read_csv::<DesignPointRow>(&file("designs.csv"))?);
-    let now_points = group_points(output::design_rows(out).collect());
+    let now_points = group_points(output::design_rows(out, manifest.yaw_offset_deg).collect());
     let by = |rows: &[DesignMetricsRow]| -> BTreeMap<String, DesignMetricsRow> {
         rows.iter()
             .map(|r| (format!("design_metrics.csv {}", r.design), r.clone()))
@@ -390,20 +401,26 @@ fn baseline_consistency(f: &mut Findings, summary: &[SummaryRow], trials: &[Tria
             f.missing(&key, "no trials in the baseline's trials.csv");
             continue;
         };
+        let ok: Vec<&&TrialRow> = rows.iter().filter(|t| t.status.0 == CalibrationStatus::Ok).collect();
+        let not_converged = rows
+            .iter()
+            .filter(|t| t.status.0 == CalibrationStatus::NotConverged)
+            .count();
         let failed = rows.iter().filter(|t| !t.status.0.has_estimate()).count();
         f.value(&key, "trials", Some(row.trials as f64), Some(rows.len() as f64), 0.0);
-        f.value(&key, "failed", Some(row.failed as f64), Some(failed as f64), 0.0);
-        let values: Vec<f64> = rows
+        for (quantity, b, n) in [
+            ("ok", row.ok, ok.len()),
+            ("not_converged", row.not_converged, not_converged),
+            ("failed", row.failed, failed),
+        ] {
+            f.value(&key, quantity, Some(b as f64), Some(n as f64), 0.0);
+        }
+        let values: Vec<f64> = ok
             .iter()
-            .filter_map(|t| match row.metric {
-                Metric::EtaPsi => t.eta_psi,
-                Metric::EtaS => t.eta_s,
-                Metric::EtaO => t.eta_o,
-            })
-            .map(|r| r.0)
+            .filter_map(|t| t.value(row.metric))
             .filter(|v| v.is_finite())
             .collect();
-        let s = Summary::new(&values, failed);
+        let s = Summary::new(&values, rows.len() - ok.len());
         let defined = |x: f64| (!x.is_nan()).then_some(x);
         for (quantity, b, n) in [
             ("mean", real(row.mean), defined(s.mean)),

@@ -77,13 +77,17 @@ fn write_set(
         files.insert(name.to_string(), sha256_hex(&bytes));
         Ok(())
     };
-    put("designs.csv", output::csv_bytes(output::design_rows(out))?)?;
+    put(
+        "designs.csv",
+        output::csv_bytes(output::design_rows(out, scenario.field.yaw_offset_deg()))?,
+    )?;
     put(
         "design_metrics.csv",
         output::csv_bytes(output::design_metrics_rows(out))?,
     )?;
     if with_trials {
         put("summary.csv", output::csv_bytes(output::summary_rows(out))?)?;
+        put("crb.csv", output::csv_bytes(output::crb_rows(out))?)?;
     }
     if out.pso_runs.is_some() {
         put("pso_runs.csv", output::csv_bytes(output::pso_run_rows(out))?)?;

@@ -69,29 +69,54 @@ impl<'de> Deserialize<'de> for Status {
     }
 }
 
-/// The Monte Carlo metrics of `summary.csv` (\[P1\] eq. (21)-(23)), percent.
+/// The Monte Carlo metrics of `summary.csv`: the relative errors of \[P1\] eq. (21)-(23)
+/// (percent), the absolute errors, and the heading error (CONVENTIONS.md).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Metric {
-    /// `eta_psi`, \[P1\] eq. (21).
+    /// `eta_psi`, \[P1\] eq. (21), percent.
     #[default]
     EtaPsi,
-    /// `eta_S`, \[P1\] eq. (22).
+    /// `eta_S`, \[P1\] eq. (22), percent.
     EtaS,
-    /// `eta_O`, \[P1\] eq. (23).
+    /// `eta_O`, \[P1\] eq. (23), percent.
     EtaO,
+    /// `|psi_hat - psi|`, degrees.
+    AbsPsiDeg,
+    /// `|S_hat - S|`.
+    AbsS,
+    /// `|O_hat - O|`, nT.
+    AbsONt,
+    /// Rms heading error over the level yaws, degrees.
+    HeadingRmsDeg,
+    /// Largest heading error over the level yaws, degrees.
+    HeadingMaxDeg,
 }
 
 impl Metric {
     /// In file order.
-    pub const ALL: [Self; 3] = [Self::EtaPsi, Self::EtaS, Self::EtaO];
+    pub const ALL: [Self; 8] = [
+        Self::EtaPsi,
+        Self::EtaS,
+        Self::EtaO,
+        Self::AbsPsiDeg,
+        Self::AbsS,
+        Self::AbsONt,
+        Self::HeadingRmsDeg,
+        Self::HeadingMaxDeg,
+    ];
 
-    /// The column name (`eta_psi`, `eta_s`, `eta_o`).
+    /// The name in files.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::EtaPsi => "eta_psi",
             Self::EtaS => "eta_s",
             Self::EtaO => "eta_o",
+            Self::AbsPsiDeg => "abs_psi_deg",
+            Self::AbsS => "abs_s",
+            Self::AbsONt => "abs_o_nt",
+            Self::HeadingRmsDeg => "heading_rms_deg",
+            Self::HeadingMaxDeg => "heading_max_deg",
         }
     }
 
@@ -101,17 +126,49 @@ impl Metric {
             Self::EtaPsi => "eta_psi, non-orthogonality error (%)",
             Self::EtaS => "eta_S, scale factor error (%)",
             Self::EtaO => "eta_O, bias error (%)",
+            Self::AbsPsiDeg => "|psi_hat - psi| (deg)",
+            Self::AbsS => "|S_hat - S|",
+            Self::AbsONt => "|O_hat - O| (nT)",
+            Self::HeadingRmsDeg => "rms heading error over level yaws (deg)",
+            Self::HeadingMaxDeg => "largest heading error over level yaws (deg)",
+        }
+    }
+
+    /// The metric of one trial, if it has it.
+    pub fn of(self, t: &magcal_core::monte_carlo::TrialOutcome) -> Option<f64> {
+        match self {
+            Self::EtaPsi => t.eta.and_then(|e| e.psi),
+            Self::EtaS => t.eta.and_then(|e| e.scale),
+            Self::EtaO => t.eta.and_then(|e| e.bias),
+            Self::AbsPsiDeg => t.abs.map(|a| a.psi_deg),
+            Self::AbsS => t.abs.map(|a| a.scale),
+            Self::AbsONt => t.abs.map(|a| a.bias_nt),
+            Self::HeadingRmsDeg => t.heading.map(|h| h.rms_deg),
+            Self::HeadingMaxDeg => t.heading.map(|h| h.max_deg),
+        }
+    }
+
+    /// The Cramer-Rao prediction of the metric's rms, where the bound defines one.
+    pub fn predicted_rms(self, bound: &magcal_core::CramerRao) -> Option<f64> {
+        match self {
+            Self::EtaPsi | Self::EtaS | Self::EtaO => bound.rms_eta()[self as usize],
+            Self::AbsPsiDeg | Self::AbsS | Self::AbsONt => bound.rms_abs()[self as usize - 3],
+            Self::HeadingRmsDeg | Self::HeadingMaxDeg => None,
         }
     }
 }
 
-/// `summary.csv`: one row per design, noise level and metric; statistics over the trials that
-/// produced the metric, `failed` beside them. Values in percent; empty where undefined.
+/// `summary.csv`: one row per design, noise level and metric. The trials' outcome counts
+/// (`ok + not_converged + failed = trials`); statistics over the `ok` trials that produced the
+/// metric; `rms` of those values; `crb_rms`, the Cramer-Rao prediction of that rms. Empty where
+/// undefined.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct SummaryRow {
     pub design: String,
     pub sigma_nt: Real,
     pub trials: usize,
+    pub ok: usize,
+    pub not_converged: usize,
     pub failed: usize,
     pub metric: Metric,
     pub mean: Option<Real>,
@@ -120,6 +177,19 @@ pub struct SummaryRow {
     pub p05: Option<Real>,
     pub p95: Option<Real>,
     pub se_mean: Option<Real>,
+    pub rms: Option<Real>,
+    pub crb_rms: Option<Real>,
+}
+
+/// `crb.csv`: the predicted standard deviation of each parameter (Cramer-Rao bound), per design
+/// and noise level; empty where the information is singular.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CrbRow {
+    pub design: String,
+    pub sigma_nt: Real,
+    pub parameter: String,
+    pub std: Option<Real>,
+    pub unit: String,
 }
 
 /// `trials.csv`: one row per trial, its status, errors and estimates (empty when it has none).
@@ -143,9 +213,34 @@ pub struct TrialRow {
     pub o3_nt: Option<Real>,
     pub step2_iterations: Option<usize>,
     pub rms_residual_nt: Option<Real>,
+    pub abs_psi_deg: Option<Real>,
+    pub abs_s: Option<Real>,
+    pub abs_o_nt: Option<Real>,
+    pub heading_rms_deg: Option<Real>,
+    pub heading_max_deg: Option<Real>,
 }
 
-/// `designs.csv`: one row per attitude, degrees (to 1e-9 degree).
+impl TrialRow {
+    /// The value of `metric` in this row.
+    pub fn value(&self, metric: Metric) -> Option<f64> {
+        match metric {
+            Metric::EtaPsi => self.eta_psi,
+            Metric::EtaS => self.eta_s,
+            Metric::EtaO => self.eta_o,
+            Metric::AbsPsiDeg => self.abs_psi_deg,
+            Metric::AbsS => self.abs_s,
+            Metric::AbsONt => self.abs_o_nt,
+            Metric::HeadingRmsDeg => self.heading_rms_deg,
+            Metric::HeadingMaxDeg => self.heading_max_deg,
+        }
+        .map(|r| r.0)
+    }
+}
+
+/// `designs.csv`: one row per attitude, degrees (to 1e-9 degree); the compass heading of the
+/// nose, `-(yaw + yaw_offset_deg)` mod 360 (CONVENTIONS.md "Sense of the angles"); and the
+/// attitude as the unit quaternion `(qw, qx, qy, qz)` (Hamilton, `qw >= 0`) of `C_b^n`, the
+/// rotation from the body frame (nose, up, right) to North-Up-East, yaw offset included.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct DesignPointRow {
     pub design: String,
@@ -154,6 +249,11 @@ pub struct DesignPointRow {
     pub roll_deg: Real,
     pub yaw_deg: Real,
     pub pitch_deg: Real,
+    pub heading_deg: Real,
+    pub qw: Real,
+    pub qx: Real,
+    pub qy: Real,
+    pub qz: Real,
 }
 
 /// `design_metrics.csv`: information and conditioning of a design; D-efficiency against the best
@@ -175,12 +275,16 @@ pub struct DesignMetricsRow {
     pub a_criterion: Option<Real>,
     pub e_criterion: Option<Real>,
     pub best_in_run: bool,
+    pub identifiable: bool,
+    pub weakest: String,
 }
 
 /// `pso_runs.csv`: the final `ln det M_F` of each repeated PSO run (\[P1\] Fig. 4).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct PsoRunRow {
     pub run: usize,
+    /// Attitudes per design.
+    pub m: usize,
     pub final_ln_det: Real,
     pub evaluations: usize,
 }
@@ -271,18 +375,48 @@ fn degrees(x: f64) -> Real {
 pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
     out.cells.iter().flat_map(move |cell| {
         let design = &out.designs[cell.design].name;
-        cell.summaries().map(move |(metric, s)| SummaryRow {
+        let o = cell.outcomes();
+        let ok: Vec<_> = cell
+            .trials
+            .iter()
+            .filter(|t| t.status == magcal_core::CalibrationStatus::Ok)
+            .collect();
+        cell.summaries().into_iter().map(move |(metric, s)| {
+            let values: Vec<f64> = ok.iter().filter_map(|t| metric.of(t)).collect();
+            let rms =
+                (!values.is_empty()).then(|| (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt());
+            SummaryRow {
+                design: design.clone(),
+                sigma_nt: Real(cell.sigma_nt),
+                trials: cell.trials.len(),
+                ok: o.ok,
+                not_converged: o.not_converged,
+                failed: o.failed,
+                metric,
+                mean: defined(s.mean),
+                std: defined(s.std),
+                median: defined(s.median),
+                p05: defined(s.p05),
+                p95: defined(s.p95),
+                se_mean: defined(s.se_mean),
+                rms: rms.and_then(defined),
+                crb_rms: metric.predicted_rms(&cell.bound).and_then(defined),
+            }
+        })
+    })
+}
+
+/// The rows of `crb.csv`.
+pub fn crb_rows(out: &RunOutput) -> impl Iterator<Item = CrbRow> + '_ {
+    use magcal_core::identifiability::{PARAMETERS, UNITS};
+    out.cells.iter().flat_map(move |cell| {
+        let design = &out.designs[cell.design].name;
+        (0..9).map(move |i| CrbRow {
             design: design.clone(),
             sigma_nt: Real(cell.sigma_nt),
-            trials: cell.trials.len(),
-            failed: s.failed,
-            metric,
-            mean: defined(s.mean),
-            std: defined(s.std),
-            median: defined(s.median),
-            p05: defined(s.p05),
-            p95: defined(s.p95),
-            se_mean: defined(s.se_mean),
+            parameter: PARAMETERS[i].to_string(),
+            std: cell.bound.std.and_then(|s| defined(s[i])),
+            unit: UNITS[i].to_string(),
         })
     })
 }
@@ -314,30 +448,97 @@ pub fn trial_rows(out: &RunOutput) -> impl Iterator<Item = TrialRow> + '_ {
                 o3_nt: est(|m| m.bias_nt(), 2),
                 step2_iterations: trial.iterations,
                 rms_residual_nt: trial.rms_residual_nt.map(Real),
+                abs_psi_deg: trial.abs.map(|a| Real(a.psi_deg)),
+                abs_s: trial.abs.map(|a| Real(a.scale)),
+                abs_o_nt: trial.abs.map(|a| Real(a.bias_nt)),
+                heading_rms_deg: trial.heading.map(|h| Real(h.rms_deg)),
+                heading_max_deg: trial.heading.map(|h| Real(h.max_deg)),
             }
         })
     })
 }
 
 /// The rows of `designs.csv`.
-pub fn design_rows(out: &RunOutput) -> impl Iterator<Item = DesignPointRow> + '_ {
-    out.designs.iter().flat_map(|d| {
+pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item = DesignPointRow> + '_ {
+    out.designs.iter().flat_map(move |d| {
         d.attitudes.iter().enumerate().map(move |(i, a)| {
             let [r, y, p] = a.to_degrees();
+            let flown = magcal_core::Attitude {
+                yaw: a.yaw + yaw_offset_deg.to_radians(),
+                ..*a
+            };
+            let [qw, qx, qy, qz] = body_to_nav_quaternion(&flown.dcm());
             DesignPointRow {
                 design: d.name.clone(),
                 point: i + 1,
                 roll_deg: degrees(r),
                 yaw_deg: degrees(y),
                 pitch_deg: degrees(p),
+                heading_deg: degrees((-(y + yaw_offset_deg)).rem_euclid(360.0)),
+                qw: Real(qw),
+                qx: Real(qx),
+                qy: Real(qy),
+                qz: Real(qz),
             }
         })
     })
 }
 
+/// The unit quaternion `(w, x, y, z)` (Hamilton, `w >= 0`) of `C_b^n = (C_n^b)^T`, from the
+/// direction cosine matrix `C_n^b` of \[P1\] eq. (2), by Shepperd's method (the largest of the
+/// four squared components first, for accuracy).
+fn body_to_nav_quaternion(c_nb: &magcal_core::Mat3) -> [f64; 4] {
+    // m = C_b^n.
+    let m = |i: usize, j: usize| c_nb[j][i];
+    let trace = m(0, 0) + m(1, 1) + m(2, 2);
+    let candidates = [trace, m(0, 0), m(1, 1), m(2, 2)];
+    let k = (0..4)
+        .max_by(|&a, &b| candidates[a].total_cmp(&candidates[b]))
+        .unwrap_or(0);
+    let q = match k {
+        0 => {
+            let w = (1.0 + trace).sqrt() / 2.0;
+            [
+                w,
+                (m(2, 1) - m(1, 2)) / (4.0 * w),
+                (m(0, 2) - m(2, 0)) / (4.0 * w),
+                (m(1, 0) - m(0, 1)) / (4.0 * w),
+            ]
+        }
+        1 => {
+            let x = (1.0 + m(0, 0) - m(1, 1) - m(2, 2)).sqrt() / 2.0;
+            [
+                (m(2, 1) - m(1, 2)) / (4.0 * x),
+                x,
+                (m(0, 1) + m(1, 0)) / (4.0 * x),
+                (m(0, 2) + m(2, 0)) / (4.0 * x),
+            ]
+        }
+        2 => {
+            let y = (1.0 - m(0, 0) + m(1, 1) - m(2, 2)).sqrt() / 2.0;
+            [
+                (m(0, 2) - m(2, 0)) / (4.0 * y),
+                (m(0, 1) + m(1, 0)) / (4.0 * y),
+                y,
+                (m(1, 2) + m(2, 1)) / (4.0 * y),
+            ]
+        }
+        _ => {
+            let z = (1.0 - m(0, 0) - m(1, 1) + m(2, 2)).sqrt() / 2.0;
+            [
+                (m(1, 0) - m(0, 1)) / (4.0 * z),
+                (m(0, 2) + m(2, 0)) / (4.0 * z),
+                (m(1, 2) + m(2, 1)) / (4.0 * z),
+                z,
+            ]
+        }
+    };
+    let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
+    q.map(|v| v * sign)
+}
+
 /// The rows of `design_metrics.csv`.
 pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetricsRow> + '_ {
-    let best = out.best_ln_det();
     let reference = out.reference();
     out.designs.iter().enumerate().map(move |(i, d)| {
         let ratios = reference.map(|u| {
@@ -360,15 +561,19 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             kind: d.kind,
             a_criterion: defined(d.a_criterion),
             e_criterion: defined(d.e_criterion),
-            best_in_run: d.ln_det_mf.to_bits() == best.to_bits(),
+            best_in_run: out.is_best(i),
+            identifiable: d.verdict.identifiable,
+            weakest: d.verdict.weakest.clone(),
         }
     })
 }
 
 /// The rows of `pso_runs.csv`.
 pub fn pso_run_rows(out: &RunOutput) -> impl Iterator<Item = PsoRunRow> + '_ {
-    out.pso_runs.iter().flatten().map(|r| PsoRunRow {
+    let m = out.pso_runs_m;
+    out.pso_runs.iter().flatten().map(move |r| PsoRunRow {
         run: r.run,
+        m,
         final_ln_det: Real(-r.fitness),
         evaluations: r.evaluations,
     })
@@ -379,19 +584,73 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_quaternion_rotates_body_vectors_into_north_up_east() {
+        use magcal_core::Attitude;
+        use magcal_core::small::{mat_t_vec, norm};
+        let mut rng = magcal_core::rng::stream_rng(5, 0);
+        for _ in 0..10_000 {
+            let a = magcal_core::design::sources::random_attitude(&magcal_core::AttitudeBox::full(), &mut rng);
+            let c_nb = a.dcm();
+            let [w, x, y, z] = body_to_nav_quaternion(&c_nb);
+            assert!(w >= 0.0 && (norm([x, y, z]).hypot(w) - 1.0).abs() < 1e-14);
+            // v' = q v q*, by the rotation matrix of q.
+            let r = [
+                [
+                    1.0 - 2.0 * (y * y + z * z),
+                    2.0 * (x * y - w * z),
+                    2.0 * (x * z + w * y),
+                ],
+                [
+                    2.0 * (x * y + w * z),
+                    1.0 - 2.0 * (x * x + z * z),
+                    2.0 * (y * z - w * x),
+                ],
+                [
+                    2.0 * (x * z - w * y),
+                    2.0 * (y * z + w * x),
+                    1.0 - 2.0 * (x * x + y * y),
+                ],
+            ];
+            for v in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, -0.2, 0.9]] {
+                let want = mat_t_vec(&c_nb, v);
+                let got = [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);
+                for i in 0..3 {
+                    assert!((got[i] - want[i]).abs() < 1e-14, "{a:?}");
+                }
+            }
+        }
+        // Level, yaw -60 (heading 60): the nose points north-east-ish, 60 degrees east of north.
+        let q = body_to_nav_quaternion(&Attitude::from_degrees(0.0, -60.0, 0.0).dcm());
+        assert!((q[0] - 30f64.to_radians().cos()).abs() < 1e-15 && (q[2] + 30f64.to_radians().sin()).abs() < 1e-15);
+    }
+
+    #[test]
     fn headers_come_from_the_row_types() {
         let h = header::<SummaryRow>().unwrap();
         assert_eq!(
             h.iter().collect::<Vec<_>>(),
             [
-                "design", "sigma_nt", "trials", "failed", "metric", "mean", "std", "median", "p05", "p95", "se_mean"
+                "design",
+                "sigma_nt",
+                "trials",
+                "ok",
+                "not_converged",
+                "failed",
+                "metric",
+                "mean",
+                "std",
+                "median",
+                "p05",
+                "p95",
+                "se_mean",
+                "rms",
+                "crb_rms"
             ]
         );
-        assert_eq!(header::<PsoRunRow>().unwrap().len(), 3);
         // A file with no rows still has its header.
         assert_eq!(
             csv_bytes(Vec::<PsoRunRow>::new()).unwrap(),
-            b"run,final_ln_det,evaluations\n"
+            b"run,m,final_ln_det,evaluations\n"
         );
     }
 
@@ -402,6 +661,8 @@ mod tests {
             sigma_nt: Real(30.0),
             trials: 10,
             failed: 1,
+            ok: 9,
+            not_converged: 0,
             metric: Metric::EtaO,
             mean: Some(Real(0.1 + 0.2)),
             std: None,
@@ -409,12 +670,14 @@ mod tests {
             p05: Some(Real(-0.0)),
             p95: Some(Real(2.5)),
             se_mean: None,
+            rms: None,
+            crb_rms: Some(Real(1.0)),
         };
         let bytes = csv_bytes([row.clone()]).unwrap();
         let text = String::from_utf8(bytes.clone()).unwrap();
         assert_eq!(
             text.lines().nth(1),
-            Some("u,30,10,1,eta_o,0.30000000000000004,,inf,-0,2.5,")
+            Some("u,30,10,9,0,1,eta_o,0.30000000000000004,,inf,-0,2.5,,,1")
         );
         let back: Vec<SummaryRow> = parse_csv(&bytes, "x").unwrap();
         assert_eq!(back, [row]);
@@ -422,7 +685,7 @@ mod tests {
 
     #[test]
     fn a_bad_cell_is_named_by_line_column_and_value() {
-        let text = "run,final_ln_det,evaluations\n0,1.5,3\n1,twelve,3\n";
+        let text = "run,m,final_ln_det,evaluations\n0,9,1.5,3\n1,9,twelve,3\n";
         let e = parse_csv::<PsoRunRow>(text.as_bytes(), "pso_runs.csv")
             .unwrap_err()
             .to_string();
@@ -430,7 +693,7 @@ mod tests {
             e.contains("pso_runs.csv") && e.contains("line 3") && e.contains("final_ln_det = \"twelve\": not a number"),
             "{e}"
         );
-        let e = parse_csv::<PsoRunRow>(b"run,evaluations\n0,3\n", "p")
+        let e = parse_csv::<PsoRunRow>(b"run,m,evaluations\n0,9,3\n", "p")
             .unwrap_err()
             .to_string();
         assert!(e.contains("final_ln_det"), "{e}");

@@ -9,32 +9,70 @@ fn cell(x: f64) -> String {
     if x.is_nan() { "-".into() } else { format!("{x:.3}") }
 }
 
-/// Designs with `ln det M_F` and D-efficiency; per cell the failed count and mean / median of each
-/// metric; the PSO runs' range; stage times; where it was written.
+/// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
+/// the outcome counts and the median of the main metrics beside their Cramer-Rao rms, with a
+/// warning line under a cell where fewer than 95 % of the trials are `ok`.
 pub fn summary(out: &RunOutput, dir: &Path) {
-    println!("{:<14} {:>10} {:>9}", "design", "ln det M_F", "D-eff");
+    println!(
+        "{:<14} {:>4} {:>10} {:>9}  verdict",
+        "design", "m", "ln det M_F", "D-eff"
+    );
     for (i, d) in out.designs.iter().enumerate() {
-        println!("{:<14} {:>10.4} {:>9.4}", d.name, d.ln_det_mf, out.d_efficiency(i));
+        let verdict = if d.verdict.identifiable {
+            "identifiable".to_string()
+        } else {
+            format!("NOT IDENTIFIABLE: {}", d.verdict.weakest)
+        };
+        println!(
+            "{:<14} {:>4} {:>10.4} {:>9.4}  {verdict}",
+            d.name,
+            d.attitudes.len(),
+            d.ln_det_mf,
+            out.d_efficiency(i)
+        );
     }
     if !out.cells.is_empty() {
         println!();
         println!(
-            "{:<14} {:>8} {:>7} {:>18} {:>18} {:>18}",
-            "design", "sigma_nt", "failed", "eta_psi mean/med %", "eta_S mean/med %", "eta_O mean/med %"
+            "{:<14} {:>9} {:>6} {:>6} {:>6} {:>17} {:>17} {:>17} {:>12}",
+            "design",
+            "sigma_nt",
+            "ok",
+            "n.conv",
+            "failed",
+            "eta_psi med/crb %",
+            "eta_S med/crb %",
+            "eta_O med/crb %",
+            "heading med"
         );
         for c in &out.cells {
-            let s = c
-                .summaries()
-                .map(|(_, s)| format!("{:>9}/{:<8}", cell(s.mean), cell(s.median)));
+            let s = c.summaries();
+            let o = c.outcomes();
+            let pair = |k: usize| {
+                let crb = s[k].0.predicted_rms(&c.bound).unwrap_or(f64::NAN);
+                format!("{:>8}/{:<8}", cell(s[k].1.median), cell(crb))
+            };
             println!(
-                "{:<14} {:>8} {:>7} {} {} {}",
+                "{:<14} {:>9} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
                 out.designs[c.design].name,
                 c.sigma_nt,
-                c.failed(),
-                s[0],
-                s[1],
-                s[2]
+                o.ok,
+                o.not_converged,
+                o.failed,
+                pair(0),
+                pair(1),
+                pair(2),
+                cell(s[6].1.median)
             );
+            if 100 * o.ok < 95 * c.trials.len() {
+                println!(
+                    "  warning: only {} of {} trials ok ({} not converged, {} failed); statistics are over the ok ones",
+                    o.ok,
+                    c.trials.len(),
+                    o.not_converged,
+                    o.failed
+                );
+            }
         }
     }
     if let Some(runs) = &out.pso_runs {
