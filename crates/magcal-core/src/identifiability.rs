@@ -140,7 +140,10 @@ impl CramerRao {
         let within = std.is_some_and(|s: [f64; 9]| (0..9).all(|i| s[i] <= d[i]));
         let verdict = Verdict {
             identifiable: within,
-            weakest: describe(&direction, std.as_ref(), &d, sigma_nt, within),
+            weakest: match &covariance {
+                Some(c) => describe_by_correlation(c, &d, sigma_nt, within),
+                None => describe(&direction, None, &d, sigma_nt, within),
+            },
             direction,
             std_in_scales,
         };
@@ -247,7 +250,40 @@ fn parameter_words(i: usize) -> String {
     }
 }
 
-/// The weakest direction in words, with the predicted std of its worst parameter.
+/// The weakest parameter in words (the largest std in units of its physical scale), with the
+/// parameter most correlated with it when the correlation exceeds 0.9 in magnitude: "scale and
+/// bias of sensor axis 2 (up) are confounded (correlation -0.9993); largest predicted std: ...".
+fn describe_by_correlation(cov: &[[f64; 9]; 9], scales: &[f64; 9], sigma_nt: f64, identifiable: bool) -> String {
+    let std: [f64; 9] = std::array::from_fn(|i| cov[i][i].max(0.0).sqrt());
+    let worst = (0..9)
+        .max_by(|&a, &b| (std[a] / scales[a]).total_cmp(&(std[b] / scales[b])))
+        .expect("nine");
+    let corr = |j: usize| cov[worst][j] / (std[worst] * std[j]);
+    let partner = (0..9)
+        .filter(|&j| j != worst && std[j] > 0.0)
+        .max_by(|&a, &b| corr(a).abs().total_cmp(&corr(b).abs()))
+        .filter(|&j| corr(j).abs() >= 0.9);
+    let names = match partner {
+        Some(j) if worst % 3 == j % 3 && (worst / 3).min(j / 3) == 1 && (worst / 3).max(j / 3) == 2 => {
+            format!("scale and bias of sensor axis {}", AXES[j % 3])
+        }
+        Some(j) => format!("{} and {}", parameter_words(worst), parameter_words(j)),
+        None => parameter_words(worst),
+    };
+    let correlation = partner.map_or(String::new(), |j| format!(" (correlation {:.4})", corr(j)));
+    let what = match (identifiable, partner) {
+        (true, _) => format!("weakest: {names}{correlation}"),
+        (false, Some(_)) => format!("{names} are confounded{correlation}"),
+        (false, None) => format!("{names} is not determined"),
+    };
+    format!(
+        "{what}; largest predicted std: {} {:.4} {} at {sigma_nt} nT",
+        PARAMETERS[worst], std[worst], UNITS[worst]
+    )
+}
+
+/// The weakest direction (an eigenvector of the information) in words, with the predicted std of
+/// its worst parameter: where the information is singular and there is no covariance.
 ///
 /// An identifiable design's weakest direction is named as such ("weakest: ..."); a design that is
 /// not identifiable has its parameters "confounded".

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Runs the vehicles that are not the paper's, writing results/<scenario>/:
+#   ship            rolls +-10, pitches +-5 deg: the up axis is the weak one; outcome counts matter
+#   ground-vehicle  roll and pitch +-1 deg: no design identifies the up axis's scale and bias
+#   drone           every attitude, a nominal sensor: absolute and heading errors
+# Extra arguments go to every `magcal run` (e.g. --threads 1).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release --locked -p magcal-runner
+for scenario in ship ground-vehicle drone; do
+  echo "== $scenario"
+  ./target/release/magcal run "scenarios/$scenario.toml" "$@"
+done
