@@ -87,10 +87,9 @@ fn monte_carlo(c: &mut Criterion) {
 }
 
 /// The Cramer-Rao bound and identifiability verdict of one design (target: 50 us for m = 9), and
-/// the heading error of one calibration over 360 yaws, with this crate's `atan2` and with the
-/// standard library's (the ratio justifies the former; see `heading.rs`).
+/// the heading error of one calibration over 360 yaws (part of every Monte Carlo trial).
 fn metrics(c: &mut Criterion) {
-    use magcal_core::heading::{HeadingProbe, YAWS};
+    use magcal_core::heading::HeadingProbe;
     use magcal_core::{CramerRao, PhysicalScales};
     let field = paper::changsha_field();
     let truth = paper::true_error_model();
@@ -105,25 +104,6 @@ fn metrics(c: &mut Criterion) {
     let (p, o) = (fit.estimate().p, fit.estimate().bias_nt);
     c.bench_function("heading_error/one_trial", |b| {
         b.iter(|| probe.error(black_box(&p), black_box(o)))
-    });
-    // The same loop with f64::atan2, for the comparison only.
-    let body: Vec<magcal_core::Vec3> = (0..YAWS)
-        .map(|k| field.body_field(&Attitude::from_degrees(0.0, k as f64, 0.0)))
-        .collect();
-    let s = truth.measure_all(&body);
-    c.bench_function("heading_error/one_trial_std_atan2", |b| {
-        b.iter(|| {
-            let (p, o) = (black_box(&p), black_box(o));
-            let mut sum = 0.0;
-            let mut max: f64 = 0.0;
-            for (s, t) in s.iter().zip(&body) {
-                let u = small::mat_vec(p, small::sub(*s, o));
-                let e = (t[0] * u[2] - t[2] * u[0]).atan2(t[0] * u[0] + t[2] * u[2]);
-                sum += e * e;
-                max = max.max(e.abs());
-            }
-            (sum, max)
-        })
     });
 }
 

@@ -7,16 +7,8 @@
 //! `e = atan2(b_hat_z, b_hat_x) - atan2(b_z, b_x)`, wrapped to (-180, 180]. Reported: its rms and
 //! maximum over the 360 yaws, degrees.
 //!
-//! # Deviation from the obvious code
 //! The error is computed as the angle from `(b_x, b_z)` to `(b_hat_x, b_hat_z)`,
-//! `atan2(cross, dot)`, which is the wrapped difference of the two headings in one call, with an
-//! `atan2` of this module ([`atan2`]) rather than `f64::atan2`. Every Monte Carlo trial evaluates
-//! 360 of them; the standard library's calls libm per value and does not vectorise, which made
-//! 1000 trials of the \[P1\] design 60 % slower (benchmark `heading error, one trial`: 7.1 us with
-//! `f64::atan2`, 1.2 us with [`atan2`]). [`atan2`] agrees with `f64::atan2` within `pi eps`
-//! (7e-16 rad; tested on a million points). No crate offers a vectorisable f64 `atan2` on stable Rust.
-
-use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+//! `atan2(cross, dot)`: the wrapped difference of the two headings in one call.
 
 use crate::attitude::Attitude;
 use crate::field::ReferenceField;
@@ -25,42 +17,6 @@ use crate::small::{Mat3, Vec3, dot};
 
 /// Yaws of the probe, one per degree.
 pub const YAWS: usize = 360;
-
-/// `tan(pi / 8)`.
-const TAN_PI_8: f64 = 0.414_213_562_373_095_03;
-
-/// Terms of the series of `atan` on `|u| <= tan(pi / 8)`: the first omitted term is below
-/// `tan(pi/8)^41 / 41 < 1e-17`.
-const TERMS: usize = 20;
-
-/// `atan2(y, x)` in `[-pi, pi]`, branch-free (selects only) so that loops over it vectorise.
-///
-/// The ratio `t = min(|x|, |y|) / max(|x|, |y|)` is reduced to `|u| <= tan(pi/8)` by
-/// `atan(t) = pi/4 + atan((t - 1) / (t + 1))` and `atan(u)` summed from its Taylor series,
-/// `sum (-1)^n u^(2n+1) / (2n+1)`, by Horner's rule in `u^2`. `atan2(0, 0) = 0`.
-#[inline]
-pub fn atan2(y: f64, x: f64) -> f64 {
-    let (ax, ay) = (x.abs(), y.abs());
-    let swap = ay > ax;
-    let (num, den) = if swap { (ax, ay) } else { (ay, ax) };
-    let t = if den > 0.0 { num / den } else { 0.0 };
-    let reduce = t > TAN_PI_8;
-    let u = if reduce { (t - 1.0) / (t + 1.0) } else { t };
-    let z = u * u;
-    let mut series = 0.0;
-    for n in (0..TERMS).rev() {
-        let c = if n % 2 == 0 { 1.0 } else { -1.0 } / (2 * n + 1) as f64;
-        series = series * z + c;
-    }
-    let mut a = u * series + if reduce { FRAC_PI_4 } else { 0.0 };
-    if swap {
-        a = FRAC_PI_2 - a;
-    }
-    if x < 0.0 {
-        a = PI - a;
-    }
-    a.copysign(y)
-}
 
 /// The heading error of one calibration: rms and maximum of `|e|` over the 360 yaws, degrees.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -102,7 +58,7 @@ impl HeadingProbe {
         for ((e, s), t) in e.iter_mut().zip(&self.readings).zip(&self.horizontal) {
             let ux = px[0] * s[0] + px[1] * s[1] + px[2] * s[2] - cx;
             let uz = pz[0] * s[0] + pz[1] * s[1] + pz[2] * s[2] - cz;
-            *e = atan2(t[0] * uz - t[1] * ux, t[0] * ux + t[1] * uz);
+            *e = (t[0] * uz - t[1] * ux).atan2(t[0] * ux + t[1] * uz);
         }
         let sum_sq: f64 = e.iter().map(|v| v * v).sum();
         let max = e.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
@@ -117,35 +73,6 @@ impl HeadingProbe {
 mod tests {
     use super::*;
     use crate::paper;
-    use crate::rng::stream_rng;
-    use rand::RngExt;
-
-    #[test]
-    fn atan2_agrees_with_the_standard_library() {
-        let mut rng = stream_rng(11, 0);
-        let mut worst: f64 = 0.0;
-        for i in 0..1_000_000 {
-            let scale = 10f64.powi(rng.random_range(-30..30));
-            let (y, x) = match i % 7 {
-                0 => (0.0, rng.random_range(-1.0..1.0)),
-                1 => (rng.random_range(-1.0..1.0), 0.0),
-                _ => (rng.random_range(-1.0..1.0) * scale, rng.random_range(-1.0..1.0)),
-            };
-            worst = worst.max((atan2(y, x) - y.atan2(x)).abs());
-        }
-        // One unit in the last place of a result of size pi.
-        assert!(worst <= PI * f64::EPSILON, "{worst:e}");
-        for (y, x) in [
-            (0.0, 0.0),
-            (0.0, -1.0),
-            (1.0, 0.0),
-            (-1.0, 0.0),
-            (1.0, 1.0),
-            (-1.0, -1.0),
-        ] {
-            assert!((atan2(y, x) - f64::atan2(y, x)).abs() <= PI * f64::EPSILON, "{y} {x}");
-        }
-    }
 
     #[test]
     fn conventions_check_values() {
