@@ -105,6 +105,9 @@ fn metrics(c: &mut Criterion) {
     c.bench_function("heading_error/one_trial", |b| {
         b.iter(|| probe.error(black_box(&p), black_box(o)))
     });
+    c.bench_function("heading_error/one_trial_one_atan2_per_yaw", |b| {
+        b.iter(|| probe.error_by_atan2(black_box(&p), black_box(o)))
+    });
 }
 
 criterion_group!(benches, two_step, kernels, monte_carlo, metrics);

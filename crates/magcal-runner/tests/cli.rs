@@ -294,3 +294,43 @@ fn plot_redraws_from_csv_and_names_a_bad_file() {
         "{stderr}"
     );
 }
+
+#[test]
+fn the_verdict_on_the_three_vehicles() {
+    use magcal_runner::output::DesignMetricsRow;
+    let tmp = TempDir::new().unwrap();
+    let verdicts = |scenario: &str| -> Vec<DesignMetricsRow> {
+        let out = tmp.path().join(scenario);
+        magcal()
+            .args(["design", "--quiet", "--out"])
+            .arg(&out)
+            .arg(scenarios().join(format!("{scenario}.toml")))
+            .assert()
+            .success();
+        read_csv(&out.join("design_metrics.csv")).unwrap()
+    };
+    // Level within a degree: no design identifies the up axis's scale and bias.
+    let ground = verdicts("ground-vehicle");
+    assert_eq!(ground.len(), 3);
+    for d in &ground {
+        assert!(!d.identifiable, "{}: {}", d.design, d.weakest);
+    }
+    let optimum = ground.iter().find(|d| d.design == "optimum12").unwrap();
+    assert!(
+        optimum
+            .weakest
+            .starts_with("scale and bias of sensor axis 2 (up) are confounded"),
+        "{}",
+        optimum.weakest
+    );
+    // Every attitude, a nominal sensor: identifiable.
+    assert!(verdicts("drone").iter().all(|d| d.identifiable));
+    // The ship: its optimised designs are identifiable, a random one is not; the best design of
+    // the run is identifiable.
+    let ship = verdicts("ship");
+    for (name, identifiable) in [("optimum9", true), ("optimum20", true), ("random20", false)] {
+        let d = ship.iter().find(|d| d.design == name).unwrap();
+        assert_eq!(d.identifiable, identifiable, "{name}: {}", d.weakest);
+    }
+    assert!(ship.iter().filter(|d| d.best_in_run).all(|d| d.identifiable));
+}
