@@ -175,9 +175,10 @@ mod tests {
             // From near the truth to absurd: P and O perturbed by 1e-6 to 10 relative.
             let spread = 10f64.powf(rng.random_range(-6.0..1.0));
             let mut p = truth.P();
-            for row in 0..3 {
-                for col in row..3 {
-                    p[row][col] += spread * rng.random_range(-1.0..1.0) * p[row][row];
+            for (i, row) in p.iter_mut().enumerate() {
+                let diagonal = row[i];
+                for v in &mut row[i..] {
+                    *v += spread * rng.random_range(-1.0..1.0) * diagonal;
                 }
             }
             let r = field.magnitude();
