@@ -77,6 +77,9 @@ pub struct Outcomes {
     /// Step 2 hit its iteration limit: an estimate exists but is not a minimum; not in the
     /// statistics.
     pub not_converged: usize,
+    /// The readings do not determine the estimate (step 2 ran along a flat direction, or its local
+    /// standard deviations exceed the physical scales); not in the statistics.
+    pub not_identifiable: usize,
     /// No estimate (no ellipsoid, rank deficient, non-finite input).
     pub failed: usize,
 }
@@ -88,6 +91,7 @@ impl Cell {
         Outcomes {
             ok: count(|s| *s == CalibrationStatus::Ok),
             not_converged: count(|s| *s == CalibrationStatus::NotConverged),
+            not_identifiable: count(|s| *s == CalibrationStatus::NotIdentifiable),
             failed: count(|s| !s.has_estimate()),
         }
     }
@@ -297,6 +301,11 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         for (d, built) in designs.iter().enumerate() {
             let body = scenario.field.body_fields(&built.attitudes);
             for (s, &sigma) in scenario.sigmas_nt.iter().enumerate() {
+                // Step 2's local identifiability check knows the noise of the cell.
+                let calibration = magcal_core::TwoStep {
+                    noise_nt: Some(sigma),
+                    ..scenario.calibration.clone()
+                };
                 let trials: Vec<TrialOutcome> = (0..scenario.trials)
                     .into_par_iter()
                     .map(|t| {
@@ -306,7 +315,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                             &body,
                             scenario.field.magnitude(),
                             sigma,
-                            &scenario.calibration,
+                            &calibration,
                             &probe,
                             &mut rng,
                         );

@@ -44,6 +44,7 @@ struct Stat {
     trials: usize,
     ok: usize,
     not_converged: usize,
+    not_identifiable: usize,
     failed: usize,
     values: Option<Values>,
 }
@@ -78,14 +79,19 @@ impl Stat {
             trials: row.trials,
             ok: row.ok,
             not_converged: row.not_converged,
+            not_identifiable: row.not_identifiable,
             failed: row.failed,
             values,
         }
     }
 
-    /// The design with its outcome counts: `pso (ok 196, n.c. 0, failed 4)`.
+    /// The design with its outcome counts: `pso (ok 196, n.c. 0, n.i. 0, failed 4)` (not
+    /// converged, not identifiable).
     fn label(&self) -> String {
-        let counts = format!("ok {}, n.c. {}, failed {}", self.ok, self.not_converged, self.failed);
+        let counts = format!(
+            "ok {}, n.c. {}, n.i. {}, failed {}",
+            self.ok, self.not_converged, self.not_identifiable, self.failed
+        );
         match self.values {
             Some(_) => format!("{} ({counts})", self.design),
             None => format!("{} (no value; {counts})", self.design),

@@ -65,9 +65,13 @@ fn run_writes_every_file_with_the_expected_rows() {
             .filter(|t| t.design == row.design && t.sigma_nt == row.sigma_nt)
             .collect();
         let count = |s: CalibrationStatus| cell.iter().filter(|t| t.status.0 == s).count();
-        assert_eq!(row.ok + row.not_converged + row.failed, row.trials);
+        assert_eq!(
+            row.ok + row.not_converged + row.not_identifiable + row.failed,
+            row.trials
+        );
         assert_eq!(row.ok, count(CalibrationStatus::Ok));
         assert_eq!(row.not_converged, count(CalibrationStatus::NotConverged));
+        assert_eq!(row.not_identifiable, count(CalibrationStatus::NotIdentifiable));
         assert_eq!(row.failed, cell.iter().filter(|t| t.eta_psi.is_none()).count());
         // The Cramer-Rao prediction sits beside every relative error.
         assert!(row.crb_rms.is_some_and(|v| v.0 > 0.0));

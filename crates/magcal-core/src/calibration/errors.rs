@@ -53,6 +53,9 @@ pub enum CalibrationStatus {
     Ok,
     /// Both steps produced estimates, but step 2 reached its iteration limit.
     NotConverged,
+    /// Both steps produced estimates, but the readings do not determine them: step 2 ran along a
+    /// flat direction, or its local standard deviations exceed the physical scales.
+    NotIdentifiable,
     /// [`CalibrationError::TooFewReadings`].
     TooFewReadings,
     /// [`CalibrationError::NonFiniteReading`] or [`CalibrationError::InvalidFieldMagnitude`].
@@ -70,6 +73,7 @@ impl CalibrationStatus {
         match self {
             Self::Ok => "ok",
             Self::NotConverged => "not_converged",
+            Self::NotIdentifiable => "not_identifiable",
             Self::TooFewReadings => "too_few_readings",
             Self::NonFiniteInput => "non_finite_input",
             Self::RankDeficient => "rank_deficient",
@@ -78,9 +82,10 @@ impl CalibrationStatus {
     }
 
     /// Every status, in the order of [`Self::as_str`]'s match.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 7] = [
         Self::Ok,
         Self::NotConverged,
+        Self::NotIdentifiable,
         Self::TooFewReadings,
         Self::NonFiniteInput,
         Self::RankDeficient,
@@ -94,7 +99,7 @@ impl CalibrationStatus {
 
     /// `true` when the calibration produced estimates (`Ok` or `NotConverged`).
     pub fn has_estimate(&self) -> bool {
-        matches!(self, Self::Ok | Self::NotConverged)
+        matches!(self, Self::Ok | Self::NotConverged | Self::NotIdentifiable)
     }
 }
 

@@ -30,21 +30,30 @@ pub enum Termination {
     CostReduction,
     /// The iteration limit was reached before any convergence test passed.
     MaxIterations,
+    /// The iterate moves along a direction the readings do not determine: its local standard
+    /// deviation exceeds a physical scale (see [`locally_identifiable`]). Checked every
+    /// [`FLAT_CHECK_EVERY`] iterations from the [`FLAT_CHECK_FROM`]-th: a fit that needs that many
+    /// iterations is typically running along such a valley, where the least-squares minimum of
+    /// noisy readings can lie at infinity (the ship of `scenarios/ship.toml`).
+    FlatDirection,
 }
 
 impl Termination {
-    /// `true` for the three convergence tests, `false` for the iteration limit.
+    /// `true` for the three convergence tests, `false` for the iteration limit and a flat
+    /// direction.
     pub fn converged(&self) -> bool {
-        !matches!(self, Self::MaxIterations)
+        !matches!(self, Self::MaxIterations | Self::FlatDirection)
     }
 
-    /// A stable snake_case name: `gradient`, `step_size`, `cost_reduction`, `max_iterations`.
+    /// A stable snake_case name: `gradient`, `step_size`, `cost_reduction`, `max_iterations`,
+    /// `flat_direction`.
     pub fn as_str(&self) -> &'static str {
         match self {
             Self::Gradient => "gradient",
             Self::StepSize => "step_size",
             Self::CostReduction => "cost_reduction",
             Self::MaxIterations => "max_iterations",
+            Self::FlatDirection => "flat_direction",
         }
     }
 }
@@ -113,11 +122,76 @@ fn normal_equations(x: &[f64; PARAMETERS], u: &[Vec3]) -> ([[f64; PARAMETERS]; P
     (jtj, jtr)
 }
 
+/// First iteration at which step 2 checks for a flat direction; healthy fits have converged by
+/// then (12 to 20 iterations on the \[P1\] AUV and the ship, measured).
+pub const FLAT_CHECK_FROM: usize = 20;
+/// Iterations between two checks for a flat direction.
+pub const FLAT_CHECK_EVERY: usize = 10;
+
+/// Physical scales of the local check, as [`crate::PhysicalScales`]'s defaults: a scale factor's
+/// std at most half of it (the diagonal of `P`), a non-orthogonality's at most 10 degrees (an
+/// off-diagonal entry of `P` against its row's diagonal: `tan 10 deg`), a bias's at most `|B|`
+/// (the scaled bias `o = O / R`: 1).
+const LOCAL_SCALES: [f64; 3] = [0.5, 0.176_326_980_708_464_97, 1.0];
+
+/// Whether the readings determine every parameter near `x`: the local covariance
+/// `var_r (J^T J)^-1` (scaled problem, `var_r` the variance of one scaled residual) has every
+/// standard deviation within its physical scale ([`LOCAL_SCALES`]). `false` when `J^T J` is
+/// singular.
+pub(crate) fn locally_identifiable(jtj: &[[f64; PARAMETERS]; PARAMETERS], x: &[f64; PARAMETERS], var_r: f64) -> bool {
+    let mut l = *jtj;
+    for i in 0..PARAMETERS {
+        for j in i + 1..PARAMETERS {
+            l[i][j] = l[j][i];
+        }
+    }
+    if !cholesky_in_place(&mut l) {
+        return false;
+    }
+    // Diagonal of the inverse: solve for each unit vector.
+    let std = |i: usize| {
+        let mut e = [0.0; PARAMETERS];
+        e[i] = 1.0;
+        (var_r * cholesky_solve(&l, &e)[i]).max(0.0).sqrt()
+    };
+    // x = (P11, P12, P13, P22, P23, P33, o1, o2, o3).
+    let (diagonal, off) = ([0, 3, 5], [(1, 0), (2, 0), (4, 3)]);
+    diagonal.iter().all(|&i| std(i) <= LOCAL_SCALES[0] * x[i].abs())
+        && off.iter().all(|&(i, row)| std(i) <= LOCAL_SCALES[1] * x[row].abs())
+        && (6..9).all(|i| std(i) <= LOCAL_SCALES[2])
+}
+
+/// The variance of one scaled residual: from the known noise (`sigma / R` times the mean of
+/// `|grad_b r|^2`, CONVENTIONS.md), else from the residuals (`2 f / (m - 9)`), else (9 readings
+/// and no known noise: an exact fit) none.
+fn residual_variance(settings: &TwoStep, x: &[f64; PARAMETERS], u: &[Vec3], f: f64, r: f64) -> Option<f64> {
+    match settings.noise_nt {
+        Some(sigma) => {
+            let (P, o) = unpack(x);
+            let mean_g2 = u
+                .iter()
+                .map(|&ui| {
+                    let v = mat_vec(&P, sub(ui, o));
+                    let g = mat_t_vec(&P, scale(1.0 / norm(v), v));
+                    g.iter().map(|c| c * c).sum::<f64>()
+                })
+                .sum::<f64>()
+                / u.len() as f64;
+            Some((sigma / r).powi(2) * mean_g2)
+        }
+        None if u.len() > PARAMETERS => Some(2.0 * f / (u.len() - PARAMETERS) as f64),
+        None => None,
+    }
+}
+
 /// The outcome of step 2.
 pub(crate) struct Refined {
     pub estimate: Estimate,
     pub iterations: usize,
     pub termination: Termination,
+    /// Whether the readings determine every parameter at the estimate (`None`: not known, an
+    /// exact fit of 9 readings without a known noise).
+    pub identifiable: Option<bool>,
 }
 
 /// Levenberg-Marquardt from `start` (step 1), with Marquardt's diagonal scaling and Nielsen's
@@ -144,6 +218,13 @@ pub(crate) fn refine(
         }
         if iterations >= settings.max_iterations {
             break Termination::MaxIterations;
+        }
+        if iterations >= FLAT_CHECK_FROM
+            && (iterations - FLAT_CHECK_FROM).is_multiple_of(FLAT_CHECK_EVERY)
+            && let Some(var_r) = residual_variance(settings, &x, &u, f, R)
+            && !locally_identifiable(&jtj, &x, var_r)
+        {
+            break Termination::FlatDirection;
         }
         iterations += 1;
         // (J^T J + mu diag(J^T J)) h = -J^T r
@@ -189,6 +270,7 @@ pub(crate) fn refine(
         }
     };
 
+    let identifiable = residual_variance(settings, &x, &u, f, R).map(|var_r| locally_identifiable(&jtj, &x, var_r));
     // |P d| is unchanged when a row of P changes sign; keep the positive-diagonal representative.
     let (mut P, o) = unpack(&x);
     for row in P.iter_mut() {
@@ -200,5 +282,6 @@ pub(crate) fn refine(
         estimate,
         iterations,
         termination,
+        identifiable,
     })
 }

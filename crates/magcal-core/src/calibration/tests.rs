@@ -227,3 +227,47 @@ fn non_finite_input_is_an_error() {
         assert!(matches!(err, CalibrationError::InvalidFieldMagnitude { .. }));
     }
 }
+
+#[test]
+fn readings_that_do_not_determine_the_fit_are_not_identifiable() {
+    use crate::calibration::CalibrationStatus;
+    use crate::rng::stream_rng;
+    // Level, twelve headings: the up axis never turns against the field.
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let level: Vec<Attitude> = (0..12)
+        .map(|i| Attitude::from_degrees(0.0, 30.0 * i as f64, 0.0))
+        .collect();
+    let settings = TwoStep {
+        noise_nt: Some(30.0),
+        ..TwoStep::default()
+    };
+    let mut statuses = Vec::new();
+    for t in 0..200 {
+        let readings = truth
+            .noisy_readings(&field.body_fields(&level), 30.0, &mut stream_rng(31, t))
+            .unwrap();
+        let status = match settings.calibrate(&readings, field.magnitude()) {
+            Ok(fit) => fit.status(),
+            Err(e) => e.status(),
+        };
+        statuses.push(status);
+    }
+    // Never `ok`: either no ellipsoid, or one that the readings do not determine.
+    assert!(statuses.iter().all(|s| *s != CalibrationStatus::Ok), "{statuses:?}");
+    assert!(statuses.contains(&CalibrationStatus::NotIdentifiable));
+
+    // A well-spread design at the same noise: every trial ok and locally identifiable.
+    let spread = crate::design::sources::random(&crate::attitude::AttitudeBox::full(), 20, &mut stream_rng(32, 0));
+    for t in 0..200 {
+        let readings = truth
+            .noisy_readings(&field.body_fields(&spread), 30.0, &mut stream_rng(33, t))
+            .unwrap();
+        let fit = settings.calibrate(&readings, field.magnitude()).unwrap();
+        assert_eq!(
+            (fit.status(), fit.identifiable),
+            (CalibrationStatus::Ok, Some(true)),
+            "trial {t}"
+        );
+    }
+}

@@ -196,6 +196,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             for (quantity, bc, nc) in [
                 ("ok", b.ok, n.ok),
                 ("not_converged", b.not_converged, n.not_converged),
+                ("not_identifiable", b.not_identifiable, n.not_identifiable),
                 ("failed", b.failed, n.failed),
             ] {
                 f.value(
@@ -402,15 +403,15 @@ fn baseline_consistency(f: &mut Findings, summary: &[SummaryRow], trials: &[Tria
             continue;
         };
         let ok: Vec<&&TrialRow> = rows.iter().filter(|t| t.status.0 == CalibrationStatus::Ok).collect();
-        let not_converged = rows
-            .iter()
-            .filter(|t| t.status.0 == CalibrationStatus::NotConverged)
-            .count();
+        let count = |status: CalibrationStatus| rows.iter().filter(|t| t.status.0 == status).count();
+        let not_converged = count(CalibrationStatus::NotConverged);
+        let not_identifiable = count(CalibrationStatus::NotIdentifiable);
         let failed = rows.iter().filter(|t| !t.status.0.has_estimate()).count();
         f.value(&key, "trials", Some(row.trials as f64), Some(rows.len() as f64), 0.0);
         for (quantity, b, n) in [
             ("ok", row.ok, ok.len()),
             ("not_converged", row.not_converged, not_converged),
+            ("not_identifiable", row.not_identifiable, not_identifiable),
             ("failed", row.failed, failed),
         ] {
             f.value(&key, quantity, Some(b as f64), Some(n as f64), 0.0);

@@ -159,7 +159,7 @@ impl Metric {
 }
 
 /// `summary.csv`: one row per design, noise level and metric. The trials' outcome counts
-/// (`ok + not_converged + failed = trials`); statistics over the `ok` trials that produced the
+/// (`ok + not_converged + not_identifiable + failed = trials`); statistics over the `ok` trials that produced the
 /// metric; `rms` of those values; `crb_rms`, the Cramer-Rao prediction of that rms. Empty where
 /// undefined.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -169,6 +169,7 @@ pub struct SummaryRow {
     pub trials: usize,
     pub ok: usize,
     pub not_converged: usize,
+    pub not_identifiable: usize,
     pub failed: usize,
     pub metric: Metric,
     pub mean: Option<Real>,
@@ -391,6 +392,7 @@ pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
                 trials: cell.trials.len(),
                 ok: o.ok,
                 not_converged: o.not_converged,
+                not_identifiable: o.not_identifiable,
                 failed: o.failed,
                 metric,
                 mean: defined(s.mean),
@@ -635,6 +637,7 @@ mod tests {
                 "trials",
                 "ok",
                 "not_converged",
+                "not_identifiable",
                 "failed",
                 "metric",
                 "mean",
@@ -663,6 +666,7 @@ mod tests {
             failed: 1,
             ok: 9,
             not_converged: 0,
+            not_identifiable: 0,
             metric: Metric::EtaO,
             mean: Some(Real(0.1 + 0.2)),
             std: None,
@@ -677,7 +681,7 @@ mod tests {
         let text = String::from_utf8(bytes.clone()).unwrap();
         assert_eq!(
             text.lines().nth(1),
-            Some("u,30,10,9,0,1,eta_o,0.30000000000000004,,inf,-0,2.5,,,1")
+            Some("u,30,10,9,0,0,1,eta_o,0.30000000000000004,,inf,-0,2.5,,,1")
         );
         let back: Vec<SummaryRow> = parse_csv(&bytes, "x").unwrap();
         assert_eq!(back, [row]);

@@ -34,11 +34,12 @@ pub fn summary(out: &RunOutput, dir: &Path) {
     if !out.cells.is_empty() {
         println!();
         println!(
-            "{:<14} {:>9} {:>6} {:>6} {:>6} {:>17} {:>17} {:>17} {:>12}",
+            "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {:>17} {:>17} {:>17} {:>12}",
             "design",
             "sigma_nt",
             "ok",
             "n.conv",
+            "n.ident",
             "failed",
             "eta_psi med/crb %",
             "eta_S med/crb %",
@@ -53,11 +54,12 @@ pub fn summary(out: &RunOutput, dir: &Path) {
                 format!("{:>8}/{:<8}", cell(s[k].1.median), cell(crb))
             };
             println!(
-                "{:<14} {:>9} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
+                "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
                 out.designs[c.design].name,
                 c.sigma_nt,
                 o.ok,
                 o.not_converged,
+                o.not_identifiable,
                 o.failed,
                 pair(0),
                 pair(1),
@@ -66,10 +68,11 @@ pub fn summary(out: &RunOutput, dir: &Path) {
             );
             if 100 * o.ok < 95 * c.trials.len() {
                 println!(
-                    "  warning: only {} of {} trials ok ({} not converged, {} failed); statistics are over the ok ones",
+                    "  warning: only {} of {} trials ok ({} not converged, {} not identifiable, {} failed); statistics are over the ok ones",
                     o.ok,
                     c.trials.len(),
                     o.not_converged,
+                    o.not_identifiable,
                     o.failed
                 );
             }
