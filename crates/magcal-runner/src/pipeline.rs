@@ -156,12 +156,11 @@ impl RunOutput {
         }
     }
 
-    /// Whether design `i` is the reference of [`Self::best_ln_det_per_reading`].
+    /// Whether design `i` is the best of the run: identifiable, with the most information per
+    /// reading. Never a design that is not identifiable (with none identifiable, none is best).
     pub fn is_best(&self, i: usize) -> bool {
         let d = &self.designs[i];
-        let any_identifiable = self.designs.iter().any(|d| d.verdict.identifiable);
-        (d.verdict.identifiable || !any_identifiable)
-            && d.ln_det_per_reading().to_bits() == self.best_ln_det_per_reading().to_bits()
+        d.verdict.identifiable && d.ln_det_per_reading().to_bits() == self.best_ln_det_per_reading().to_bits()
     }
 
     /// The Table III reference design, if the scenario has one named `uniform`.
