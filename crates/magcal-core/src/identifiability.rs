@@ -346,21 +346,6 @@ mod tests {
     use crate::attitude::Attitude;
     use crate::paper;
 
-    fn optimum_of_conventions() -> Vec<Attitude> {
-        [
-            [-5.0, -39.440, -20.0],
-            [-5.0, -124.369, 20.0],
-            [-5.0, 30.364, 20.0],
-            [-4.243, 174.298, -10.117],
-            [3.778, -0.309, -3.253],
-            [5.0, 37.236, -20.0],
-            [5.0, 93.384, 7.939],
-            [5.0, -58.296, 20.0],
-            [5.0, 157.595, 20.0],
-        ]
-        .map(|[r, y, p]| Attitude::from_degrees(r, y, p))
-        .to_vec()
-    }
 
     fn bound(yaw_offset: f64, design: &[Attitude]) -> CramerRao {
         let field = paper::changsha_field().with_yaw_offset_deg(yaw_offset).unwrap();
@@ -401,7 +386,7 @@ mod tests {
             ),
             (
                 0.0,
-                optimum_of_conventions(),
+                paper::conventions_optimum(),
                 [10.69, 0.684, 5.92],
                 [2, 3, 2],
                 [0.1845, 0.0450, 0.1390, 0.00500, 0.01079, 0.00530, 78.0, 479.1, 99.1],

@@ -65,6 +65,22 @@ pub fn attitudes_from_degrees(rows: &[[f64; 3]]) -> Vec<Attitude> {
     rows.iter().map(|&[r, y, p]| Attitude::from_degrees(r, y, p)).collect()
 }
 
+/// The D-optimal design of the AUV box (m = 9, yaw offset 0) that CONVENTIONS.md "Identifiability
+/// and the Cramer-Rao floor" uses for its check values (angles to 3 decimals).
+pub fn conventions_optimum() -> Vec<Attitude> {
+    attitudes_from_degrees(&[
+        [-5.0, -39.440, -20.0],
+        [-5.0, -124.369, 20.0],
+        [-5.0, 30.364, 20.0],
+        [-4.243, 174.298, -10.117],
+        [3.778, -0.309, -3.253],
+        [5.0, 37.236, -20.0],
+        [5.0, 93.384, 7.939],
+        [5.0, -58.296, 20.0],
+        [5.0, 157.595, 20.0],
+    ])
+}
+
 /// \[P1\] Table II, Uniformity design.
 pub fn uniformity_design() -> Vec<Attitude> {
     attitudes_from_degrees(&UNIFORMITY_DESIGN_DEG)

@@ -10,21 +10,6 @@ use magcal_core::monte_carlo::trial;
 use magcal_core::rng::stream_rng;
 use magcal_core::{CramerRao, PhysicalScales, TwoStep, paper};
 
-fn optimum_of_conventions() -> Vec<Attitude> {
-    [
-        [-5.0, -39.440, -20.0],
-        [-5.0, -124.369, 20.0],
-        [-5.0, 30.364, 20.0],
-        [-4.243, 174.298, -10.117],
-        [3.778, -0.309, -3.253],
-        [5.0, 37.236, -20.0],
-        [5.0, 93.384, 7.939],
-        [5.0, -58.296, 20.0],
-        [5.0, 157.595, 20.0],
-    ]
-    .map(|[r, y, p]| Attitude::from_degrees(r, y, p))
-    .to_vec()
-}
 
 /// The estimates `(psi_deg, S, O_nt)` minus the truth, of `n` trials.
 fn errors(yaw_offset: f64, design: &[Attitude], sigma: f64, n: u64, seed: u64) -> (Vec<[f64; 9]>, CramerRao) {
@@ -56,7 +41,7 @@ fn errors(yaw_offset: f64, design: &[Attitude], sigma: f64, n: u64, seed: u64) -
 #[test]
 fn at_one_nanotesla_the_covariance_is_the_bound() {
     let n = 4000;
-    for (offset, design) in [(90.0, paper::uniformity_design()), (0.0, optimum_of_conventions())] {
+    for (offset, design) in [(90.0, paper::uniformity_design()), (0.0, paper::conventions_optimum())] {
         let (e, bound) = errors(offset, &design, 1.0, n, 7);
         let cov = bound.covariance.unwrap();
         // Each variance: a sample variance has relative standard error sqrt(2 / (n - 1)).
@@ -96,7 +81,7 @@ fn at_thirty_nanotesla_the_rms_relative_errors_are_within_five_percent_of_the_bo
     let n = 4000;
     let truth = paper::true_error_model();
     let t = [truth.psi_deg(), truth.scale(), truth.bias_nt()];
-    for (offset, design) in [(90.0, paper::uniformity_design()), (0.0, optimum_of_conventions())] {
+    for (offset, design) in [(90.0, paper::uniformity_design()), (0.0, paper::conventions_optimum())] {
         let (e, bound) = errors(offset, &design, 30.0, n, 8);
         let predicted = bound.rms_eta().map(Option::unwrap);
         for g in 0..3 {
