@@ -346,7 +346,6 @@ mod tests {
     use crate::attitude::Attitude;
     use crate::paper;
 
-
     fn bound(yaw_offset: f64, design: &[Attitude]) -> CramerRao {
         let field = paper::changsha_field().with_yaw_offset_deg(yaw_offset).unwrap();
         CramerRao::new(

@@ -10,7 +10,6 @@ use magcal_core::monte_carlo::trial;
 use magcal_core::rng::stream_rng;
 use magcal_core::{CramerRao, PhysicalScales, TwoStep, paper};
 
-
 /// The estimates `(psi_deg, S, O_nt)` minus the truth, of `n` trials.
 fn errors(yaw_offset: f64, design: &[Attitude], sigma: f64, n: u64, seed: u64) -> (Vec<[f64; 9]>, CramerRao) {
     let field = paper::changsha_field().with_yaw_offset_deg(yaw_offset).unwrap();
