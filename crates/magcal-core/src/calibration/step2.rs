@@ -31,7 +31,7 @@ pub enum Termination {
     /// The iteration limit was reached before any convergence test passed.
     MaxIterations,
     /// The iterate moves along a direction the readings do not determine: its local standard
-    /// deviation exceeds a physical scale (see [`locally_identifiable`]). Checked every
+    /// deviation exceeds a physical scale (a scale factor's half, 10 degrees, |B|). Checked every
     /// [`FLAT_CHECK_EVERY`] iterations from the [`FLAT_CHECK_FROM`]-th: a fit that needs that many
     /// iterations is typically running along such a valley, where the least-squares minimum of
     /// noisy readings can lie at infinity (the ship of `scenarios/ship.toml`).
