@@ -60,7 +60,11 @@ fn monte_carlo(c: &mut Criterion) {
     let field = paper::changsha_field();
     let truth = paper::true_error_model();
     let body = field.body_fields(&paper::uniformity_design());
-    let settings = TwoStep::default();
+    // As the runner calibrates: the cell's noise known to step 2's local check.
+    let settings = TwoStep {
+        noise_nt: Some(30.0),
+        ..TwoStep::default()
+    };
     let probe = magcal_core::heading::HeadingProbe::new(&field, &truth);
     let mut group = c.benchmark_group("monte_carlo");
     group.sample_size(20);

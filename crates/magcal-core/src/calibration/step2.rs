@@ -148,12 +148,17 @@ pub(crate) fn locally_identifiable(jtj: &[[f64; PARAMETERS]; PARAMETERS], x: &[f
     if !cholesky_in_place(&mut l) {
         return false;
     }
-    // Diagonal of the inverse: solve for each unit vector.
-    let std = |i: usize| {
-        let mut e = [0.0; PARAMETERS];
-        e[i] = 1.0;
-        (var_r * cholesky_solve(&l, &e)[i]).max(0.0).sqrt()
-    };
+    // Diagonal of the inverse: (J^T J)^-1 = L^-T L^-1, so its i-th diagonal entry is the squared
+    // norm of column i of M = L^-1 (lower triangular, by forward substitution).
+    let mut m = [[0.0; PARAMETERS]; PARAMETERS];
+    for i in 0..PARAMETERS {
+        m[i][i] = 1.0 / l[i][i];
+        for j in 0..i {
+            let s: f64 = (j..i).map(|k| l[i][k] * m[k][j]).sum();
+            m[i][j] = -s / l[i][i];
+        }
+    }
+    let std = |j: usize| (var_r * (j..PARAMETERS).map(|i| m[i][j] * m[i][j]).sum::<f64>()).sqrt();
     // x = (P11, P12, P13, P22, P23, P33, o1, o2, o3).
     let (diagonal, off) = ([0, 3, 5], [(1, 0), (2, 0), (4, 3)]);
     diagonal.iter().all(|&i| std(i) <= LOCAL_SCALES[0] * x[i].abs())
