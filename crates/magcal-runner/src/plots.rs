@@ -85,16 +85,16 @@ impl Stat {
         }
     }
 
-    /// The design with its outcome counts: `pso (ok 196, n.c. 0, n.i. 0, failed 4)` (not
-    /// converged, not identifiable).
+    /// The design with its outcome counts, ok / not converged / not identifiable / failed:
+    /// `pso (196/0/0/4)`, with `, no value` when no trial gave the metric.
     fn label(&self) -> String {
         let counts = format!(
-            "ok {}, n.c. {}, n.i. {}, failed {}",
+            "{}/{}/{}/{}",
             self.ok, self.not_converged, self.not_identifiable, self.failed
         );
         match self.values {
             Some(_) => format!("{} ({counts})", self.design),
-            None => format!("{} (no value; {counts})", self.design),
+            None => format!("{} ({counts}, no value)", self.design),
         }
     }
 }
@@ -388,7 +388,7 @@ where
     }
     // A legend drawn as text: what each mark means.
     root.draw(&Text::new(
-        "bar: 5th-95th percentile   white: median   dot: mean   whisker: mean +- std",
+        "bar: 5th-95th percentile   white: median   dot: mean   whisker: mean +- std   (trials: ok/not converged/not identifiable/failed)",
         (100, (SIZE.1 - 20) as i32),
         (FONT, 15).into_font(),
     ))
