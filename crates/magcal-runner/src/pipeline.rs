@@ -96,15 +96,10 @@ impl Cell {
         }
     }
 
-    /// Failed trials (no estimate).
-    pub fn failed(&self) -> usize {
-        self.outcomes().failed
-    }
-
     /// Statistics of every metric, in the order of [`Metric::ALL`], over the `ok` trials that
     /// produced the metric (a relative error of a zero truth has none: every statistic undefined).
     /// `failed` beside them counts every trial that is not `ok`.
-    pub fn summaries(&self) -> Vec<(Metric, Summary)> {
+    pub fn summaries(&self) -> Vec<MetricStats> {
         let ok: Vec<&TrialOutcome> = self
             .trials
             .iter()
@@ -115,10 +110,26 @@ impl Cell {
             .iter()
             .map(|&metric| {
                 let v: Vec<f64> = ok.iter().filter_map(|t| metric.of(t)).collect();
-                (metric, Summary::new(&v, not_counted))
+                let rms = (!v.is_empty()).then(|| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt());
+                MetricStats {
+                    metric,
+                    summary: Summary::new(&v, not_counted),
+                    rms,
+                }
             })
             .collect()
     }
+}
+
+/// The statistics of one metric over a cell's `ok` trials.
+#[derive(Debug, Clone, Copy)]
+pub struct MetricStats {
+    /// Which metric.
+    pub metric: Metric,
+    /// Mean, std, percentiles, standard error.
+    pub summary: Summary,
+    /// Root mean square of the values; `None` without any.
+    pub rms: Option<f64>,
 }
 
 /// Everything a run produces, before it is written anywhere.

@@ -377,15 +377,8 @@ pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
     out.cells.iter().flat_map(move |cell| {
         let design = &out.designs[cell.design].name;
         let o = cell.outcomes();
-        let ok: Vec<_> = cell
-            .trials
-            .iter()
-            .filter(|t| t.status == magcal_core::CalibrationStatus::Ok)
-            .collect();
-        cell.summaries().into_iter().map(move |(metric, s)| {
-            let values: Vec<f64> = ok.iter().filter_map(|t| metric.of(t)).collect();
-            let rms =
-                (!values.is_empty()).then(|| (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt());
+        cell.summaries().into_iter().map(move |m| {
+            let s = m.summary;
             SummaryRow {
                 design: design.clone(),
                 sigma_nt: Real(cell.sigma_nt),
@@ -394,15 +387,15 @@ pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
                 not_converged: o.not_converged,
                 not_identifiable: o.not_identifiable,
                 failed: o.failed,
-                metric,
+                metric: m.metric,
                 mean: defined(s.mean),
                 std: defined(s.std),
                 median: defined(s.median),
                 p05: defined(s.p05),
                 p95: defined(s.p95),
                 se_mean: defined(s.se_mean),
-                rms: rms.and_then(defined),
-                crb_rms: metric.predicted_rms(&cell.bound).and_then(defined),
+                rms: m.rms.and_then(defined),
+                crb_rms: m.metric.predicted_rms(&cell.bound).and_then(defined),
             }
         })
     })

@@ -50,8 +50,8 @@ pub fn summary(out: &RunOutput, dir: &Path) {
             let s = c.summaries();
             let o = c.outcomes();
             let pair = |k: usize| {
-                let crb = s[k].0.predicted_rms(&c.bound).unwrap_or(f64::NAN);
-                format!("{:>8}/{:<8}", cell(s[k].1.median), cell(crb))
+                let crb = s[k].metric.predicted_rms(&c.bound).unwrap_or(f64::NAN);
+                format!("{:>8}/{:<8}", cell(s[k].summary.median), cell(crb))
             };
             println!(
                 "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
@@ -64,7 +64,7 @@ pub fn summary(out: &RunOutput, dir: &Path) {
                 pair(0),
                 pair(1),
                 pair(2),
-                cell(s[6].1.median)
+                cell(s[6].summary.median)
             );
             if 100 * o.ok < 95 * c.trials.len() {
                 println!(
