@@ -142,7 +142,7 @@ impl CramerRao {
             identifiable: within,
             weakest: match &covariance {
                 Some(c) => describe_by_correlation(c, &d, sigma_nt, within),
-                None => describe(&direction, None, &d, sigma_nt, within),
+                None => describe_singular(&direction),
             },
             direction,
             std_in_scales,
@@ -263,13 +263,7 @@ fn describe_by_correlation(cov: &[[f64; 9]; 9], scales: &[f64; 9], sigma_nt: f64
         .filter(|&j| j != worst && std[j] > 0.0)
         .max_by(|&a, &b| corr(a).abs().total_cmp(&corr(b).abs()))
         .filter(|&j| corr(j).abs() >= 0.9);
-    let names = match partner {
-        Some(j) if worst % 3 == j % 3 && (worst / 3).min(j / 3) == 1 && (worst / 3).max(j / 3) == 2 => {
-            format!("scale and bias of sensor axis {}", AXES[j % 3])
-        }
-        Some(j) => format!("{} and {}", parameter_words(worst), parameter_words(j)),
-        None => parameter_words(worst),
-    };
+    let (names, _) = name_parameters(&[Some(worst), partner].into_iter().flatten().collect::<Vec<_>>());
     let correlation = partner.map_or(String::new(), |j| format!(" (correlation {:.4})", corr(j)));
     let what = match (identifiable, partner) {
         (true, _) => format!("weakest: {names}{correlation}"),
@@ -282,61 +276,44 @@ fn describe_by_correlation(cov: &[[f64; 9]; 9], scales: &[f64; 9], sigma_nt: f64
     )
 }
 
-/// The weakest direction (an eigenvector of the information) in words, with the predicted std of
-/// its worst parameter: where the information is singular and there is no covariance.
-///
-/// An identifiable design's weakest direction is named as such ("weakest: ..."); a design that is
-/// not identifiable has its parameters "confounded".
-fn describe(
-    direction: &[f64; 9],
-    std: Option<&[f64; 9]>,
-    scales: &[f64; 9],
-    sigma_nt: f64,
-    identifiable: bool,
-) -> String {
+/// The weakest direction (an eigenvector of a singular information) in words: its components
+/// that carry at least 4 % of its squared length, at most three.
+fn describe_singular(direction: &[f64; 9]) -> String {
     let mut order: Vec<usize> = (0..9).collect();
     order.sort_by(|&a, &b| direction[b].abs().total_cmp(&direction[a].abs()));
     let top: Vec<usize> = order
         .iter()
         .copied()
         .take(3)
-        // A component that carries at least 4 % of the direction's squared length.
         .filter(|&i| direction[i].abs() >= 0.2)
         .collect();
     let top = if top.is_empty() { vec![order[0]] } else { top };
-    // A scale and the bias of the same axis in the direction: the classic confusion of an axis
-    // that barely turns against the field.
-    let pair = (0..3).find(|k| top.contains(&(3 + k)) && top.contains(&(6 + k)));
-    let others: Vec<String> = top
+    let (names, with) = name_parameters(&top);
+    let verb = if top.len() == 1 {
+        "is not determined"
+    } else {
+        "are confounded"
+    };
+    format!("{names} {verb}{with}: the information is singular")
+}
+
+/// Parameters in words: a scale and the bias of the same axis (the classic confusion of an axis
+/// that barely turns against the field) as "scale and bias of sensor axis k", the others joined
+/// by "and". Returns the names and, when a pair stands with others, `", with <the others>"`.
+fn name_parameters(params: &[usize]) -> (String, String) {
+    let pair = (0..3).find(|k| params.contains(&(3 + k)) && params.contains(&(6 + k)));
+    let others: Vec<String> = params
         .iter()
         .filter(|&&i| pair.is_none_or(|k| i != 3 + k && i != 6 + k))
         .map(|&i| parameter_words(i))
         .collect();
-    let with = |rest: &[String]| {
-        if rest.is_empty() {
-            String::new()
-        } else {
-            format!(", with {}", rest.join(" and "))
-        }
-    };
-    let what = match (identifiable, pair, others.as_slice()) {
-        (true, Some(k), rest) => format!("weakest: scale and bias of sensor axis {}{}", AXES[k], with(rest)),
-        (true, None, rest) => format!("weakest: {}", rest.join(" and ")),
-        (false, Some(k), rest) => format!("scale and bias of sensor axis {} are confounded{}", AXES[k], with(rest)),
-        (false, None, [one]) => format!("{one} is not determined"),
-        (false, None, rest) => format!("{} are confounded", rest.join(" and ")),
-    };
-    match std {
-        None => format!("{what}: the information is singular"),
-        Some(s) => {
-            let worst = (0..9)
-                .max_by(|&a, &b| (s[a] / scales[a]).total_cmp(&(s[b] / scales[b])))
-                .expect("nine");
-            format!(
-                "{what}; largest predicted std: {} {:.4} {} at {sigma_nt} nT",
-                PARAMETERS[worst], s[worst], UNITS[worst]
-            )
-        }
+    match pair {
+        Some(k) if others.is_empty() => (format!("scale and bias of sensor axis {}", AXES[k]), String::new()),
+        Some(k) => (
+            format!("scale and bias of sensor axis {}", AXES[k]),
+            format!(", with {}", others.join(" and ")),
+        ),
+        None => (others.join(" and "), String::new()),
     }
 }
 
