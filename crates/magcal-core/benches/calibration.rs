@@ -7,6 +7,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use faer::{Mat, Side};
 use magcal_core::attitude::Attitude;
 use magcal_core::design::sources;
+use magcal_core::metrics::RelativeErrors;
 use magcal_core::rng::stream_rng;
 use magcal_core::{InformationMatrix, TwoStep, paper, small};
 
@@ -83,6 +84,23 @@ fn monte_carlo(c: &mut Criterion) {
                         &mut stream_rng(1, t),
                     )
                     .unwrap()
+                })
+                .collect::<Vec<_>>()
+        })
+    });
+    // The same trials without the metrics issue 11 added (absolute and heading errors): the
+    // trial as it was before them, on today's calibration. The ratio of the two is the cost of
+    // those metrics (target: at most 1.25).
+    group.bench_function("1000_trials_one_design_without_added_metrics", |b| {
+        b.iter(|| {
+            (0..1000u64)
+                .into_par_iter()
+                .map(|t| {
+                    let readings = truth.noisy_readings(&body, 30.0, &mut stream_rng(1, t)).unwrap();
+                    settings.calibrate(&readings, field.magnitude()).map(|fit| {
+                        let e = fit.estimate();
+                        (fit.status(), RelativeErrors::between(&e.model, &truth), e.model)
+                    })
                 })
                 .collect::<Vec<_>>()
         })
