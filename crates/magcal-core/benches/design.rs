@@ -59,5 +59,42 @@ fn optimisers(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, fitness, optimisers);
+/// Issue 12's targets: the approximate design and its certificate for the AUV box (200 ms), the
+/// optimum of 100 readings in the full attitude space (2 s).
+fn certified(c: &mut Criterion) {
+    use magcal_core::AttitudeBox;
+    use magcal_core::design::approximate::Approximate;
+    let p = problem();
+    let mut group = c.benchmark_group("certified");
+    group.sample_size(10);
+    let mut seed = 0;
+    group.bench_function("approximate_and_certificate_auv_box", |b| {
+        b.iter(|| {
+            seed += 1;
+            let d = Approximate::default().compute(&p, &mut stream_rng(seed, 0)).unwrap();
+            assert!(d.converged && d.certificate.ln_det_mf_bound(9) <= 314.947);
+            d.certificate.ln_det_bound
+        })
+    });
+    let full = DesignProblem::new(
+        paper::changsha_field(),
+        paper::true_error_model(),
+        AttitudeBox::full(),
+        100,
+    )
+    .unwrap();
+    let mut seed = 0;
+    group.bench_function("optimum_default_m100_full_space", |b| {
+        b.iter(|| {
+            seed += 1;
+            Optimum::default()
+                .optimise(&full, &mut stream_rng(seed, 0))
+                .unwrap()
+                .ln_det
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, fitness, optimisers, certified);
 criterion_main!(benches);

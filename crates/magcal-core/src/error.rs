@@ -74,6 +74,13 @@ pub enum ParameterError {
         /// The value given.
         value: f64,
     },
+    /// Inputs under which no design identifies the linear model (\[P1\] eq. (9)): every
+    /// information matrix is singular (for example an attitude box too small to turn the field).
+    #[error("{name}: no design in it identifies the 9 unknowns of the linear model")]
+    Singular {
+        /// Parameter name.
+        name: &'static str,
+    },
 }
 
 impl ParameterError {
@@ -86,7 +93,8 @@ impl ParameterError {
             | Self::Negative { name, .. }
             | Self::TooSmall { name, .. }
             | Self::TooLarge { name, .. }
-            | Self::OutOfRange { name, .. } => name,
+            | Self::OutOfRange { name, .. }
+            | Self::Singular { name } => name,
         }
     }
 
@@ -100,6 +108,7 @@ impl ParameterError {
             Self::TooSmall { min, .. } => format!("must be at least {min}"),
             Self::TooLarge { max, .. } => format!("must be at most {max}"),
             Self::OutOfRange { allowed, .. } => format!("must lie in {allowed}"),
+            Self::Singular { .. } => "must let some design identify the linear model".into(),
         }
     }
 }

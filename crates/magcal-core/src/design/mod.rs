@@ -8,6 +8,7 @@
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
 
+pub mod approximate;
 pub mod lanes;
 pub mod optimum;
 pub mod pso;

@@ -176,17 +176,34 @@ impl Optimum {
 
     /// One projected L-BFGS run minimising `-ln det M_F` from `x`. Returns the final design,
     /// its `ln det M_F` and the evaluations made.
-    pub fn local(&self, problem: &DesignProblem, mut x: Vec<f64>) -> (Vec<f64>, f64, usize) {
+    pub fn local(&self, problem: &DesignProblem, x: Vec<f64>) -> (Vec<f64>, f64, usize) {
+        let (lo, hi) = bounds_of(problem.bounds(), x.len());
+        let (x, f, evaluations) = self.minimise(&lo, &hi, x, |x, g| {
+            let v = ln_det_and_gradient(problem, x, g);
+            g.iter_mut().for_each(|v| *v = -*v);
+            -v
+        });
+        (x, -f, evaluations)
+    }
+
+    /// Projected L-BFGS minimisation of `objective` (which returns `f(x)` and writes its gradient)
+    /// from `x` inside `lo..hi` (infinite bounds for periodic angles), with these settings'
+    /// iteration limit, gradient tolerance and memory. Returns the final point, `f` there and the
+    /// evaluations made. A start where `f` is not finite is returned as it is.
+    pub(crate) fn minimise(
+        &self,
+        lo: &[f64],
+        hi: &[f64],
+        mut x: Vec<f64>,
+        mut objective: impl FnMut(&[f64], &mut [f64]) -> f64,
+    ) -> (Vec<f64>, f64, usize) {
         let n = x.len();
-        let (lo, hi) = bounds_of(problem.bounds(), n);
-        project(&mut x, &lo, &hi);
+        project(&mut x, lo, hi);
         let mut g = vec![0.0; n];
         let mut evaluations = 1;
-        // Minimise f = -ln det; g holds grad f.
-        let mut f = -ln_det_and_gradient(problem, &x, &mut g);
-        g.iter_mut().for_each(|v| *v = -*v);
+        let mut f = objective(&x, &mut g);
         if !f.is_finite() {
-            return (x, -f, evaluations);
+            return (x, f, evaluations);
         }
         let mut memory: VecDeque<(Vec<f64>, Vec<f64>, f64)> = VecDeque::with_capacity(self.memory);
         let mut x_new = vec![0.0; n];
@@ -220,9 +237,9 @@ impl Optimum {
                 for j in 0..n {
                     x_new[j] = x[j] + t * d[j];
                 }
-                project(&mut x_new, &lo, &hi);
+                project(&mut x_new, lo, hi);
                 evaluations += 1;
-                let f_try = -ln_det_and_gradient(problem, &x_new, &mut g_new);
+                let f_try = objective(&x_new, &mut g_new);
                 let decrease: f64 = (0..n).map(|j| g[j] * (x_new[j] - x[j])).sum();
                 if f_try.is_finite() && f_try <= f + 1e-4 * decrease {
                     break Some(f_try);
@@ -233,7 +250,6 @@ impl Optimum {
                 }
             };
             let Some(f_try) = accepted else { break };
-            g_new.iter_mut().for_each(|v| *v = -*v);
             let s: Vec<f64> = (0..n).map(|j| x_new[j] - x[j]).collect();
             let y: Vec<f64> = (0..n).map(|j| g_new[j] - g[j]).collect();
             let sy: f64 = (0..n).map(|j| s[j] * y[j]).sum();
@@ -252,12 +268,12 @@ impl Optimum {
                 break;
             }
         }
-        (x, -f, evaluations)
+        (x, f, evaluations)
     }
 }
 
 /// Per-variable bounds; `-inf..inf` for a periodic (full-turn) angle.
-fn bounds_of(b: &AttitudeBox, n: usize) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn bounds_of(b: &AttitudeBox, n: usize) -> (Vec<f64>, Vec<f64>) {
     let ranges = b.ranges();
     (0..n)
         .map(|j| {
