@@ -32,6 +32,10 @@ pub const MAX_OPTIMUM_ITERATIONS: usize = 1_000_000;
 pub const MAX_PSO_RUNS: usize = 100_000;
 /// Step-2 iterations of one calibration.
 pub const MAX_STEP2_ITERATIONS: usize = 1_000_000;
+/// Candidates of the certificate's grid (about 220 bytes each, twice over at most).
+pub const MAX_CERTIFICATE_CANDIDATES: usize = 1_000_000;
+/// See [`MAX_CERTIFICATE_CANDIDATES`]: fewer leave the certificate no grid to start from.
+pub const MIN_CERTIFICATE_CANDIDATES: usize = 100;
 /// Worker threads.
 pub const MAX_THREADS: usize = 256;
 /// Smallest positive noise level, nT: 1e-6 nT is still 1e5 times the rounding of a 50,000 nT
@@ -98,6 +102,15 @@ pub fn estimate(scenario: &Scenario, with_trials: bool, threads: usize) -> Vec<(
         // The design's readings, H and its SVD for the conditioning.
         items.push((format!("design {:?}", d.name), need + m * 600));
     }
+    // The certificate's grid: attitude, regression row, weight and variance per candidate, up to
+    // twice the budget, and the start indices of the search.
+    items.push((
+        format!(
+            "certificate grid of about {} candidates",
+            scenario.certificate.candidates
+        ),
+        2 * scenario.certificate.candidates as u64 * 220,
+    ));
     if let Some(runs) = &scenario.pso_runs {
         let dim = 3 * runs.m as u64;
         let concurrent = runs.runs.min(threads) as u64;

@@ -8,12 +8,15 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
+use magcal_core::design::approximate::ApproximateDesign;
 use magcal_core::design::pso::RunSummary;
 use magcal_core::design::{DesignProblem, d_efficiency, sources};
 use magcal_core::heading::HeadingProbe;
 use magcal_core::monte_carlo::{self, TrialOutcome};
 use magcal_core::rng::{stream_id, stream_rng};
-use magcal_core::{Attitude, CalibrationStatus, Conditioning, CramerRao, PhysicalScales, Summary, Verdict};
+use magcal_core::{
+    Attitude, CalibrationStatus, Conditioning, CramerRao, ParameterError, PhysicalScales, Summary, Verdict,
+};
 
 use crate::output::Metric;
 use rand::RngExt;
@@ -25,6 +28,8 @@ use crate::scenario::{DesignKind, DesignSource, Scenario};
 const DESIGN_STREAM: u64 = 0xFFFF;
 /// Stream-id prefix of the repeated PSO runs.
 const PSO_RUNS_STREAM: u64 = 0xFFFE;
+/// Stream-id prefix of the approximate design that certifies the others.
+const CERTIFICATE_STREAM: u64 = 0xFFFD;
 /// The design that \[P1\] Table III compares against.
 pub const REFERENCE_DESIGN: &str = "uniform";
 
@@ -145,9 +150,22 @@ pub struct RunOutput {
     pub pso_runs_m: usize,
     /// Wall time per stage, seconds.
     pub stages: Vec<(String, f64)>,
+    /// The approximate D-optimal design of the box and its certificate; `None` when no design in
+    /// the box identifies the linear model.
+    pub approximate: Option<ApproximateDesign>,
 }
 
 impl RunOutput {
+    /// The certified lower bound of design `i`'s D-efficiency against every design of as many
+    /// readings in the box (CONVENTIONS.md "Certified D-efficiency"); `None` without a
+    /// certificate.
+    pub fn d_efficiency_bound(&self, i: usize) -> Option<f64> {
+        let d = &self.designs[i];
+        self.approximate
+            .as_ref()
+            .map(|a| a.certificate.efficiency_bound(d.ln_det_mf, d.attitudes.len()))
+    }
+
     /// The D-efficiency reference: the largest information per reading among the identifiable
     /// designs (among all when none is): an optimiser's design that is not identifiable is not
     /// called optimal.
@@ -223,6 +241,19 @@ fn counter(show: bool, len: u64, message: String) -> ProgressBar {
 /// A design that cannot be built (for example a singular one).
 pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
     let mut stages = Vec::new();
+    let t = Instant::now();
+    let bar = spinner(options.progress, "approximate design and certificate".to_string());
+    let approximate = {
+        let problem = DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, 9)?;
+        let mut rng = stream_rng(scenario.seed, stream_id(&[CERTIFICATE_STREAM, 0]));
+        match scenario.certificate.compute(&problem, &mut rng) {
+            Ok(a) => Some(a),
+            Err(ParameterError::Singular { .. }) => None,
+            Err(e) => return Err(e).context("certificate"),
+        }
+    };
+    bar.finish_and_clear();
+    stages.push(("certificate".to_string(), t.elapsed().as_secs_f64()));
     let mut designs = Vec::with_capacity(scenario.designs.len());
     for (i, spec) in scenario.designs.iter().enumerate() {
         let t = Instant::now();
@@ -350,5 +381,6 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         pso_runs,
         pso_runs_m: scenario.pso_runs.as_ref().map_or(0, |r| r.m),
         stages,
+        approximate,
     })
 }

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use magcal_core::design::approximate::Approximate;
 use magcal_core::design::optimum::Optimum;
 use magcal_core::design::pso::Swarm;
 use magcal_core::{Attitude, AttitudeBox, ErrorModel, ParameterError, ReferenceField, TwoStep, wmm};
@@ -85,6 +86,16 @@ mod raw {
         pub calibration: Calibration,
         pub design: Vec<Design>,
         pub pso_runs: Option<PsoRuns>,
+        #[serde(default)]
+        pub certificate: Certificate,
+    }
+
+    #[derive(Debug, Default, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Certificate {
+        pub candidates: Option<usize>,
+        pub tolerance: Option<f64>,
+        pub max_rounds: Option<usize>,
     }
 
     fn default_trials() -> usize {
@@ -332,6 +343,8 @@ pub struct Scenario {
     pub designs: Vec<DesignSpec>,
     /// Repeated PSO runs, if asked.
     pub pso_runs: Option<PsoRunsSpec>,
+    /// Settings of the approximate design that certifies every design's D-efficiency.
+    pub certificate: Approximate,
 }
 
 /// Reads and validates a scenario file.
@@ -541,6 +554,26 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         }
     };
 
+    let d = Approximate::default();
+    let c = &raw.certificate;
+    let certificate = Approximate {
+        candidates: count(
+            "certificate.candidates",
+            c.candidates.unwrap_or(d.candidates),
+            limits::MIN_CERTIFICATE_CANDIDATES,
+            limits::MAX_CERTIFICATE_CANDIDATES,
+        )?,
+        tolerance: within(
+            "certificate.tolerance",
+            c.tolerance.unwrap_or(d.tolerance),
+            1e-9,
+            0.1,
+            "",
+        )?,
+        max_rounds: count("certificate.max_rounds", c.max_rounds.unwrap_or(d.max_rounds), 1, 1000)?,
+        ..d
+    };
+
     Ok(Scenario {
         path: path.to_path_buf(),
         hash,
@@ -555,6 +588,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         calibration,
         designs,
         pso_runs,
+        certificate,
     })
 }
 

@@ -262,6 +262,34 @@ fn scenario_cases() -> Vec<Case> {
             ),
             &["calibration.max_iterations = 10000000", "at most 1000000"],
         ),
+        // Certificate.
+        case(
+            smoke_with("[attitude_box]", "[certificate]\ncandidates = 10\n\n[attitude_box]"),
+            &["certificate.candidates = 10", "at least 100"],
+        ),
+        case(
+            smoke_with(
+                "[attitude_box]",
+                "[certificate]\ncandidates = 100000000\n\n[attitude_box]",
+            ),
+            &["certificate.candidates = 100000000", "at most 1000000"],
+        ),
+        case(
+            smoke_with("[attitude_box]", "[certificate]\ntolerance = 0.0\n\n[attitude_box]"),
+            &["certificate.tolerance = 0"],
+        ),
+        case(
+            smoke_with("[attitude_box]", "[certificate]\ntolerance = nan\n\n[attitude_box]"),
+            &["certificate.tolerance = NaN"],
+        ),
+        case(
+            smoke_with("[attitude_box]", "[certificate]\nmax_rounds = 0\n\n[attitude_box]"),
+            &["certificate.max_rounds = 0"],
+        ),
+        case(
+            smoke_with("[attitude_box]", "[certificate]\nstarts = 3\n\n[attitude_box]"),
+            &["unknown field `starts`"],
+        ),
         // Designs.
         case(with_designs(""), &["missing field `design`"]),
         case(

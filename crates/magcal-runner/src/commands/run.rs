@@ -85,6 +85,14 @@ fn write_set(
         "design_metrics.csv",
         output::csv_bytes(output::design_metrics_rows(out))?,
     )?;
+    put(
+        "approximate.csv",
+        output::csv_bytes(output::approximate_rows(out, scenario.field.yaw_offset_deg()))?,
+    )?;
+    put(
+        "certificate.csv",
+        output::csv_bytes(output::certificate_rows(out, scenario.certificate.tolerance))?,
+    )?;
     if with_trials {
         put("summary.csv", output::csv_bytes(output::summary_rows(out))?)?;
         put("crb.csv", output::csv_bytes(output::crb_rows(out))?)?;

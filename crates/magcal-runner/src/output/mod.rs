@@ -278,6 +278,42 @@ pub struct DesignMetricsRow {
     pub best_in_run: bool,
     pub identifiable: bool,
     pub weakest: String,
+    /// Certified lower bound of the D-efficiency against every design of `m` readings in the
+    /// box (`approximate.csv`, `certificate.csv`); empty without a certificate.
+    pub d_efficiency_bound: Option<Real>,
+}
+
+/// `approximate.csv`: the approximate D-optimal design of the box, support points by decreasing
+/// weight (CONVENTIONS.md "Certified D-efficiency").
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ApproximatePointRow {
+    /// 1-based.
+    pub point: usize,
+    pub roll_deg: Real,
+    pub yaw_deg: Real,
+    pub pitch_deg: Real,
+    pub heading_deg: Real,
+    pub weight: Real,
+}
+
+/// `certificate.csv`: one row, the certificate of the approximate design.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct CertificateRow {
+    /// `ln det M(xi)` of the approximate design's normalised information, `H` in nT.
+    pub ln_det_per_reading: Real,
+    /// The largest variance `h^T M(xi)^-1 h` found over the box (9 at the optimum).
+    pub d_max: Real,
+    pub d_max_roll_deg: Real,
+    pub d_max_yaw_deg: Real,
+    pub d_max_pitch_deg: Real,
+    /// Upper bound on `ln det M*` per reading: `ln_det_per_reading + 9 ln(d_max / 9)`.
+    pub ln_det_bound_per_reading: Real,
+    /// The tolerance asked, and whether `d_max <= 9 (1 + tolerance)` was reached.
+    pub tolerance: Real,
+    pub converged: bool,
+    pub rounds: usize,
+    pub candidates: usize,
+    pub support_points: usize,
 }
 
 /// `pso_runs.csv`: the final `ln det M_F` of each repeated PSO run (\[P1\] Fig. 4).
@@ -559,6 +595,45 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             best_in_run: out.is_best(i),
             identifiable: d.verdict.identifiable,
             weakest: d.verdict.weakest.clone(),
+            d_efficiency_bound: out.d_efficiency_bound(i).and_then(defined),
+        }
+    })
+}
+
+/// The rows of `approximate.csv` (none without a certificate).
+pub fn approximate_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item = ApproximatePointRow> + '_ {
+    out.approximate.iter().flat_map(move |a| {
+        a.support.iter().zip(&a.weights).enumerate().map(move |(i, (at, w))| {
+            let [r, y, p] = at.to_degrees();
+            ApproximatePointRow {
+                point: i + 1,
+                roll_deg: degrees(r),
+                yaw_deg: degrees(y),
+                pitch_deg: degrees(p),
+                heading_deg: degrees((-(y + yaw_offset_deg)).rem_euclid(360.0)),
+                weight: Real(*w),
+            }
+        })
+    })
+}
+
+/// The row of `certificate.csv` (none without a certificate).
+pub fn certificate_rows(out: &RunOutput, tolerance: f64) -> impl Iterator<Item = CertificateRow> + '_ {
+    out.approximate.iter().map(move |a| {
+        let c = &a.certificate;
+        let [r, y, p] = c.at.to_degrees();
+        CertificateRow {
+            ln_det_per_reading: Real(a.ln_det),
+            d_max: Real(c.d_max),
+            d_max_roll_deg: degrees(r),
+            d_max_yaw_deg: degrees(y),
+            d_max_pitch_deg: degrees(p),
+            ln_det_bound_per_reading: Real(c.ln_det_bound),
+            tolerance: Real(tolerance),
+            converged: a.converged,
+            rounds: a.rounds,
+            candidates: a.candidates,
+            support_points: a.support.len(),
         }
     })
 }

@@ -13,9 +13,20 @@ fn cell(x: f64) -> String {
 /// the outcome counts and the median of the main metrics beside their Cramer-Rao rms, with a
 /// warning line under a cell where fewer than 95 % of the trials are `ok`.
 pub fn summary(out: &RunOutput, dir: &Path) {
+    match &out.approximate {
+        Some(a) => println!(
+            "certificate: no design of m readings in this box has ln det M_F above 9 ln m + {:.4} \
+             (approximate design of {} points, d_max = {:.5}{})",
+            a.certificate.ln_det_bound,
+            a.support.len(),
+            a.certificate.d_max,
+            if a.converged { "" } else { ", tolerance NOT reached" }
+        ),
+        None => println!("certificate: none (no design in this box identifies the linear model)"),
+    }
     println!(
-        "{:<14} {:>4} {:>10} {:>9}  verdict",
-        "design", "m", "ln det M_F", "D-eff"
+        "{:<14} {:>4} {:>10} {:>9} {:>9}  verdict",
+        "design", "m", "ln det M_F", "D-eff", "certified"
     );
     for (i, d) in out.designs.iter().enumerate() {
         let verdict = if d.verdict.identifiable {
@@ -24,11 +35,13 @@ pub fn summary(out: &RunOutput, dir: &Path) {
             format!("NOT IDENTIFIABLE: {}", d.verdict.weakest)
         };
         println!(
-            "{:<14} {:>4} {:>10.4} {:>9.4}  {verdict}",
+            "{:<14} {:>4} {:>10.4} {:>9.4} {:>9}  {verdict}",
             d.name,
             d.attitudes.len(),
             d.ln_det_mf,
-            out.d_efficiency(i)
+            out.d_efficiency(i),
+            out.d_efficiency_bound(i)
+                .map_or("-".to_string(), |e| format!(">= {e:.4}"))
         );
     }
     if !out.cells.is_empty() {
