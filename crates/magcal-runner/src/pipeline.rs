@@ -8,8 +8,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use magcal_core::design::approximate::ApproximateDesign;
+use magcal_core::design::approximate::{ApproximateDesign, efficient_rounding};
 use magcal_core::design::pso::RunSummary;
+use magcal_core::design::tour;
 use magcal_core::design::{DesignProblem, d_efficiency, sources};
 use magcal_core::heading::HeadingProbe;
 use magcal_core::monte_carlo::{self, TrialOutcome};
@@ -40,8 +41,13 @@ pub struct BuiltDesign {
     pub name: String,
     /// Source kind.
     pub kind: DesignKind,
-    /// Its attitudes.
+    /// Its distinct attitudes, in the order built (the order of the scenario or the optimiser).
     pub attitudes: Vec<Attitude>,
+    /// Readings planned at each attitude (1 but for a plan).
+    pub readings: Vec<usize>,
+    /// A visiting order of the attitudes that keeps the total rotation short (indices into
+    /// `attitudes`; [`magcal_core::design::tour::flight_order`]).
+    pub order: Vec<usize>,
     /// `ln det M_F`, nT (\[P1\] eq. (12), (14)).
     pub ln_det_mf: f64,
     /// `cond_2(H)` and `cond_2(M_F)`, `H` in nT.
@@ -55,9 +61,23 @@ pub struct BuiltDesign {
 }
 
 impl BuiltDesign {
+    /// Readings in all, `m`.
+    pub fn m(&self) -> usize {
+        self.readings.iter().sum()
+    }
+
+    /// One attitude per reading, in the order built: what the trials simulate.
+    pub fn expanded(&self) -> Vec<Attitude> {
+        self.attitudes
+            .iter()
+            .zip(&self.readings)
+            .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
+            .collect()
+    }
+
     /// `ln det (M_F / m)`: the information per reading, which designs of different sizes share.
     pub fn ln_det_per_reading(&self) -> f64 {
-        self.ln_det_mf - 9.0 * (self.attitudes.len() as f64).ln()
+        self.ln_det_mf - 9.0 * (self.m() as f64).ln()
     }
 }
 
@@ -163,7 +183,7 @@ impl RunOutput {
         let d = &self.designs[i];
         self.approximate
             .as_ref()
-            .map(|a| a.certificate.efficiency_bound(d.ln_det_mf, d.attitudes.len()))
+            .map(|a| a.certificate.efficiency_bound(d.ln_det_mf, d.m()))
     }
 
     /// The D-efficiency reference: the largest information per reading among the identifiable
@@ -268,10 +288,14 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
             DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, m)
                 .with_context(|| format!("design {:?}", spec.name))
         };
-        let attitudes = match &spec.source {
-            DesignSource::Explicit(list) => list.clone(),
-            DesignSource::Grid(levels) => sources::grid(&scenario.bounds, *levels)?,
-            DesignSource::Random { m } => sources::random(&scenario.bounds, *m, &mut rng),
+        let single = |list: Vec<Attitude>| {
+            let n = list.len();
+            (list, vec![1; n])
+        };
+        let (attitudes, readings) = match &spec.source {
+            DesignSource::Explicit(list) => single(list.clone()),
+            DesignSource::Grid(levels) => single(sources::grid(&scenario.bounds, *levels)?),
+            DesignSource::Random { m } => single(sources::random(&scenario.bounds, *m, &mut rng)),
             DesignSource::Pso { m, swarm } => {
                 let bar = counter(
                     options.progress,
@@ -281,24 +305,47 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                 let observe = |_: usize, _: f64| bar.inc(1);
                 let design = swarm.optimise_observed(&problem(*m)?, &mut rng, &observe)?.design;
                 bar.finish_and_clear();
-                design
+                single(design)
             }
-            DesignSource::Optimum { m, settings } => settings.optimise(&problem(*m)?, &mut rng)?.design,
+            DesignSource::Optimum { m, settings } => single(settings.optimise(&problem(*m)?, &mut rng)?.design),
+            DesignSource::Plan { readings } => {
+                let Some(a) = &approximate else {
+                    anyhow::bail!(
+                        "design {:?} (plan): no design in this attitude box identifies the linear model, so there is \
+                         no approximate design to round",
+                        spec.name
+                    );
+                };
+                let counts = efficient_rounding(&a.weights, *readings);
+                a.support
+                    .iter()
+                    .zip(counts)
+                    .filter(|(_, n)| *n > 0)
+                    .map(|(a, n)| (*a, n))
+                    .unzip()
+            }
         };
-        let metrics = problem(attitudes.len())?.evaluate(&attitudes);
-        let body = scenario.field.body_fields(&attitudes);
-        let readings = scenario.truth.measure_all(&body);
+        let every: Vec<Attitude> = attitudes
+            .iter()
+            .zip(&readings)
+            .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
+            .collect();
+        let metrics = problem(every.len())?.evaluate(&every);
+        let body = scenario.field.body_fields(&every);
+        let noise_free = scenario.truth.measure_all(&body);
         let loudest = scenario.sigmas_nt.iter().copied().fold(0.0, f64::max);
         let verdict = CramerRao::new(&scenario.truth, &body, loudest, &PhysicalScales::default()).verdict;
         designs.push(BuiltDesign {
             name: spec.name.clone(),
             kind: spec.source.kind(),
-            conditioning: Conditioning::of_readings(&readings, scenario.field.magnitude()),
+            conditioning: Conditioning::of_readings(&noise_free, scenario.field.magnitude()),
             ln_det_mf: metrics.ln_det_mf,
             a_criterion: metrics.a,
             e_criterion: metrics.e,
             verdict,
+            order: tour::flight_order(&attitudes),
             attitudes,
+            readings,
         });
         bar.finish_and_clear();
         stages.push((format!("design:{}", spec.name), t.elapsed().as_secs_f64()));
@@ -340,7 +387,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         };
         let probe = HeadingProbe::new(&scenario.field, &scenario.truth);
         for (d, built) in designs.iter().enumerate() {
-            let body = scenario.field.body_fields(&built.attitudes);
+            let body = scenario.field.body_fields(&built.expanded());
             for (s, &sigma) in scenario.sigmas_nt.iter().enumerate() {
                 // Step 2's local identifiability check knows the noise of the cell.
                 let calibration = magcal_core::TwoStep {

@@ -189,6 +189,10 @@ mod raw {
             vmax_fraction: Option<f64>,
             threshold: Option<f64>,
         },
+        Plan {
+            name: String,
+            readings: usize,
+        },
         Optimum {
             name: String,
             m: usize,
@@ -221,13 +225,15 @@ pub enum DesignKind {
     Pso,
     /// The multi-start optimum optimiser.
     Optimum,
+    /// The approximate D-optimal design rounded to a number of readings.
+    Plan,
 }
 
 impl DesignKind {
     /// Whether an optimiser chose the attitudes. Many designs share the optimal `ln det M_F` with
     /// different attitudes and conditioning, so `check` compares only `ln det` for these.
     pub fn is_optimised(self) -> bool {
-        matches!(self, Self::Pso | Self::Optimum)
+        matches!(self, Self::Pso | Self::Optimum | Self::Plan)
     }
 
     /// The name used in files.
@@ -238,6 +244,7 @@ impl DesignKind {
             Self::Random => "random",
             Self::Pso => "pso",
             Self::Optimum => "optimum",
+            Self::Plan => "plan",
         }
     }
 }
@@ -268,6 +275,12 @@ pub enum DesignSource {
         /// Settings.
         settings: Optimum,
     },
+    /// The run's approximate D-optimal design ([`Scenario::certificate`]) rounded to `readings`
+    /// readings by efficient rounding: several readings per attitude.
+    Plan {
+        /// Readings in all.
+        readings: usize,
+    },
 }
 
 impl DesignSource {
@@ -279,15 +292,17 @@ impl DesignSource {
             Self::Random { .. } => DesignKind::Random,
             Self::Pso { .. } => DesignKind::Pso,
             Self::Optimum { .. } => DesignKind::Optimum,
+            Self::Plan { .. } => DesignKind::Plan,
         }
     }
 
-    /// The number of attitudes it gives.
+    /// The number of readings it gives (of attitudes, but for a plan).
     pub fn m(&self) -> usize {
         match self {
             Self::Explicit(list) => list.len(),
             Self::Grid(l) => l.iter().product(),
             Self::Random { m } | Self::Pso { m, .. } | Self::Optimum { m, .. } => *m,
+            Self::Plan { readings } => *readings,
         }
     }
 }
@@ -693,7 +708,8 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
         | raw::Design::Grid { name, .. }
         | raw::Design::Random { name, .. }
         | raw::Design::Pso { name, .. }
-        | raw::Design::Optimum { name, .. } => name.clone(),
+        | raw::Design::Optimum { name, .. }
+        | raw::Design::Plan { name, .. } => name.clone(),
     };
     check_name(&format!("design[{i}].name"), &name)?;
     // `design[2] ("pso").particles`
@@ -834,6 +850,9 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
             settings.validate().map_err(|e| keyed(&prefix, &e, "the value given"))?;
             DesignSource::Optimum { m: m_of(m)?, settings }
         }
+        raw::Design::Plan { readings, .. } => DesignSource::Plan {
+            readings: count(&key("readings"), readings, 9, limits::MAX_M)?,
+        },
     };
     Ok(DesignSpec { name, source })
 }

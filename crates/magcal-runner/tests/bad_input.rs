@@ -325,6 +325,14 @@ fn scenario_cases() -> Vec<Case> {
             &["design[2] (\"pso\").m = 8", "at least 9"],
         ),
         case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 8\n"),
+            &["design[0] (\"p\").readings = 8", "at least 9"],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 1000000000\n"),
+            &["design[0] (\"p\").readings = 1000000000", "at most 100000"],
+        ),
+        case(
             with_designs("[[design]]\nname = \"r\"\nkind = \"random\"\nm = 1000000000\n"),
             &["design[0] (\"r\").m = 1000000000", "at most 100000"],
         ),

@@ -4,8 +4,10 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
+use magcal_core::Attitude;
 use magcal_core::CalibrationStatus;
-use magcal_runner::output::{Metric, SummaryRow, TrialRow, read_csv};
+use magcal_core::design::tour::rotation_angle;
+use magcal_runner::output::{DesignPointRow, Metric, SummaryRow, TrialRow, read_csv};
 use tempfile::TempDir;
 
 fn magcal() -> Command {
@@ -78,10 +80,40 @@ fn run_writes_every_file_with_the_expected_rows() {
     }
     let crb = fs::read_to_string(tmp.path().join("crb.csv")).unwrap();
     assert_eq!(crb.lines().count(), 1 + 4 * 2 * 9);
-    // Explicit designs as given, [P1] Table II.
-    let designs = csv_rows(&tmp.path().join("designs.csv"));
+    // Explicit designs as given, [P1] Table II, listed in visiting order: every point once, the
+    // turns those between consecutive rows, and no longer in all than the order given.
+    let designs: Vec<DesignPointRow> = read_csv(&tmp.path().join("designs.csv")).unwrap();
     assert_eq!(designs.len(), 36);
-    assert_eq!(designs[0][..5], ["uniform", "1", "-5", "-60", "-20"]);
+    for name in ["uniform", "table2_dopt", "pso", "optimum"] {
+        let rows: Vec<&DesignPointRow> = designs.iter().filter(|r| r.design == name).collect();
+        let mut points: Vec<usize> = rows.iter().map(|r| r.point).collect();
+        points.sort_unstable();
+        assert_eq!(points, (1..=9).collect::<Vec<_>>());
+        assert!(
+            rows.iter()
+                .enumerate()
+                .all(|(v, r)| r.visit == v + 1 && r.readings == 1)
+        );
+        let attitude = |r: &DesignPointRow| Attitude::from_degrees(r.roll_deg.0, r.yaw_deg.0, r.pitch_deg.0);
+        assert!(rows[0].turn_deg.is_none());
+        for w in rows.windows(2) {
+            let turn = rotation_angle(&attitude(w[0]), &attitude(w[1])).to_degrees();
+            assert!((w[1].turn_deg.unwrap().0 - turn).abs() < 1e-8);
+        }
+        let flown: f64 = rows.iter().filter_map(|r| r.turn_deg.map(|t| t.0)).sum();
+        let mut by_point = rows.clone();
+        by_point.sort_by_key(|r| r.point);
+        let given: f64 = by_point
+            .windows(2)
+            .map(|w| rotation_angle(&attitude(w[0]), &attitude(w[1])).to_degrees())
+            .sum();
+        assert!(flown <= given + 1e-9, "{name}: {flown} > {given}");
+    }
+    let first = designs.iter().find(|r| r.design == "uniform" && r.point == 1).unwrap();
+    assert_eq!(
+        [first.roll_deg.0, first.yaw_deg.0, first.pitch_deg.0],
+        [-5.0, -60.0, -20.0]
+    );
     // CONVENTIONS.md check values through the whole pipeline.
     let metrics = csv_rows(&tmp.path().join("design_metrics.csv"));
     let ln_det = |name: &str| {
@@ -92,6 +124,17 @@ fn run_writes_every_file_with_the_expected_rows() {
     assert!((ln_det("uniform") - 303.4800).abs() < 5e-5);
     assert!((ln_det("table2_dopt") - 298.9240).abs() < 5e-5);
     assert!(ln_det("optimum") >= 314.5485);
+    // The certificate through the pipeline: CONVENTIONS.md, the best known 9-point design is
+    // 95.67 % to 95.79 % D-efficient against every 9-point design in the box.
+    let typed: Vec<magcal_runner::output::DesignMetricsRow> = read_csv(&tmp.path().join("design_metrics.csv")).unwrap();
+    let optimum = typed.iter().find(|r| r.design == "optimum").unwrap();
+    let bound = optimum.d_efficiency_bound.unwrap().0;
+    assert!((0.9567..=0.9579).contains(&bound), "{bound}");
+    assert!(
+        typed
+            .iter()
+            .all(|r| r.d_efficiency_bound.unwrap().0 <= r.d_efficiency.unwrap().0 + 1e-12)
+    );
     assert_eq!(csv_rows(&tmp.path().join("pso_runs.csv")).len(), 4);
     let manifest: serde_json::Value =
         serde_json::from_slice(&fs::read(tmp.path().join("manifest.json")).unwrap()).unwrap();
@@ -112,6 +155,8 @@ fn same_seed_gives_byte_identical_csv_on_one_and_several_threads() {
         "designs.csv",
         "design_metrics.csv",
         "pso_runs.csv",
+        "approximate.csv",
+        "certificate.csv",
     ] {
         let one = fs::read(dirs[0].path().join(f)).unwrap();
         for d in &dirs[1..] {

@@ -241,11 +241,29 @@ impl Approximate {
             .map(|(a, w)| (*a, *w))
             .collect();
         support.sort_by(|a, b| b.1.total_cmp(&a.1));
-        let total: f64 = support.iter().map(|s| s.1).sum();
+        // Points that meet are one attitude: merged into the heavier (earlier) one.
+        let mut merged: Vec<(Attitude, f64)> = Vec::with_capacity(support.len());
+        for (a, w) in support {
+            match merged.iter_mut().find(|(b, _)| distance(b, &a) <= MERGE_RAD) {
+                Some(m) => m.1 += w,
+                None => merged.push((a, w)),
+            }
+        }
+        let total: f64 = merged.iter().map(|s| s.1).sum();
+        let support: Vec<Attitude> = merged.iter().map(|s| s.0).collect();
+        let weights: Vec<f64> = merged.iter().map(|s| s.1 / total).collect();
+        let rows: Vec<Row> = support.iter().map(|a| row(problem, a)).collect();
+        // The certificate of exactly this design (the merge moved weight by at most MERGE_RAD).
+        let certificate = if merged.len() == rows.len() && certificate_is_for(&certificate, problem, &rows, &weights) {
+            certificate
+        } else {
+            self.certify(problem, &support, &weights)?
+        };
+        let converged = converged && certificate.is_met(self.tolerance);
         Ok(ApproximateDesign {
             ln_det: ln_det_nt(problem, &rows, &weights),
-            support: support.iter().map(|s| s.0).collect(),
-            weights: support.iter().map(|s| s.1 / total).collect(),
+            support,
+            weights,
             certificate,
             converged,
             rounds,
@@ -355,6 +373,61 @@ impl Approximate {
     }
 }
 
+/// Readings per support point for an exact design of `n` readings from approximate weights, by
+/// efficient rounding (Pukelsheim and Rieder 1992, "Efficient rounding of approximate designs",
+/// Biometrika 79): `n_i = ceil((n - l/2) w_i)` for the `l` support points, then one reading at a
+/// time added where `n_j / w_j` is smallest, or taken where `(n_j - 1) / w_j` is largest, until
+/// they sum to `n`. Ties go to the earlier point. A point may get no reading when `n` is below
+/// the support size.
+///
+/// # Panics
+/// If a weight is not positive and finite (a caller bug; an [`ApproximateDesign`]'s are).
+#[track_caller]
+pub fn efficient_rounding(weights: &[f64], n: usize) -> Vec<usize> {
+    assert!(
+        weights.iter().all(|w| w.is_finite() && *w > 0.0),
+        "weights must be positive"
+    );
+    let l = weights.len();
+    let scaled = n as f64 - l as f64 / 2.0;
+    let mut counts: Vec<usize> = weights.iter().map(|w| (scaled * w).ceil().max(0.0) as usize).collect();
+    let mut total: usize = counts.iter().sum();
+    let pick = |counts: &[usize], better: &dyn Fn(f64, f64) -> bool, key: &dyn Fn(usize, f64) -> f64| {
+        (0..l).fold(None::<(usize, f64)>, |best, i| {
+            let v = key(counts[i], weights[i]);
+            match best {
+                Some((_, b)) if !better(v, b) => best,
+                _ => Some((i, v)),
+            }
+        })
+    };
+    while total < n {
+        let (j, _) = pick(&counts, &|v, b| v < b, &|c, w| c as f64 / w).expect("some support");
+        counts[j] += 1;
+        total += 1;
+    }
+    while total > n {
+        let (k, _) = pick(&counts, &|v, b| v > b, &|c, w| {
+            if c == 0 {
+                f64::NEG_INFINITY
+            } else {
+                (c as f64 - 1.0) / w
+            }
+        })
+        .expect("some support");
+        counts[k] -= 1;
+        total -= 1;
+    }
+    counts
+}
+
+/// Whether `certificate` was made for the design of `rows` and `weights` (same `ln det`).
+fn certificate_is_for(certificate: &Certificate, problem: &DesignProblem, rows: &[Row], weights: &[f64]) -> bool {
+    let ln_det = ln_det_nt(problem, rows, weights);
+    let own = ln_det + P as f64 * (certificate.d_max / P as f64).ln();
+    own.to_bits() == certificate.ln_det_bound.to_bits()
+}
+
 /// The local optimiser of the certificate and of the refinement.
 fn certificate_search() -> Optimum {
     Optimum {
@@ -368,12 +441,17 @@ fn certificate_search() -> Optimum {
 /// size squared).
 const MAX_REFINED: usize = 20 * P;
 
+/// Support points closer than this (radians, 0.057 degrees: one attitude to any vehicle) are
+/// merged into the heavier one. A point of small weight has a small gradient and stops short of
+/// the heavier point it is converging to (0.007 degrees apart on the AUV box, measured).
+const MERGE_RAD: f64 = 1e-3;
+
 /// Weights below this (of a total of 1) are dropped before the support is refined.
 const NEGLIGIBLE_WEIGHT: f64 = 1e-6;
 
 /// Refines the support in place: drops negligible weights, moves the support points to a local
 /// maximum of `ln det M(xi)` over the continuous box with the weights held (projected L-BFGS),
-/// and merges points that meet (within 1e-7 rad), adding their weights.
+/// and merges points that meet (within [`MERGE_RAD`]), adding their weights.
 fn refine(problem: &DesignProblem, optimum: &Optimum, points: &mut [Attitude], rows: &mut [Row], weights: &mut [f64]) {
     for w in weights.iter_mut() {
         if *w < NEGLIGIBLE_WEIGHT {
@@ -805,6 +883,25 @@ mod tests {
         let optimum = settings.compute(&problem, &mut stream_rng(12, 0)).unwrap();
         let c = settings.certify(&problem, &optimum.support, &optimum.weights).unwrap();
         assert!(c.is_met(settings.tolerance), "{c:?}");
+    }
+
+    #[test]
+    fn efficient_rounding_matches_pukelsheim_and_rieder() {
+        // Sums to n; within one reading of n w_i when n is large against the support.
+        let w = [0.5, 0.3, 0.2];
+        for n in [1, 2, 3, 5, 10, 11, 100, 301] {
+            let c = efficient_rounding(&w, n);
+            assert_eq!(c.iter().sum::<usize>(), n, "{n}: {c:?}");
+            if n >= 10 {
+                for (ci, wi) in c.iter().zip(w) {
+                    assert!((*ci as f64 - n as f64 * wi).abs() <= 1.5, "{n}: {c:?}");
+                }
+            }
+        }
+        // Equal weights: equal counts; a hand-checked case: (n - l/2) w = (10 - 1.5) w = 4.25,
+        // 2.55, 1.7 -> ceil 5, 3, 2 = 10.
+        assert_eq!(efficient_rounding(&[0.25; 4], 8), vec![2; 4]);
+        assert_eq!(efficient_rounding(&w, 10), vec![5, 3, 2]);
     }
 
     #[test]

@@ -13,6 +13,7 @@ pub mod lanes;
 pub mod optimum;
 pub mod pso;
 pub mod sources;
+pub mod tour;
 
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::error::ParameterError;

@@ -274,7 +274,8 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             f.missing(&key, "design missing in the baseline's designs.csv");
             continue;
         };
-        f.value(&key, "attitudes", Some(points.len() as f64), Some(b.m as f64), 0.0);
+        let readings: usize = points.iter().map(|p| p.1).sum();
+        f.value(&key, "readings", Some(readings as f64), Some(b.m as f64), 0.0);
         // Attitudes of designs that are not optimised; an optimiser's attitudes are covered by
         // ln det above and by the file's hash.
         if !b.kind.is_optimised()
@@ -282,7 +283,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             && now.len() == points.len()
         {
             const ANGLES: [&str; 3] = ["roll_deg", "yaw_deg", "pitch_deg"];
-            for (i, (p, q)) in points.iter().zip(now).enumerate() {
+            for (i, ((p, _), (q, _))) in points.iter().zip(now).enumerate() {
                 for (j, angle) in ANGLES.iter().enumerate() {
                     f.value(&format!("{key} point {}", i + 1), angle, Some(p[j]), Some(q[j]), 1.5e-9);
                 }
@@ -352,14 +353,20 @@ fn mean_se(v: &[f64]) -> (f64, f64) {
 }
 
 /// Attitudes per design, degrees, in file order.
-fn group_points(rows: Vec<DesignPointRow>) -> BTreeMap<String, Vec<[f64; 3]>> {
-    let mut by: BTreeMap<String, Vec<[f64; 3]>> = BTreeMap::new();
+/// Attitudes per design in the order built (`point`), with their readings.
+fn group_points(rows: Vec<DesignPointRow>) -> BTreeMap<String, Vec<([f64; 3], usize)>> {
+    let mut by: BTreeMap<String, Vec<(usize, [f64; 3], usize)>> = BTreeMap::new();
     for r in rows {
         by.entry(r.design)
             .or_default()
-            .push([r.roll_deg.0, r.yaw_deg.0, r.pitch_deg.0]);
+            .push((r.point, [r.roll_deg.0, r.yaw_deg.0, r.pitch_deg.0], r.readings));
     }
-    by
+    by.into_iter()
+        .map(|(k, mut v)| {
+            v.sort_by_key(|p| p.0);
+            (k, v.into_iter().map(|p| (p.1, p.2)).collect())
+        })
+        .collect()
 }
 
 /// Status counts per cell, baseline `trials.csv` against this run, within 4 sqrt(count).

@@ -52,6 +52,9 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     let drawn = plots::draw(&staged, &manifest, &mut set, "plots/").context("drawing the figures")?;
     set.commit()?;
     if !common.quiet {
+        if designs_only {
+            print::flight_plans(&run, scenario.field.yaw_offset_deg());
+        }
         print::summary(&run, &dir);
         println!(
             "{} figures (SVG and PNG) in {}",

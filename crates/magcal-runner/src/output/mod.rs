@@ -15,6 +15,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use magcal_core::CalibrationStatus;
+use magcal_core::design::tour;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
@@ -245,7 +246,10 @@ impl TrialRow {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct DesignPointRow {
     pub design: String,
-    /// 1-based.
+    /// 1-based position in the visiting order (rows are written in this order).
+    pub visit: usize,
+    /// 1-based index of the attitude in the design as built (scenario or optimiser order; the
+    /// trials simulate the readings in this order).
     pub point: usize,
     pub roll_deg: Real,
     pub yaw_deg: Real,
@@ -255,6 +259,16 @@ pub struct DesignPointRow {
     pub qx: Real,
     pub qy: Real,
     pub qz: Real,
+    /// Readings planned at this attitude (1 but for a plan).
+    #[serde(default = "one")]
+    pub readings: usize,
+    /// The rotation from the previous attitude in the visiting order, degrees (empty for the
+    /// first).
+    pub turn_deg: Option<Real>,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// `design_metrics.csv`: information and conditioning of a design; D-efficiency against the best
@@ -489,18 +503,21 @@ pub fn trial_rows(out: &RunOutput) -> impl Iterator<Item = TrialRow> + '_ {
     })
 }
 
-/// The rows of `designs.csv`.
+/// The rows of `designs.csv`, design by design in visiting order.
 pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item = DesignPointRow> + '_ {
     out.designs.iter().flat_map(move |d| {
-        d.attitudes.iter().enumerate().map(move |(i, a)| {
+        d.order.iter().enumerate().map(move |(v, &i)| {
+            let a = &d.attitudes[i];
             let [r, y, p] = a.to_degrees();
             let flown = magcal_core::Attitude {
                 yaw: a.yaw + yaw_offset_deg.to_radians(),
                 ..*a
             };
             let [qw, qx, qy, qz] = body_to_nav_quaternion(&flown.dcm());
+            let turn = (v > 0).then(|| tour::rotation_angle(&d.attitudes[d.order[v - 1]], a).to_degrees());
             DesignPointRow {
                 design: d.name.clone(),
+                visit: v + 1,
                 point: i + 1,
                 roll_deg: degrees(r),
                 yaw_deg: degrees(y),
@@ -510,6 +527,8 @@ pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item =
                 qx: Real(qx),
                 qy: Real(qy),
                 qz: Real(qz),
+                readings: d.readings[i],
+                turn_deg: turn.map(degrees),
             }
         })
     })
@@ -581,7 +600,7 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
         });
         DesignMetricsRow {
             design: d.name.clone(),
-            m: d.attitudes.len(),
+            m: d.m(),
             ln_det_mf: Real(d.ln_det_mf),
             d_efficiency: defined(out.d_efficiency(i)),
             cond_h: defined(d.conditioning.cond_h),

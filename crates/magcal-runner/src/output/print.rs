@@ -9,6 +9,45 @@ fn cell(x: f64) -> String {
     if x.is_nan() { "-".into() } else { format!("{x:.3}") }
 }
 
+/// Rows of a flight plan shown on the screen per design; the rest are in `designs.csv`.
+const FLIGHT_PLAN_ROWS: usize = 40;
+
+/// Each design as a pilot flies it: the attitudes in visiting order with roll, pitch, the compass
+/// heading of the nose, the readings to log there and the turn from the previous attitude.
+pub fn flight_plans(out: &RunOutput, yaw_offset_deg: f64) {
+    let rows: Vec<_> = crate::output::design_rows(out, yaw_offset_deg).collect();
+    for d in &out.designs {
+        let plan: Vec<_> = rows.iter().filter(|r| r.design == d.name).collect();
+        let total: f64 = plan.iter().filter_map(|r| r.turn_deg.map(|t| t.0)).sum();
+        println!(
+            "flight plan {} ({} attitudes, {} readings, {:.0} deg of turning in all):",
+            d.name,
+            plan.len(),
+            d.m(),
+            total
+        );
+        println!(
+            "  {:>5} {:>9} {:>9} {:>11} {:>8} {:>9}",
+            "visit", "roll_deg", "pitch_deg", "heading_deg", "readings", "turn_deg"
+        );
+        for r in plan.iter().take(FLIGHT_PLAN_ROWS) {
+            println!(
+                "  {:>5} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>9}",
+                r.visit,
+                r.roll_deg.0,
+                r.pitch_deg.0,
+                r.heading_deg.0,
+                r.readings,
+                r.turn_deg.map_or("-".to_string(), |t| format!("{:.1}", t.0))
+            );
+        }
+        if plan.len() > FLIGHT_PLAN_ROWS {
+            println!("  ... {} more in designs.csv", plan.len() - FLIGHT_PLAN_ROWS);
+        }
+        println!();
+    }
+}
+
 /// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
 /// the outcome counts and the median of the main metrics beside their Cramer-Rao rms, with a
 /// warning line under a cell where fewer than 95 % of the trials are `ok`.
@@ -37,7 +76,7 @@ pub fn summary(out: &RunOutput, dir: &Path) {
         println!(
             "{:<14} {:>4} {:>10.4} {:>9.4} {:>9}  {verdict}",
             d.name,
-            d.attitudes.len(),
+            d.m(),
             d.ln_det_mf,
             out.d_efficiency(i),
             out.d_efficiency_bound(i)
