@@ -41,6 +41,8 @@ pub struct BuiltDesign {
     pub name: String,
     /// Source kind.
     pub kind: DesignKind,
+    /// The criterion its optimiser minimised, if any.
+    pub criterion: Option<magcal_core::design::DesignCriterion>,
     /// Its distinct attitudes, in the order built (the order of the scenario or the optimiser).
     pub attitudes: Vec<Attitude>,
     /// Readings planned at each attitude (1 but for a plan).
@@ -338,6 +340,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         designs.push(BuiltDesign {
             name: spec.name.clone(),
             kind: spec.source.kind(),
+            criterion: spec.source.criterion(),
             conditioning: Conditioning::of_readings(&noise_free, scenario.field.magnitude()),
             ln_det_mf: metrics.ln_det_mf,
             a_criterion: metrics.a,

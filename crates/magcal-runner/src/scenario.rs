@@ -188,6 +188,7 @@ mod raw {
             c2: Option<f64>,
             vmax_fraction: Option<f64>,
             threshold: Option<f64>,
+            criterion: Option<Criterion>,
         },
         Plan {
             name: String,
@@ -199,7 +200,27 @@ mod raw {
             starts: Option<usize>,
             max_iterations: Option<usize>,
             gradient_tolerance: Option<f64>,
+            criterion: Option<Criterion>,
         },
+    }
+
+    /// `criterion = "d" | "a" | "e"`.
+    #[derive(Debug, Clone, Copy, Deserialize)]
+    #[serde(rename_all = "lowercase")]
+    pub enum Criterion {
+        D,
+        A,
+        E,
+    }
+
+    impl From<Criterion> for magcal_core::design::DesignCriterion {
+        fn from(c: Criterion) -> Self {
+            match c {
+                Criterion::D => Self::D,
+                Criterion::A => Self::A,
+                Criterion::E => Self::E,
+            }
+        }
     }
 
     #[derive(Debug, Deserialize)]
@@ -293,6 +314,18 @@ impl DesignSource {
             Self::Pso { .. } => DesignKind::Pso,
             Self::Optimum { .. } => DesignKind::Optimum,
             Self::Plan { .. } => DesignKind::Plan,
+        }
+    }
+
+    /// The criterion an optimiser minimises (`None` for designs that are not optimised; a plan
+    /// is D-optimal).
+    pub fn criterion(&self) -> Option<magcal_core::design::DesignCriterion> {
+        use magcal_core::design::DesignCriterion;
+        match self {
+            Self::Pso { swarm, .. } => Some(swarm.criterion),
+            Self::Optimum { settings, .. } => Some(settings.criterion),
+            Self::Plan { .. } => Some(DesignCriterion::D),
+            _ => None,
         }
     }
 
@@ -773,6 +806,7 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
             c2,
             vmax_fraction,
             threshold,
+            criterion,
             ..
         } => {
             let d = Swarm::default();
@@ -795,7 +829,7 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
                 c2: c2.unwrap_or(d.c2),
                 vmax_fraction: vmax_fraction.unwrap_or(d.vmax_fraction),
                 threshold,
-                criterion: d.criterion,
+                criterion: criterion.map_or(d.criterion, Into::into),
             };
             for (field, v) in [
                 ("w_max", swarm.w_max),
@@ -826,6 +860,7 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
             starts,
             max_iterations,
             gradient_tolerance,
+            criterion,
             ..
         } => {
             let d = Optimum::default();
@@ -839,6 +874,7 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
                 )?,
                 gradient_tolerance: gradient_tolerance.unwrap_or(d.gradient_tolerance),
                 memory: d.memory,
+                criterion: criterion.map_or(d.criterion, Into::into),
             };
             if !(settings.gradient_tolerance.is_finite() && settings.gradient_tolerance > 0.0) {
                 bail!(

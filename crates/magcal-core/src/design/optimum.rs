@@ -22,7 +22,7 @@ use std::collections::VecDeque;
 use rand::{Rng, RngExt, SeedableRng};
 use rayon::prelude::*;
 
-use super::{DesignProblem, from_vector, sources};
+use super::{DesignCriterion, DesignProblem, from_vector, sources};
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::error::ParameterError;
 use crate::linear_model::{UNKNOWNS, regression_row};
@@ -72,6 +72,87 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
     ln_det
 }
 
+/// `ln` of the A- or E-criterion of design `x` and its gradient, written to `grad`: with
+/// `phi = trace(M^-1)` (A) or `phi = 1 / lambda_min(M)` (E) of the R-scaled information,
+/// `d phi / d theta = -2 sum_i w_i^T dh_i/d theta` with `w_i = M^-2 h_i` (A) or
+/// `w_i = (v^T h_i) v / lambda_min^2` (E, `v` the unit eigenvector of `lambda_min`, which is
+/// differentiable where `lambda_min` is simple). The logarithm makes the value scale-free, so that
+/// one gradient tolerance serves every box. `+inf` (gradient zero) for a singular design.
+///
+/// # Panics
+/// If `x` or `grad` is not of length `3m`, or `criterion` is D (see [`ln_det_and_gradient`]).
+#[track_caller]
+pub fn ln_criterion_and_gradient(
+    problem: &DesignProblem,
+    criterion: DesignCriterion,
+    x: &[f64],
+    grad: &mut [f64],
+) -> f64 {
+    assert_eq!(x.len(), problem.dimension(), "design vector length must be 3m");
+    assert_eq!(grad.len(), x.len(), "gradient length must be 3m");
+    grad.fill(0.0);
+    let M = problem.information(x);
+    let mut L = M;
+    if !cholesky_in_place(&mut L) {
+        return f64::INFINITY;
+    }
+    // phi and the matrix W with w_i = W h_i.
+    let (phi, W): (f64, [[f64; UNKNOWNS]; UNKNOWNS]) = match criterion {
+        DesignCriterion::A => {
+            let inv: [[f64; UNKNOWNS]; UNKNOWNS] = std::array::from_fn(|j| {
+                let mut e = [0.0; UNKNOWNS];
+                e[j] = 1.0;
+                cholesky_solve(&L, &e)
+            });
+            let phi: f64 = (0..UNKNOWNS).map(|i| inv[i][i]).sum();
+            let W = std::array::from_fn(|i| {
+                std::array::from_fn(|j| (0..UNKNOWNS).map(|k| inv[i][k] * inv[k][j]).sum::<f64>())
+            });
+            (phi, W)
+        }
+        DesignCriterion::E => {
+            let fm = faer::MatRef::from_row_major_slice(M.as_flattened(), UNKNOWNS, UNKNOWNS);
+            let Ok(evd) = fm.self_adjoint_eigen(faer::Side::Lower) else {
+                return f64::INFINITY;
+            };
+            let lambda = evd.S()[0];
+            if !(lambda > 0.0) {
+                return f64::INFINITY;
+            }
+            let v: [f64; UNKNOWNS] = std::array::from_fn(|i| evd.U()[(i, 0)]);
+            let W = std::array::from_fn(|i| std::array::from_fn(|j| v[i] * v[j] / (lambda * lambda)));
+            (1.0 / lambda, W)
+        }
+        DesignCriterion::D => panic!("ln_criterion_and_gradient: D has ln_det_and_gradient"),
+    };
+    let Ks = problem.k_scaled();
+    let field = problem.field();
+    let o = problem.o_scaled();
+    for (a, g) in x.chunks_exact(3).zip(grad.chunks_exact_mut(3)) {
+        let attitude = Attitude {
+            roll: a[0],
+            yaw: a[1],
+            pitch: a[2],
+        };
+        let (b, db) = field.body_field_and_derivatives(&attitude);
+        let kb = crate::small::mat_vec(Ks, b);
+        let [ux, uy, uz] = [kb[0] + o[0], kb[1] + o[1], kb[2] + o[2]];
+        let h = regression_row([ux, uy, uz]);
+        let w: [f64; UNKNOWNS] = std::array::from_fn(|i| (0..UNKNOWNS).map(|j| W[i][j] * h[j]).sum());
+        let q = [
+            2.0 * ux * w[0] + uy * w[1] + uz * w[2] + w[6],
+            ux * w[1] + 2.0 * uy * w[3] + uz * w[4] + w[7],
+            ux * w[2] + uy * w[4] + 2.0 * uz * w[5] + w[8],
+        ];
+        let kq = mat_t_vec(Ks, q);
+        for k in 0..3 {
+            // d ln phi = d phi / phi.
+            g[k] = -2.0 * (kq[0] * db[k][0] + kq[1] * db[k][1] + kq[2] * db[k][2]) / phi;
+        }
+    }
+    phi.ln()
+}
+
 /// Settings of the multi-start optimiser.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Optimum {
@@ -84,6 +165,8 @@ pub struct Optimum {
     pub gradient_tolerance: f64,
     /// L-BFGS memory (pairs kept). Default 10.
     pub memory: usize,
+    /// The criterion optimised. Default D.
+    pub criterion: DesignCriterion,
 }
 
 impl Default for Optimum {
@@ -93,6 +176,7 @@ impl Default for Optimum {
             max_iterations: 500,
             gradient_tolerance: 1e-7,
             memory: 10,
+            criterion: DesignCriterion::D,
         }
     }
 }
@@ -106,6 +190,9 @@ pub struct OptimumResult {
     pub ln_det: f64,
     /// The final `ln det M_F` of every start, in start order.
     pub start_ln_dets: Vec<f64>,
+    /// The best design's value of the criterion optimised, as
+    /// [`DesignProblem::fitness`] gives it (to minimise).
+    pub fitness: f64,
     /// Objective and gradient evaluations, all starts together.
     pub evaluations: usize,
 }
@@ -148,20 +235,38 @@ impl Optimum {
     ) -> Result<OptimumResult, ParameterError> {
         self.validate()?;
         let seeds: Vec<u64> = (0..self.starts).map(|_| rng.random()).collect();
-        let runs: Vec<(Vec<f64>, f64, usize)> = seeds
+        // Each start: (design, ln det M_F, fitness, evaluations).
+        let runs: Vec<(Vec<f64>, f64, f64, usize)> = seeds
             .into_par_iter()
             .map(|seed| {
                 let mut rng = MagcalRng::seed_from_u64(seed);
                 let start = super::to_vector(&sources::random(problem.bounds(), problem.m(), &mut rng));
-                self.local(problem, start)
+                match self.criterion {
+                    DesignCriterion::D => {
+                        let (x, ln_det, evaluations) = self.local(problem, start);
+                        (x, ln_det, -ln_det, evaluations)
+                    }
+                    criterion => {
+                        let (lo, hi) = bounds_of(problem.bounds(), start.len());
+                        let (x, _, evaluations) = self.minimise(&lo, &hi, start, |x, g| {
+                            ln_criterion_and_gradient(problem, criterion, x, g)
+                        });
+                        (
+                            x.clone(),
+                            problem.ln_det(&x),
+                            problem.fitness(criterion, &x),
+                            evaluations,
+                        )
+                    }
+                }
             })
             .collect();
-        let evaluations = runs.iter().map(|r| r.2).sum();
+        let evaluations = runs.iter().map(|r| r.3).sum();
         let start_ln_dets: Vec<f64> = runs.iter().map(|r| r.1).collect();
         let best = runs
             .iter()
             .enumerate()
-            .fold(0, |b, (i, r)| if r.1 > runs[b].1 { i } else { b });
+            .fold(0, |b, (i, r)| if r.2 < runs[b].2 { i } else { b });
         let design = from_vector(&runs[best].0)
             .into_iter()
             .map(|a| problem.bounds().confine(&a))
@@ -170,6 +275,7 @@ impl Optimum {
             design,
             ln_det: runs[best].1,
             start_ln_dets,
+            fitness: runs[best].2,
             evaluations,
         })
     }
@@ -320,6 +426,70 @@ mod tests {
     use crate::paper;
     use crate::rng::stream_rng;
     use proptest::prelude::*;
+
+    #[test]
+    fn a_and_e_gradients_match_central_differences() {
+        let problem = DesignProblem::new(
+            paper::changsha_field(),
+            paper::true_error_model(),
+            AttitudeBox::full(),
+            12,
+        )
+        .unwrap();
+        let mut rng = stream_rng(41, 0);
+        for criterion in [DesignCriterion::A, DesignCriterion::E] {
+            for _ in 0..20 {
+                let x = crate::design::to_vector(&sources::random(problem.bounds(), 12, &mut rng));
+                let mut g = vec![0.0; 36];
+                let f = ln_criterion_and_gradient(&problem, criterion, &x, &mut g);
+                // The value is ln of the criterion as fitness() gives it.
+                let fitness = problem.fitness(criterion, &x);
+                let want = if criterion == DesignCriterion::A {
+                    fitness.ln()
+                } else {
+                    (-1.0 / fitness).ln()
+                };
+                assert!((f - want).abs() < 1e-10 * want.abs().max(1.0), "{f} {want}");
+                let mut scratch = vec![0.0; 36];
+                for k in 0..36 {
+                    let h = 1e-6;
+                    let mut at = |d: f64| {
+                        let mut y = x.clone();
+                        y[k] += d;
+                        ln_criterion_and_gradient(&problem, criterion, &y, &mut scratch)
+                    };
+                    let numeric = (at(h) - at(-h)) / (2.0 * h);
+                    assert!(
+                        (numeric - g[k]).abs() <= 1e-5 * (1.0 + g[k].abs()),
+                        "{criterion:?} {k}: {numeric} vs {}",
+                        g[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_and_e_optima_beat_the_d_optimum_on_their_own_criterion() {
+        let problem = paper_problem();
+        let d = Optimum::default().optimise(&problem, &mut stream_rng(3, 0)).unwrap();
+        for criterion in [DesignCriterion::A, DesignCriterion::E] {
+            let o = Optimum {
+                criterion,
+                ..Optimum::default()
+            }
+            .optimise(&problem, &mut stream_rng(3, 0))
+            .unwrap();
+            let own = problem.fitness(criterion, &crate::design::to_vector(&o.design));
+            assert!((own - o.fitness).abs() <= 1e-9 * own.abs());
+            assert!(
+                own < problem.fitness(criterion, &crate::design::to_vector(&d.design)),
+                "{criterion:?}"
+            );
+            // and the D-optimum is better on D.
+            assert!(o.ln_det < d.ln_det);
+        }
+    }
 
     proptest! {
         #![proptest_config(ProptestConfig { cases: 2000, .. ProptestConfig::default() })]

@@ -295,6 +295,8 @@ pub struct DesignMetricsRow {
     /// Certified lower bound of the D-efficiency against every design of `m` readings in the
     /// box (`approximate.csv`, `certificate.csv`); empty without a certificate.
     pub d_efficiency_bound: Option<Real>,
+    /// The criterion the design's optimiser minimised (`d`, `a`, `e`; empty when not optimised).
+    pub criterion: Option<String>,
 }
 
 /// `approximate.csv`: the approximate D-optimal design of the box, support points by decreasing
@@ -615,6 +617,7 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             identifiable: d.verdict.identifiable,
             weakest: d.verdict.weakest.clone(),
             d_efficiency_bound: out.d_efficiency_bound(i).and_then(defined),
+            criterion: d.criterion.map(|c| c.as_str().to_string()),
         }
     })
 }
