@@ -116,7 +116,7 @@ pub fn ln_criterion_and_gradient(
                 return f64::INFINITY;
             };
             let lambda = evd.S()[0];
-            if !(lambda > 0.0) {
+            if lambda.is_nan() || lambda <= 0.0 {
                 return f64::INFINITY;
             }
             let v: [f64; UNKNOWNS] = std::array::from_fn(|i| evd.U()[(i, 0)]);
