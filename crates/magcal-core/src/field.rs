@@ -3,6 +3,7 @@
 use crate::attitude::Attitude;
 use crate::error::{ParameterError, finite};
 use crate::small::{Vec3, norm};
+use rand_distr::Distribution;
 
 /// The homogeneous reference field at the calibration site (\[P1\] II.A).
 ///
@@ -102,6 +103,46 @@ impl ReferenceField {
         (rx(v2), [drx(v2), rx(rz(dv1)), rx(drz(v1))])
     }
 
+    /// The body fields of `attitudes` as a vehicle flies them: each of roll, yaw and pitch off
+    /// its commanded value by an independent `N(0, sigma_rad^2)` draw (three draws per attitude,
+    /// roll, yaw, pitch, in order). With `sigma_rad = 0` nothing is drawn and the fields are the
+    /// commanded ones.
+    ///
+    /// # Errors
+    /// [`ParameterError::Negative`] or [`ParameterError::NonFinite`] for a bad `sigma_rad`.
+    pub fn executed_body_fields<R: rand::Rng + ?Sized>(
+        &self,
+        attitudes: &[Attitude],
+        sigma_rad: f64,
+        rng: &mut R,
+    ) -> Result<Vec<Vec3>, ParameterError> {
+        let sigma = finite("attitude_sigma", sigma_rad)?;
+        if sigma < 0.0 {
+            return Err(ParameterError::Negative {
+                name: "attitude_sigma",
+                value: sigma,
+            });
+        }
+        if sigma == 0.0 {
+            return Ok(self.body_fields(attitudes));
+        }
+        let normal = rand_distr::Normal::new(0.0, sigma).map_err(|_| ParameterError::NonFinite {
+            name: "attitude_sigma",
+            value: sigma,
+        })?;
+        Ok(attitudes
+            .iter()
+            .map(|a| {
+                let flown = Attitude {
+                    roll: a.roll + normal.sample(rng),
+                    yaw: a.yaw + normal.sample(rng),
+                    pitch: a.pitch + normal.sample(rng),
+                };
+                self.body_field(&flown)
+            })
+            .collect())
+    }
+
     /// [`Self::body_field`] for every attitude of a design, in order.
     pub fn body_fields(&self, attitudes: &[Attitude]) -> Vec<Vec3> {
         attitudes.iter().map(|a| self.body_field(a)).collect()
@@ -112,6 +153,44 @@ impl ReferenceField {
 mod tests {
     use super::*;
     use crate::paper;
+
+    #[test]
+    fn executed_fields_turn_the_commanded_ones_by_about_sigma() {
+        use crate::rng::stream_rng;
+        let f = paper::changsha_field();
+        let design = paper::uniformity_design();
+        let commanded = f.body_fields(&design);
+        assert_eq!(
+            f.executed_body_fields(&design, 0.0, &mut stream_rng(1, 0)).unwrap(),
+            commanded
+        );
+        // The angle between commanded and flown field: its mean grows linearly with sigma
+        // (small angles), and the magnitude is kept.
+        let mean_angle = |sigma_deg: f64| {
+            let mut rng = stream_rng(2, 0);
+            let mut total = 0.0;
+            let n = 20_000;
+            for _ in 0..n / design.len() {
+                let flown = f
+                    .executed_body_fields(&design, sigma_deg.to_radians(), &mut rng)
+                    .unwrap();
+                for (a, b) in commanded.iter().zip(&flown) {
+                    assert!((norm(*a) - norm(*b)).abs() < 1e-9 * norm(*a));
+                    let c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (norm(*a) * norm(*b));
+                    total += c.clamp(-1.0, 1.0).acos();
+                }
+            }
+            total / (n / design.len() * design.len()) as f64
+        };
+        let (one, two) = (mean_angle(0.5), mean_angle(1.0));
+        assert!(
+            one > 0.2f64.to_radians() && one < 1.0f64.to_radians(),
+            "{}",
+            one.to_degrees()
+        );
+        assert!((two / one - 2.0).abs() < 0.05, "{}", two / one);
+        assert!(f.executed_body_fields(&design, -1.0, &mut stream_rng(1, 0)).is_err());
+    }
 
     #[test]
     #[allow(clippy::float_cmp)] // B^n is a permutation of the given numbers: exact

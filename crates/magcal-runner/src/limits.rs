@@ -16,6 +16,11 @@ pub const MAX_NAME: usize = 64;
 pub const MAX_TRIALS: usize = 10_000_000;
 /// Noise levels of a sweep.
 pub const MAX_SIGMAS: usize = 1_000;
+/// Levels of execution error (`attitude_sigma_deg`); with the noise levels they share the trial
+/// streams' second index (below 2^16).
+pub const MAX_ATTITUDE_SIGMAS: usize = 60;
+/// Largest execution error, degrees.
+pub const MAX_ATTITUDE_SIGMA_DEG: f64 = 30.0;
 /// Designs of a scenario.
 pub const MAX_DESIGNS: usize = 1_000;
 /// Attitudes of one design (and grid points).
@@ -121,7 +126,8 @@ pub fn estimate(scenario: &Scenario, with_trials: bool, threads: usize) -> Vec<(
         ));
     }
     if with_trials {
-        let rows = (scenario.designs.len() * scenario.sigmas_nt.len()) as u64 * scenario.trials as u64;
+        let rows = (scenario.designs.len() * scenario.sigmas_nt.len() * scenario.attitude_sigmas_deg.len()) as u64
+            * scenario.trials as u64;
         // Every outcome is kept until the statistics and files are written; the statistics sort a
         // copy of each metric of one cell.
         let per_row = std::mem::size_of::<TrialOutcome>() as u64 + 32;

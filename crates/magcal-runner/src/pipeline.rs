@@ -23,6 +23,7 @@ use crate::output::Metric;
 use rand::RngExt;
 use rayon::prelude::*;
 
+use crate::limits;
 use crate::scenario::{DesignKind, DesignSource, Scenario};
 
 /// Stream-id prefix of the design optimisers (design indices stay below it).
@@ -90,9 +91,11 @@ pub struct Cell {
     pub design: usize,
     /// Noise level, nT.
     pub sigma_nt: f64,
+    /// Execution error of the attitudes, degrees (0: flown as commanded).
+    pub attitude_sigma_deg: f64,
     /// Trials in order.
     pub trials: Vec<TrialOutcome>,
-    /// The Cramer-Rao bound of the design at this noise level.
+    /// The Cramer-Rao bound of the design at this noise level, at the commanded attitudes.
     pub bound: CramerRao,
 }
 
@@ -377,7 +380,8 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
     let mut cells = Vec::new();
     if !options.designs_only {
         let t = Instant::now();
-        let total = (designs.len() * scenario.sigmas_nt.len() * scenario.trials) as u64;
+        let total =
+            (designs.len() * scenario.sigmas_nt.len() * scenario.attitude_sigmas_deg.len() * scenario.trials) as u64;
         let bar = if options.progress {
             let bar = ProgressBar::new(total);
             bar.set_style(
@@ -390,36 +394,52 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         };
         let probe = HeadingProbe::new(&scenario.field, &scenario.truth);
         for (d, built) in designs.iter().enumerate() {
-            let body = scenario.field.body_fields(&built.expanded());
+            let commanded = built.expanded();
+            let body = scenario.field.body_fields(&commanded);
             for (s, &sigma) in scenario.sigmas_nt.iter().enumerate() {
                 // Step 2's local identifiability check knows the noise of the cell.
                 let calibration = magcal_core::TwoStep {
                     noise_nt: Some(sigma),
                     ..scenario.calibration.clone()
                 };
-                let trials: Vec<TrialOutcome> = (0..scenario.trials)
-                    .into_par_iter()
-                    .map(|t| {
-                        let mut rng = stream_rng(scenario.seed, stream_id(&[d as u64, s as u64, t as u64]));
-                        let trial = monte_carlo::trial(
-                            &scenario.truth,
-                            &body,
-                            scenario.field.magnitude(),
-                            sigma,
-                            &calibration,
-                            &probe,
-                            &mut rng,
-                        );
-                        bar.inc(1);
-                        trial
-                    })
-                    .collect::<Result<_, _>>()?;
-                cells.push(Cell {
-                    design: d,
-                    sigma_nt: sigma,
-                    trials,
-                    bound: CramerRao::new(&scenario.truth, &body, sigma, &PhysicalScales::default()),
-                });
+                let bound = CramerRao::new(&scenario.truth, &body, sigma, &PhysicalScales::default());
+                for (a, &attitude_sigma) in scenario.attitude_sigmas_deg.iter().enumerate() {
+                    // Without execution error the stream is [d, s, t], as before the setting existed.
+                    let level = (s + a * limits::MAX_SIGMAS) as u64;
+                    let trials: Vec<TrialOutcome> = (0..scenario.trials)
+                        .into_par_iter()
+                        .map(|t| {
+                            let mut rng = stream_rng(scenario.seed, stream_id(&[d as u64, level, t as u64]));
+                            // The attitudes as flown (drawn first), then the readings' noise.
+                            let flown: std::borrow::Cow<[magcal_core::Vec3]> = if attitude_sigma == 0.0 {
+                                std::borrow::Cow::Borrowed(&body)
+                            } else {
+                                let radians = attitude_sigma.to_radians();
+                                std::borrow::Cow::Owned(
+                                    scenario.field.executed_body_fields(&commanded, radians, &mut rng)?,
+                                )
+                            };
+                            let trial = monte_carlo::trial(
+                                &scenario.truth,
+                                &flown,
+                                scenario.field.magnitude(),
+                                sigma,
+                                &calibration,
+                                &probe,
+                                &mut rng,
+                            );
+                            bar.inc(1);
+                            trial
+                        })
+                        .collect::<Result<_, _>>()?;
+                    cells.push(Cell {
+                        design: d,
+                        sigma_nt: sigma,
+                        attitude_sigma_deg: attitude_sigma,
+                        trials,
+                        bound: bound.clone(),
+                    });
+                }
             }
         }
         bar.finish_and_clear();

@@ -72,8 +72,14 @@ impl Stat {
             }),
             _ => None,
         };
+        // A cell with execution error is its own series.
+        let design = if row.attitude_sigma_deg.0 > 0.0 {
+            format!("{} flown +-{} deg", row.design, row.attitude_sigma_deg.0)
+        } else {
+            row.design.clone()
+        };
         Self {
-            design: row.design.clone(),
+            design,
             metric: row.metric,
             sigma: row.sigma_nt.0,
             trials: row.trials,

@@ -79,6 +79,8 @@ mod raw {
         pub trials: usize,
         #[serde(deserialize_with = "one_or_many")]
         pub sigma_nt: Vec<f64>,
+        #[serde(default = "no_attitude_error", deserialize_with = "one_or_many")]
+        pub attitude_sigma_deg: Vec<f64>,
         pub field: Field,
         pub sensor: Sensor,
         pub attitude_box: AttitudeBox,
@@ -96,6 +98,10 @@ mod raw {
         pub candidates: Option<usize>,
         pub tolerance: Option<f64>,
         pub max_rounds: Option<usize>,
+    }
+
+    fn no_attitude_error() -> Vec<f64> {
+        vec![0.0]
     }
 
     fn default_trials() -> usize {
@@ -379,6 +385,9 @@ pub struct Scenario {
     pub trials: usize,
     /// Noise levels, nT per component.
     pub sigmas_nt: Vec<f64>,
+    /// Execution errors, degrees: every commanded angle of every reading is off by an
+    /// independent `N(0, sigma^2)` draw in each trial (0: flown as commanded).
+    pub attitude_sigmas_deg: Vec<f64>,
     /// Reference field.
     pub field: ReferenceField,
     /// True sensor errors.
@@ -521,6 +530,27 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
     }
     // -0 and 0 are one level, written as 0.
     let sigmas_nt: Vec<f64> = raw.sigma_nt.iter().map(|&s| if s == 0.0 { 0.0 } else { s }).collect();
+    if raw.attitude_sigma_deg.is_empty() {
+        bail!("attitude_sigma_deg = []: give at least one level (0 for none)");
+    }
+    count(
+        "attitude_sigma_deg (count)",
+        raw.attitude_sigma_deg.len(),
+        1,
+        limits::MAX_ATTITUDE_SIGMAS,
+    )?;
+    for (i, &a) in raw.attitude_sigma_deg.iter().enumerate() {
+        let key = format!("attitude_sigma_deg[{i}]");
+        within(&key, a, 0.0, limits::MAX_ATTITUDE_SIGMA_DEG, " degrees")?;
+        if raw.attitude_sigma_deg[..i].contains(&a) {
+            bail!("{key} = {}: listed twice", show(a));
+        }
+    }
+    let attitude_sigmas_deg: Vec<f64> = raw
+        .attitude_sigma_deg
+        .iter()
+        .map(|&a| if a == 0.0 { 0.0 } else { a })
+        .collect();
 
     let field = reference_field(&raw.field)?;
 
@@ -630,6 +660,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         seed: raw.seed,
         trials: raw.trials,
         sigmas_nt,
+        attitude_sigmas_deg,
         field,
         truth,
         bounds,

@@ -262,6 +262,42 @@ fn scenario_cases() -> Vec<Case> {
             ),
             &["calibration.max_iterations = 10000000", "at most 1000000"],
         ),
+        // Execution error.
+        case(
+            smoke_with(
+                "sigma_nt = [10.0, 30.0]",
+                "sigma_nt = [10.0, 30.0]\nattitude_sigma_deg = -1.0",
+            ),
+            &["attitude_sigma_deg[0] = -1", "[0, 30] degrees"],
+        ),
+        case(
+            smoke_with(
+                "sigma_nt = [10.0, 30.0]",
+                "sigma_nt = [10.0, 30.0]\nattitude_sigma_deg = [0.0, 45.0]",
+            ),
+            &["attitude_sigma_deg[1] = 45", "[0, 30] degrees"],
+        ),
+        case(
+            smoke_with(
+                "sigma_nt = [10.0, 30.0]",
+                "sigma_nt = [10.0, 30.0]\nattitude_sigma_deg = nan",
+            ),
+            &["attitude_sigma_deg[0] = NaN"],
+        ),
+        case(
+            smoke_with(
+                "sigma_nt = [10.0, 30.0]",
+                "sigma_nt = [10.0, 30.0]\nattitude_sigma_deg = []",
+            ),
+            &["attitude_sigma_deg = []"],
+        ),
+        case(
+            smoke_with(
+                "sigma_nt = [10.0, 30.0]",
+                "sigma_nt = [10.0, 30.0]\nattitude_sigma_deg = [1.0, 1.0]",
+            ),
+            &["attitude_sigma_deg[1] = 1", "listed twice"],
+        ),
         // Certificate.
         case(
             smoke_with("[attitude_box]", "[certificate]\ncandidates = 10\n\n[attitude_box]"),

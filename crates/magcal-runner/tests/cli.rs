@@ -166,6 +166,49 @@ fn same_seed_gives_byte_identical_csv_on_one_and_several_threads() {
 }
 
 #[test]
+fn execution_error_adds_cells_and_leaves_the_commanded_ones_unchanged() {
+    // The smoke scenario with attitude_sigma_deg = [0, 2]: the 0 cells are the trials of the plain
+    // run, bit for bit (same streams); the 2-degree cells are new trials of the same designs.
+    let plain = TempDir::new().unwrap();
+    run_smoke(plain.path(), 2);
+    let text = fs::read_to_string(smoke()).unwrap().replacen(
+        "sigma_nt = [10.0, 30.0]",
+        "sigma_nt = [10.0, 30.0]\nattitude_sigma_deg = [0.0, 2.0]",
+        1,
+    );
+    let dir = TempDir::new().unwrap();
+    let scenario = dir.path().join("smoke-flown.toml");
+    fs::write(&scenario, text).unwrap();
+    let out = dir.path().join("out");
+    magcal()
+        .args(["run", "--quiet", "--out"])
+        .arg(&out)
+        .arg(&scenario)
+        .assert()
+        .success();
+    let base: Vec<TrialRow> = read_csv(&plain.path().join("trials.csv")).unwrap();
+    let both: Vec<TrialRow> = read_csv(&out.join("trials.csv")).unwrap();
+    assert_eq!(both.len(), 2 * base.len());
+    let commanded: Vec<&TrialRow> = both.iter().filter(|t| t.attitude_sigma_deg.0 == 0.0).collect();
+    assert_eq!(commanded.len(), base.len());
+    for (a, b) in base.iter().zip(commanded) {
+        assert_eq!(a, b);
+    }
+    let flown: Vec<&TrialRow> = both.iter().filter(|t| t.attitude_sigma_deg.0 == 2.0).collect();
+    assert_eq!(flown.len(), base.len());
+    let differ = base.iter().zip(&flown).filter(|(a, b)| a.eta_psi != b.eta_psi).count();
+    assert!(differ > base.len() * 9 / 10, "{differ} of {}", base.len());
+    let summary: Vec<SummaryRow> = read_csv(&out.join("summary.csv")).unwrap();
+    assert_eq!(
+        summary.iter().filter(|r| r.attitude_sigma_deg.0 == 2.0).count(),
+        summary.len() / 2
+    );
+    // One Cramer-Rao bound per design and noise level.
+    let crb = fs::read_to_string(out.join("crb.csv")).unwrap();
+    assert_eq!(crb.lines().count(), 1 + 4 * 2 * 9);
+}
+
+#[test]
 fn seed_override_changes_the_trials() {
     let (a, b) = (TempDir::new().unwrap(), TempDir::new().unwrap());
     run_smoke(a.path(), 2);

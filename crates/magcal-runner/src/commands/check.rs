@@ -143,8 +143,12 @@ fn standard_error(x: Option<Real>, file: &str, key: &str) -> Result<Option<f64>>
 }
 
 /// Key of a cell: design and noise level.
-fn cell_key(design: &str, sigma: f64) -> String {
-    format!("{design} / {sigma}")
+fn cell_key(design: &str, sigma: f64, attitude_sigma: f64) -> String {
+    if attitude_sigma == 0.0 {
+        format!("{design} / {sigma}")
+    } else {
+        format!("{design} / {sigma} / attitude {attitude_sigma} deg")
+    }
 }
 
 /// Compares `out` with the baseline directory; returns what moved (empty: no regression).
@@ -177,7 +181,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         let key = |r: &SummaryRow| {
             format!(
                 "summary.csv {} / {}",
-                cell_key(&r.design, r.sigma_nt.0),
+                cell_key(&r.design, r.sigma_nt.0, r.attitude_sigma_deg.0),
                 r.metric.as_str()
             )
         };
@@ -253,6 +257,14 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             Some(b.ln_det_mf.0),
             Some(n.ln_det_mf.0),
             1e-6 * b.ln_det_mf.0.abs(),
+        );
+        // The certified bound: deterministic for a seed, up to the rounding of the search.
+        f.value(
+            k,
+            "d_efficiency_bound",
+            real(b.d_efficiency_bound),
+            real(n.d_efficiency_bound),
+            1e-6,
         );
         // Condition numbers only for designs that are not optimised (many designs share the optimal
         // ln det with different conditioning), at 1e-3 relative: cond_2 of an ill-conditioned H
@@ -373,13 +385,18 @@ fn group_points(rows: Vec<DesignPointRow>) -> BTreeMap<String, Vec<([f64; 3], us
 fn compare_statuses(f: &mut Findings, trials: &[TrialRow], out: &RunOutput) {
     let mut base: BTreeMap<(String, CalibrationStatus), usize> = BTreeMap::new();
     for t in trials {
-        *base.entry((cell_key(&t.design, t.sigma_nt.0), t.status.0)).or_default() += 1;
+        *base
+            .entry((cell_key(&t.design, t.sigma_nt.0, t.attitude_sigma_deg.0), t.status.0))
+            .or_default() += 1;
     }
     let mut now: BTreeMap<(String, CalibrationStatus), usize> = BTreeMap::new();
     for c in &out.cells {
         for t in &c.trials {
-            *now.entry((cell_key(&out.designs[c.design].name, c.sigma_nt), t.status))
-                .or_default() += 1;
+            *now.entry((
+                cell_key(&out.designs[c.design].name, c.sigma_nt, c.attitude_sigma_deg),
+                t.status,
+            ))
+            .or_default() += 1;
         }
     }
     let keys: std::collections::BTreeSet<_> = base.keys().chain(now.keys()).cloned().collect();
@@ -400,10 +417,13 @@ fn compare_statuses(f: &mut Findings, trials: &[TrialRow], out: &RunOutput) {
 fn baseline_consistency(f: &mut Findings, summary: &[SummaryRow], trials: &[TrialRow]) {
     let mut cells: BTreeMap<String, Vec<&TrialRow>> = BTreeMap::new();
     for t in trials {
-        cells.entry(cell_key(&t.design, t.sigma_nt.0)).or_default().push(t);
+        cells
+            .entry(cell_key(&t.design, t.sigma_nt.0, t.attitude_sigma_deg.0))
+            .or_default()
+            .push(t);
     }
     for row in summary {
-        let cell = cell_key(&row.design, row.sigma_nt.0);
+        let cell = cell_key(&row.design, row.sigma_nt.0, row.attitude_sigma_deg.0);
         let key = format!("baseline trials.csv vs summary.csv {cell} / {}", row.metric.as_str());
         let Some(rows) = cells.get(&cell) else {
             f.missing(&key, "no trials in the baseline's trials.csv");

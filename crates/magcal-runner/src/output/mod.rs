@@ -167,6 +167,8 @@ impl Metric {
 pub struct SummaryRow {
     pub design: String,
     pub sigma_nt: Real,
+    /// Execution error of the attitudes, degrees (`attitude_sigma_deg` of the scenario).
+    pub attitude_sigma_deg: Real,
     pub trials: usize,
     pub ok: usize,
     pub not_converged: usize,
@@ -199,6 +201,7 @@ pub struct CrbRow {
 pub struct TrialRow {
     pub design: String,
     pub sigma_nt: Real,
+    pub attitude_sigma_deg: Real,
     pub trial: usize,
     pub status: Status,
     pub eta_psi: Option<Real>,
@@ -434,6 +437,7 @@ pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
             SummaryRow {
                 design: design.clone(),
                 sigma_nt: Real(cell.sigma_nt),
+                attitude_sigma_deg: Real(cell.attitude_sigma_deg),
                 trials: cell.trials.len(),
                 ok: o.ok,
                 not_converged: o.not_converged,
@@ -456,16 +460,21 @@ pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
 /// The rows of `crb.csv`.
 pub fn crb_rows(out: &RunOutput) -> impl Iterator<Item = CrbRow> + '_ {
     use magcal_core::identifiability::{PARAMETERS, UNITS};
-    out.cells.iter().flat_map(move |cell| {
-        let design = &out.designs[cell.design].name;
-        (0..9).map(move |i| CrbRow {
-            design: design.clone(),
-            sigma_nt: Real(cell.sigma_nt),
-            parameter: PARAMETERS[i].to_string(),
-            std: cell.bound.std.and_then(|s| defined(s[i])),
-            unit: UNITS[i].to_string(),
+    // One bound per design and noise level: the cells of the first execution-error level.
+    let first = out.cells.first().map_or(0.0, |c| c.attitude_sigma_deg);
+    out.cells
+        .iter()
+        .filter(move |c| c.attitude_sigma_deg == first)
+        .flat_map(move |cell| {
+            let design = &out.designs[cell.design].name;
+            (0..9).map(move |i| CrbRow {
+                design: design.clone(),
+                sigma_nt: Real(cell.sigma_nt),
+                parameter: PARAMETERS[i].to_string(),
+                std: cell.bound.std.and_then(|s| defined(s[i])),
+                unit: UNITS[i].to_string(),
+            })
         })
-    })
 }
 
 /// The rows of `trials.csv`.
@@ -479,6 +488,7 @@ pub fn trial_rows(out: &RunOutput) -> impl Iterator<Item = TrialRow> + '_ {
             TrialRow {
                 design: design.clone(),
                 sigma_nt: Real(cell.sigma_nt),
+                attitude_sigma_deg: Real(cell.attitude_sigma_deg),
                 trial: t,
                 status: Status(trial.status),
                 eta_psi: eta(|e| e.psi),
@@ -724,6 +734,7 @@ mod tests {
             [
                 "design",
                 "sigma_nt",
+                "attitude_sigma_deg",
                 "trials",
                 "ok",
                 "not_converged",
@@ -752,6 +763,7 @@ mod tests {
         let row = SummaryRow {
             design: "u".into(),
             sigma_nt: Real(30.0),
+            attitude_sigma_deg: Real(0.5),
             trials: 10,
             failed: 1,
             ok: 9,
@@ -771,7 +783,7 @@ mod tests {
         let text = String::from_utf8(bytes.clone()).unwrap();
         assert_eq!(
             text.lines().nth(1),
-            Some("u,30,10,9,0,0,1,eta_o,0.30000000000000004,,inf,-0,2.5,,,1")
+            Some("u,30,0.5,10,9,0,0,1,eta_o,0.30000000000000004,,inf,-0,2.5,,,1")
         );
         let back: Vec<SummaryRow> = parse_csv(&bytes, "x").unwrap();
         assert_eq!(back, [row]);

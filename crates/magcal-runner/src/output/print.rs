@@ -105,9 +105,14 @@ pub fn summary(out: &RunOutput, dir: &Path) {
                 let crb = s[k].metric.predicted_rms(&c.bound).unwrap_or(f64::NAN);
                 format!("{:>8}/{:<8}", cell(s[k].summary.median), cell(crb))
             };
+            let name = if c.attitude_sigma_deg > 0.0 {
+                format!("{}~{}deg", out.designs[c.design].name, c.attitude_sigma_deg)
+            } else {
+                out.designs[c.design].name.clone()
+            };
             println!(
                 "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
-                out.designs[c.design].name,
+                name,
                 c.sigma_nt,
                 o.ok,
                 o.not_converged,
