@@ -242,24 +242,54 @@ impl Approximate {
             .collect();
         support.sort_by(|a, b| b.1.total_cmp(&a.1));
         // Points that meet are one attitude: merged into the heavier (earlier) one.
-        let mut merged: Vec<(Attitude, f64)> = Vec::with_capacity(support.len());
-        for (a, w) in support {
-            match merged.iter_mut().find(|(b, _)| distance(b, &a) <= MERGE_RAD) {
-                Some(m) => m.1 += w,
-                None => merged.push((a, w)),
-            }
-        }
-        let total: f64 = merged.iter().map(|s| s.1).sum();
-        let support: Vec<Attitude> = merged.iter().map(|s| s.0).collect();
-        let weights: Vec<f64> = merged.iter().map(|s| s.1 / total).collect();
-        let rows: Vec<Row> = support.iter().map(|a| row(problem, a)).collect();
+        let merged = merge(support, MERGE_RAD);
+        let (mut support, mut weights) = normalised(&merged);
+        let mut rows: Vec<Row> = support.iter().map(|a| row(problem, a)).collect();
         // The certificate of exactly this design (the merge moved weight by at most MERGE_RAD).
-        let certificate = if merged.len() == rows.len() && certificate_is_for(&certificate, problem, &rows, &weights) {
-            certificate
-        } else {
-            self.certify(problem, &support, &weights)?
-        };
-        let converged = converged && certificate.is_met(self.tolerance);
+        let mut certificate =
+            if merged.len() == rows.len() && certificate_is_for(&certificate, problem, &rows, &weights) {
+                certificate
+            } else {
+                self.certify(problem, &support, &weights)?
+            };
+        let mut converged = converged && certificate.is_met(self.tolerance);
+        // A design to fly: points within FLY_RAD of each other are one, and weights below
+        // FLY_WEIGHT are dropped; the weights are optimised again on what is left and the points
+        // refined. Kept only if it still meets the certificate (else the design above stays).
+        if converged {
+            let mut cleaned = merge(support.iter().copied().zip(weights.iter().copied()).collect(), FLY_RAD);
+            cleaned.retain(|(_, w)| *w >= FLY_WEIGHT);
+            let (mut fly, mut fly_weights) = normalised(&cleaned);
+            let mut fly_rows: Vec<Row> = fly.iter().map(|a| row(problem, a)).collect();
+            if fly.len() < support.len() && information_inverse(&fly_rows, &fly_weights).is_some() {
+                for _ in 0..2 {
+                    rex(
+                        &fly_rows,
+                        &mut fly_weights,
+                        self.tolerance * 0.1,
+                        self.max_iterations,
+                        rng,
+                    );
+                    refine(problem, &optimum, &mut fly, &mut fly_rows, &mut fly_weights);
+                }
+                let kept: Vec<(Attitude, f64)> = merge(
+                    fly.iter()
+                        .copied()
+                        .zip(fly_weights.iter().copied())
+                        .filter(|(_, w)| *w > 0.0)
+                        .collect(),
+                    MERGE_RAD,
+                );
+                let (fly, fly_weights) = normalised(&kept);
+                if let Ok(c) = self.certify(problem, &fly, &fly_weights)
+                    && c.is_met(self.tolerance)
+                {
+                    rows = fly.iter().map(|a| row(problem, a)).collect();
+                    (support, weights, certificate) = (fly, fly_weights, c);
+                }
+            }
+            converged = certificate.is_met(self.tolerance);
+        }
         Ok(ApproximateDesign {
             ln_det: ln_det_nt(problem, &rows, &weights),
             support,
@@ -445,6 +475,37 @@ const MAX_REFINED: usize = 20 * P;
 /// merged into the heavier one. A point of small weight has a small gradient and stops short of
 /// the heavier point it is converging to (0.007 degrees apart on the AUV box, measured).
 const MERGE_RAD: f64 = 1e-3;
+
+/// Support points closer than this (radians, 0.25 degrees) are one attitude in the design to
+/// fly (see [`Approximate::compute`]).
+const FLY_RAD: f64 = 4.363e-3;
+
+/// Weights below this are dropped from the design to fly: a point that would get one reading
+/// in a thousand.
+const FLY_WEIGHT: f64 = 1e-3;
+
+/// Points with their weights by decreasing weight, each merged into an earlier (heavier) one
+/// within `radius`.
+fn merge(mut points: Vec<(Attitude, f64)>, radius: f64) -> Vec<(Attitude, f64)> {
+    points.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let mut merged: Vec<(Attitude, f64)> = Vec::with_capacity(points.len());
+    for (a, w) in points {
+        match merged.iter_mut().find(|(b, _)| distance(b, &a) <= radius) {
+            Some(m) => m.1 += w,
+            None => merged.push((a, w)),
+        }
+    }
+    merged
+}
+
+/// Attitudes and weights summing to 1.
+fn normalised(points: &[(Attitude, f64)]) -> (Vec<Attitude>, Vec<f64>) {
+    let total: f64 = points.iter().map(|p| p.1).sum();
+    (
+        points.iter().map(|p| p.0).collect(),
+        points.iter().map(|p| p.1 / total).collect(),
+    )
+}
 
 /// Weights below this (of a total of 1) are dropped before the support is refined.
 const NEGLIGIBLE_WEIGHT: f64 = 1e-6;
