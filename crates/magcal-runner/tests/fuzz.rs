@@ -189,6 +189,8 @@ struct Extreme {
     trials: usize,
     runs: Option<usize>,
     seed: u64,
+    attitude_sigmas: Vec<f64>,
+    candidates: usize,
 }
 
 fn range() -> impl Strategy<Value = [f64; 2]> {
@@ -209,13 +211,18 @@ fn design(i: usize) -> impl Strategy<Value = String> {
             "[[design]]\nname = \"g{i}\"\nkind = \"grid\"\nlevels = {{ roll = {r}, yaw = {}, pitch = {p} }}\n",
             y.max(9 / (r * p) + 1)
         )),
-        (9usize..12, 1usize..6, 1usize..6).prop_map(move |(m, particles, iterations)| format!(
-            "[[design]]\nname = \"p{i}\"\nkind = \"pso\"\nm = {m}\nparticles = {particles}\niterations = {iterations}\n"
+        (9usize..12, 1usize..6, 1usize..6, criterion()).prop_map(move |(m, particles, iterations, c)| format!(
+            "[[design]]\nname = \"p{i}\"\nkind = \"pso\"\nm = {m}\nparticles = {particles}\niterations = {iterations}\ncriterion = \"{c}\"\n"
         )),
-        (9usize..12, 1usize..3, 1usize..30).prop_map(move |(m, starts, it)| format!(
-            "[[design]]\nname = \"o{i}\"\nkind = \"optimum\"\nm = {m}\nstarts = {starts}\nmax_iterations = {it}\n"
+        (9usize..12, 1usize..3, 1usize..30, criterion()).prop_map(move |(m, starts, it, c)| format!(
+            "[[design]]\nname = \"o{i}\"\nkind = \"optimum\"\nm = {m}\nstarts = {starts}\nmax_iterations = {it}\ncriterion = \"{c}\"\n"
         )),
+        (9usize..60).prop_map(move |n| format!("[[design]]\nname = \"n{i}\"\nkind = \"plan\"\nreadings = {n}\n")),
     ]
+}
+
+fn criterion() -> impl Strategy<Value = &'static str> {
+    proptest::sample::select(&["d", "a", "e"][..])
 }
 
 fn extreme() -> impl Strategy<Value = Extreme> {
@@ -233,9 +240,13 @@ fn extreme() -> impl Strategy<Value = Extreme> {
         1usize..6,
         proptest::option::of(1usize..3),
         any::<u64>(),
+        (
+            proptest::collection::vec(edge(&[0.0, 1e-9, 0.5, 30.0]), 1..3),
+            100usize..1500,
+        ),
     )
         .prop_map(
-            |(sigmas, ned, yaw_offset, psi, scale, bias, boxes, designs, trials, runs, seed)| Extreme {
+            |(
                 sigmas,
                 ned,
                 yaw_offset,
@@ -247,6 +258,21 @@ fn extreme() -> impl Strategy<Value = Extreme> {
                 trials,
                 runs,
                 seed,
+                (attitude_sigmas, candidates),
+            )| Extreme {
+                sigmas,
+                ned,
+                yaw_offset,
+                psi,
+                scale,
+                bias,
+                boxes,
+                designs,
+                trials,
+                runs,
+                seed,
+                attitude_sigmas,
+                candidates,
             },
         )
 }
@@ -262,11 +288,15 @@ impl Extreme {
     fn toml(&self) -> String {
         let mut sigmas = self.sigmas.clone();
         sigmas.dedup();
+        let mut attitude = self.attitude_sigmas.clone();
+        attitude.dedup();
         let mut text = format!(
-            "schema = 1\nname = \"fuzz\"\nseed = {}\ntrials = {}\nsigma_nt = {}\n\n[field]\nnorth_nt = {:?}\neast_nt = {:?}\ndown_nt = {:?}\nyaw_offset_deg = {:?}\n\n[sensor]\npsi_deg = {}\nscale = {}\nbias_nt = {}\n\n[attitude_box]\nroll_deg = {}\nyaw_deg = {}\npitch_deg = {}\n\n",
+            "schema = 1\nname = \"fuzz\"\nseed = {}\ntrials = {}\nsigma_nt = {}\nattitude_sigma_deg = {}\n\n[certificate]\ncandidates = {}\n\n[field]\nnorth_nt = {:?}\neast_nt = {:?}\ndown_nt = {:?}\nyaw_offset_deg = {:?}\n\n[sensor]\npsi_deg = {}\nscale = {}\nbias_nt = {}\n\n[attitude_box]\nroll_deg = {}\nyaw_deg = {}\npitch_deg = {}\n\n",
             self.seed,
             self.trials,
             list(&sigmas),
+            list(&attitude),
+            self.candidates,
             self.ned[0],
             self.ned[1].max(if self.ned.iter().all(|x| x.abs() < 1.0) {
                 1.0
@@ -317,7 +347,7 @@ proptest! {
             }
             Err(Failure::Regression(r)) => prop_assert!(false, "run reported a regression: {r}"),
         }
-        for f in ["summary.csv", "trials.csv", "design_metrics.csv", "designs.csv"] {
+        for f in ["summary.csv", "trials.csv", "design_metrics.csv", "designs.csv", "approximate.csv", "certificate.csv"] {
             let text = std::fs::read_to_string(out.join(f)).unwrap();
             prop_assert!(!text.contains("NaN"), "{f} holds NaN\n{}", x.toml());
         }

@@ -290,8 +290,18 @@ impl Approximate {
             }
             converged = certificate.is_met(self.tolerance);
         }
+        let ln_det = ln_det_nt(problem, &rows, &weights);
+        // Rounding at the edges of the scales (a field of 1 nT against a bias of 1e7 nT) can
+        // leave nothing usable: then there is no design to report.
+        if !(ln_det.is_finite()
+            && certificate.d_max.is_finite()
+            && certificate.ln_det_bound.is_finite()
+            && weights.iter().all(|w| w.is_finite() && *w > 0.0))
+        {
+            return Err(ParameterError::Singular { name: "attitude box" });
+        }
         Ok(ApproximateDesign {
-            ln_det: ln_det_nt(problem, &rows, &weights),
+            ln_det,
             support,
             weights,
             certificate,
