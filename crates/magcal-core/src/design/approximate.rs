@@ -45,7 +45,7 @@ use super::optimum::{Optimum, bounds_of};
 use crate::attitude::Attitude;
 use crate::error::ParameterError;
 use crate::linear_model::{UNKNOWNS, regression_row};
-use crate::small::{Mat9, cholesky_in_place, mat_t_vec, mat_vec};
+use crate::small::{Mat9, cholesky_in_place};
 
 const P: usize = UNKNOWNS;
 type Row = [f64; P];
@@ -617,23 +617,9 @@ fn row(problem: &DesignProblem, a: &Attitude) -> Row {
 
 /// The variance `h(x)^T M^-1 h(x)` at `a` and its gradient with respect to (roll, yaw, pitch).
 pub(crate) fn variance_and_gradient(problem: &DesignProblem, minv: &Mat9, a: &Attitude) -> (f64, [f64; 3]) {
-    let (b, db) = problem.field().body_field_and_derivatives(a);
-    let Ks = problem.k_scaled();
-    let o = problem.o_scaled();
-    let kb = mat_vec(Ks, b);
-    let [ux, uy, uz] = [kb[0] + o[0], kb[1] + o[1], kb[2] + o[2]];
-    let h = regression_row([ux, uy, uz]);
-    let w: Row = std::array::from_fn(|i| (0..P).map(|j| minv[i][j] * h[j]).sum());
-    let d: f64 = (0..P).map(|i| h[i] * w[i]).sum();
-    // q = (dh/du)^T w, from h = (x^2, xy, xz, y^2, yz, z^2, x, y, z).
-    let q = [
-        2.0 * ux * w[0] + uy * w[1] + uz * w[2] + w[6],
-        ux * w[1] + 2.0 * uy * w[3] + uz * w[4] + w[7],
-        ux * w[2] + uy * w[4] + 2.0 * uz * w[5] + w[8],
-    ];
-    let kq = mat_t_vec(Ks, q);
-    let grad = std::array::from_fn(|k| 2.0 * (kq[0] * db[k][0] + kq[1] * db[k][1] + kq[2] * db[k][2]));
-    (d, grad)
+    let jet = problem.row_jet(a);
+    let w = apply(minv, &jet.h);
+    (dot9(&jet.h, &w), jet.gradient(&w))
 }
 
 /// `ln det M(xi)` (normalised, `H` in nT) of `weights` on `rows` (R-scaled).

@@ -141,6 +141,23 @@ impl DesignProblem {
         ]
     }
 
+    /// The [`RowJet`] of attitude `a`.
+    pub(crate) fn row_jet(&self, a: &Attitude) -> RowJet<'_> {
+        let (b, db) = self.field.body_field_and_derivatives(a);
+        let kb = mat_vec(&self.k_scaled, b);
+        let u = [
+            kb[0] + self.o_scaled[0],
+            kb[1] + self.o_scaled[1],
+            kb[2] + self.o_scaled[2],
+        ];
+        RowJet {
+            ks: &self.k_scaled,
+            u,
+            h: crate::linear_model::regression_row(u),
+            db,
+        }
+    }
+
     /// `K / R`.
     pub(crate) fn k_scaled(&self) -> &Mat3 {
         &self.k_scaled
@@ -228,6 +245,37 @@ impl DesignProblem {
     pub fn information_matrix(&self, design: &[Attitude]) -> InformationMatrix {
         let readings = self.model.measure_all(&self.field.body_fields(design));
         InformationMatrix::from_readings(&readings, self.field.magnitude())
+    }
+}
+
+/// One attitude's R-scaled reading `u = (K B^b + O) / R`, its regression row `h` (\[P1\] eq. (9))
+/// and what turns a vector `w` into `2 w^T dh / d(roll, yaw, pitch)`: the gradient of every
+/// criterion the optimisers and the certificate use (`w = M^-1 h` for `ln det M` and the variance
+/// function, `M^-2 h` for `trace(M^-1)`, `(v^T h) v` for an eigenvalue).
+pub(crate) struct RowJet<'a> {
+    ks: &'a Mat3,
+    u: Vec3,
+    /// The regression row.
+    pub h: [f64; UNKNOWNS],
+    /// `dB^b / d(roll, yaw, pitch)`.
+    db: [Vec3; 3],
+}
+
+impl RowJet<'_> {
+    /// `2 w^T dh/d theta` for theta = roll, yaw, pitch: `q = (dh/du)^T w`, then
+    /// `2 (K/R)^T q . dB/d theta` (`du/d theta = (K/R) dB/d theta`).
+    #[inline]
+    pub(crate) fn gradient(&self, w: &[f64; UNKNOWNS]) -> [f64; 3] {
+        let [ux, uy, uz] = self.u;
+        // From h = (x^2, xy, xz, y^2, yz, z^2, x, y, z).
+        let q = [
+            2.0 * ux * w[0] + uy * w[1] + uz * w[2] + w[6],
+            ux * w[1] + 2.0 * uy * w[3] + uz * w[4] + w[7],
+            ux * w[2] + uy * w[4] + 2.0 * uz * w[5] + w[8],
+        ];
+        let kq = crate::small::mat_t_vec(self.ks, q);
+        let db = &self.db;
+        std::array::from_fn(|k| 2.0 * (kq[0] * db[k][0] + kq[1] * db[k][1] + kq[2] * db[k][2]))
     }
 }
 

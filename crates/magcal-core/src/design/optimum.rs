@@ -25,9 +25,9 @@ use rayon::prelude::*;
 use super::{DesignCriterion, DesignProblem, from_vector, sources};
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::error::ParameterError;
-use crate::linear_model::{UNKNOWNS, regression_row};
+use crate::linear_model::UNKNOWNS;
 use crate::rng::MagcalRng;
-use crate::small::{cholesky_in_place, cholesky_solve, mat_t_vec};
+use crate::small::{cholesky_in_place, cholesky_solve};
 
 /// `ln det M_F` (nT) of design `x` and its gradient with respect to `x` (per radian), written to
 /// `grad`. Returns `-inf` (and leaves `grad` zero) for a singular design. Allocation-free.
@@ -44,30 +44,13 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
         return f64::NEG_INFINITY;
     }
     let ln_det: f64 = (0..UNKNOWNS).map(|i| 2.0 * L[i][i].ln()).sum::<f64>() + problem.ln_det_shift();
-    let Ks = problem.k_scaled();
-    let field = problem.field();
-    let o = problem.o_scaled();
     for (a, g) in x.chunks_exact(3).zip(grad.chunks_exact_mut(3)) {
-        let attitude = Attitude {
+        let jet = problem.row_jet(&Attitude {
             roll: a[0],
             yaw: a[1],
             pitch: a[2],
-        };
-        let (b, db) = field.body_field_and_derivatives(&attitude);
-        let kb = crate::small::mat_vec(Ks, b);
-        let [ux, uy, uz] = [kb[0] + o[0], kb[1] + o[1], kb[2] + o[2]];
-        let w = cholesky_solve(&L, &regression_row([ux, uy, uz]));
-        // q = (dh/du)^T w, from h = (x^2, xy, xz, y^2, yz, z^2, x, y, z).
-        let q = [
-            2.0 * ux * w[0] + uy * w[1] + uz * w[2] + w[6],
-            ux * w[1] + 2.0 * uy * w[3] + uz * w[4] + w[7],
-            ux * w[2] + uy * w[4] + 2.0 * uz * w[5] + w[8],
-        ];
-        // d ln det / d theta_k = 2 q^T (K/R) dB/d theta_k.
-        let kq = mat_t_vec(Ks, q);
-        for k in 0..3 {
-            g[k] = 2.0 * (kq[0] * db[k][0] + kq[1] * db[k][1] + kq[2] * db[k][2]);
-        }
+        });
+        g.copy_from_slice(&jet.gradient(&cholesky_solve(&L, &jet.h)));
     }
     ln_det
 }
@@ -125,29 +108,17 @@ pub fn ln_criterion_and_gradient(
         }
         DesignCriterion::D => panic!("ln_criterion_and_gradient: D has ln_det_and_gradient"),
     };
-    let Ks = problem.k_scaled();
-    let field = problem.field();
-    let o = problem.o_scaled();
     for (a, g) in x.chunks_exact(3).zip(grad.chunks_exact_mut(3)) {
-        let attitude = Attitude {
+        let jet = problem.row_jet(&Attitude {
             roll: a[0],
             yaw: a[1],
             pitch: a[2],
-        };
-        let (b, db) = field.body_field_and_derivatives(&attitude);
-        let kb = crate::small::mat_vec(Ks, b);
-        let [ux, uy, uz] = [kb[0] + o[0], kb[1] + o[1], kb[2] + o[2]];
-        let h = regression_row([ux, uy, uz]);
-        let w: [f64; UNKNOWNS] = std::array::from_fn(|i| (0..UNKNOWNS).map(|j| W[i][j] * h[j]).sum());
-        let q = [
-            2.0 * ux * w[0] + uy * w[1] + uz * w[2] + w[6],
-            ux * w[1] + 2.0 * uy * w[3] + uz * w[4] + w[7],
-            ux * w[2] + uy * w[4] + 2.0 * uz * w[5] + w[8],
-        ];
-        let kq = mat_t_vec(Ks, q);
+        });
+        let w: [f64; UNKNOWNS] = std::array::from_fn(|i| (0..UNKNOWNS).map(|j| W[i][j] * jet.h[j]).sum());
+        let d = jet.gradient(&w);
         for k in 0..3 {
-            // d ln phi = d phi / phi.
-            g[k] = -2.0 * (kq[0] * db[k][0] + kq[1] * db[k][1] + kq[2] * db[k][2]) / phi;
+            // d ln phi = d phi / phi, and d phi = -2 w^T dh.
+            g[k] = -d[k] / phi;
         }
     }
     phi.ln()
