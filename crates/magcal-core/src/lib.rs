@@ -64,6 +64,7 @@ pub mod field;
 pub mod heading;
 pub mod identifiability;
 pub mod linear_model;
+pub mod log_fit;
 pub mod metrics;
 pub mod monte_carlo;
 pub mod paper;

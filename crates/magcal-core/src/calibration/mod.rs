@@ -163,15 +163,24 @@ impl TwoStep {
 
 /// Checks the inputs common to both steps.
 fn validate(readings: &[Vec3], field_magnitude_nt: f64) -> Result<(), CalibrationError> {
+    validate_readings(readings, field_magnitude_nt, UNKNOWNS)
+}
+
+/// A positive finite magnitude and at least `needed` finite readings.
+pub(crate) fn validate_readings(
+    readings: &[Vec3],
+    field_magnitude_nt: f64,
+    needed: usize,
+) -> Result<(), CalibrationError> {
     if !(field_magnitude_nt.is_finite() && field_magnitude_nt > 0.0) {
         return Err(CalibrationError::InvalidFieldMagnitude {
             value: field_magnitude_nt,
         });
     }
-    if readings.len() < UNKNOWNS {
+    if readings.len() < needed {
         return Err(CalibrationError::TooFewReadings {
             got: readings.len(),
-            needed: UNKNOWNS,
+            needed,
         });
     }
     for (index, r) in readings.iter().enumerate() {
