@@ -99,6 +99,25 @@ impl LogFit {
     pub fn apply(&self, raw: Vec3) -> Vec3 {
         mat_vec(&self.p, sub(raw, self.bias))
     }
+
+    /// `A^-1`, the symmetric positive square root of `G = P^T P` (\[P1\] eq. (7)), by faer's
+    /// eigendecomposition `V diag(sqrt lambda) V^T`: the calibration `b = A^-1 (raw - bias)` of
+    /// Magneto, MotionCal and ArduPilot, equal in `|b|` to \[P1\]'s `P (raw - bias)` (CONVENTIONS.md
+    /// "Real data"). NaN if the decomposition fails.
+    pub fn soft_iron_inverse(&self) -> Mat3 {
+        let g = crate::small::mat_mul(&crate::small::transpose(&self.p), &self.p);
+        let m = faer::Mat::from_fn(3, 3, |i, j| g[i][j]);
+        match m.self_adjoint_eigen(faer::Side::Lower) {
+            Ok(evd) => std::array::from_fn(|i| {
+                std::array::from_fn(|j| {
+                    (0..3)
+                        .map(|l| evd.U()[(i, l)] * evd.S()[l].max(0.0).sqrt() * evd.U()[(j, l)])
+                        .sum()
+                })
+            }),
+            Err(_) => [[f64::NAN; 3]; 3],
+        }
+    }
 }
 
 /// Calibrates `readings` (any units) to the magnitude `magnitude` (the same units) under
@@ -378,6 +397,12 @@ fn reduced(
         CalibrationStatus::NotConverged
     };
     Ok((p, bias, iterations, status))
+}
+
+/// The radius of the sphere that best fits the readings (the linear fit `|s|^2 = 2 c . s + k`),
+/// `None` when none does.
+pub fn sphere_radius(readings: &[Vec3]) -> Option<f64> {
+    sphere(readings).ok().map(|s| s.1)
 }
 
 /// The sphere `|s - c|^2 = r^2` through the readings in the least-squares sense of the linear

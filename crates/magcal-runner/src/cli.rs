@@ -28,6 +28,11 @@ enum Command {
     Check(CheckArgs),
     /// Redraw the figures of a results directory from its CSV files (into DIR/plots/).
     Plot(PlotArgs),
+    /// Fit a log of raw readings: bias, non-orthogonality, scale factors, their standard errors,
+    /// and whether the log determines them.
+    Calibrate(commands::calibrate::CalibrateArgs),
+    /// Calibrate every reading of a log with a calibration.json.
+    Apply(commands::calibrate::ApplyArgs),
 }
 
 /// `magcal plot`.
@@ -119,6 +124,8 @@ pub fn main() -> ExitCode {
         Command::Design(args) => commands::design::run(&args),
         Command::Check(args) => commands::check::run(&args),
         Command::Plot(args) => commands::plot::run(&args),
+        Command::Calibrate(args) => commands::calibrate::run(&args),
+        Command::Apply(args) => commands::calibrate::apply(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

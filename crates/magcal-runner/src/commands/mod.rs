@@ -1,6 +1,7 @@
 //! One module per command. `run` and `design` share [`run::produce`]; every command that reads a
 //! scenario starts from [`setup`].
 
+pub mod calibrate;
 pub mod check;
 pub mod design;
 pub mod plot;

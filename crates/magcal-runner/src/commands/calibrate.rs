@@ -1,0 +1,328 @@
+//! `magcal calibrate LOG` and `magcal apply CAL.json LOG`: fit a log, and calibrate readings with
+//! the fit (CONVENTIONS.md "Real data" and its calibration forms).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, ValueEnum};
+use magcal_core::log_fit::{self, FitModel, LogFit};
+use magcal_core::small::{Mat3, upper_triangular_inverse};
+use serde::{Deserialize, Serialize};
+
+use crate::cli::Failure;
+use crate::log_file;
+
+/// `--fit`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Fit {
+    /// [P1]'s model: non-orthogonality, scale factors and bias (9 parameters).
+    Full,
+    /// Scale factors and bias (6).
+    Diagonal,
+    /// Bias and one common scale factor (4).
+    Offset,
+    /// The richest model this log identifies.
+    Auto,
+}
+
+/// `magcal calibrate`.
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    /// The log: a CSV file, one reading per row.
+    pub log: PathBuf,
+    /// The three columns, by name or 1-based index: `mx,my,mz` or `4,5,6` (default: x, y, z with
+    /// or without an m prefix, else the first three numeric columns).
+    #[arg(long)]
+    pub columns: Option<String>,
+    /// The field magnitude in the log's units (default: the fitted mean radius, and scale factors
+    /// relative to it).
+    #[arg(long)]
+    pub magnitude: Option<f64>,
+    /// The model.
+    #[arg(long, value_enum, default_value = "full")]
+    pub fit: Fit,
+    /// Drop rows with a non-finite or missing value, counting them (default: such a row is an
+    /// error).
+    #[arg(long)]
+    pub skip_bad: bool,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write DIR/calibration.json and DIR/residuals.csv.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `magcal apply`.
+#[derive(Debug, Args)]
+pub struct ApplyArgs {
+    /// A calibration.json written by `magcal calibrate --out` (or its `--json` output).
+    pub calibration: PathBuf,
+    /// The log to calibrate.
+    pub log: PathBuf,
+    /// As for `calibrate`.
+    #[arg(long)]
+    pub columns: Option<String>,
+    /// As for `calibrate`: rows with a non-finite or missing value are dropped, and each is named
+    /// on stderr.
+    #[arg(long)]
+    pub skip_bad: bool,
+    /// Write the calibrated readings here (default: stdout).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Standard errors of the fitted parameters; `null` where the information is singular.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StdError {
+    pub psi_deg: Option<[f64; 3]>,
+    pub scale: Option<[f64; 3]>,
+    pub bias: Option<[f64; 3]>,
+}
+
+/// `calibration.json` and the `--json` output.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CalibrationJson {
+    pub log: String,
+    pub columns: [String; 3],
+    pub samples: usize,
+    pub skipped: usize,
+    /// Outlier rejection is not implemented yet: always 0.
+    pub rejected: usize,
+    pub fit: String,
+    /// With `--fit auto`: why this model.
+    pub fit_reason: Option<String>,
+    pub magnitude: f64,
+    /// `given`, `fitted mean radius (...)` or `radius of the best-fitting sphere (...)`.
+    pub magnitude_source: String,
+    pub bias: [f64; 3],
+    pub psi_deg: [f64; 3],
+    pub scale: [f64; 3],
+    /// `K = P^-1`: raw = K b + bias.
+    pub k: Mat3,
+    /// `b = P (raw - bias)`, upper triangular ([P1] eq. (6)).
+    pub p: Mat3,
+    /// `b = A^-1 (raw - bias)` with `A^-1` the symmetric square root of `G = P^T P` (Magneto,
+    /// MotionCal, ArduPilot).
+    pub soft_iron_inverse: Mat3,
+    pub residual_rms: f64,
+    pub residual_max: f64,
+    pub residual_rms_percent: f64,
+    /// The noise per component estimated from the residuals, in the log's units.
+    pub noise: f64,
+    pub std_error: StdError,
+    pub identifiable: bool,
+    pub verdict: String,
+    pub status: String,
+    pub iterations: usize,
+}
+
+/// Runs `calibrate`.
+///
+/// # Errors
+/// A bad log or option (exit 2), or a log that no model fits.
+pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
+    let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    if let Some(r) = args.magnitude
+        && !(r.is_finite() && r > 0.0)
+    {
+        return Err(anyhow::anyhow!("--magnitude {r}: must be positive and finite").into());
+    }
+    let shown = args.log.display().to_string();
+    let fit_with = |magnitude: f64| -> Result<(LogFit, Option<String>)> {
+        let fitted = match args.fit {
+            Fit::Auto => log_fit::fit_auto(&log.readings, magnitude).map(|(f, why)| (f, Some(why))),
+            Fit::Full => log_fit::fit(&log.readings, magnitude, FitModel::Full).map(|f| (f, None)),
+            Fit::Diagonal => log_fit::fit(&log.readings, magnitude, FitModel::Diagonal).map(|f| (f, None)),
+            Fit::Offset => log_fit::fit(&log.readings, magnitude, FitModel::Offset).map(|f| (f, None)),
+        };
+        fitted.with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
+    };
+    let (fit, why, source) = match args.magnitude {
+        Some(r) => {
+            let (f, why) = fit_with(r)?;
+            (f, why, "given".to_string())
+        }
+        None => {
+            // The fitted mean radius: the geometric mean of the scale factors of a fit to a unit
+            // field, so that the scale factors are relative with product 1; when that fit is not
+            // determined, the radius of the best-fitting sphere.
+            let (unit, _) = fit_with(1.0)?;
+            let (radius, source) = if unit.identifiable {
+                let s = unit.errors.scale();
+                (
+                    (s[0] * s[1] * s[2]).cbrt(),
+                    "fitted mean radius (scale factors are relative to it, product 1)",
+                )
+            } else {
+                (
+                    log_fit::sphere_radius(&log.readings)
+                        .with_context(|| format!("{shown}: no sphere fits the readings"))?,
+                    "radius of the best-fitting sphere (scale factors are relative to it)",
+                )
+            };
+            let (f, why) = fit_with(radius)?;
+            (f, why, source.to_string())
+        }
+    };
+    let json = to_json(&args.log, &log, &fit, why, source);
+    if let Some(dir) = &args.out {
+        write_out(dir, &json, &log, &fit)?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&json).context("JSON")?);
+    } else {
+        print_table(&json);
+    }
+    Ok(())
+}
+
+fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {
+    let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
+    CalibrationJson {
+        log: path.display().to_string(),
+        columns: log.columns.clone(),
+        samples: log.readings.len(),
+        skipped: log.skipped.len(),
+        rejected: 0,
+        fit: fit.model.as_str().to_string(),
+        fit_reason: why,
+        magnitude: fit.magnitude,
+        magnitude_source: source,
+        bias: fit.bias,
+        psi_deg: fit.errors.psi_deg(),
+        scale: fit.errors.scale(),
+        k,
+        p: fit.p,
+        soft_iron_inverse: fit.soft_iron_inverse(),
+        residual_rms: fit.residual_rms,
+        residual_max: fit.residual_max,
+        residual_rms_percent: 100.0 * fit.residual_rms / fit.magnitude,
+        noise: fit.noise,
+        std_error: StdError {
+            psi_deg: fit.std_psi_deg,
+            scale: fit.std_scale,
+            bias: fit.std_bias,
+        },
+        identifiable: fit.identifiable,
+        verdict: fit.verdict.clone(),
+        status: fit.status.as_str().to_string(),
+        iterations: fit.iterations,
+    }
+}
+
+fn print_table(j: &CalibrationJson) {
+    let v = |x: [f64; 3]| format!("{:>12.6} {:>12.6} {:>12.6}", x[0], x[1], x[2]);
+    println!(
+        "{}: {} readings (columns {}), {} skipped",
+        j.log,
+        j.samples,
+        j.columns.join(", "),
+        j.skipped
+    );
+    println!(
+        "fit {}{}",
+        j.fit,
+        j.fit_reason.as_ref().map_or(String::new(), |r| format!(" ({r})"))
+    );
+    println!("magnitude {:.6} ({})", j.magnitude, j.magnitude_source);
+    println!("{:<22} {}", "bias", v(j.bias));
+    println!("{:<22} {}", "psi_deg", v(j.psi_deg));
+    println!("{:<22} {}", "scale", v(j.scale));
+    let std = |x: Option<[f64; 3]>| x.map_or("singular".to_string(), v);
+    println!("{:<22} {}", "std error bias", std(j.std_error.bias));
+    println!("{:<22} {}", "std error psi_deg", std(j.std_error.psi_deg));
+    println!("{:<22} {}", "std error scale", std(j.std_error.scale));
+    for (name, m) in [
+        ("P (b = P (raw - bias))", j.p),
+        ("A^-1 (symmetric)", j.soft_iron_inverse),
+    ] {
+        for (r, row) in m.iter().enumerate() {
+            println!("{:<22} {}", if r == 0 { name } else { "" }, v(*row));
+        }
+    }
+    println!(
+        "residual | |b| - R |: rms {:.6} ({:.3} % of R), max {:.6}; noise per component {:.6}",
+        j.residual_rms, j.residual_rms_percent, j.residual_max, j.noise
+    );
+    println!(
+        "{}: {}",
+        if j.identifiable {
+            "IDENTIFIABLE"
+        } else {
+            "NOT IDENTIFIABLE"
+        },
+        j.verdict
+    );
+}
+
+/// Writes `calibration.json` and `residuals.csv` into `dir` (created), each through a temporary
+/// file renamed into place.
+fn write_out(dir: &Path, json: &CalibrationJson, log: &log_file::Log, fit: &LogFit) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+    let mut text = serde_json::to_vec_pretty(json).context("JSON")?;
+    text.push(b'\n');
+    replace(&dir.join("calibration.json"), &text)?;
+    let mut csv = Vec::with_capacity(64 * log.readings.len());
+    writeln!(csv, "line,raw_x,raw_y,raw_z,x,y,z,norm,residual")?;
+    for (raw, line) in log.readings.iter().zip(&log.lines) {
+        let b = fit.apply(*raw);
+        let n = magcal_core::small::norm(b);
+        writeln!(
+            csv,
+            "{line},{},{},{},{},{},{},{n},{}",
+            raw[0],
+            raw[1],
+            raw[2],
+            b[0],
+            b[1],
+            b[2],
+            n - fit.magnitude
+        )?;
+    }
+    replace(&dir.join("residuals.csv"), &csv)
+}
+
+fn replace(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = path.with_extension("magcal-tmp");
+    std::fs::write(&tmp, bytes).with_context(|| format!("{}: cannot write", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot write", path.display()))
+}
+
+/// Runs `apply`.
+///
+/// # Errors
+/// A bad calibration file or log (exit 2).
+pub fn apply(args: &ApplyArgs) -> Result<(), Failure> {
+    Ok(apply_inner(args)?)
+}
+
+fn apply_inner(args: &ApplyArgs) -> Result<()> {
+    let shown = args.calibration.display().to_string();
+    let text = std::fs::read(&args.calibration).with_context(|| format!("{shown}: cannot read"))?;
+    let cal: CalibrationJson =
+        serde_json::from_slice(&text).with_context(|| format!("{shown}: not a magcal calibration"))?;
+    if !(cal.p.iter().flatten().all(|v| v.is_finite()) && cal.bias.iter().all(|v| v.is_finite())) {
+        bail!("{shown}: p or bias is not finite");
+    }
+    if !cal.identifiable {
+        eprintln!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
+    }
+    let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    for (line, reason) in &log.skipped {
+        eprintln!("magcal: skipped line {line}: {reason}");
+    }
+    let mut out = Vec::with_capacity(64 * log.readings.len());
+    writeln!(out, "line,x,y,z,norm")?;
+    for (raw, line) in log.readings.iter().zip(&log.lines) {
+        let d = [raw[0] - cal.bias[0], raw[1] - cal.bias[1], raw[2] - cal.bias[2]];
+        let b = magcal_core::small::mat_vec(&cal.p, d);
+        writeln!(out, "{line},{},{},{},{}", b[0], b[1], b[2], magcal_core::small::norm(b))?;
+    }
+    match &args.out {
+        Some(path) => replace(path, &out)?,
+        None => std::io::stdout().write_all(&out).context("stdout")?,
+    }
+    Ok(())
+}
