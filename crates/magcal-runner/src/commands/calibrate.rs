@@ -16,7 +16,7 @@ use crate::log_file;
 /// `--fit`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Fit {
-    /// [P1]'s model: non-orthogonality, scale factors and bias (9 parameters).
+    /// The paper's model: non-orthogonality, scale factors and bias (9 parameters).
     Full,
     /// Scale factors and bias (6).
     Diagonal,
@@ -101,7 +101,7 @@ pub struct CalibrationJson {
     pub scale: [f64; 3],
     /// `K = P^-1`: raw = K b + bias.
     pub k: Mat3,
-    /// `b = P (raw - bias)`, upper triangular ([P1] eq. (6)).
+    /// `b = P (raw - bias)`, upper triangular (\[P1\] eq. (6)).
     pub p: Mat3,
     /// `b = A^-1 (raw - bias)` with `A^-1` the symmetric square root of `G = P^T P` (Magneto,
     /// MotionCal, ArduPilot).
