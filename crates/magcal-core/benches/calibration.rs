@@ -132,5 +132,30 @@ fn metrics(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, two_step, kernels, monte_carlo, metrics);
+/// Issue 13's target: calibrating a log of 12,000 readings (the size of the ck-explorer log) in at
+/// most 20 ms: a synthetic log of the [P1] sensor over every attitude, 30 nT noise, in Gauss.
+fn log_fit(c: &mut Criterion) {
+    use magcal_core::log_fit::{FitModel, fit};
+    let field = paper::changsha_field();
+    let truth = paper::true_error_model();
+    let mut rng = stream_rng(9, 0);
+    let design = sources::random(&magcal_core::AttitudeBox::full(), 12_000, &mut rng);
+    let readings: Vec<magcal_core::Vec3> = truth
+        .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
+        .unwrap()
+        .into_iter()
+        .map(|s| s.map(|v| v / 1e5))
+        .collect();
+    let r = field.magnitude() / 1e5;
+    let mut group = c.benchmark_group("log_fit");
+    group.sample_size(20);
+    for model in [FitModel::Full, FitModel::Diagonal, FitModel::Offset] {
+        group.bench_function(format!("{}_12000_readings", model.as_str()), |b| {
+            b.iter(|| fit(black_box(&readings), r, model).unwrap().residual_rms)
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, two_step, kernels, monte_carlo, metrics, log_fit);
 criterion_main!(benches);
