@@ -33,6 +33,8 @@ enum Command {
     Calibrate(commands::calibrate::CalibrateArgs),
     /// Calibrate every reading of a log with a calibration.json.
     Apply(commands::calibrate::ApplyArgs),
+    /// The attitudes a vehicle should visit next to most increase the information of its log.
+    Next(commands::calibrate::NextArgs),
 }
 
 /// `magcal plot`.
@@ -126,6 +128,7 @@ pub fn main() -> ExitCode {
         Command::Plot(args) => commands::plot::run(&args),
         Command::Calibrate(args) => commands::calibrate::run(&args),
         Command::Apply(args) => commands::calibrate::apply(&args),
+        Command::Next(args) => commands::calibrate::next(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

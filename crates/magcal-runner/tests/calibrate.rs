@@ -290,3 +290,54 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
     let c: CalibrationJson = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!((c.samples, c.skipped), (30, 1));
 }
+
+#[test]
+fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
+    // A log that only yawed, with +-3 degrees of tilt: the suggestions for the AUV box of the smoke
+    // scenario must lie in the box and raise the certified D-efficiency per reading.
+    let tmp = TempDir::new().unwrap();
+    let truth = paper::true_error_model();
+    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
+    let log = synthetic(tmp.path(), &truth, &cap, 400, 30.0);
+    let dir = tmp.path().join("cal");
+    let r = paper::changsha_field().magnitude() / 1e5;
+    magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--fit", "diagonal", "--magnitude", &r.to_string(), "--out"])
+        .arg(&dir)
+        .assert()
+        .success();
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/smoke.toml");
+    let out = magcal()
+        .arg("next")
+        .arg(dir.join("calibration.json"))
+        .arg(&log)
+        .arg("--scenario")
+        .arg(&scenario)
+        .args(["--count", "6"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .skip(2)
+        .take(6)
+        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 6, "{text}");
+    for r in &rows {
+        // k, roll, pitch, heading, d: inside the AUV box, each adding information.
+        assert!(
+            r[1].abs() <= 5.0 + 1e-9 && r[2].abs() <= 20.0 + 1e-9 && r[4] > 0.0,
+            "{r:?}"
+        );
+    }
+    let line = text.lines().find(|l| l.starts_with("certified D-efficiency")).unwrap();
+    let numbers: Vec<f64> = line
+        .split(|c: char| c == ',' || c.is_whitespace())
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    assert!(numbers[1] > numbers[0], "{line}");
+}

@@ -349,6 +349,47 @@ impl Approximate {
         })
     }
 
+    /// D-optimal augmentation: `count` attitudes of the box added one at a time to readings whose
+    /// information (R-scaled, \[P1\] eq. (12)) is `information`, each where the variance function
+    /// `d(x) = h(x)^T M^-1 h(x)` of the information so far is largest over the continuous box
+    /// (the same multi-start search as the certificate), since `det(M + h h^T) = det M (1 + d)`.
+    /// Returns each attitude with its `d` when chosen.
+    ///
+    /// # Errors
+    /// Invalid settings; [`ParameterError::Singular`] when `information` is singular.
+    pub fn augment(
+        &self,
+        problem: &DesignProblem,
+        information: &Mat9,
+        count: usize,
+    ) -> Result<Vec<(Attitude, f64)>, ParameterError> {
+        self.validate()?;
+        let points = grid(problem, self.candidates);
+        let rows: Vec<Row> = points.iter().map(|a| row(problem, a)).collect();
+        let optimum = certificate_search();
+        let mut M = *information;
+        let mut chosen = Vec::with_capacity(count);
+        for _ in 0..count {
+            let minv = inverse(&M).ok_or(ParameterError::Singular {
+                name: "information of the log",
+            })?;
+            let d = variances(&rows, &minv);
+            let maxima = self.local_maxima(problem, &optimum, &minv, &points, &vec![0.0; points.len()], &d);
+            let (at, value) = maxima
+                .into_iter()
+                .chain(std::iter::once(grid_best(&points, &d)))
+                .fold((points[0], f64::NEG_INFINITY), |b, c| if c.1 > b.1 { c } else { b });
+            let h = row(problem, &at);
+            for i in 0..P {
+                for j in 0..P {
+                    M[i][j] += h[i] * h[j];
+                }
+            }
+            chosen.push((at, value));
+        }
+        Ok(chosen)
+    }
+
     /// Local maxima of the variance function from the support points and from the candidates
     /// of largest variance (at least two grid steps apart), in start order.
     fn local_maxima(
@@ -676,6 +717,19 @@ fn information_inverse(rows: &[Row], weights: &[f64]) -> Option<Mat9> {
         }
     }
     Some(inv)
+}
+
+/// `M^-1` of a symmetric positive definite `M`, or `None` when it is not, to working precision.
+fn inverse(M: &Mat9) -> Option<Mat9> {
+    let mut L = *M;
+    if !cholesky_in_place(&mut L) {
+        return None;
+    }
+    Some(std::array::from_fn(|j| {
+        let mut e = [0.0; P];
+        e[j] = 1.0;
+        crate::small::cholesky_solve(&L, &e)
+    }))
 }
 
 /// `minv h`.

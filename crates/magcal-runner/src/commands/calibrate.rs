@@ -73,6 +73,28 @@ pub struct ApplyArgs {
     pub out: Option<PathBuf>,
 }
 
+/// `magcal next`.
+#[derive(Debug, Args)]
+pub struct NextArgs {
+    /// A calibration.json written by `magcal calibrate --out` (or its `--json` output).
+    pub calibration: PathBuf,
+    /// The log it was fitted to.
+    pub log: PathBuf,
+    /// A scenario file giving the vehicle's attitude box (`[attitude_box]`), the site
+    /// (`[field]`, for the field's direction) and the search (`[certificate]`).
+    #[arg(long)]
+    pub scenario: PathBuf,
+    /// Attitudes to suggest, 1 to 1000.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    pub count: u64,
+    /// As for `calibrate`.
+    #[arg(long)]
+    pub columns: Option<String>,
+    /// As for `calibrate`.
+    #[arg(long)]
+    pub skip_bad: bool,
+}
+
 /// Standard errors of the fitted parameters; `null` where the information is singular.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StdError {
@@ -324,5 +346,128 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
         Some(path) => replace(path, &out)?,
         None => std::io::stdout().write_all(&out).context("stdout")?,
     }
+    Ok(())
+}
+
+/// Runs `next`: the attitudes that most increase the information of the log (D-optimal
+/// augmentation under the fitted model), with the standard errors and the certified D-efficiency
+/// per reading before and after.
+///
+/// # Errors
+/// A bad calibration, log or scenario (exit 2).
+pub fn next(args: &NextArgs) -> Result<(), Failure> {
+    Ok(next_inner(args)?)
+}
+
+fn next_inner(args: &NextArgs) -> Result<()> {
+    use magcal_core::design::DesignProblem;
+    use magcal_core::{CramerRao, ErrorModel, InformationMatrix, PhysicalScales};
+    let shown = args.calibration.display().to_string();
+    let text = std::fs::read(&args.calibration).with_context(|| format!("{shown}: cannot read"))?;
+    let cal: CalibrationJson =
+        serde_json::from_slice(&text).with_context(|| format!("{shown}: not a magcal calibration"))?;
+    let scenario = crate::scenario::load(&args.scenario)?;
+    let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    if !cal.identifiable {
+        eprintln!(
+            "magcal: warning: {shown} is not identifiable ({}); the suggestions assume its fitted sensor",
+            cal.verdict
+        );
+    }
+    // The log's units to the scenario field's (nT): only the field's direction comes from the site.
+    let field = scenario.field;
+    let factor = field.magnitude() / cal.magnitude;
+    if !(factor.is_finite() && factor > 0.0) {
+        bail!("{shown}: magnitude {} is not usable", cal.magnitude);
+    }
+    let model = ErrorModel::new(cal.psi_deg, cal.scale, cal.bias.map(|b| b * factor))
+        .with_context(|| format!("{shown}: the fitted sensor is outside what the model takes"))?;
+    let problem = DesignProblem::new(field, model, scenario.bounds, 9)?;
+    let readings: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| s.map(|v| v * factor)).collect();
+    let r = field.magnitude();
+    let before = InformationMatrix::from_readings(&readings, r);
+    let chosen = scenario
+        .certificate
+        .augment(&problem, before.matrix(), args.count as usize)
+        .with_context(|| format!("{}: the log's information is singular", args.log.display()))?;
+    let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
+    let added = model.measure_all(&field.body_fields(&attitudes));
+    let all: Vec<magcal_core::Vec3> = readings.iter().chain(&added).copied().collect();
+    let after = InformationMatrix::from_readings(&all, r);
+    let certificate = scenario
+        .certificate
+        .compute(&problem, &mut magcal_core::rng::stream_rng(scenario.seed, 0xFFFD << 48))
+        .ok()
+        .map(|a| a.certificate);
+    let efficiency = |info: &InformationMatrix, m: usize| {
+        certificate
+            .as_ref()
+            .map_or(f64::NAN, |c| c.efficiency_bound(info.ln_det_nt(), m))
+    };
+    // Standard errors under the fitted model, noise from the residuals.
+    let body_log: Vec<magcal_core::Vec3> = log
+        .readings
+        .iter()
+        .map(|s| {
+            let d = [s[0] - cal.bias[0], s[1] - cal.bias[1], s[2] - cal.bias[2]];
+            magcal_core::small::mat_vec(&cal.p, d).map(|v| v * factor)
+        })
+        .collect();
+    let body_all: Vec<magcal_core::Vec3> = body_log.iter().copied().chain(field.body_fields(&attitudes)).collect();
+    let sigma = cal.noise * factor;
+    let scales = PhysicalScales::default();
+    let (crb_before, crb_after) = (
+        CramerRao::new(&model, &body_log, sigma, &scales),
+        CramerRao::new(&model, &body_all, sigma, &scales),
+    );
+    println!(
+        "{} readings of {}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
+        log.readings.len(),
+        args.log.display(),
+        args.count,
+        args.scenario.display()
+    );
+    println!(
+        "  {:>4} {:>9} {:>9} {:>11} {:>12}",
+        "k", "roll_deg", "pitch_deg", "heading_deg", "variance d"
+    );
+    for (k, (a, d)) in chosen.iter().enumerate() {
+        let [roll, yaw, pitch] = a.to_degrees();
+        println!(
+            "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>12.4}",
+            k + 1,
+            roll,
+            pitch,
+            (-(yaw + field.yaw_offset_deg())).rem_euclid(360.0),
+            d
+        );
+    }
+    let names = magcal_core::identifiability::PARAMETERS;
+    println!(
+        "\n  {:<10} {:>14} {:>14}  (bias in the log's units)",
+        "parameter", "std before", "std after"
+    );
+    for i in 0..9 {
+        let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
+        let show = |c: &CramerRao| c.std.map_or("singular".to_string(), |s| format!("{:.4e}", s[i] * unit));
+        println!("  {:<10} {:>14} {:>14}", names[i], show(&crb_before), show(&crb_after));
+    }
+    let m = log.readings.len();
+    let show = |e: f64| {
+        if e >= 1e-3 {
+            format!("{e:.4}")
+        } else {
+            format!("{e:.3e}")
+        }
+    };
+    println!(
+        "\ncertified D-efficiency per reading in this box: before {}, after {} (against every design of as many readings)",
+        show(efficiency(&before, m)),
+        show(efficiency(&after, m + attitudes.len()))
+    );
+    println!(
+        "identifiable: before {}, after {}",
+        crb_before.verdict.identifiable, crb_after.verdict.identifiable
+    );
     Ok(())
 }
