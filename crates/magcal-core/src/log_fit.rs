@@ -399,6 +399,49 @@ fn reduced(
     Ok((p, bias, iterations, status))
 }
 
+/// MotionCal's surface-gap error of calibrated field directions, in percent of the sphere: the
+/// sphere cut into 100 regions of equal area (two polar caps above 78.52 degrees of latitude, two
+/// bands of 15 regions to 42.84 degrees, two of 34 about the equator: the boundaries where
+/// `sin(latitude)` is 0.98 and 0.68), and each region adds 1 with no direction in it, 0.2 with one,
+/// 0.01 with two (PJRC MotionCal, `quality.c`). 0 is full coverage, 100 none. Latitude is taken
+/// from the third component.
+pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
+    let mut counts = [0usize; 100];
+    for b in fields {
+        let n = norm(*b);
+        if !(n > 0.0 && n.is_finite()) {
+            continue;
+        }
+        let sin_latitude = b[2] / n;
+        // Longitude in [0, 1) of a turn.
+        let turn = (b[1].atan2(b[0]) / std::f64::consts::TAU).rem_euclid(1.0);
+        let band = |regions: usize| ((turn * regions as f64) as usize).min(regions - 1);
+        let region = if sin_latitude > 0.98 {
+            0
+        } else if sin_latitude < -0.98 {
+            99
+        } else if sin_latitude > 0.68 {
+            1 + band(15)
+        } else if sin_latitude < -0.68 {
+            84 + band(15)
+        } else if sin_latitude >= 0.0 {
+            16 + band(34)
+        } else {
+            50 + band(34)
+        };
+        counts[region] += 1;
+    }
+    counts
+        .iter()
+        .map(|&c| match c {
+            0 => 1.0,
+            1 => 0.2,
+            2 => 0.01,
+            _ => 0.0,
+        })
+        .sum()
+}
+
 /// The radius of the sphere that best fits the readings (the linear fit `|s|^2 = 2 c . s + k`),
 /// `None` when none does.
 pub fn sphere_radius(readings: &[Vec3]) -> Option<f64> {
@@ -566,6 +609,35 @@ mod tests {
             // The noise estimate: 30 nT = 3e-4 G, within 10 %.
             assert!((f.noise / 3e-4 - 1.0).abs() < 0.1, "{model:?}: {}", f.noise);
         }
+    }
+
+    #[test]
+    fn motioncal_gaps_count_empty_regions_of_equal_area() {
+        assert!((motioncal_gaps(&[]) - 100.0).abs() < 1e-12);
+        // One direction per region (centres of the bands): 20 % of the sphere's error left.
+        let mut one = Vec::new();
+        for (lat_sin, regions) in [(0.99, 1), (0.83, 15), (0.34, 34), (-0.34, 34), (-0.83, 15), (-0.99, 1)] {
+            let lat: f64 = f64::asin(lat_sin);
+            for k in 0..regions {
+                let lon = std::f64::consts::TAU * (k as f64 + 0.5) / regions as f64;
+                one.push([lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin()]);
+            }
+        }
+        assert_eq!(one.len(), 100);
+        assert!((motioncal_gaps(&one) - 20.0).abs() < 1e-9, "{}", motioncal_gaps(&one));
+        let three: Vec<Vec3> = one.iter().flat_map(|d| [*d; 3]).collect();
+        assert!(motioncal_gaps(&three).abs() < 1e-12);
+        // Equal area: 20,000 uniform directions leave no region empty.
+        let mut rng = stream_rng(8, 0);
+        let uniform: Vec<Vec3> = (0..20_000)
+            .map(|_| {
+                use rand::RngExt;
+                let z: f64 = rng.random_range(-1.0..1.0);
+                let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                [(1.0 - z * z).sqrt() * a.cos(), (1.0 - z * z).sqrt() * a.sin(), z]
+            })
+            .collect();
+        assert_eq!(motioncal_gaps(&uniform), 0.0);
     }
 
     #[test]

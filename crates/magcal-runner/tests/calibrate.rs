@@ -194,6 +194,8 @@ fn a_constrained_log_is_not_identifiable_under_the_full_model_and_auto_picks_one
     assert!(auto.identifiable, "{}", auto.verdict);
     assert_ne!(auto.fit, "full");
     assert!(auto.fit_reason.unwrap().contains("full: not identifiable"));
+    // Restricted tilt: most of the sphere of directions is empty.
+    assert!(auto.coverage.motioncal_gap_percent >= 40.0, "{:?}", auto.coverage);
 }
 
 #[test]

@@ -52,6 +52,10 @@ pub struct CalibrateArgs {
     /// Also write DIR/calibration.json and DIR/residuals.csv.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// A scenario file whose attitude box and site give the coverage its D-efficiency: the log's
+    /// information per reading against every design of as many readings in that box.
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
 }
 
 /// `magcal apply`.
@@ -138,6 +142,56 @@ pub struct CalibrationJson {
     pub verdict: String,
     pub status: String,
     pub iterations: usize,
+    pub coverage: Coverage,
+}
+
+/// How well the log covers what the sensor can see.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Coverage {
+    /// MotionCal's surface-gap error of the calibrated field directions, percent (0: every one of
+    /// 100 equal-area regions holds at least three readings; 100: none).
+    pub motioncal_gap_percent: f64,
+    /// With `--scenario`: the certified D-efficiency per reading of the log's information against
+    /// every design of as many readings in the scenario's box, under the fitted sensor.
+    pub d_efficiency_per_reading: Option<f64>,
+    /// The scenario that gave the box.
+    pub box_from: Option<String>,
+}
+
+/// The fitted sensor as a design problem in the scenario's field (nT) and box, and the factor from
+/// the log's units to nT (only the field's direction comes from the site).
+fn fitted_problem(
+    cal: &CalibrationJson,
+    scenario: &crate::scenario::Scenario,
+) -> Result<(magcal_core::design::DesignProblem, f64)> {
+    let field = scenario.field;
+    let factor = field.magnitude() / cal.magnitude;
+    if !(factor.is_finite() && factor > 0.0) {
+        bail!("magnitude {} is not usable", cal.magnitude);
+    }
+    let model = magcal_core::ErrorModel::new(cal.psi_deg, cal.scale, cal.bias.map(|b| b * factor))
+        .context("the fitted sensor is outside what the model takes")?;
+    Ok((
+        magcal_core::design::DesignProblem::new(field, model, scenario.bounds, 9)?,
+        factor,
+    ))
+}
+
+/// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box.
+fn log_efficiency(
+    cal: &CalibrationJson,
+    scenario: &crate::scenario::Scenario,
+    readings: &[magcal_core::Vec3],
+) -> Result<Option<f64>> {
+    let (problem, factor) = fitted_problem(cal, scenario)?;
+    let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|s| s.map(|v| v * factor)).collect();
+    let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
+    let certificate = scenario
+        .certificate
+        .compute(&problem, &mut magcal_core::rng::stream_rng(scenario.seed, 0xFFFD << 48))
+        .ok()
+        .map(|a| a.certificate);
+    Ok(certificate.map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len())))
 }
 
 /// Runs `calibrate`.
@@ -188,7 +242,13 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             (f, why, source.to_string())
         }
     };
-    let json = to_json(&args.log, &log, &fit, why, source);
+    let mut json = to_json(&args.log, &log, &fit, why, source);
+    if let Some(path) = &args.scenario {
+        let scenario = crate::scenario::load(path)?;
+        json.coverage.d_efficiency_per_reading = log_efficiency(&json, &scenario, &log.readings)
+            .with_context(|| format!("{}: coverage in {}", args.log.display(), path.display()))?;
+        json.coverage.box_from = Some(path.display().to_string());
+    }
     if let Some(dir) = &args.out {
         write_out(dir, &json, &log, &fit)?;
     }
@@ -231,6 +291,13 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
         verdict: fit.verdict.clone(),
         status: fit.status.as_str().to_string(),
         iterations: fit.iterations,
+        coverage: Coverage {
+            motioncal_gap_percent: log_fit::motioncal_gaps(
+                &log.readings.iter().map(|s| fit.apply(*s)).collect::<Vec<_>>(),
+            ),
+            d_efficiency_per_reading: None,
+            box_from: None,
+        },
     }
 }
 
@@ -276,6 +343,16 @@ fn print_table(j: &CalibrationJson) {
             "NOT IDENTIFIABLE"
         },
         j.verdict
+    );
+    println!(
+        "coverage: MotionCal gaps {:.1} %{}",
+        j.coverage.motioncal_gap_percent,
+        match (&j.coverage.d_efficiency_per_reading, &j.coverage.box_from) {
+            (Some(e), Some(b)) if *e >= 1e-3 =>
+                format!("; certified D-efficiency per reading {e:.4} in the box of {b}"),
+            (Some(e), Some(b)) => format!("; certified D-efficiency per reading {e:.3e} in the box of {b}"),
+            _ => String::new(),
+        }
     );
 }
 
@@ -360,8 +437,7 @@ pub fn next(args: &NextArgs) -> Result<(), Failure> {
 }
 
 fn next_inner(args: &NextArgs) -> Result<()> {
-    use magcal_core::design::DesignProblem;
-    use magcal_core::{CramerRao, ErrorModel, InformationMatrix, PhysicalScales};
+    use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
     let text = std::fs::read(&args.calibration).with_context(|| format!("{shown}: cannot read"))?;
     let cal: CalibrationJson =
@@ -376,13 +452,8 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     }
     // The log's units to the scenario field's (nT): only the field's direction comes from the site.
     let field = scenario.field;
-    let factor = field.magnitude() / cal.magnitude;
-    if !(factor.is_finite() && factor > 0.0) {
-        bail!("{shown}: magnitude {} is not usable", cal.magnitude);
-    }
-    let model = ErrorModel::new(cal.psi_deg, cal.scale, cal.bias.map(|b| b * factor))
-        .with_context(|| format!("{shown}: the fitted sensor is outside what the model takes"))?;
-    let problem = DesignProblem::new(field, model, scenario.bounds, 9)?;
+    let (problem, factor) = fitted_problem(&cal, &scenario).with_context(|| shown.clone())?;
+    let model = *problem.model();
     let readings: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| s.map(|v| v * factor)).collect();
     let r = field.magnitude();
     let before = InformationMatrix::from_readings(&readings, r);
