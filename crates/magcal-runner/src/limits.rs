@@ -38,7 +38,7 @@ pub const MAX_PSO_RUNS: usize = 100_000;
 /// Step-2 iterations of one calibration.
 pub const MAX_STEP2_ITERATIONS: usize = 1_000_000;
 /// Candidates of the certificate's grid (about 220 bytes each, twice over at most).
-pub const MAX_CERTIFICATE_CANDIDATES: usize = 1_000_000;
+pub const MAX_CERTIFICATE_CANDIDATES: usize = 200_000;
 /// See [`MAX_CERTIFICATE_CANDIDATES`]: fewer leave the certificate no grid to start from.
 pub const MIN_CERTIFICATE_CANDIDATES: usize = 100;
 /// Worker threads.

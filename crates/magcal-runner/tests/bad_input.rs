@@ -308,7 +308,7 @@ fn scenario_cases() -> Vec<Case> {
                 "[attitude_box]",
                 "[certificate]\ncandidates = 100000000\n\n[attitude_box]",
             ),
-            &["certificate.candidates = 100000000", "at most 1000000"],
+            &["certificate.candidates = 100000000", "at most 200000"],
         ),
         case(
             smoke_with("[attitude_box]", "[certificate]\ntolerance = 0.0\n\n[attitude_box]"),
