@@ -488,7 +488,9 @@ fn sphere(readings: &[Vec3]) -> Result<(Vec3, f64), CalibrationError> {
 
 /// Levenberg-Marquardt (Marquardt scaling, Nielsen damping, as step 2) on
 /// `sum (rho(x, u_i) - target)^2 / 2` with `rho` and its gradient from `model`. Returns the
-/// parameters, the iterations and whether a convergence test passed.
+/// parameters, the iterations and whether a convergence test passed. Step 2 keeps its own
+/// 9-parameter loop: it interleaves the flat-direction check, and its arithmetic fixes the committed
+/// Monte Carlo results bit for bit; a shared generic loop is the next refactor (with a regeneration).
 fn levenberg_marquardt<const N: usize>(
     mut x: [f64; N],
     u: &[Vec3],

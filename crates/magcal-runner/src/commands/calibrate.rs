@@ -397,14 +397,25 @@ pub fn apply(args: &ApplyArgs) -> Result<(), Failure> {
     Ok(apply_inner(args)?)
 }
 
-fn apply_inner(args: &ApplyArgs) -> Result<()> {
-    let shown = args.calibration.display().to_string();
-    let text = std::fs::read(&args.calibration).with_context(|| format!("{shown}: cannot read"))?;
+/// A `calibration.json` whose `p`, `bias` and `magnitude` are usable.
+fn read_calibration(path: &Path) -> Result<CalibrationJson> {
+    let shown = path.display().to_string();
+    let text = std::fs::read(path).with_context(|| format!("{shown}: cannot read"))?;
     let cal: CalibrationJson =
         serde_json::from_slice(&text).with_context(|| format!("{shown}: not a magcal calibration"))?;
-    if !(cal.p.iter().flatten().all(|v| v.is_finite()) && cal.bias.iter().all(|v| v.is_finite())) {
-        bail!("{shown}: p or bias is not finite");
+    if !(cal.p.iter().flatten().all(|v| v.is_finite())
+        && cal.bias.iter().all(|v| v.is_finite())
+        && cal.magnitude.is_finite()
+        && cal.magnitude > 0.0)
+    {
+        bail!("{shown}: p, bias or magnitude is not finite and positive");
     }
+    Ok(cal)
+}
+
+fn apply_inner(args: &ApplyArgs) -> Result<()> {
+    let shown = args.calibration.display().to_string();
+    let cal = read_calibration(&args.calibration)?;
     if !cal.identifiable {
         eprintln!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
     }
@@ -439,9 +450,7 @@ pub fn next(args: &NextArgs) -> Result<(), Failure> {
 fn next_inner(args: &NextArgs) -> Result<()> {
     use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
-    let text = std::fs::read(&args.calibration).with_context(|| format!("{shown}: cannot read"))?;
-    let cal: CalibrationJson =
-        serde_json::from_slice(&text).with_context(|| format!("{shown}: not a magcal calibration"))?;
+    let cal = read_calibration(&args.calibration)?;
     let scenario = crate::scenario::load(&args.scenario)?;
     let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
     if !cal.identifiable {
