@@ -343,3 +343,38 @@ fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
         .collect();
     assert!(numbers[1] > numbers[0], "{line}");
 }
+
+#[test]
+fn the_full_fit_agrees_with_an_independent_scipy_fit() {
+    // scripts/crosscheck.py: scipy least_squares on |P (s - O)| - 1, committed as
+    // tests/crosscheck.json. Two solvers of the same least-squares problem agree far inside its
+    // statistical uncertainty: within 1 % of magcal's standard errors.
+    let expected: serde_json::Value = serde_json::from_str(include_str!("crosscheck.json")).unwrap();
+    for (name, want) in expected["logs"].as_object().unwrap() {
+        let Some(log) = data(name) else { continue };
+        let c = calibrate(&["--fit", "full"], &log);
+        let get = |key: &str, i: usize| want[key][i].as_f64().unwrap();
+        let se = &c.std_error;
+        for i in 0..3 {
+            assert!(
+                (c.bias[i] - get("bias", i)).abs() <= 0.01 * se.bias.unwrap()[i],
+                "{name} bias {i}"
+            );
+            assert!(
+                (c.psi_deg[i] - get("psi_deg", i)).abs() <= 0.01 * se.psi_deg.unwrap()[i],
+                "{name} psi {i}"
+            );
+            // Without --magnitude the scale factors are relative with product 1, as the script's.
+            assert!(
+                (c.scale[i] - get("relative_scale", i)).abs() <= 0.01 * se.scale.unwrap()[i],
+                "{name} S{i}"
+            );
+        }
+        let rms = want["residual_rms_percent"].as_f64().unwrap();
+        assert!(
+            (c.residual_rms_percent - rms).abs() <= 1e-6 * rms,
+            "{name}: {} vs {rms}",
+            c.residual_rms_percent
+        );
+    }
+}
