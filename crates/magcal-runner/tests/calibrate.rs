@@ -378,3 +378,39 @@ fn the_full_fit_agrees_with_an_independent_scipy_fit() {
         );
     }
 }
+
+#[test]
+fn reject_drops_outliers_and_counts_them() {
+    // 1000 readings of a known truth, 20 of them spoiled by a 20 % larger field: --reject 4 drops
+    // the spoiled ones (and about 0.006 % of the clean ones, beyond 4 sigma) and recovers the truth.
+    let tmp = TempDir::new().unwrap();
+    let truth = paper::true_error_model();
+    let log = synthetic(tmp.path(), &truth, &AttitudeBox::full(), 1000, 30.0);
+    let text: String = fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            if i > 0 && i % 50 == 0 {
+                let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+                format!("{},{},{},{}\n", v[0], v[1] * 1.2, v[2] * 1.2, v[3] * 1.2)
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    fs::write(&log, text).unwrap();
+    let r = (paper::changsha_field().magnitude() / 1e5).to_string();
+    let c = calibrate(&["--magnitude", &r, "--reject", "4"], &log);
+    assert!((20..=22).contains(&c.rejected), "{}", c.rejected);
+    assert_eq!(c.samples + c.rejected, 1000);
+    for i in 0..3 {
+        assert!(
+            (c.bias[i] - truth.bias_nt()[i] / 1e5).abs() <= 5.0 * c.std_error.bias.unwrap()[i],
+            "O{i}"
+        );
+    }
+    let spoiled = calibrate(&["--magnitude", &r], &log);
+    assert_eq!(spoiled.rejected, 0);
+    assert!(spoiled.residual_rms > 5.0 * c.residual_rms);
+}

@@ -46,6 +46,11 @@ pub struct CalibrateArgs {
     /// error).
     #[arg(long)]
     pub skip_bad: bool,
+    /// Drop readings whose `|calibrated| - R` lies more than K robust standard deviations
+    /// (1.4826 median absolute deviations) from the median, refit, and repeat until the kept set
+    /// does not change; `rejected` counts them. Off by default.
+    #[arg(long, value_name = "K")]
+    pub reject: Option<f64>,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -114,7 +119,7 @@ pub struct CalibrationJson {
     pub columns: [String; 3],
     pub samples: usize,
     pub skipped: usize,
-    /// Outlier rejection is not implemented yet: always 0.
+    /// Readings dropped by `--reject` (0 without it).
     pub rejected: usize,
     pub fit: String,
     /// With `--fit auto`: why this model.
@@ -199,7 +204,12 @@ fn log_efficiency(
 /// # Errors
 /// A bad log or option (exit 2), or a log that no model fits.
 pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
-    let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    let mut log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    let rejected = match args.reject {
+        Some(k) if k.is_finite() && k > 0.0 => reject(&mut log, k, args.fit)?,
+        Some(k) => return Err(anyhow::anyhow!("--reject {k}: must be positive and finite").into()),
+        None => 0,
+    };
     if let Some(r) = args.magnitude
         && !(r.is_finite() && r > 0.0)
     {
@@ -243,6 +253,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         }
     };
     let mut json = to_json(&args.log, &log, &fit, why, source);
+    json.rejected = rejected;
     if let Some(path) = &args.scenario {
         let scenario = crate::scenario::load(path)?;
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, &scenario, &log.readings)
@@ -258,6 +269,47 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         print_table(&json);
     }
     Ok(())
+}
+
+/// Rounds of `--reject`: fit the kept readings (to a unit field: the residuals are relative),
+/// keep every reading within `k` robust standard deviations of the median residual, until the kept
+/// set is stable (at most 100 rounds). Returns how many were dropped; `log` keeps the rest.
+fn reject(log: &mut log_file::Log, k: f64, model: Fit) -> Result<usize> {
+    let all = std::mem::take(&mut log.readings);
+    let lines = std::mem::take(&mut log.lines);
+    let mut keep = vec![true; all.len()];
+    for _ in 0..100 {
+        let kept: Vec<magcal_core::Vec3> = all.iter().zip(&keep).filter(|(_, k)| **k).map(|(s, _)| *s).collect();
+        let fit = match model {
+            Fit::Auto => log_fit::fit_auto(&kept, 1.0).map(|f| f.0),
+            Fit::Full => log_fit::fit(&kept, 1.0, FitModel::Full),
+            Fit::Diagonal => log_fit::fit(&kept, 1.0, FitModel::Diagonal),
+            Fit::Offset => log_fit::fit(&kept, 1.0, FitModel::Offset),
+        }
+        .with_context(|| format!("--reject {k}: no calibration of the {} readings kept", kept.len()))?;
+        let r: Vec<f64> = all
+            .iter()
+            .map(|s| magcal_core::small::norm(fit.apply(*s)) - 1.0)
+            .collect();
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let centre = median(&mut r.clone());
+        let spread = 1.4826 * median(&mut r.iter().map(|x| (x - centre).abs()).collect());
+        let next: Vec<bool> = r.iter().map(|x| (x - centre).abs() <= k * spread).collect();
+        if next == keep {
+            break;
+        }
+        keep = next;
+    }
+    for ((s, line), k) in all.into_iter().zip(lines).zip(&keep) {
+        if *k {
+            log.readings.push(s);
+            log.lines.push(line);
+        }
+    }
+    Ok(keep.iter().filter(|k| !**k).count())
 }
 
 fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {
@@ -304,11 +356,12 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
 fn print_table(j: &CalibrationJson) {
     let v = |x: [f64; 3]| format!("{:>12.6} {:>12.6} {:>12.6}", x[0], x[1], x[2]);
     println!(
-        "{}: {} readings (columns {}), {} skipped",
+        "{}: {} readings (columns {}), {} skipped, {} rejected",
         j.log,
         j.samples,
         j.columns.join(", "),
-        j.skipped
+        j.skipped,
+        j.rejected
     );
     println!(
         "fit {}{}",
