@@ -35,6 +35,8 @@ enum Command {
     Apply(commands::calibrate::ApplyArgs),
     /// The attitudes a vehicle should visit next to most increase the information of its log.
     Next(commands::calibrate::NextArgs),
+    /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
+    Simulate(commands::calibrate::SimulateArgs),
 }
 
 /// `magcal plot`.
@@ -129,6 +131,7 @@ pub fn main() -> ExitCode {
         Command::Calibrate(args) => commands::calibrate::run(&args),
         Command::Apply(args) => commands::calibrate::apply(&args),
         Command::Next(args) => commands::calibrate::next(&args),
+        Command::Simulate(args) => commands::calibrate::simulate(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -414,3 +414,47 @@ fn reject_drops_outliers_and_counts_them() {
     assert_eq!(spoiled.rejected, 0);
     assert!(spoiled.residual_rms > 5.0 * c.residual_rms);
 }
+
+#[test]
+fn simulate_writes_a_log_that_calibrate_recovers() {
+    // The 300-reading plan of scenarios/plan300.toml, simulated at 30 nT, then calibrated: the
+    // scenario's sensor within 5 standard errors.
+    let tmp = TempDir::new().unwrap();
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/plan300.toml");
+    let log = tmp.path().join("sim.csv");
+    magcal()
+        .arg("simulate")
+        .arg(&scenario)
+        .args(["--design", "plan300", "--out"])
+        .arg(&log)
+        .assert()
+        .success();
+    let r = paper::changsha_field().magnitude();
+    let c = calibrate(&["--magnitude", &r.to_string()], &log);
+    assert_eq!(c.samples, 300);
+    let truth = paper::true_error_model();
+    let se = &c.std_error;
+    for i in 0..3 {
+        assert!(
+            (c.psi_deg[i] - truth.psi_deg()[i]).abs() <= 5.0 * se.psi_deg.unwrap()[i],
+            "psi{i}"
+        );
+        assert!(
+            (c.scale[i] - truth.scale()[i]).abs() <= 5.0 * se.scale.unwrap()[i],
+            "S{i}"
+        );
+        assert!(
+            (c.bias[i] - truth.bias_nt()[i]).abs() <= 5.0 * se.bias.unwrap()[i],
+            "O{i}"
+        );
+    }
+    // An unknown design is named.
+    let out = magcal()
+        .arg("simulate")
+        .arg(&scenario)
+        .args(["--design", "nope"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no design named \"nope\""));
+}

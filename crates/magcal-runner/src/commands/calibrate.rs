@@ -104,6 +104,25 @@ pub struct NextArgs {
     pub skip_bad: bool,
 }
 
+/// `magcal simulate`.
+#[derive(Debug, Args)]
+pub struct SimulateArgs {
+    /// The scenario: its field, sensor (the truth to recover), box and designs.
+    pub scenario: PathBuf,
+    /// The design whose attitudes the log visits (each reading of a plan once).
+    #[arg(long)]
+    pub design: String,
+    /// Noise per component, nT (default: the scenario's first `sigma_nt`).
+    #[arg(long)]
+    pub sigma_nt: Option<f64>,
+    /// Seed of the noise (default: the scenario's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Write the log here (default: stdout).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
 /// Standard errors of the fitted parameters; `null` where the information is singular.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StdError {
@@ -601,6 +620,72 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     println!(
         "identifiable: before {}, after {}",
         crb_before.verdict.identifiable, crb_after.verdict.identifiable
+    );
+    Ok(())
+}
+
+/// Runs `simulate`: a log of noisy readings (nT) of the scenario's sensor at the attitudes of one
+/// of its designs, `roll_deg,yaw_deg,pitch_deg,mx,my,mz`, to try `calibrate` on a known truth.
+///
+/// # Errors
+/// A bad scenario, an unknown design, a bad noise level (exit 2).
+pub fn simulate(args: &SimulateArgs) -> Result<(), Failure> {
+    Ok(simulate_inner(args)?)
+}
+
+fn simulate_inner(args: &SimulateArgs) -> Result<()> {
+    let scenario = crate::scenario::load(&args.scenario)?;
+    let sigma = args.sigma_nt.unwrap_or(scenario.sigmas_nt[0]);
+    if !(sigma.is_finite() && (0.0..=crate::limits::MAX_SIGMA_NT).contains(&sigma)) {
+        bail!(
+            "--sigma-nt {sigma}: must lie in [0, {}] nT",
+            crate::limits::MAX_SIGMA_NT
+        );
+    }
+    let Some(index) = scenario.designs.iter().position(|d| d.name == args.design) else {
+        bail!(
+            "{}: no design named {:?} (designs: {})",
+            args.scenario.display(),
+            args.design,
+            scenario
+                .designs
+                .iter()
+                .map(|d| d.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    };
+    // Every design is built, so that each gets the random stream it gets in `magcal run`.
+    let mut designs_only = scenario.clone();
+    designs_only.pso_runs = None;
+    let out = crate::pipeline::run(
+        &designs_only,
+        crate::pipeline::RunOptions {
+            progress: false,
+            designs_only: true,
+        },
+    )?;
+    let attitudes = out.designs[index].expanded();
+    let mut rng = magcal_core::rng::stream_rng(args.seed.unwrap_or(scenario.seed), 0xFFFC << 48);
+    let readings = scenario
+        .truth
+        .noisy_readings(&scenario.field.body_fields(&attitudes), sigma, &mut rng)?;
+    let mut text = Vec::with_capacity(96 * readings.len());
+    writeln!(text, "roll_deg,yaw_deg,pitch_deg,mx,my,mz")?;
+    for (a, s) in attitudes.iter().zip(&readings) {
+        let [r, y, p] = a.to_degrees();
+        writeln!(text, "{r},{y},{p},{},{},{}", s[0], s[1], s[2])?;
+    }
+    match &args.out {
+        Some(path) => replace(path, &text)?,
+        None => std::io::stdout().write_all(&text).context("stdout")?,
+    }
+    eprintln!(
+        "magcal: {} readings of design {:?} at {sigma} nT; the field magnitude is {} nT (calibrate with --magnitude {})",
+        readings.len(),
+        args.design,
+        scenario.field.magnitude(),
+        scenario.field.magnitude()
     );
     Ok(())
 }
