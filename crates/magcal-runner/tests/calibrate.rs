@@ -458,3 +458,57 @@ fn simulate_writes_a_log_that_calibrate_recovers() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("no design named \"nope\""));
 }
+
+#[test]
+fn the_magnitude_can_come_from_the_wmm_at_a_site_and_date() {
+    // The synthetic log is in Gauss at Changsha, 2013.0: WMM2010 there gives 48277.79 nT
+    // (CONVENTIONS.md), and the scale factors come back absolute.
+    let tmp = TempDir::new().unwrap();
+    let truth = paper::true_error_model();
+    let log = synthetic(tmp.path(), &truth, &AttitudeBox::full(), 2000, 30.0);
+    let c = calibrate(&["--site", "28.2,112.97,0", "--date", "2013.0", "--units", "G"], &log);
+    assert!((c.magnitude - 0.4827779).abs() < 1e-6, "{}", c.magnitude);
+    assert!(c.magnitude_source.starts_with("WMM2010"), "{}", c.magnitude_source);
+    for i in 0..3 {
+        assert!(
+            (c.scale[i] - truth.scale()[i]).abs() <= 5.0 * c.std_error.scale.unwrap()[i],
+            "S{i}"
+        );
+    }
+    // A date no model holds, a malformed site or date: exit 2 naming it.
+    for (args, needle) in [
+        (
+            vec!["--site", "28.2,112.97", "--date", "2040-01-01", "--units", "G"],
+            "no model holds it",
+        ),
+        (
+            vec!["--site", "north", "--date", "2013.0", "--units", "G"],
+            "--site \"north\"",
+        ),
+        (
+            vec!["--site", "28.2,112.97", "--date", "2013-02-30", "--units", "G"],
+            "not a date",
+        ),
+        (
+            vec![
+                "--site",
+                "28.2,112.97",
+                "--date",
+                "2013.0",
+                "--units",
+                "G",
+                "--wmm",
+                "WMM1999",
+            ],
+            "unknown model",
+        ),
+    ] {
+        let out = magcal().arg("calibrate").arg(&log).args(&args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2));
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(needle),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
