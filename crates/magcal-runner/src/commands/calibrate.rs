@@ -735,6 +735,11 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         show(efficiency(&after, m + attitudes.len()))
     );
     println!(
+        "coverage: MotionCal gaps before {:.1} %, after {:.1} %",
+        log_fit::motioncal_gaps(&body_log),
+        log_fit::motioncal_gaps(&body_all)
+    );
+    println!(
         "identifiable: before {}, after {}",
         crb_before.verdict.identifiable, crb_after.verdict.identifiable
     );
