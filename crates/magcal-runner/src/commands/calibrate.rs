@@ -552,29 +552,46 @@ fn write_out(dir: &Path, json: &CalibrationJson, log: &log_file::Log, fit: &LogF
     let mut text = serde_json::to_vec_pretty(json).context("JSON")?;
     text.push(b'\n');
     replace(&dir.join("calibration.json"), &text)?;
-    let mut csv = Vec::with_capacity(64 * log.readings.len());
-    writeln!(csv, "line,raw_x,raw_y,raw_z,x,y,z,norm,residual")?;
-    for (raw, line) in log.readings.iter().zip(&log.lines) {
-        let b = fit.apply(*raw);
-        let n = magcal_core::small::norm(b);
-        writeln!(
-            csv,
-            "{line},{},{},{},{},{},{},{n},{}",
-            raw[0],
-            raw[1],
-            raw[2],
-            b[0],
-            b[1],
-            b[2],
-            n - fit.magnitude
-        )?;
-    }
-    replace(&dir.join("residuals.csv"), &csv)
+    replace_with(&dir.join("residuals.csv"), |csv| {
+        writeln!(csv, "line,raw_x,raw_y,raw_z,x,y,z,norm,residual")?;
+        for (raw, line) in log.readings.iter().zip(&log.lines) {
+            let b = fit.apply(*raw);
+            let n = magcal_core::small::norm(b);
+            writeln!(
+                csv,
+                "{line},{},{},{},{},{},{},{n},{}",
+                raw[0],
+                raw[1],
+                raw[2],
+                b[0],
+                b[1],
+                b[2],
+                n - fit.magnitude
+            )?;
+        }
+        Ok(())
+    })
 }
 
 fn replace(path: &Path, bytes: &[u8]) -> Result<()> {
+    replace_with(path, |w| Ok(w.write_all(bytes)?))
+}
+
+/// Streams `write` into a temporary file beside `path`, then renames it into place: a reader sees
+/// the old file or the whole new one, and nothing is held in memory.
+fn replace_with(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
     let tmp = path.with_extension("magcal-tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("{}: cannot write", tmp.display()))?;
+    let result = (|| -> Result<()> {
+        let file = std::fs::File::create(&tmp)?;
+        let mut w = std::io::BufWriter::new(file);
+        write(&mut w)?;
+        w.flush()?;
+        Ok(())
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e).with_context(|| format!("{}: cannot write", path.display()));
+    }
     std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot write", path.display()))
 }
 
@@ -612,18 +629,23 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     for (line, reason) in &log.skipped {
         eprintln!("magcal: skipped line {line}: {reason}");
     }
-    let mut out = Vec::with_capacity(64 * log.readings.len());
-    writeln!(out, "line,x,y,z,norm")?;
-    for (raw, line) in log.readings.iter().zip(&log.lines) {
-        let d = [raw[0] - cal.bias[0], raw[1] - cal.bias[1], raw[2] - cal.bias[2]];
-        let b = magcal_core::small::mat_vec(&cal.p, d);
-        writeln!(out, "{line},{},{},{},{}", b[0], b[1], b[2], magcal_core::small::norm(b))?;
-    }
+    let rows = |out: &mut dyn Write| -> Result<()> {
+        writeln!(out, "line,x,y,z,norm")?;
+        for (raw, line) in log.readings.iter().zip(&log.lines) {
+            let d = [raw[0] - cal.bias[0], raw[1] - cal.bias[1], raw[2] - cal.bias[2]];
+            let b = magcal_core::small::mat_vec(&cal.p, d);
+            writeln!(out, "{line},{},{},{},{}", b[0], b[1], b[2], magcal_core::small::norm(b))?;
+        }
+        Ok(())
+    };
     match &args.out {
-        Some(path) => replace(path, &out)?,
-        None => std::io::stdout().write_all(&out).context("stdout")?,
+        Some(path) => replace_with(path, rows),
+        None => {
+            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
+            rows(&mut w)?;
+            w.flush().context("stdout")
+        }
     }
-    Ok(())
 }
 
 /// Runs `next`: the attitudes that most increase the information of the log (D-optimal
@@ -792,15 +814,21 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
     let readings = scenario
         .truth
         .noisy_readings(&scenario.field.body_fields(&attitudes), sigma, &mut rng)?;
-    let mut text = Vec::with_capacity(96 * readings.len());
-    writeln!(text, "roll_deg,yaw_deg,pitch_deg,mx,my,mz")?;
-    for (a, s) in attitudes.iter().zip(&readings) {
-        let [r, y, p] = a.to_degrees();
-        writeln!(text, "{r},{y},{p},{},{},{}", s[0], s[1], s[2])?;
-    }
+    let rows = |out: &mut dyn Write| -> Result<()> {
+        writeln!(out, "roll_deg,yaw_deg,pitch_deg,mx,my,mz")?;
+        for (a, s) in attitudes.iter().zip(&readings) {
+            let [r, y, p] = a.to_degrees();
+            writeln!(out, "{r},{y},{p},{},{},{}", s[0], s[1], s[2])?;
+        }
+        Ok(())
+    };
     match &args.out {
-        Some(path) => replace(path, &text)?,
-        None => std::io::stdout().write_all(&text).context("stdout")?,
+        Some(path) => replace_with(path, rows)?,
+        None => {
+            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
+            rows(&mut w)?;
+            w.flush().context("stdout")?;
+        }
     }
     eprintln!(
         "magcal: {} readings of design {:?} at {sigma} nT; the field magnitude is {} nT (calibrate with --magnitude {})",
