@@ -149,9 +149,9 @@ pub fn fit(readings: &[Vec3], magnitude: f64, model: FitModel) -> Result<LogFit,
             })?;
     }
     let fields: Vec<Vec3> = readings.iter().map(|&s| mat_vec(&p, sub(s, bias))).collect();
-    let residuals: Vec<f64> = fields.iter().map(|b| norm(*b) - magnitude).collect();
     let m = readings.len();
-    let sum_sq: f64 = residuals.iter().map(|r| r * r).sum();
+    let residual = |b: &Vec3| norm(*b) - magnitude;
+    let sum_sq: f64 = fields.iter().map(|b| residual(b).powi(2)).sum();
     let gain: f64 = fields
         .iter()
         .map(|b| {
@@ -171,7 +171,7 @@ pub fn fit(readings: &[Vec3], magnitude: f64, model: FitModel) -> Result<LogFit,
         errors,
         magnitude,
         residual_rms: (sum_sq / m as f64).sqrt(),
-        residual_max: residuals.iter().fold(0.0_f64, |a, r| a.max(r.abs())),
+        residual_max: fields.iter().fold(0.0_f64, |a, b| a.max(residual(b).abs())),
         noise,
         std_psi_deg,
         std_scale,

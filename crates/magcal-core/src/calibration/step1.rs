@@ -26,6 +26,9 @@ use crate::small::{Mat3, Vec3, cholesky_in_place, dot, mat_vec, scale, solve3};
 /// Too few readings, non-finite input, rank-deficient `H`, or a quadric that is not an ellipsoid.
 pub fn linear_fit(readings: &[Vec3], field_magnitude_nt: f64) -> Result<Estimate, CalibrationError> {
     validate(readings, field_magnitude_nt)?;
+    if readings.len() > CHUNKED_ABOVE {
+        return linear_fit_chunked(readings, field_magnitude_nt, CHUNK);
+    }
     let R = field_magnitude_nt;
     let H = design_matrix(readings, R);
     let qr = H.col_piv_qr();
@@ -46,6 +49,70 @@ pub fn linear_fit(readings: &[Vec3], field_magnitude_nt: f64) -> Result<Estimate
     let theta = qr.solve_lstsq(&W);
     let t: [f64; UNKNOWNS] = std::array::from_fn(|i| theta[(i, 0)]);
 
+    let (P, O_u) = ellipsoid_from_theta(&t)?;
+    Ok(Estimate::new(P, scale(R, O_u), readings, R))
+}
+
+/// Above this many readings, step 1 works in chunks ([`linear_fit_chunked`]).
+pub const CHUNKED_ABOVE: usize = 1 << 16;
+/// Rows per chunk.
+const CHUNK: usize = 1 << 14;
+
+/// [`linear_fit`] for long logs, in memory independent of their length: the Householder QR of
+/// `[H | W]` (m x 10) is accumulated chunk by chunk, each chunk's rows stacked under the `R`
+/// factor so far and factorised again (a tall-skinny QR), so that only `chunk + 10` rows are held
+/// at a time instead of the m x 9 matrix `H` (72 bytes per reading, and as much again for its
+/// factorisation). The final `R = [R_H, q; 0, rho]` gives `theta = R_H^-1 q`, the least-squares
+/// solution of \[P1\] eq. (11), and the rank from the column-pivoted QR of `R_H` (whose singular
+/// values are `H`'s). The same numbers as [`linear_fit`] to rounding (tested), not bit for bit.
+///
+/// # Errors
+/// As [`linear_fit`].
+pub fn linear_fit_chunked(
+    readings: &[Vec3],
+    field_magnitude_nt: f64,
+    chunk: usize,
+) -> Result<Estimate, CalibrationError> {
+    validate(readings, field_magnitude_nt)?;
+    let R = field_magnitude_nt;
+    let n = UNKNOWNS + 1;
+    let mut r = Mat::<f64>::zeros(0, n);
+    for rows in readings.chunks(chunk.max(n)) {
+        let top = r.nrows();
+        let mut block = Mat::<f64>::zeros(top + rows.len(), n);
+        for i in 0..top {
+            for j in 0..n {
+                block[(i, j)] = r[(i, j)];
+            }
+        }
+        for (k, &b) in rows.iter().enumerate() {
+            let h = crate::linear_model::regression_row(b.map(|v| v / R));
+            for (j, v) in h.into_iter().enumerate() {
+                block[(top + k, j)] = v;
+            }
+            block[(top + k, UNKNOWNS)] = 1.0;
+        }
+        let qr = block.qr();
+        r = qr.thin_R().to_owned();
+    }
+    // R_H and q = (Q^T W)[..9].
+    let rh = Mat::<f64>::from_fn(UNKNOWNS, UNKNOWNS, |i, j| if i <= j { r[(i, j)] } else { 0.0 });
+    let r_diag: Vec<f64> = {
+        let p = rh.col_piv_qr();
+        let d = p.thin_R();
+        (0..UNKNOWNS).map(|i| d[(i, i)].abs()).collect()
+    };
+    let tol = readings.len().max(UNKNOWNS) as f64 * f64::EPSILON * r_diag[0];
+    let rank = r_diag.iter().filter(|&&d| d > tol).count();
+    if rank < UNKNOWNS {
+        return Err(CalibrationError::RankDeficient { rank, needed: UNKNOWNS });
+    }
+    // Back substitution R_H theta = q.
+    let mut t = [0.0; UNKNOWNS];
+    for i in (0..UNKNOWNS).rev() {
+        let s: f64 = (i + 1..UNKNOWNS).map(|j| rh[(i, j)] * t[j]).sum();
+        t[i] = (r[(i, UNKNOWNS)] - s) / rh[(i, i)];
+    }
     let (P, O_u) = ellipsoid_from_theta(&t)?;
     Ok(Estimate::new(P, scale(R, O_u), readings, R))
 }
@@ -81,4 +148,44 @@ pub(crate) fn ellipsoid_from_theta(t: &[f64; UNKNOWNS]) -> Result<(Mat3, Vec3), 
         [0.0, 0.0, L[2][2]],
     ];
     Ok((P, O))
+}
+
+#[cfg(test)]
+mod chunked_tests {
+    use super::*;
+    use crate::design::sources;
+    use crate::paper;
+    use crate::rng::stream_rng;
+
+    #[test]
+    fn the_chunked_fit_agrees_with_the_whole_one() {
+        let field = paper::changsha_field();
+        let truth = paper::true_error_model();
+        let mut rng = stream_rng(17, 0);
+        for (m, chunk) in [(9, 4), (37, 10), (5000, 700), (5000, 5000)] {
+            let design = sources::random(&crate::AttitudeBox::full(), m, &mut rng);
+            let readings = truth
+                .noisy_readings(&field.body_fields(&design), 30.0, &mut rng)
+                .unwrap();
+            let (a, b) = (
+                linear_fit(&readings, field.magnitude()).unwrap(),
+                linear_fit_chunked(&readings, field.magnitude(), chunk).unwrap(),
+            );
+            for i in 0..3 {
+                for j in 0..3 {
+                    assert!((a.p[i][j] - b.p[i][j]).abs() <= 1e-9 * a.p[i][i].abs(), "{m}: P{i}{j}");
+                }
+                assert!(
+                    (a.bias_nt[i] - b.bias_nt[i]).abs() <= 1e-9 * field.magnitude(),
+                    "{m}: O{i}"
+                );
+            }
+        }
+        // A rank-deficient log is refused by both.
+        let flat: Vec<Vec3> = (0..100).map(|i| [(i as f64).cos(), (i as f64).sin(), 0.0]).collect();
+        assert!(matches!(
+            linear_fit_chunked(&flat, 1.0, 16),
+            Err(CalibrationError::RankDeficient { .. })
+        ));
+    }
 }
