@@ -406,6 +406,26 @@ fn reduced(
 /// 0.01 with two (PJRC MotionCal, `quality.c`). 0 is full coverage, 100 none. Latitude is taken
 /// from the third component.
 pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
+    region_counts(fields)
+        .iter()
+        .map(|&c| match c {
+            0 => 1.0,
+            1 => 0.2,
+            2 => 0.01,
+            _ => 0.0,
+        })
+        .sum()
+}
+
+/// The percentage of the same 100 equal-area regions ([`motioncal_gaps`]) that hold at least one
+/// calibrated direction: the occupied-bin kind of coverage figure that MicroStrain's tools report
+/// (their own bin layout is not published; these are MotionCal's bins).
+pub fn occupied_regions_percent(fields: &[Vec3]) -> f64 {
+    region_counts(fields).iter().filter(|&&c| c > 0).count() as f64
+}
+
+/// Directions per region of the 100 equal-area regions of [`motioncal_gaps`].
+fn region_counts(fields: &[Vec3]) -> [usize; 100] {
     let mut counts = [0usize; 100];
     for b in fields {
         let n = norm(*b);
@@ -432,14 +452,6 @@ pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
         counts[region] += 1;
     }
     counts
-        .iter()
-        .map(|&c| match c {
-            0 => 1.0,
-            1 => 0.2,
-            2 => 0.01,
-            _ => 0.0,
-        })
-        .sum()
 }
 
 /// The radius of the sphere that best fits the readings (the linear fit `|s|^2 = 2 c . s + k`),
@@ -627,6 +639,8 @@ mod tests {
         }
         assert_eq!(one.len(), 100);
         assert!((motioncal_gaps(&one) - 20.0).abs() < 1e-9, "{}", motioncal_gaps(&one));
+        assert!((occupied_regions_percent(&one) - 100.0).abs() < 1e-12);
+        assert!((occupied_regions_percent(&one[..37]) - 37.0).abs() < 1e-12);
         let three: Vec<Vec3> = one.iter().flat_map(|d| [*d; 3]).collect();
         assert!(motioncal_gaps(&three).abs() < 1e-12);
         // Equal area: 20,000 uniform directions leave no region empty.

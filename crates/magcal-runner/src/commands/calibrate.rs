@@ -287,6 +287,9 @@ pub struct Coverage {
     /// MotionCal's surface-gap error of the calibrated field directions, percent (0: every one of
     /// 100 equal-area regions holds at least three readings; 100: none).
     pub motioncal_gap_percent: f64,
+    /// The percentage of those 100 regions holding at least one calibrated direction (the kind
+    /// of figure MicroStrain's tools report; their bin layout is not published).
+    pub occupied_regions_percent: f64,
     /// With `--scenario`: the certified D-efficiency per reading of the log's information against
     /// every design of as many readings in the scenario's box, under the fitted sensor.
     pub d_efficiency_per_reading: Option<f64>,
@@ -449,6 +452,7 @@ fn reject(log: &mut log_file::Log, k: f64, model: Fit) -> Result<usize> {
 }
 
 fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {
+    let fields: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
         log: path.display().to_string(),
@@ -480,9 +484,8 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
         status: fit.status.as_str().to_string(),
         iterations: fit.iterations,
         coverage: Coverage {
-            motioncal_gap_percent: log_fit::motioncal_gaps(
-                &log.readings.iter().map(|s| fit.apply(*s)).collect::<Vec<_>>(),
-            ),
+            motioncal_gap_percent: log_fit::motioncal_gaps(&fields),
+            occupied_regions_percent: log_fit::occupied_regions_percent(&fields),
             d_efficiency_per_reading: None,
             box_from: None,
         },
@@ -534,8 +537,9 @@ fn print_table(j: &CalibrationJson) {
         j.verdict
     );
     println!(
-        "coverage: MotionCal gaps {:.1} %{}",
+        "coverage: MotionCal gaps {:.1} %, {:.0} % of its 100 regions occupied{}",
         j.coverage.motioncal_gap_percent,
+        j.coverage.occupied_regions_percent,
         match (&j.coverage.d_efficiency_per_reading, &j.coverage.box_from) {
             (Some(e), Some(b)) if *e >= 1e-3 =>
                 format!("; certified D-efficiency per reading {e:.4} in the box of {b}"),
