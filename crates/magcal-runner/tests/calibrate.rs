@@ -342,10 +342,11 @@ fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
         .find(|l| l.starts_with("coverage: MotionCal gaps"))
         .unwrap();
     let g: Vec<f64> = gaps
-        .split(|c: char| c.is_whitespace() || c == ',')
+        .split(|c: char| c.is_whitespace() || c == ',' || c == ';')
         .filter_map(|w| w.parse().ok())
         .collect();
-    assert!(g.len() == 2 && g[1] <= g[0], "{gaps}");
+    // Gaps before, after; occupied before, after.
+    assert!(g.len() == 4 && g[1] <= g[0] && g[3] >= g[2], "{gaps}");
     let line = text.lines().find(|l| l.starts_with("certified D-efficiency")).unwrap();
     let numbers: Vec<f64> = line
         .split(|c: char| c == ',' || c.is_whitespace())

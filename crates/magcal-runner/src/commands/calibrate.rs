@@ -761,9 +761,11 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         show(efficiency(&after, m + attitudes.len()))
     );
     println!(
-        "coverage: MotionCal gaps before {:.1} %, after {:.1} %",
+        "coverage: MotionCal gaps before {:.1} %, after {:.1} %; regions occupied before {:.0} %, after {:.0} %",
         log_fit::motioncal_gaps(&body_log),
-        log_fit::motioncal_gaps(&body_all)
+        log_fit::motioncal_gaps(&body_all),
+        log_fit::occupied_regions_percent(&body_log),
+        log_fit::occupied_regions_percent(&body_all)
     );
     println!(
         "identifiable: before {}, after {}",
