@@ -113,6 +113,13 @@ impl From<anyhow::Error> for Failure {
 
 /// Parses the command line, runs the command, prints an error as one line; the exit code.
 pub fn main() -> ExitCode {
+    // Rust ignores SIGPIPE, so that printing into a closed pipe (`magcal calibrate LOG | head`)
+    // panics; the default action ends the process quietly, as every command-line tool does.
+    #[cfg(unix)]
+    // SAFETY: called first, before any thread starts; SIG_DFL is a valid disposition.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {

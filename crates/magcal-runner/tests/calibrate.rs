@@ -325,14 +325,15 @@ fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
     let rows: Vec<Vec<f64>> = text
         .lines()
         .skip(2)
-        .take(6)
+        .take_while(|l| !l.trim().is_empty())
         .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
         .collect();
-    assert_eq!(rows.len(), 6, "{text}");
+    // k, roll, pitch, heading, readings, d: six readings inside the AUV box, each adding
+    // information.
+    assert_eq!(rows.iter().map(|r| r[4]).sum::<f64>(), 6.0, "{text}");
     for r in &rows {
-        // k, roll, pitch, heading, d: inside the AUV box, each adding information.
         assert!(
-            r[1].abs() <= 5.0 + 1e-9 && r[2].abs() <= 20.0 + 1e-9 && r[4] > 0.0,
+            r[1].abs() <= 5.0 + 1e-9 && r[2].abs() <= 20.0 + 1e-9 && r[5] > 0.0,
             "{r:?}"
         );
     }
@@ -522,4 +523,74 @@ fn the_magnitude_can_come_from_the_wmm_at_a_site_and_date() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+}
+
+#[test]
+fn next_takes_the_box_and_site_as_flags_too() {
+    let tmp = TempDir::new().unwrap();
+    let truth = paper::true_error_model();
+    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
+    let log = synthetic(tmp.path(), &truth, &cap, 400, 30.0);
+    let dir = tmp.path().join("cal");
+    magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args([
+            "--fit",
+            "diagonal",
+            "--site",
+            "28.2,112.97",
+            "--date",
+            "2013.0",
+            "--units",
+            "G",
+            "--out",
+        ])
+        .arg(&dir)
+        .assert()
+        .success();
+    let out = magcal()
+        .arg("next")
+        .arg(dir.join("calibration.json"))
+        .arg(&log)
+        .args([
+            "--roll=-5,5",
+            "--pitch=-20,20",
+            "--site",
+            "28.2,112.97",
+            "--date",
+            "2013.0",
+            "--count",
+            "4",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("WMM2010 at 28.2, 112.97"), "{text}");
+    // Neither a scenario nor a site: refused by the command line.
+    let out = magcal()
+        .arg("next")
+        .arg(dir.join("calibration.json"))
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    // A malformed range is named.
+    let out = magcal()
+        .arg("next")
+        .arg(dir.join("calibration.json"))
+        .arg(&log)
+        .args([
+            "--roll=5,-5",
+            "--pitch=-20,20",
+            "--site",
+            "28.2,112.97",
+            "--date",
+            "2013.0",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--roll \"5,-5\""));
 }

@@ -57,6 +57,14 @@ impl Units {
 
 /// The WMM magnitude at `--site` on `--date` in `--units`, and its source in words.
 fn wmm_magnitude(site: &str, date: &str, units: Units, model: Option<&str>) -> Result<(f64, String)> {
+    let (v, source) = wmm_field(site, date, model)?;
+    let nt = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    Ok((nt / units.nt(), source))
+}
+
+/// The WMM field (North, East, Down, nT) at `site` (`LAT,LON[,ALT_M]`) on `date`, by `model` or
+/// the newest whose window holds the date, and its source in words.
+fn wmm_field(site: &str, date: &str, model: Option<&str>) -> Result<([f64; 3], String)> {
     use magcal_core::wmm;
     let numbers: Vec<f64> = site
         .split(',')
@@ -88,7 +96,7 @@ fn wmm_magnitude(site: &str, date: &str, units: Units, model: Option<&str>) -> R
             Ok(v) => {
                 let nt = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
                 return Ok((
-                    nt / units.nt(),
+                    v,
                     format!("{} at {lat}, {lon}, {alt} m, {year:.3}: {nt:.1} nT", m.name()),
                 ));
             }
@@ -202,9 +210,29 @@ pub struct NextArgs {
     /// The log it was fitted to.
     pub log: PathBuf,
     /// A scenario file giving the vehicle's attitude box (`[attitude_box]`), the site
-    /// (`[field]`, for the field's direction) and the search (`[certificate]`).
+    /// (`[field]`, for the field's direction) and the search (`[certificate]`); or the flags
+    /// below.
+    #[arg(long, required_unless_present = "site", conflicts_with = "site")]
+    pub scenario: Option<PathBuf>,
+    /// Roll range, degrees: `MIN,MAX` (with `--site`).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub roll: Option<String>,
+    /// Pitch range, degrees: `MIN,MAX` (with `--site`).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub pitch: Option<String>,
+    /// Yaw range, degrees: `MIN,MAX` (with `--site`; default any yaw).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub yaw: Option<String>,
+    /// The site, `LAT,LON[,ALT_M]`, for the field's direction from the World Magnetic Model; needs
+    /// `--date`, `--roll` and `--pitch`.
+    #[arg(long, requires_all = ["date", "roll", "pitch"], allow_hyphen_values = true)]
+    pub site: Option<String>,
+    /// The date, `YYYY-MM-DD` or a decimal year (with `--site`).
     #[arg(long)]
-    pub scenario: PathBuf,
+    pub date: Option<String>,
+    /// The model (default: the newest whose window holds the date).
+    #[arg(long, requires = "site")]
+    pub wmm: Option<String>,
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub count: u64,
@@ -297,12 +325,73 @@ pub struct Coverage {
     pub box_from: Option<String>,
 }
 
-/// The fitted sensor as a design problem in the scenario's field (nT) and box, and the factor from
+/// What `next` and the coverage need of a vehicle: its site's field (nT), its attitude box, the
+/// certificate's search and a seed; from a scenario file or from flags.
+struct Vehicle {
+    field: magcal_core::ReferenceField,
+    bounds: magcal_core::AttitudeBox,
+    certificate: magcal_core::design::approximate::Approximate,
+    seed: u64,
+    label: String,
+}
+
+impl Vehicle {
+    fn from_scenario(path: &Path) -> Result<Self> {
+        let s = crate::scenario::load(path)?;
+        Ok(Self {
+            field: s.field,
+            bounds: s.bounds,
+            certificate: s.certificate,
+            seed: s.seed,
+            label: path.display().to_string(),
+        })
+    }
+
+    /// `--roll, --pitch [--yaw] --site --date [--wmm]`.
+    fn from_flags(args: &NextArgs) -> Result<Self> {
+        let range = |name: &str, value: Option<&String>, default: [f64; 2]| -> Result<[f64; 2]> {
+            let Some(text) = value else { return Ok(default) };
+            let v: Vec<f64> = text
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| anyhow::anyhow!("--{name} {text:?}: give MIN,MAX in degrees"))?;
+            match v[..] {
+                [a, b]
+                    if a.is_finite()
+                        && b.is_finite()
+                        && a < b
+                        && b - a <= 360.0
+                        && a.abs() <= 360.0
+                        && b.abs() <= 360.0 =>
+                {
+                    Ok([a, b])
+                }
+                _ => bail!(
+                    "--{name} {text:?}: give MIN,MAX in degrees, MIN < MAX, at most 360 apart, each in [-360, 360]"
+                ),
+            }
+        };
+        let roll = range("roll", args.roll.as_ref(), [0.0, 0.0])?;
+        let pitch = range("pitch", args.pitch.as_ref(), [0.0, 0.0])?;
+        let yaw = range("yaw", args.yaw.as_ref(), [-180.0, 180.0])?;
+        let bounds = magcal_core::AttitudeBox::from_degrees(roll, yaw, pitch).context("the attitude box")?;
+        let (site, date) = (args.site.as_deref().unwrap_or(""), args.date.as_deref().unwrap_or(""));
+        let (ned, source) = wmm_field(site, date, args.wmm.as_deref())?;
+        let field = magcal_core::ReferenceField::from_ned(ned[0], ned[1], ned[2]).context("the WMM field")?;
+        Ok(Self {
+            field,
+            bounds,
+            certificate: Default::default(),
+            seed: 0,
+            label: format!("roll {roll:?}, pitch {pitch:?}, yaw {yaw:?} deg, {source}"),
+        })
+    }
+}
+
+/// The fitted sensor as a design problem in the vehicle's field (nT) and box, and the factor from
 /// the log's units to nT (only the field's direction comes from the site).
-fn fitted_problem(
-    cal: &CalibrationJson,
-    scenario: &crate::scenario::Scenario,
-) -> Result<(magcal_core::design::DesignProblem, f64)> {
+fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magcal_core::design::DesignProblem, f64)> {
     let field = scenario.field;
     let factor = field.magnitude() / cal.magnitude;
     if !(factor.is_finite() && factor > 0.0) {
@@ -317,11 +406,7 @@ fn fitted_problem(
 }
 
 /// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box.
-fn log_efficiency(
-    cal: &CalibrationJson,
-    scenario: &crate::scenario::Scenario,
-    readings: &[magcal_core::Vec3],
-) -> Result<Option<f64>> {
+fn log_efficiency(cal: &CalibrationJson, scenario: &Vehicle, readings: &[magcal_core::Vec3]) -> Result<Option<f64>> {
     let (problem, factor) = fitted_problem(cal, scenario)?;
     let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|s| s.map(|v| v * factor)).collect();
     let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
@@ -394,7 +479,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
     if let Some(path) = &args.scenario {
-        let scenario = crate::scenario::load(path)?;
+        let scenario = Vehicle::from_scenario(path)?;
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, &scenario, &log.readings)
             .with_context(|| format!("{}: coverage in {}", args.log.display(), path.display()))?;
         json.coverage.box_from = Some(path.display().to_string());
@@ -666,7 +751,10 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
-    let scenario = crate::scenario::load(&args.scenario)?;
+    let scenario = match &args.scenario {
+        Some(path) => Vehicle::from_scenario(path)?,
+        None => Vehicle::from_flags(args)?,
+    };
     let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
     if !cal.identifiable {
         eprintln!(
@@ -720,20 +808,29 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         log.readings.len(),
         args.log.display(),
         args.count,
-        args.scenario.display()
+        scenario.label
     );
+    // The same attitude chosen again is one row with its readings.
+    let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
+    for (a, d) in &chosen {
+        match rows.last_mut() {
+            Some(last) if magcal_core::design::tour::rotation_angle(&last.0, a) < 1e-6 => last.1 += 1,
+            _ => rows.push((*a, 1, *d)),
+        }
+    }
     println!(
-        "  {:>4} {:>9} {:>9} {:>11} {:>12}",
-        "k", "roll_deg", "pitch_deg", "heading_deg", "variance d"
+        "  {:>4} {:>9} {:>9} {:>11} {:>8} {:>12}",
+        "k", "roll_deg", "pitch_deg", "heading_deg", "readings", "variance d"
     );
-    for (k, (a, d)) in chosen.iter().enumerate() {
+    for (k, (a, n, d)) in rows.iter().enumerate() {
         let [roll, yaw, pitch] = a.to_degrees();
         println!(
-            "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>12.4}",
+            "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>12.4}",
             k + 1,
             roll,
             pitch,
             (-(yaw + field.yaw_offset_deg())).rem_euclid(360.0),
+            n,
             d
         );
     }
