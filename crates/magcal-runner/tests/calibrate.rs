@@ -33,6 +33,19 @@ fn synthetic(dir: &Path, truth: &ErrorModel, bounds: &AttitudeBox, n: usize, sig
     path
 }
 
+/// Every parameter of `truth` within 5 standard errors of the calibration (bias in nT / `per`).
+fn assert_recovers(c: &CalibrationJson, truth: &ErrorModel, per: f64) {
+    let se = &c.std_error;
+    for i in 0..3 {
+        let psi = (c.psi_deg[i] - truth.psi_deg()[i]).abs();
+        assert!(psi <= 5.0 * se.psi_deg.unwrap()[i], "psi{i}: {psi}");
+        let s = (c.scale[i] - truth.scale()[i]).abs();
+        assert!(s <= 5.0 * se.scale.unwrap()[i], "S{i}: {s}");
+        let o = (c.bias[i] - truth.bias_nt()[i] / per).abs();
+        assert!(o <= 5.0 * se.bias.unwrap()[i], "O{i}: {o}");
+    }
+}
+
 fn calibrate(args: &[&str], log: &Path) -> CalibrationJson {
     let out = magcal()
         .arg("calibrate")
@@ -54,21 +67,7 @@ fn a_known_truth_is_recovered_within_its_standard_errors() {
     let c = calibrate(&["--magnitude", &r.to_string()], &log);
     assert_eq!((c.samples, c.fit.as_str(), c.columns[0].as_str()), (3000, "full", "mx"));
     assert!(c.identifiable, "{}", c.verdict);
-    let se = &c.std_error;
-    for i in 0..3 {
-        assert!(
-            (c.psi_deg[i] - truth.psi_deg()[i]).abs() <= 5.0 * se.psi_deg.unwrap()[i],
-            "psi{i}"
-        );
-        assert!(
-            (c.scale[i] - truth.scale()[i]).abs() <= 5.0 * se.scale.unwrap()[i],
-            "S{i}"
-        );
-        assert!(
-            (c.bias[i] - truth.bias_nt()[i] / 1e5).abs() <= 5.0 * se.bias.unwrap()[i],
-            "O{i}"
-        );
-    }
+    assert_recovers(&c, &truth, 1e5);
     // The noise estimate: 30 nT = 3e-4 G within 5 %; A^-1 A^-1 = G = P^T P to rounding.
     assert!((c.noise / 3e-4 - 1.0).abs() < 0.05, "{}", c.noise);
     for i in 0..3 {
@@ -445,21 +444,7 @@ fn simulate_writes_a_log_that_calibrate_recovers() {
     let c = calibrate(&["--magnitude", &r.to_string()], &log);
     assert_eq!(c.samples, 300);
     let truth = paper::true_error_model();
-    let se = &c.std_error;
-    for i in 0..3 {
-        assert!(
-            (c.psi_deg[i] - truth.psi_deg()[i]).abs() <= 5.0 * se.psi_deg.unwrap()[i],
-            "psi{i}"
-        );
-        assert!(
-            (c.scale[i] - truth.scale()[i]).abs() <= 5.0 * se.scale.unwrap()[i],
-            "S{i}"
-        );
-        assert!(
-            (c.bias[i] - truth.bias_nt()[i]).abs() <= 5.0 * se.bias.unwrap()[i],
-            "O{i}"
-        );
-    }
+    assert_recovers(&c, &truth, 1.0);
     // An unknown design is named.
     let out = magcal()
         .arg("simulate")
