@@ -283,13 +283,8 @@ fn judge(
     let mut L = info;
     let regular = cholesky_in_place(&mut L);
     let std: Option<Vec<f64>> = regular.then(|| {
-        (0..n)
-            .map(|a| {
-                let mut e = [0.0; 6];
-                e[a] = 1.0;
-                (cholesky_solve(&L, &e)[a]).max(0.0).sqrt() * noise
-            })
-            .collect()
+        let inv = crate::small::cholesky_inverse(&L);
+        (0..n).map(|a| inv[a][a].max(0.0).sqrt() * noise).collect()
     });
     let s = errors.scale();
     let (std_scale, std_bias) = match &std {

@@ -190,6 +190,23 @@ pub fn cholesky_solve<const N: usize>(l: &[[f64; N]; N], b: &[f64; N]) -> [f64; 
     y
 }
 
+/// `A^-1` from the factor `L` of `A = L L^T` ([`cholesky_in_place`]): its column `j` is
+/// `cholesky_solve(l, e_j)` (and, `A^-1` being symmetric, so is its row `j`).
+pub fn cholesky_inverse<const N: usize>(l: &[[f64; N]; N]) -> [[f64; N]; N] {
+    std::array::from_fn(|j| {
+        let mut e = [0.0; N];
+        e[j] = 1.0;
+        cholesky_solve(l, &e)
+    })
+}
+
+/// `A^-1` of a symmetric positive definite `A` (lower triangle read), or `None` when it is not
+/// positive definite to working precision.
+pub fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
+    let mut l = *a;
+    cholesky_in_place(&mut l).then(|| cholesky_inverse(&l))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

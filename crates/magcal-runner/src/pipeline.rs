@@ -32,6 +32,19 @@ const DESIGN_STREAM: u64 = 0xFFFF;
 const PSO_RUNS_STREAM: u64 = 0xFFFE;
 /// Stream-id prefix of the approximate design that certifies the others.
 const CERTIFICATE_STREAM: u64 = 0xFFFD;
+/// Stream-id prefix of the noise of `magcal simulate`.
+const SIMULATED_LOG_STREAM: u64 = 0xFFFC;
+
+/// The random stream of the approximate design and its certificate for `seed`: the same in
+/// `run`, `calibrate --scenario` and `next`.
+pub fn certificate_rng(seed: u64) -> magcal_core::rng::MagcalRng {
+    stream_rng(seed, stream_id(&[CERTIFICATE_STREAM, 0]))
+}
+
+/// The random stream of the noise of a simulated log for `seed`.
+pub fn simulated_log_rng(seed: u64) -> magcal_core::rng::MagcalRng {
+    stream_rng(seed, stream_id(&[SIMULATED_LOG_STREAM, 0]))
+}
 /// The design that \[P1\] Table III compares against.
 pub const REFERENCE_DESIGN: &str = "uniform";
 
@@ -270,7 +283,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
     let bar = spinner(options.progress, "approximate design and certificate".to_string());
     let approximate = {
         let problem = DesignProblem::new(scenario.field, scenario.truth, scenario.bounds, 9)?;
-        let mut rng = stream_rng(scenario.seed, stream_id(&[CERTIFICATE_STREAM, 0]));
+        let mut rng = certificate_rng(scenario.seed);
         match scenario.certificate.compute(&problem, &mut rng) {
             Ok(a) => Some(a),
             Err(ParameterError::Singular { .. }) => None,

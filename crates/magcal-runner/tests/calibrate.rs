@@ -292,23 +292,32 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
     assert_eq!((c.samples, c.skipped), (30, 1));
 }
 
+/// A log that only yawed, with +-3 degrees of tilt (400 readings of the [P1] sensor, Gauss), and
+/// its diagonal calibration with `magnitude` (the flags that give it) written to `dir/cal/`.
+fn yaw_only_calibration(dir: &Path, magnitude: &[&str]) -> (PathBuf, PathBuf) {
+    let truth = paper::true_error_model();
+    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
+    let log = synthetic(dir, &truth, &cap, 400, 30.0);
+    let cal = dir.join("cal");
+    magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--fit", "diagonal"])
+        .args(magnitude)
+        .arg("--out")
+        .arg(&cal)
+        .assert()
+        .success();
+    (log, cal)
+}
+
 #[test]
 fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
     // A log that only yawed, with +-3 degrees of tilt: the suggestions for the AUV box of the smoke
     // scenario must lie in the box and raise the certified D-efficiency per reading.
     let tmp = TempDir::new().unwrap();
-    let truth = paper::true_error_model();
-    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
-    let log = synthetic(tmp.path(), &truth, &cap, 400, 30.0);
-    let dir = tmp.path().join("cal");
-    let r = paper::changsha_field().magnitude() / 1e5;
-    magcal()
-        .arg("calibrate")
-        .arg(&log)
-        .args(["--fit", "diagonal", "--magnitude", &r.to_string(), "--out"])
-        .arg(&dir)
-        .assert()
-        .success();
+    let r = (paper::changsha_field().magnitude() / 1e5).to_string();
+    let (log, dir) = yaw_only_calibration(tmp.path(), &["--magnitude", &r]);
     let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/smoke.toml");
     let out = magcal()
         .arg("next")
@@ -513,27 +522,10 @@ fn the_magnitude_can_come_from_the_wmm_at_a_site_and_date() {
 #[test]
 fn next_takes_the_box_and_site_as_flags_too() {
     let tmp = TempDir::new().unwrap();
-    let truth = paper::true_error_model();
-    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
-    let log = synthetic(tmp.path(), &truth, &cap, 400, 30.0);
-    let dir = tmp.path().join("cal");
-    magcal()
-        .arg("calibrate")
-        .arg(&log)
-        .args([
-            "--fit",
-            "diagonal",
-            "--site",
-            "28.2,112.97",
-            "--date",
-            "2013.0",
-            "--units",
-            "G",
-            "--out",
-        ])
-        .arg(&dir)
-        .assert()
-        .success();
+    let (log, dir) = yaw_only_calibration(
+        tmp.path(),
+        &["--site", "28.2,112.97", "--date", "2013.0", "--units", "G"],
+    );
     let out = magcal()
         .arg("next")
         .arg(dir.join("calibration.json"))

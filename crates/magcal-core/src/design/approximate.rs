@@ -45,7 +45,7 @@ use super::optimum::{Optimum, bounds_of};
 use crate::attitude::Attitude;
 use crate::error::ParameterError;
 use crate::linear_model::{UNKNOWNS, regression_row};
-use crate::small::{Mat9, cholesky_in_place};
+use crate::small::{Mat9, spd_inverse};
 
 const P: usize = UNKNOWNS;
 type Row = [f64; P];
@@ -370,7 +370,7 @@ impl Approximate {
         let mut M = *information;
         let mut chosen = Vec::with_capacity(count);
         for _ in 0..count {
-            let minv = inverse(&M).ok_or(ParameterError::Singular {
+            let minv = spd_inverse(&M).ok_or(ParameterError::Singular {
                 name: "information of the log",
             })?;
             let d = variances(&rows, &minv);
@@ -695,41 +695,7 @@ fn information(rows: &[Row], weights: &[f64]) -> Mat9 {
 
 /// `M^-1` of the design, or `None` when it is singular to working precision.
 fn information_inverse(rows: &[Row], weights: &[f64]) -> Option<Mat9> {
-    let mut L = information(rows, weights);
-    if !cholesky_in_place(&mut L) {
-        return None;
-    }
-    // M^-1 = L^-T L^-1 from the columns of L^-1 (forward substitution).
-    let mut Li = [[0.0; P]; P];
-    for i in 0..P {
-        Li[i][i] = 1.0 / L[i][i];
-        for j in 0..i {
-            let s: f64 = (j..i).map(|k| L[i][k] * Li[k][j]).sum();
-            Li[i][j] = -s / L[i][i];
-        }
-    }
-    let mut inv = [[0.0; P]; P];
-    for i in 0..P {
-        for j in 0..=i {
-            let v: f64 = (i..P).map(|k| Li[k][i] * Li[k][j]).sum();
-            inv[i][j] = v;
-            inv[j][i] = v;
-        }
-    }
-    Some(inv)
-}
-
-/// `M^-1` of a symmetric positive definite `M`, or `None` when it is not, to working precision.
-fn inverse(M: &Mat9) -> Option<Mat9> {
-    let mut L = *M;
-    if !cholesky_in_place(&mut L) {
-        return None;
-    }
-    Some(std::array::from_fn(|j| {
-        let mut e = [0.0; P];
-        e[j] = 1.0;
-        crate::small::cholesky_solve(&L, &e)
-    }))
+    spd_inverse(&information(rows, weights))
 }
 
 /// `minv h`.

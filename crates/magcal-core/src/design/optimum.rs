@@ -82,11 +82,7 @@ pub fn ln_criterion_and_gradient(
     // phi and the matrix W with w_i = W h_i.
     let (phi, W): (f64, [[f64; UNKNOWNS]; UNKNOWNS]) = match criterion {
         DesignCriterion::A => {
-            let inv: [[f64; UNKNOWNS]; UNKNOWNS] = std::array::from_fn(|j| {
-                let mut e = [0.0; UNKNOWNS];
-                e[j] = 1.0;
-                cholesky_solve(&L, &e)
-            });
+            let inv = crate::small::cholesky_inverse(&L);
             let phi: f64 = (0..UNKNOWNS).map(|i| inv[i][i]).sum();
             let W = std::array::from_fn(|i| {
                 std::array::from_fn(|j| (0..UNKNOWNS).map(|k| inv[i][k] * inv[k][j]).sum::<f64>())

@@ -26,6 +26,23 @@ pub enum Fit {
     Auto,
 }
 
+impl Fit {
+    /// The fit of `readings` to `magnitude` under this choice, with the reason for `auto`.
+    fn fit(
+        self,
+        readings: &[magcal_core::Vec3],
+        magnitude: f64,
+    ) -> Result<(LogFit, Option<String>), magcal_core::CalibrationError> {
+        let model = match self {
+            Fit::Auto => return log_fit::fit_auto(readings, magnitude).map(|(f, why)| (f, Some(why))),
+            Fit::Full => FitModel::Full,
+            Fit::Diagonal => FitModel::Diagonal,
+            Fit::Offset => FitModel::Offset,
+        };
+        log_fit::fit(readings, magnitude, model).map(|f| (f, None))
+    }
+}
+
 /// `--units`: the log's units, for a magnitude from the WMM (nT).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Units {
@@ -336,6 +353,18 @@ struct Vehicle {
 }
 
 impl Vehicle {
+    /// The certificate of the vehicle's box under `problem`'s sensor, from the stream `run` uses
+    /// for the same seed; `None` when no design in the box identifies the linear model.
+    fn certificate(
+        &self,
+        problem: &magcal_core::design::DesignProblem,
+    ) -> Option<magcal_core::design::approximate::Certificate> {
+        self.certificate
+            .compute(problem, &mut crate::pipeline::certificate_rng(self.seed))
+            .ok()
+            .map(|a| a.certificate)
+    }
+
     fn from_scenario(path: &Path) -> Result<Self> {
         let s = crate::scenario::load(path)?;
         Ok(Self {
@@ -410,12 +439,16 @@ fn log_efficiency(cal: &CalibrationJson, scenario: &Vehicle, readings: &[magcal_
     let (problem, factor) = fitted_problem(cal, scenario)?;
     let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|s| s.map(|v| v * factor)).collect();
     let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
-    let certificate = scenario
-        .certificate
-        .compute(&problem, &mut magcal_core::rng::stream_rng(scenario.seed, 0xFFFD << 48))
-        .ok()
-        .map(|a| a.certificate);
-    Ok(certificate.map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len())))
+    Ok(scenario
+        .certificate(&problem)
+        .map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len())))
+}
+
+impl CalibrationJson {
+    /// The calibrated field of a raw reading: `P (raw - bias)`.
+    fn apply(&self, raw: magcal_core::Vec3) -> magcal_core::Vec3 {
+        magcal_core::small::mat_vec(&self.p, magcal_core::small::sub(raw, self.bias))
+    }
 }
 
 /// Runs `calibrate`.
@@ -436,13 +469,9 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     }
     let shown = args.log.display().to_string();
     let fit_with = |magnitude: f64| -> Result<(LogFit, Option<String>)> {
-        let fitted = match args.fit {
-            Fit::Auto => log_fit::fit_auto(&log.readings, magnitude).map(|(f, why)| (f, Some(why))),
-            Fit::Full => log_fit::fit(&log.readings, magnitude, FitModel::Full).map(|f| (f, None)),
-            Fit::Diagonal => log_fit::fit(&log.readings, magnitude, FitModel::Diagonal).map(|f| (f, None)),
-            Fit::Offset => log_fit::fit(&log.readings, magnitude, FitModel::Offset).map(|f| (f, None)),
-        };
-        fitted.with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
+        args.fit
+            .fit(&log.readings, magnitude)
+            .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
     };
     let wmm = match (&args.site, &args.date, args.units) {
         (Some(site), Some(date), Some(units)) => Some(wmm_magnitude(site, date, units, args.wmm.as_deref())?),
@@ -504,13 +533,9 @@ fn reject(log: &mut log_file::Log, k: f64, model: Fit) -> Result<usize> {
     let mut keep = vec![true; all.len()];
     for _ in 0..100 {
         let kept: Vec<magcal_core::Vec3> = all.iter().zip(&keep).filter(|(_, k)| **k).map(|(s, _)| *s).collect();
-        let fit = match model {
-            Fit::Auto => log_fit::fit_auto(&kept, 1.0).map(|f| f.0),
-            Fit::Full => log_fit::fit(&kept, 1.0, FitModel::Full),
-            Fit::Diagonal => log_fit::fit(&kept, 1.0, FitModel::Diagonal),
-            Fit::Offset => log_fit::fit(&kept, 1.0, FitModel::Offset),
-        }
-        .with_context(|| format!("--reject {k}: no calibration of the {} readings kept", kept.len()))?;
+        let (fit, _) = model
+            .fit(&kept, 1.0)
+            .with_context(|| format!("--reject {k}: no calibration of the {} readings kept", kept.len()))?;
         let r: Vec<f64> = all
             .iter()
             .map(|s| magcal_core::small::norm(fit.apply(*s)) - 1.0)
@@ -721,8 +746,7 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     let rows = |out: &mut dyn Write| -> Result<()> {
         writeln!(out, "line,x,y,z,norm")?;
         for (raw, line) in log.readings.iter().zip(&log.lines) {
-            let d = [raw[0] - cal.bias[0], raw[1] - cal.bias[1], raw[2] - cal.bias[2]];
-            let b = magcal_core::small::mat_vec(&cal.p, d);
+            let b = cal.apply(*raw);
             writeln!(out, "{line},{},{},{},{}", b[0], b[1], b[2], magcal_core::small::norm(b))?;
         }
         Ok(())
@@ -777,25 +801,14 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     let added = model.measure_all(&field.body_fields(&attitudes));
     let all: Vec<magcal_core::Vec3> = readings.iter().chain(&added).copied().collect();
     let after = InformationMatrix::from_readings(&all, r);
-    let certificate = scenario
-        .certificate
-        .compute(&problem, &mut magcal_core::rng::stream_rng(scenario.seed, 0xFFFD << 48))
-        .ok()
-        .map(|a| a.certificate);
+    let certificate = scenario.certificate(&problem);
     let efficiency = |info: &InformationMatrix, m: usize| {
         certificate
             .as_ref()
             .map_or(f64::NAN, |c| c.efficiency_bound(info.ln_det_nt(), m))
     };
     // Standard errors under the fitted model, noise from the residuals.
-    let body_log: Vec<magcal_core::Vec3> = log
-        .readings
-        .iter()
-        .map(|s| {
-            let d = [s[0] - cal.bias[0], s[1] - cal.bias[1], s[2] - cal.bias[2]];
-            magcal_core::small::mat_vec(&cal.p, d).map(|v| v * factor)
-        })
-        .collect();
+    let body_log: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| cal.apply(*s).map(|v| v * factor)).collect();
     let body_all: Vec<magcal_core::Vec3> = body_log.iter().copied().chain(field.body_fields(&attitudes)).collect();
     let sigma = cal.noise * factor;
     let scales = PhysicalScales::default();
@@ -913,7 +926,7 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
         },
     )?;
     let attitudes = out.designs[index].expanded();
-    let mut rng = magcal_core::rng::stream_rng(args.seed.unwrap_or(scenario.seed), 0xFFFC << 48);
+    let mut rng = crate::pipeline::simulated_log_rng(args.seed.unwrap_or(scenario.seed));
     let readings = scenario
         .truth
         .noisy_readings(&scenario.field.body_fields(&attitudes), sigma, &mut rng)?;
