@@ -6,7 +6,9 @@ normal equations): scipy.optimize.least_squares (trust-region reflective) on the
 |P (s - O)| - 1 directly, from a sphere fit, with P upper triangular. The quantities compared do
 not depend on the reference magnitude: the bias O (the log's units), the non-orthogonality psi
 (degrees, CONVENTIONS.md inverse map), the scale factors relative to their geometric mean, and the
-residual rms in percent of R.
+residual rms in percent of R; and the two coverage heuristics of the calibrated directions
+(MotionCal's gaps over 100 equal-area regions, MicroStrain's occupied share of 18 x 32
+equal-angle bins), binned here with numpy from their definitions.
 
 Writes crates/magcal-runner/tests/crosscheck.json, which `tests/calibrate.rs` reads as
 expectations (tolerances there come from magcal's standard errors).
@@ -50,6 +52,29 @@ def residual(x, s):
     return np.linalg.norm((s - o) @ p.T, axis=1) - 1.0
 
 
+def motioncal_gaps(d):
+    """PJRC MotionCal quality.c: 100 equal-area regions; 1 per empty, 0.2 per single, 0.01 per pair."""
+    z = d[:, 2]
+    turn = np.mod(np.arctan2(d[:, 1], d[:, 0]) / (2 * math.pi), 1.0)
+    bands = [(z > 0.98, 0, 1), ((z <= 0.98) & (z > 0.68), 1, 15), ((z <= 0.68) & (z >= 0), 16, 34),
+             ((z < 0) & (z >= -0.68), 50, 34), ((z < -0.68) & (z >= -0.98), 84, 15), (z < -0.98, 99, 1)]
+    counts = np.zeros(100, dtype=int)
+    for mask, first, n in bands:
+        idx = first + np.minimum((turn[mask] * n).astype(int), n - 1)
+        np.add.at(counts, idx, 1)
+    weight = np.select([counts == 0, counts == 1, counts == 2], [1.0, 0.2, 0.01], 0.0)
+    return float(weight.sum())
+
+
+def microstrain_coverage(d):
+    """MicroStrain microstrain_mag_cal calculateSpatialCoverage: 18 latitude x 32 longitude bins."""
+    lat = np.arcsin(np.clip(d[:, 2], -1, 1))
+    lon = np.arctan2(d[:, 1], d[:, 0])
+    i = np.clip(((lat + math.pi / 2) / math.pi * 18).astype(int), 0, 17)
+    j = np.clip(((lon + math.pi) / (2 * math.pi) * 32).astype(int), 0, 31)
+    return 100.0 * len(set(zip(i.tolist(), j.tolist()))) / 576
+
+
 def fit(s):
     # Sphere |s|^2 = 2 c.s + k by linear least squares: the start.
     a = np.hstack([2.0 * s, np.ones((len(s), 1))])
@@ -72,11 +97,15 @@ def fit(s):
     relative = scale / np.prod(scale) ** (1 / 3)
     # With R = 1, |calibrated| - 1 is already relative.
     rms = math.sqrt(np.mean(residual(out.x, s) ** 2))
+    b = (s - o) @ p.T
+    d = b / np.linalg.norm(b, axis=1)[:, None]
     return {
         "bias": list(o),
         "psi_deg": psi,
         "relative_scale": list(relative),
         "residual_rms_percent": 100 * rms,
+        "motioncal_gap_percent": motioncal_gaps(d),
+        "microstrain_coverage_percent": microstrain_coverage(d),
         "evaluations": int(out.nfev),
         "status": int(out.status),
     }

@@ -412,11 +412,33 @@ pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
         .sum()
 }
 
-/// The percentage of the same 100 equal-area regions ([`motioncal_gaps`]) that hold at least one
-/// calibrated direction: the occupied-bin kind of coverage figure that MicroStrain's tools report
-/// (their own bin layout is not published; these are MotionCal's bins).
-pub fn occupied_regions_percent(fields: &[Vec3]) -> f64 {
-    region_counts(fields).iter().filter(|&&c| c > 0).count() as f64
+/// MicroStrain's spatial coverage, in percent: the sphere of directions cut into 18 bands of 10
+/// degrees of latitude and 32 sectors of 11.25 degrees of longitude (latitude `asin` of the third
+/// component, longitude `atan2` of the second and first), and the share of those 576 bins that
+/// hold at least one direction (MicroStrain by HBK, `microstrain_mag_cal`,
+/// `calculateSpatialCoverage`, MIT). The bins have equal angles, not equal areas: a polar bin is
+/// 11 times smaller than an equatorial one, so even uniform directions need many readings to
+/// fill them. MicroStrain calls more than 70 % good. Their tool bins the raw readings less their
+/// mean; magcal bins the calibrated field directions, as it does for [`motioncal_gaps`].
+pub fn microstrain_coverage_percent(fields: &[Vec3]) -> f64 {
+    const LATITUDE_BINS: usize = 18;
+    const LONGITUDE_BINS: usize = 32;
+    let mut occupied = [false; LATITUDE_BINS * LONGITUDE_BINS];
+    for b in fields {
+        let n = norm(*b);
+        if !(n > 0.0 && n.is_finite()) {
+            continue;
+        }
+        let latitude = (b[2] / n).clamp(-1.0, 1.0).asin();
+        let longitude = b[1].atan2(b[0]);
+        let bin = |angle: f64, half_range: f64, bins: usize| {
+            (((angle + half_range) / (2.0 * half_range) * bins as f64) as usize).min(bins - 1)
+        };
+        let i = bin(latitude, std::f64::consts::FRAC_PI_2, LATITUDE_BINS);
+        let j = bin(longitude, std::f64::consts::PI, LONGITUDE_BINS);
+        occupied[i * LONGITUDE_BINS + j] = true;
+    }
+    100.0 * occupied.iter().filter(|&&o| o).count() as f64 / (LATITUDE_BINS * LONGITUDE_BINS) as f64
 }
 
 /// Directions per region of the 100 equal-area regions of [`motioncal_gaps`].
@@ -634,8 +656,6 @@ mod tests {
         }
         assert_eq!(one.len(), 100);
         assert!((motioncal_gaps(&one) - 20.0).abs() < 1e-9, "{}", motioncal_gaps(&one));
-        assert!((occupied_regions_percent(&one) - 100.0).abs() < 1e-12);
-        assert!((occupied_regions_percent(&one[..37]) - 37.0).abs() < 1e-12);
         let three: Vec<Vec3> = one.iter().flat_map(|d| [*d; 3]).collect();
         assert!(motioncal_gaps(&three).abs() < 1e-12);
         // Equal area: 20,000 uniform directions leave no region empty.
@@ -649,6 +669,43 @@ mod tests {
             })
             .collect();
         assert!(motioncal_gaps(&uniform).abs() < 1e-12);
+    }
+
+    #[test]
+    fn microstrain_coverage_counts_equal_angle_bins() {
+        assert!(microstrain_coverage_percent(&[]).abs() < 1e-12);
+        // The centre of every one of the 18 x 32 bins: all 576 occupied; half of them: 50 %.
+        let centres: Vec<Vec3> = (0..18)
+            .flat_map(|i| {
+                (0..32).map(move |j| {
+                    let lat = (-90.0 + 10.0 * (i as f64 + 0.5)).to_radians();
+                    let lon = (-180.0 + 11.25 * (j as f64 + 0.5)).to_radians();
+                    // Any length: only the direction counts.
+                    [
+                        7.0 * lat.cos() * lon.cos(),
+                        7.0 * lat.cos() * lon.sin(),
+                        7.0 * lat.sin(),
+                    ]
+                })
+            })
+            .collect();
+        assert!((microstrain_coverage_percent(&centres) - 100.0).abs() < 1e-12);
+        assert!((microstrain_coverage_percent(&centres[..288]) - 50.0).abs() < 1e-12);
+        // The poles and the seam at 180 degrees of longitude fall in the last bins, not beyond.
+        let edges = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [-1.0, -0.0, 0.0]];
+        assert!((microstrain_coverage_percent(&edges) - 400.0 / 576.0).abs() < 1e-12);
+        // Zero, NaN and infinite vectors have no direction and are not counted.
+        let bad = [[0.0; 3], [f64::NAN, 0.0, 1.0], [f64::INFINITY, 0.0, 0.0]];
+        assert!(microstrain_coverage_percent(&bad).abs() < 1e-12);
+        // Equal angles, not equal areas: a yaw-only log at level attitude (directions on one
+        // cone of latitude) fills one band of 32, 1/18 of the bins.
+        let ring: Vec<Vec3> = (0..360)
+            .map(|k| {
+                let a = (k as f64).to_radians();
+                [0.6 * a.cos(), 0.6 * a.sin(), 0.8]
+            })
+            .collect();
+        assert!((microstrain_coverage_percent(&ring) - 100.0 / 18.0).abs() < 1e-12);
     }
 
     #[test]

@@ -354,7 +354,7 @@ fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
         .split(|c: char| c.is_whitespace() || c == ',' || c == ';')
         .filter_map(|w| w.parse().ok())
         .collect();
-    // Gaps before, after; occupied before, after.
+    // Gaps before, after; MicroStrain spatial coverage before, after.
     assert!(g.len() == 4 && g[1] <= g[0] && g[3] >= g[2], "{gaps}");
     let line = text.lines().find(|l| l.starts_with("certified D-efficiency")).unwrap();
     let numbers: Vec<f64> = line
@@ -396,6 +396,16 @@ fn the_full_fit_agrees_with_an_independent_scipy_fit() {
             "{name}: {} vs {rms}",
             c.residual_rms_percent
         );
+        // The coverage heuristics, binned independently with numpy: the same counts of the same
+        // regions (the two fits' directions differ by far less than any reading's distance to a
+        // bin edge), so equal up to the rounding of a sum of 100 weights.
+        for (key, got) in [
+            ("motioncal_gap_percent", c.coverage.motioncal_gap_percent),
+            ("microstrain_coverage_percent", c.coverage.microstrain_coverage_percent),
+        ] {
+            let want = want[key].as_f64().unwrap();
+            assert!((got - want).abs() <= 1e-12 * 100.0, "{name} {key}: {got} vs {want}");
+        }
     }
 }
 

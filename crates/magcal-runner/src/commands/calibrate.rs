@@ -332,9 +332,10 @@ pub struct Coverage {
     /// MotionCal's surface-gap error of the calibrated field directions, percent (0: every one of
     /// 100 equal-area regions holds at least three readings; 100: none).
     pub motioncal_gap_percent: f64,
-    /// The percentage of those 100 regions holding at least one calibrated direction (the kind
-    /// of figure MicroStrain's tools report; their bin layout is not published).
-    pub occupied_regions_percent: f64,
+    /// MicroStrain's spatial coverage of the calibrated field directions, percent: the share of
+    /// 18 x 32 bins of 10 degrees of latitude by 11.25 of longitude holding at least one
+    /// (MicroStrain calls more than 70 % good).
+    pub microstrain_coverage_percent: f64,
     /// With `--scenario`: the certified D-efficiency per reading of the log's information against
     /// every design of as many readings in the scenario's box, under the fitted sensor.
     pub d_efficiency_per_reading: Option<f64>,
@@ -595,7 +596,7 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
         iterations: fit.iterations,
         coverage: Coverage {
             motioncal_gap_percent: log_fit::motioncal_gaps(&fields),
-            occupied_regions_percent: log_fit::occupied_regions_percent(&fields),
+            microstrain_coverage_percent: log_fit::microstrain_coverage_percent(&fields),
             d_efficiency_per_reading: None,
             box_from: None,
         },
@@ -647,9 +648,9 @@ fn print_table(j: &CalibrationJson) {
         j.verdict
     );
     println!(
-        "coverage: MotionCal gaps {:.1} %, {:.0} % of its 100 regions occupied{}",
+        "coverage: MotionCal gaps {:.1} %, MicroStrain spatial coverage {:.1} %{}",
         j.coverage.motioncal_gap_percent,
-        j.coverage.occupied_regions_percent,
+        j.coverage.microstrain_coverage_percent,
         match (&j.coverage.d_efficiency_per_reading, &j.coverage.box_from) {
             (Some(e), Some(b)) if *e >= 1e-3 =>
                 format!("; certified D-efficiency per reading {e:.4} in the box of {b}"),
@@ -871,11 +872,11 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         show(efficiency(&after, m + attitudes.len()))
     );
     println!(
-        "coverage: MotionCal gaps before {:.1} %, after {:.1} %; regions occupied before {:.0} %, after {:.0} %",
+        "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
         log_fit::motioncal_gaps(&body_log),
         log_fit::motioncal_gaps(&body_all),
-        log_fit::occupied_regions_percent(&body_log),
-        log_fit::occupied_regions_percent(&body_all)
+        log_fit::microstrain_coverage_percent(&body_log),
+        log_fit::microstrain_coverage_percent(&body_all)
     );
     println!(
         "identifiable: before {}, after {}",
