@@ -17,6 +17,15 @@
 //! The log is **identifiable** under a model when every parameter's standard deviation is within
 //! the physical scales of [`PhysicalScales`] (10 degrees, half the scale factor, the field
 //! magnitude) and the fit converged; otherwise the verdict names the weakest parameters.
+//!
+//! A reduced model can be identifiable and still wrong: a sensor whose scale factors differ, fitted
+//! with one common scale, leaves residuals far above the noise, and its estimates carry the bias
+//! of the missing terms while its standard errors look small. [`fit_tested`] and [`fit_auto`]
+//! therefore test every reduced fit against the richer models by the **lack-of-fit F test** of
+//! nested least squares ([`LackOfFit`]): the drop of the residual sum of squares per extra
+//! parameter against the richer model's residual variance. The richer model need not be
+//! identifiable: a flat direction leaves its residual sum where it is, and counting its nominal
+//! parameters (more than it effectively has) only makes the test more cautious.
 #![allow(non_snake_case)]
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
@@ -92,6 +101,150 @@ pub struct LogFit {
     pub status: CalibrationStatus,
     /// Levenberg-Marquardt iterations.
     pub iterations: usize,
+    /// The lack-of-fit test of a reduced model against the richer ones ([`fit_tested`],
+    /// [`fit_auto`]); `None` for the full model, or from [`fit`] alone.
+    pub lack_of_fit: Option<LackOfFit>,
+}
+
+/// The lack-of-fit F test of a reduced fit against a richer one of the same readings: with
+/// residual sums of squares `Q_r`, `Q_f` and parameters `p_r < p_f` of `m` readings,
+/// `F = ((Q_r - Q_f) / (p_f - p_r)) / (Q_f / (m - p_f))`, F-distributed with
+/// `(p_f - p_r, m - p_f)` degrees of freedom when the reduced model is true and the noise is
+/// Gaussian (to first order in the noise: the models are nonlinear).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LackOfFit {
+    /// The richer model of the most significant test.
+    pub against: FitModel,
+    /// The statistic (0 when the richer fit's residual sum is not smaller).
+    pub f: f64,
+    /// Degrees of freedom `(p_f - p_r, m - p_f)`.
+    pub dof: (usize, usize),
+    /// `P(F' >= F)` under the reduced model, times the number of richer models tested
+    /// (Bonferroni), at most 1.
+    pub p_value: f64,
+    /// Whether the log rejects the reduced model: `p_value` below [`LACK_OF_FIT_LEVEL`].
+    pub rejected: bool,
+}
+
+/// The residual sum of squares of a calibration `(P, O)` in the readings' own units:
+/// `sum_i r_i^2 / |P^T u_i|^2` with `r_i = |P (s_i - O)| - R` and `u_i` the unit calibrated
+/// direction, each term the squared distance (to first order) from the reading to the fitted
+/// ellipsoid. Unlike `sum r_i^2`, it does not shrink with `P`: a fit running away to large scale
+/// factors compresses the calibrated residuals, not the readings' distances, and sensors with
+/// unequal scale factors weigh their readings evenly.
+fn raw_sum_of_squares(p: &Mat3, bias: Vec3, readings: &[Vec3], magnitude: f64) -> f64 {
+    readings
+        .iter()
+        .map(|&s| {
+            let b = mat_vec(p, sub(s, bias));
+            let n = norm(b);
+            let g = mat_t_vec(p, b.map(|v| v / n));
+            (n - magnitude).powi(2) / g.iter().map(|v| v * v).sum::<f64>()
+        })
+        .sum()
+}
+
+/// The level of the lack-of-fit test: a true reduced model is rejected once in a thousand logs.
+pub const LACK_OF_FIT_LEVEL: f64 = 1e-3;
+
+impl LackOfFit {
+    /// The test of `reduced` against each of `richer` (fits of the same `readings` to the same
+    /// magnitude with more parameters; one that does not leave degrees of freedom is skipped).
+    /// The full model's residual sum is the smaller of its own fit's and that of step 2 of
+    /// \[P1\] started from the reduced fit (which can only lower it): a full fit that stopped
+    /// early on a flat direction could otherwise leave more than the reduced one, which its
+    /// optimum never does. A reduced fit within 1e-9 of the magnitude everywhere (noise-free
+    /// readings) is not rejected: its residual sum is rounding.
+    pub fn test(reduced: &LogFit, richer: &[&LogFit], readings: &[Vec3]) -> Option<Self> {
+        use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+        let m = readings.len();
+        let R = reduced.magnitude;
+        let pr = reduced.model.parameters();
+        let exact = reduced.residual_rms <= 1e-9 * R;
+        // The full model from the reduced fit: the same sensor is a point of the full model.
+        let start = crate::calibration::Estimate {
+            p: reduced.p,
+            bias_nt: reduced.bias,
+            model: reduced.errors,
+            rms_residual_nt: reduced.residual_rms,
+        };
+        let from_reduced = (reduced.model != FitModel::Full)
+            .then(|| crate::calibration::step2::refine(&TwoStep::default(), &start, readings, R))
+            .and_then(Result::ok)
+            .map(|r| raw_sum_of_squares(&r.estimate.p, r.estimate.bias_nt, readings, R));
+        let mut candidates: Vec<(FitModel, f64)> = richer
+            .iter()
+            .map(|f| (f.model, raw_sum_of_squares(&f.p, f.bias, readings, R)))
+            .collect();
+        match candidates.iter_mut().find(|(model, _)| *model == FitModel::Full) {
+            Some((_, q)) => *q = from_reduced.map_or(*q, |r| q.min(r)),
+            None => candidates.extend(from_reduced.map(|r| (FitModel::Full, r))),
+        }
+        let q_reduced = raw_sum_of_squares(&reduced.p, reduced.bias, readings, R);
+        let tests: Vec<Self> = candidates
+            .into_iter()
+            .filter(|(model, _)| model.parameters() > pr && m > model.parameters())
+            .map(|(model, rms)| {
+                let pf = model.parameters();
+                let dof = (pf - pr, m - pf);
+                let drop = (q_reduced - rms).max(0.0) / dof.0 as f64;
+                let variance = rms / dof.1 as f64;
+                let stat = if exact || drop == 0.0 {
+                    0.0
+                } else if variance > 0.0 {
+                    drop / variance
+                } else {
+                    f64::INFINITY
+                };
+                let p_value = FisherSnedecor::new(dof.0 as f64, dof.1 as f64)
+                    .map(|d| if stat.is_finite() { d.sf(stat) } else { 0.0 })
+                    .unwrap_or(f64::NAN);
+                Self {
+                    against: model,
+                    f: stat,
+                    dof,
+                    p_value,
+                    rejected: false,
+                }
+            })
+            .collect();
+        let n = tests.len() as f64;
+        tests
+            .into_iter()
+            .min_by(|a, b| a.p_value.total_cmp(&b.p_value))
+            .map(|t| {
+                let p_value = (t.p_value * n).min(1.0);
+                Self {
+                    p_value,
+                    rejected: p_value < LACK_OF_FIT_LEVEL,
+                    ..t
+                }
+            })
+    }
+
+    /// In words, for a verdict: "the log rejects this model against the full model: lack-of-fit
+    /// F = 97.2 on (5, 11) degrees of freedom, p = 3.1e-9; ...".
+    pub fn words(&self) -> String {
+        let test = format!(
+            "lack-of-fit F = {:.4} on ({}, {}) degrees of freedom against the {} model, p = {:.2e}",
+            self.f,
+            self.dof.0,
+            self.dof.1,
+            self.against.as_str(),
+            self.p_value
+        );
+        if self.rejected {
+            format!(
+                "the log rejects this model ({test}): the sensor has terms the model leaves out, and its estimates carry their bias (its standard errors do not)"
+            )
+        } else if self.f == 0.0 {
+            format!(
+                "the log cannot test this model: no richer fit comes closer to the readings ({test}; the richer models run along what the log does not determine)"
+            )
+        } else {
+            format!("the log does not reject this model ({test})")
+        }
+    }
 }
 
 impl LogFit {
@@ -197,23 +350,59 @@ pub fn fit(readings: &[Vec3], magnitude: f64, model: FitModel) -> Result<LogFit,
         },
         status,
         iterations,
+        lack_of_fit: None,
     })
 }
 
-/// The richest model this log identifies: full, else diagonal, else offset (the last one tried
-/// is returned, not identifiable, when none is), with the reason in words.
+/// [`fit`], and for a reduced model its lack-of-fit test against the richer models (which are
+/// fitted for it; one that fails is left out), added to the verdict when the log rejects it.
+///
+/// # Errors
+/// As [`fit`] for `model`.
+pub fn fit_tested(readings: &[Vec3], magnitude: f64, model: FitModel) -> Result<LogFit, CalibrationError> {
+    let f = fit(readings, magnitude, model)?;
+    let richer: Vec<LogFit> = [FitModel::Full, FitModel::Diagonal]
+        .into_iter()
+        .filter(|r| r.parameters() > model.parameters())
+        .filter_map(|r| fit(readings, magnitude, r).ok())
+        .collect();
+    Ok(with_test(f, &richer.iter().collect::<Vec<_>>(), readings))
+}
+
+/// `f` with its lack-of-fit test against `richer`, the verdict extended when the log rejects it.
+fn with_test(mut f: LogFit, richer: &[&LogFit], readings: &[Vec3]) -> LogFit {
+    // A fit the log does not determine is no hypothesis to test: its verdict says so already.
+    if !f.identifiable {
+        return f;
+    }
+    f.lack_of_fit = LackOfFit::test(&f, richer, readings);
+    if let Some(t) = f.lack_of_fit.as_ref().filter(|t| t.rejected) {
+        f.verdict = format!("{}; but {}", f.verdict, t.words());
+    }
+    f
+}
+
+/// The richest model this log identifies: full, else diagonal, else offset (the offset fit is
+/// returned, not identifiable, when none is), with the reason in words, and the chosen reduced
+/// model's lack-of-fit test against the richer fits ([`fit_tested`]).
 ///
 /// # Errors
 /// As [`fit`], for the offset model (the others failing only moves on to the next).
 pub fn fit_auto(readings: &[Vec3], magnitude: f64) -> Result<(LogFit, String), CalibrationError> {
     let mut reasons = Vec::new();
+    let mut richer: Vec<LogFit> = Vec::new();
     for model in [FitModel::Full, FitModel::Diagonal] {
         match fit(readings, magnitude, model) {
             Ok(f) if f.identifiable => {
                 reasons.push(format!("{}: identifiable", model.as_str()));
-                return Ok((f, reasons.join("; ")));
+                let f = with_test(f, &richer.iter().collect::<Vec<_>>(), readings);
+                let why = auto_reason(reasons, &f);
+                return Ok((f, why));
             }
-            Ok(f) => reasons.push(format!("{}: not identifiable ({})", model.as_str(), f.verdict)),
+            Ok(f) => {
+                reasons.push(format!("{}: not identifiable ({})", model.as_str(), f.verdict));
+                richer.push(f);
+            }
             Err(e) => reasons.push(format!("{}: {e}", model.as_str())),
         }
     }
@@ -226,7 +415,27 @@ pub fn fit_auto(readings: &[Vec3], magnitude: f64) -> Result<(LogFit, String), C
             "not identifiable either"
         }
     ));
-    Ok((f, reasons.join("; ")))
+    let f = with_test(f, &richer.iter().collect::<Vec<_>>(), readings);
+    let why = auto_reason(reasons, &f);
+    Ok((f, why))
+}
+
+/// The reasons of [`fit_auto`], ending with the chosen model's lack-of-fit test.
+fn auto_reason(mut reasons: Vec<String>, chosen: &LogFit) -> String {
+    if let Some(t) = &chosen.lack_of_fit {
+        let model = chosen.model.as_str();
+        reasons.push(if t.f == 0.0 {
+            format!("{model}: untested, no richer fit comes closer to the readings")
+        } else {
+            format!(
+                "{model} {} by the log (lack-of-fit p = {:.2e} against {})",
+                if t.rejected { "but rejected" } else { "not rejected" },
+                t.p_value,
+                t.against.as_str()
+            )
+        });
+    }
+    reasons.join("; ")
 }
 
 /// Standard errors and verdict of `errors` at the calibrated `fields` with noise `noise`.
@@ -243,8 +452,25 @@ fn judge(
         let split = crb
             .std
             .map(|s| ([s[0], s[1], s[2]], [s[3], s[4], s[5]], [s[6], s[7], s[8]]));
-        // The bound's wording names the noise in nT; a log's is in its own units.
-        let weakest = crb.verdict.weakest.replace(" nT", " (input units)");
+        // The bound's wording ends with its largest std in nT at a noise in nT; a log is in its
+        // own units, so that part is said again here.
+        let named = crb
+            .verdict
+            .weakest
+            .split("; largest predicted std")
+            .next()
+            .unwrap_or_default()
+            .to_string();
+        let largest = |s: Option<Vec3>| s.map_or(f64::NAN, |v| v.iter().fold(0.0_f64, |a, x| a.max(*x)));
+        let weakest = match split {
+            Some((p, sc, b)) => format!(
+                "{named}; largest std: psi {:.3e} deg, scale {:.3e}, bias {:.3e} (input units)",
+                largest(Some(p)),
+                largest(Some(sc)),
+                largest(Some(b))
+            ),
+            None => named,
+        };
         let words = if crb.verdict.identifiable {
             format!("identifiable; {weakest}")
         } else {
@@ -706,6 +932,73 @@ mod tests {
             })
             .collect();
         assert!((microstrain_coverage_percent(&ring) - 100.0 / 18.0).abs() < 1e-12);
+    }
+
+    /// 400 logs of 300 readings at 30 nT of `truth`, in `bounds`, fitted with `model` and tested:
+    /// the p-values of the identifiable fits.
+    fn lack_of_fit_p_values(truth: &ErrorModel, bounds: &crate::AttitudeBox, model: FitModel) -> Vec<f64> {
+        let field = paper::changsha_field().magnitude() / 1e5;
+        (0..400)
+            .filter_map(|seed| {
+                let f = fit_tested(&log(truth, bounds, 300, 30.0, 1000 + seed), field, model).unwrap();
+                f.lack_of_fit.map(|t| t.p_value)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_lack_of_fit_test_holds_its_level_when_the_reduced_model_is_true() {
+        // A sensor with psi = 0 and unequal scale factors, fitted diagonal: p is uniform, so the
+        // share below 0.05 and 0.5 lies within 3 binomial standard errors of 0.05 and 0.5
+        // (sqrt(0.05 0.95 / 400) = 0.011, sqrt(0.25 / 400) = 0.025). Measured: 0.045, 0.458.
+        // The residuals are weighed in the readings' units: in calibrated units the axis of
+        // scale 0.7 carries twice the noise of the others.
+        let diagonal = ErrorModel::new([0.0; 3], [1.3, 0.7, 1.2], [3000.0, -6000.0, 5000.0]).unwrap();
+        let p = lack_of_fit_p_values(&diagonal, &crate::AttitudeBox::full(), FitModel::Diagonal);
+        assert_eq!(p.len(), 400, "every fit identifiable");
+        let share = |a: f64| p.iter().filter(|&&x| x < a).count() as f64 / p.len() as f64;
+        assert!((share(0.05) - 0.05).abs() <= 3.0 * 0.0109, "{}", share(0.05));
+        assert!((share(0.5) - 0.5).abs() <= 3.0 * 0.025, "{}", share(0.5));
+        // A common scale in the AUV's box (two tests, Bonferroni: at most the level). Measured:
+        // 0.028 below 0.05.
+        let offset = ErrorModel::new([0.0; 3], [1.1; 3], [3000.0, -6000.0, 5000.0]).unwrap();
+        let p = lack_of_fit_p_values(&offset, &paper::auv_box(), FitModel::Offset);
+        assert_eq!(p.len(), 400, "every fit identifiable");
+        let share = p.iter().filter(|&&x| x < 0.05).count() as f64 / p.len() as f64;
+        assert!(share <= 0.05 + 3.0 * 0.0109, "{share}");
+    }
+
+    #[test]
+    fn the_lack_of_fit_test_rejects_a_model_that_leaves_out_what_the_sensor_has() {
+        let field = paper::changsha_field().magnitude() / 1e5;
+        // [P1]'s sensor (psi up to 1.5 degrees) fitted diagonal over every attitude: rejected by
+        // the full model, and said so in the verdict.
+        let readings = log(&paper::true_error_model(), &crate::AttitudeBox::full(), 300, 30.0, 5);
+        let f = fit_tested(&readings, field, FitModel::Diagonal).unwrap();
+        let t = f.lack_of_fit.clone().unwrap();
+        assert!(f.identifiable && t.rejected && t.against == FitModel::Full, "{t:?}");
+        assert_eq!(t.dof, (3, 291));
+        assert!(f.verdict.contains("the log rejects this model"), "{}", f.verdict);
+        // ... and auto, which takes the full model here, tests nothing.
+        let (auto, why) = fit_auto(&readings, field).unwrap();
+        assert!(auto.model == FitModel::Full && auto.lack_of_fit.is_none(), "{why}");
+        // Unequal scale factors fitted with one common scale in the AUV's box: rejected.
+        let diagonal = ErrorModel::new([0.0; 3], [1.3, 0.7, 1.2], [3000.0, -6000.0, 5000.0]).unwrap();
+        let readings = log(&diagonal, &paper::auv_box(), 300, 30.0, 6);
+        let f = fit_tested(&readings, field, FitModel::Offset).unwrap();
+        assert!(
+            f.identifiable && f.lack_of_fit.as_ref().unwrap().rejected,
+            "{:?}",
+            f.lack_of_fit
+        );
+        // Noise-free readings of a true model: the residual is rounding, never a rejection.
+        let exact = log(&diagonal, &crate::AttitudeBox::full(), 50, 0.0, 7);
+        let f = fit_tested(&exact, field, FitModel::Diagonal).unwrap();
+        let t = f.lack_of_fit.unwrap();
+        assert!(
+            !t.rejected && t.f == 0.0 && (1.0 - t.p_value).abs() <= f64::EPSILON,
+            "{t:?}"
+        );
     }
 
     #[test]

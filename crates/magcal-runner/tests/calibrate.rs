@@ -195,6 +195,23 @@ fn a_constrained_log_is_not_identifiable_under_the_full_model_and_auto_picks_one
     assert!(auto.fit_reason.unwrap().contains("full: not identifiable"));
     // Restricted tilt: most of the sphere of directions is empty.
     assert!(auto.coverage.motioncal_gap_percent >= 40.0, "{:?}", auto.coverage);
+    // The richer fits run away, so none comes closer to the readings than the offset fit: the
+    // log cannot test it, and says so rather than calling it a fit.
+    let t = auto.lack_of_fit.unwrap();
+    assert!(!t.rejected && t.f == 0.0 && t.dof == [5, 9756], "{t:?}");
+    assert!(t.words.starts_with("the log cannot test this model"), "{}", t.words);
+    // Where the log covers every direction, it rejects the reduced models of a real sensor
+    // (ck-explorer's psi reaches 3.8 degrees).
+    let Some(log) = data("ck-explorer/acc_mag_log.csv") else {
+        return;
+    };
+    for fit in ["diagonal", "offset"] {
+        let c = calibrate(&["--fit", fit], &log);
+        let t = c.lack_of_fit.unwrap();
+        assert!(c.identifiable && t.rejected && t.against == "full", "{fit}: {t:?}");
+        assert!(c.verdict.contains("the log rejects this model"), "{}", c.verdict);
+    }
+    assert!(calibrate(&["--fit", "full"], &log).lack_of_fit.is_none());
 }
 
 #[test]
@@ -464,6 +481,28 @@ fn simulate_writes_a_log_that_calibrate_recovers() {
     assert_eq!(c.samples, 300);
     let truth = paper::true_error_model();
     assert_recovers(&c, &truth, 1.0);
+    // The ship's 20-attitude optimum: the full and diagonal fits are not determined (the up
+    // axis barely turns), the offset fit is, and auto takes it; but the sensor's scale factors
+    // differ (1.3, 0.7, 1.2) and the log rejects one common scale, which auto says.
+    let ship = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/ship.toml");
+    let log = tmp.path().join("ship.csv");
+    let out = magcal()
+        .arg("simulate")
+        .arg(&ship)
+        .args(["--design", "optimum20", "--out"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let r: f64 = String::from_utf8_lossy(&out.stderr)
+        .split("--magnitude ")
+        .nth(1)
+        .and_then(|v| v.trim_end_matches(|c: char| c == ')' || c.is_whitespace()).parse().ok())
+        .unwrap();
+    let c = calibrate(&["--fit", "auto", "--magnitude", &r.to_string()], &log);
+    let t = c.lack_of_fit.unwrap();
+    assert!(c.fit == "offset" && c.identifiable && t.rejected, "{t:?}");
+    assert!(c.fit_reason.unwrap().contains("offset but rejected by the log"));
     // An unknown design is named.
     let out = magcal()
         .arg("simulate")

@@ -39,7 +39,7 @@ impl Fit {
             Fit::Diagonal => FitModel::Diagonal,
             Fit::Offset => FitModel::Offset,
         };
-        log_fit::fit(readings, magnitude, model).map(|f| (f, None))
+        log_fit::fit_tested(readings, magnitude, model).map(|f| (f, None))
     }
 }
 
@@ -321,9 +321,28 @@ pub struct CalibrationJson {
     pub std_error: StdError,
     pub identifiable: bool,
     pub verdict: String,
+    /// For a reduced model (`diagonal`, `offset`): its lack-of-fit F test against the richer
+    /// models fitted to the same readings (`null` for `full`).
+    pub lack_of_fit: Option<LackOfFitJson>,
     pub status: String,
     pub iterations: usize,
     pub coverage: Coverage,
+}
+
+/// [`log_fit::LackOfFit`] in the JSON.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LackOfFitJson {
+    /// The richer model of the most significant test.
+    pub against: String,
+    pub f: f64,
+    /// `[p_f - p_r, m - p_f]`.
+    pub dof: [usize; 2],
+    pub p_value: f64,
+    /// `p_value` (Bonferroni over the richer models tested) below 1e-3: the log shows terms the
+    /// model leaves out.
+    pub rejected: bool,
+    /// The test in words.
+    pub words: String,
 }
 
 /// How well the log covers what the sensor can see.
@@ -592,6 +611,14 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
         },
         identifiable: fit.identifiable,
         verdict: fit.verdict.clone(),
+        lack_of_fit: fit.lack_of_fit.as_ref().map(|t| LackOfFitJson {
+            against: t.against.as_str().to_string(),
+            f: t.f,
+            dof: [t.dof.0, t.dof.1],
+            p_value: t.p_value,
+            rejected: t.rejected,
+            words: t.words(),
+        }),
         status: fit.status.as_str().to_string(),
         iterations: fit.iterations,
         coverage: Coverage {
@@ -647,6 +674,14 @@ fn print_table(j: &CalibrationJson) {
         },
         j.verdict
     );
+    if let Some(t) = &j.lack_of_fit {
+        let head = if t.rejected {
+            "MODEL REJECTED BY THE LOG"
+        } else {
+            "lack of fit"
+        };
+        println!("{head}: {}", t.words);
+    }
     println!(
         "coverage: MotionCal gaps {:.1} %, MicroStrain spatial coverage {:.1} %{}",
         j.coverage.motioncal_gap_percent,
