@@ -891,7 +891,8 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     for i in 0..9 {
         let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
         let show = |c: &CramerRao| c.std.map_or("singular".to_string(), |s| format!("{:.4e}", s[i] * unit));
-        println!("  {:<10} {:>14} {:>14}", names[i], show(&crb_before), show(&crb_after));
+        let name = names[i].trim_end_matches("_nt");
+        println!("  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after));
     }
     let m = log.readings.len();
     let show = |e: f64| {
