@@ -481,6 +481,22 @@ fn simulate_writes_a_log_that_calibrate_recovers() {
     assert_eq!(c.samples, 300);
     let truth = paper::true_error_model();
     assert_recovers(&c, &truth, 1.0);
+    // The same log (nT) with a magnitude in Gauss: a warning, before the fit is read.
+    for (magnitude, warned) in [(r, false), (r / 1e5, true)] {
+        let out = magcal()
+            .arg("calibrate")
+            .arg(&log)
+            .args(["--magnitude", &magnitude.to_string()])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success());
+        assert_eq!(
+            stderr.contains("are they in the same units?"),
+            warned,
+            "{magnitude}: {stderr}"
+        );
+    }
     // The ship's 20-attitude optimum: the full and diagonal fits are not determined (the up
     // axis barely turns), the offset fit is, and auto takes it; but the sensor's scale factors
     // differ (1.3, 0.7, 1.2) and the log rejects one common scale, which auto says.

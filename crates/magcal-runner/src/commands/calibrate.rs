@@ -500,6 +500,16 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let given = args.magnitude.map(|r| (r, "given".to_string())).or(wmm);
     let (fit, why, source) = match given {
         Some((r, source)) => {
+            // A magnitude in other units than the log's (0.49 for a log in nT) still fits, with
+            // scale factors 1e5 away from 1: say so before they are read as a calibration.
+            if let Some(radius) = log_fit::sphere_radius(&log.readings)
+                && !(1e-2..=1e2).contains(&(radius / r))
+            {
+                eprintln!(
+                    "magcal: warning: {shown}: the readings lie about {radius:.6e} from their centre, {:.1e} times the magnitude {r} ({source}); are they in the same units?",
+                    radius / r
+                );
+            }
             let (f, why) = fit_with(r)?;
             (f, why, source)
         }
