@@ -640,6 +640,25 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
     }
 }
 
+/// `text` split at every "; " outside parentheses.
+fn top_level_parts(text: &str) -> Vec<&str> {
+    let mut parts = Vec::new();
+    let (mut depth, mut start) = (0_i32, 0);
+    for (i, c) in text.char_indices() {
+        match c {
+            '(' => depth += 1,
+            ')' => depth -= 1,
+            ';' if depth == 0 && text[i..].starts_with("; ") => {
+                parts.push(&text[start..i]);
+                start = i + 2;
+            }
+            _ => {}
+        }
+    }
+    parts.push(&text[start..]);
+    parts
+}
+
 fn print_table(j: &CalibrationJson) {
     let v = |x: [f64; 3]| format!("{:>12.6} {:>12.6} {:>12.6}", x[0], x[1], x[2]);
     println!(
@@ -650,11 +669,11 @@ fn print_table(j: &CalibrationJson) {
         j.skipped,
         j.rejected
     );
-    println!(
-        "fit {}{}",
-        j.fit,
-        j.fit_reason.as_ref().map_or(String::new(), |r| format!(" ({r})"))
-    );
+    println!("fit {}", j.fit);
+    // `auto`'s reasons, one model per line (they are joined by "; " outside parentheses).
+    for reason in j.fit_reason.as_deref().map(top_level_parts).unwrap_or_default() {
+        println!("  {reason}");
+    }
     println!("magnitude {:.6} ({})", j.magnitude, j.magnitude_source);
     println!("{:<22} {}", "bias", v(j.bias));
     println!("{:<22} {}", "psi_deg", v(j.psi_deg));
@@ -1001,4 +1020,22 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
         scenario.field.magnitude()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::top_level_parts;
+
+    #[test]
+    fn reasons_split_outside_parentheses_only() {
+        assert_eq!(
+            top_level_parts("full: not identifiable (a; b (c; d)); diagonal: x; offset: identifiable"),
+            [
+                "full: not identifiable (a; b (c; d))",
+                "diagonal: x",
+                "offset: identifiable"
+            ]
+        );
+        assert_eq!(top_level_parts("full: identifiable"), ["full: identifiable"]);
+    }
 }
