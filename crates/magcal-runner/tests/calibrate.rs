@@ -636,3 +636,39 @@ fn next_takes_the_box_and_site_as_flags_too() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--roll \"5,-5\""));
 }
+
+#[test]
+fn calibrate_takes_the_coverage_box_from_a_scenario_or_from_flags() {
+    // The drone's 12-attitude optimum, simulated and calibrated: against the drone's box (every
+    // attitude at Trondheim) the log is the box optimum under its fitted sensor, whether the box
+    // comes from the scenario or from flags (each certificate's own search: equal within 1e-3).
+    let tmp = TempDir::new().unwrap();
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/drone.toml");
+    let log = tmp.path().join("drone.csv");
+    magcal()
+        .arg("simulate")
+        .arg(&scenario)
+        .args(["--design", "optimum12", "--out"])
+        .arg(&log)
+        .assert()
+        .success();
+    let from_scenario = calibrate(&["--scenario", scenario.to_str().unwrap()], &log);
+    let site = ["--site", "63.43,10.40,50", "--date", "2026.5", "--units", "nT"];
+    let from_flags = calibrate(&[&site[..], &["--roll=-180,180", "--pitch=-90,90"]].concat(), &log);
+    let (a, b) = (
+        from_scenario.coverage.d_efficiency_per_reading.unwrap(),
+        from_flags.coverage.d_efficiency_per_reading.unwrap(),
+    );
+    assert!((a - 1.0).abs() <= 1e-3 && (a - b).abs() <= 1e-3, "{a} {b}");
+    assert!(from_flags.coverage.box_from.unwrap().contains("WMM2025 at 63.43"));
+    // One of the two angles alone is refused, naming what is missing.
+    let out = magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(site)
+        .arg("--roll=-180,180")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("needs both --roll and --pitch"));
+}

@@ -195,9 +195,12 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// A scenario file whose attitude box and site give the coverage its D-efficiency: the log's
-    /// information per reading against every design of as many readings in that box.
-    #[arg(long)]
+    /// information per reading against every design of as many readings in that box; or the box
+    /// as flags (`--roll` and `--pitch`, with `--site` and `--date`).
+    #[arg(long, conflicts_with_all = ["roll", "pitch", "yaw"])]
     pub scenario: Option<PathBuf>,
+    #[command(flatten)]
+    pub attitude: BoxFlags,
 }
 
 /// `magcal apply`.
@@ -231,15 +234,8 @@ pub struct NextArgs {
     /// below.
     #[arg(long, required_unless_present = "site", conflicts_with = "site")]
     pub scenario: Option<PathBuf>,
-    /// Roll range, degrees: `MIN,MAX` (with `--site`).
-    #[arg(long, requires = "site", allow_hyphen_values = true)]
-    pub roll: Option<String>,
-    /// Pitch range, degrees: `MIN,MAX` (with `--site`).
-    #[arg(long, requires = "site", allow_hyphen_values = true)]
-    pub pitch: Option<String>,
-    /// Yaw range, degrees: `MIN,MAX` (with `--site`; default any yaw).
-    #[arg(long, requires = "site", allow_hyphen_values = true)]
-    pub yaw: Option<String>,
+    #[command(flatten)]
+    pub attitude: BoxFlags,
     /// The site, `LAT,LON[,ALT_M]`, for the field's direction from the World Magnetic Model; needs
     /// `--date`, `--roll` and `--pitch`.
     #[arg(long, requires_all = ["date", "roll", "pitch"], allow_hyphen_values = true)]
@@ -259,6 +255,20 @@ pub struct NextArgs {
     /// As for `calibrate`.
     #[arg(long)]
     pub skip_bad: bool,
+}
+
+/// A vehicle's attitude box as flags (with `--site` and `--date` for the field's direction).
+#[derive(Debug, Args)]
+pub struct BoxFlags {
+    /// Roll range, degrees: `MIN,MAX` (with `--site`).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub roll: Option<String>,
+    /// Pitch range, degrees: `MIN,MAX` (with `--site`).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub pitch: Option<String>,
+    /// Yaw range, degrees: `MIN,MAX` (with `--site`; default any yaw).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub yaw: Option<String>,
 }
 
 /// `magcal simulate`.
@@ -397,7 +407,7 @@ impl Vehicle {
     }
 
     /// `--roll, --pitch [--yaw] --site --date [--wmm]`.
-    fn from_flags(args: &NextArgs) -> Result<Self> {
+    fn from_flags(args: &BoxFlags, site: &str, date: &str, wmm: Option<&str>) -> Result<Self> {
         let range = |name: &str, value: Option<&String>, default: [f64; 2]| -> Result<[f64; 2]> {
             let Some(text) = value else { return Ok(default) };
             let v: Vec<f64> = text
@@ -425,8 +435,7 @@ impl Vehicle {
         let pitch = range("pitch", args.pitch.as_ref(), [0.0, 0.0])?;
         let yaw = range("yaw", args.yaw.as_ref(), [-180.0, 180.0])?;
         let bounds = magcal_core::AttitudeBox::from_degrees(roll, yaw, pitch).context("the attitude box")?;
-        let (site, date) = (args.site.as_deref().unwrap_or(""), args.date.as_deref().unwrap_or(""));
-        let (ned, source) = wmm_field(site, date, args.wmm.as_deref())?;
+        let (ned, source) = wmm_field(site, date, wmm)?;
         let field = magcal_core::ReferenceField::from_ned(ned[0], ned[1], ned[2]).context("the WMM field")?;
         Ok(Self {
             field,
@@ -537,11 +546,21 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
-    if let Some(path) = &args.scenario {
-        let scenario = Vehicle::from_scenario(path)?;
-        json.coverage.d_efficiency_per_reading = log_efficiency(&json, &scenario, &log.readings)
-            .with_context(|| format!("{}: coverage in {}", args.log.display(), path.display()))?;
-        json.coverage.box_from = Some(path.display().to_string());
+    let vehicle = match (&args.scenario, &args.attitude.roll, &args.attitude.pitch) {
+        (Some(path), _, _) => Some(Vehicle::from_scenario(path)?),
+        (None, Some(_), Some(_)) => Some(Vehicle::from_flags(
+            &args.attitude,
+            args.site.as_deref().unwrap_or(""),
+            args.date.as_deref().unwrap_or(""),
+            args.wmm.as_deref(),
+        )?),
+        (None, None, None) => None,
+        _ => return Err(anyhow::anyhow!("the box as flags needs both --roll and --pitch").into()),
+    };
+    if let Some(vehicle) = &vehicle {
+        json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)
+            .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
+        json.coverage.box_from = Some(vehicle.label.clone());
     }
     if let Some(dir) = &args.out {
         write_out(dir, &json, &log, &fit)?;
@@ -842,7 +861,12 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     let cal = read_calibration(&args.calibration)?;
     let scenario = match &args.scenario {
         Some(path) => Vehicle::from_scenario(path)?,
-        None => Vehicle::from_flags(args)?,
+        None => Vehicle::from_flags(
+            &args.attitude,
+            args.site.as_deref().unwrap_or(""),
+            args.date.as_deref().unwrap_or(""),
+            args.wmm.as_deref(),
+        )?,
     };
     let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
     if !cal.identifiable {
