@@ -294,12 +294,14 @@ pub fn fit(readings: &[Vec3], magnitude: f64, model: FitModel) -> Result<LogFit,
         reason: "estimated P is singular",
     })?;
     let mut errors = ErrorModel::from_k(&k, bias);
+    let out_of_range = CalibrationError::NotPositiveDefinite {
+        reason: "estimated scale factors are out of floating-point range (is the magnitude in the log's units?)",
+    };
     if model != FitModel::Full {
         // Exactly zero where the model fixes them.
-        errors =
-            ErrorModel::new([0.0; 3], errors.scale(), bias).map_err(|_| CalibrationError::NotPositiveDefinite {
-                reason: "estimated scale factors are not positive and finite",
-            })?;
+        errors = ErrorModel::new([0.0; 3], errors.scale(), bias).map_err(|_| out_of_range.clone())?;
+    } else if crate::small::upper_triangular_inverse(&errors.K()).is_none() {
+        return Err(out_of_range);
     }
     let fields: Vec<Vec3> = readings.iter().map(|&s| mat_vec(&p, sub(s, bias))).collect();
     let m = readings.len();

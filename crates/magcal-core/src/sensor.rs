@@ -48,11 +48,21 @@ impl ErrorModel {
         for &o in &bias_nt {
             finite("bias_nt", o)?;
         }
-        Ok(Self {
+        let model = Self {
             psi: psi_deg.map(f64::to_radians),
             scale,
             bias_nt,
-        })
+        };
+        // Positive finite scale factors can still leave `K` without a finite inverse in floating
+        // point (three of 1e-150: the product of the diagonal underflows); `P` must exist.
+        if upper_triangular_inverse(&model.K()).is_none() {
+            return Err(ParameterError::OutOfRange {
+                name: "scale",
+                allowed: "factors whose matrix K has a finite inverse",
+                value: scale.iter().copied().fold(f64::INFINITY, f64::min),
+            });
+        }
+        Ok(model)
     }
 
     /// The model whose `K` and `O` are given: the inverse map of CONVENTIONS.md,
@@ -177,6 +187,19 @@ mod tests {
     use super::*;
     use crate::paper;
     use rand::{RngExt, SeedableRng, rngs::ChaCha8Rng};
+
+    #[test]
+    fn scale_factors_whose_k_has_no_finite_inverse_are_refused() {
+        // Each positive and finite, but det K = 1e-450 underflows: P would not exist (found by
+        // the log fuzzer, a log of readings near 1e150 fitted to a magnitude of 1e300).
+        let e = ErrorModel::new([0.0; 3], [1e-150; 3], [0.0; 3]).unwrap_err();
+        assert!(e.to_string().contains("finite inverse"), "{e}");
+        // The smallest and largest scale factors a scenario accepts stay valid.
+        for s in [1e-3, 1e3] {
+            let m = ErrorModel::new([89.0, -89.0, 45.0], [s; 3], [0.0; 3]).unwrap();
+            assert!(m.P().iter().flatten().all(|v| v.is_finite()));
+        }
+    }
 
     #[test]
     #[allow(clippy::float_cmp)] // the bias is passed through untouched: exact

@@ -8,6 +8,11 @@
 //!   every accepted range (nominal and extreme sensors, tiny and full boxes, singular designs,
 //!   noise from 0 to 1e8 nT) run through `magcal run` in-process (designs, trials, files, figures),
 //!   and then `check` against themselves, which must pass. No CSV cell may read `NaN`.
+//! - [`mutated_logs_calibrate_apply_and_next_or_say_why`]: logs of up to 60 rows, readings of an
+//!   ellipsoid at any scale mixed with extreme numbers, empty and text cells, short and long
+//!   rows, under every header and option (`--fit`, `--skip-bad`, `--reject`, `--magnitude`), go
+//!   through `calibrate --out`; when it succeeds, its calibration through `apply` and `next`.
+//!   Every outcome is `Ok` or an error naming the log or the option; never a panic.
 //!
 //! Cases per test: `MAGCAL_FUZZ_CASES` (default 24, what CI runs). A long run, as reported in the
 //! README: `MAGCAL_FUZZ_CASES=20000 cargo test --release -p magcal-runner --test fuzz -- --nocapture`.
@@ -357,6 +362,172 @@ proptest! {
             Ok(()) => {}
             Err(Failure::Regression(r)) => prop_assert!(false, "check against itself moved:\n{r}\n{}", x.toml()),
             Err(Failure::Input(e)) => prop_assert!(false, "check: {e:#}\n{}", x.toml()),
+        }
+    }
+}
+
+/// A log: a header, rows of an ellipsoid's readings at `scale`, some of them spoiled.
+#[derive(Debug, Clone)]
+struct FuzzLog {
+    header: &'static str,
+    rows: Vec<Row>,
+    scale: f64,
+    fit: &'static str,
+    skip_bad: bool,
+    reject: Option<f64>,
+    magnitude: Option<f64>,
+}
+
+#[derive(Debug, Clone)]
+enum Row {
+    Reading(usize),
+    Spoiled(usize, usize, &'static str),
+    Short(usize),
+    Long(usize),
+    Repeat,
+}
+
+impl FuzzLog {
+    fn text(&self) -> String {
+        // Readings of an ellipsoid (scale factors 1.3, 0.7, 1.2, an offset) on a spiral.
+        let reading = |i: usize| -> [f64; 3] {
+            let z = -1.0 + (2 * (i % 40) + 1) as f64 / 40.0;
+            let a = i as f64 * 2.4;
+            let r = (1.0 - z * z).sqrt();
+            [
+                self.scale * (1.3 * r * a.cos() + 0.2),
+                self.scale * (0.7 * r * a.sin() - 0.1),
+                self.scale * (1.2 * z + 0.3),
+            ]
+        };
+        let cells = |v: [f64; 3]| v.map(|x| format!("{x:e}"));
+        let mut text = String::from(self.header);
+        let mut last = String::from("1,2,3");
+        for row in &self.rows {
+            let line = match row {
+                Row::Reading(i) => cells(reading(*i)).join(","),
+                Row::Spoiled(i, c, value) => {
+                    let mut v = cells(reading(*i));
+                    v[*c % 3] = (*value).to_string();
+                    v.join(",")
+                }
+                Row::Short(i) => cells(reading(*i))[..2].join(","),
+                Row::Long(i) => format!("{},7", cells(reading(*i)).join(",")),
+                Row::Repeat => last.clone(),
+            };
+            text.push_str(&line);
+            text.push('\n');
+            last = line;
+        }
+        text
+    }
+}
+
+fn fuzz_log() -> impl Strategy<Value = FuzzLog> {
+    let row = prop_oneof![
+        40 => (0usize..1000).prop_map(Row::Reading),
+        2 => (0usize..1000, 0usize..3, prop::sample::select(&["nan", "inf", "-inf", "1e308", "0", "", "x", "5e-324", "1e400"][..]))
+            .prop_map(|(i, c, v)| Row::Spoiled(i, c, v)),
+        1 => (0usize..1000).prop_map(Row::Short),
+        1 => (0usize..1000).prop_map(Row::Long),
+        1 => Just(Row::Repeat),
+    ];
+    (
+        prop::sample::select(&["x,y,z\n", "mx,my,mz\n", "a,b,c,d\n", "", "t,x,y,z\n"][..]),
+        proptest::collection::vec(row, 0..60),
+        prop::sample::select(&[1.0, 1e-6, 1e6, 48_000.0, 1e150][..]),
+        prop::sample::select(&["full", "diagonal", "offset", "auto"][..]),
+        prop::bool::weighted(0.75),
+        // Mostly accepted options, so that most logs reach a fit; the refusals still come up.
+        prop_oneof![
+            8 => Just(None),
+            2 => Just(Some(3.0)),
+            1 => prop::sample::select(&[Some(0.0), Some(-1.0), Some(f64::NAN)][..]),
+        ],
+        prop_oneof![
+            8 => Just(None),
+            2 => prop::sample::select(&[Some(1.0), Some(48_000.0), Some(1e300)][..]),
+            1 => prop::sample::select(&[Some(0.0), Some(-1.0), Some(f64::NAN)][..]),
+        ],
+    )
+        .prop_map(|(header, rows, scale, fit, skip_bad, reject, magnitude)| FuzzLog {
+            header,
+            rows,
+            scale,
+            fit,
+            skip_bad,
+            reject,
+            magnitude,
+        })
+}
+
+/// An error of a command on `log`: it names the log or an option.
+fn names_the_input(e: Failure, log: &Path) -> Result<(), String> {
+    match e {
+        Failure::Input(e) => {
+            let message = format!("{e:#}");
+            if message.contains(&log.display().to_string()) || message.contains("--") {
+                Ok(())
+            } else {
+                Err(format!("an error naming neither the log nor an option: {message}"))
+            }
+        }
+        Failure::Regression(r) => Err(format!("a regression from a log command: {r}")),
+    }
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn mutated_logs_calibrate_apply_and_next_or_say_why(x in fuzz_log()) {
+        use clap::Parser;
+        use magcal_runner::commands::calibrate::{self, ApplyArgs, CalibrateArgs, NextArgs};
+        #[derive(Parser)]
+        struct Calibrate {
+            #[command(flatten)]
+            args: CalibrateArgs,
+        }
+        #[derive(Parser)]
+        struct Next {
+            #[command(flatten)]
+            args: NextArgs,
+        }
+        let tmp = tempfile::TempDir::new().unwrap();
+        let log = tmp.path().join("fuzz.csv");
+        std::fs::write(&log, x.text()).unwrap();
+        let out = tmp.path().join("cal");
+        let mut argv: Vec<String> = vec!["calibrate".into(), log.display().to_string(), "--fit".into(), x.fit.into(), "--json".into(), "--out".into(), out.display().to_string()];
+        if x.skip_bad {
+            argv.push("--skip-bad".into());
+        }
+        if let Some(k) = x.reject {
+            argv.push(format!("--reject={k}"));
+        }
+        if let Some(r) = x.magnitude {
+            argv.push(format!("--magnitude={r}"));
+        }
+        let args = Calibrate::try_parse_from(&argv).unwrap().args;
+        if let Err(e) = calibrate::run(&args) {
+            let why = names_the_input(e, &log);
+            prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
+            return Ok(());
+        }
+        let json = out.join("calibration.json");
+        prop_assert!(json.is_file());
+        let apply = ApplyArgs { calibration: json.clone(), log: log.clone(), columns: None, skip_bad: x.skip_bad, out: Some(tmp.path().join("calibrated.csv")) };
+        if let Err(e) = calibrate::apply(&apply) {
+            let why = names_the_input(e, &log);
+            prop_assert!(why.is_ok(), "apply: {why:?}\n{}", x.text());
+        }
+        let mut argv: Vec<String> = vec!["next".into(), json.display().to_string(), log.display().to_string(), "--roll=-5,5".into(), "--pitch=-20,20".into(), "--site".into(), "28.2,112.97".into(), "--date".into(), "2013.0".into(), "--count".into(), "2".into()];
+        if x.skip_bad {
+            argv.push("--skip-bad".into());
+        }
+        let next = Next::try_parse_from(&argv).unwrap().args;
+        if let Err(e) = calibrate::next(&next) {
+            let why = names_the_input(e, &log);
+            prop_assert!(why.is_ok(), "next: {why:?}\n{}", x.text());
         }
     }
 }
