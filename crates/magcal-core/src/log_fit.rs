@@ -107,7 +107,9 @@ pub struct LogFit {
 }
 
 /// The lack-of-fit F test of a reduced fit against a richer one of the same readings: with
-/// residual sums of squares `Q_r`, `Q_f` and parameters `p_r < p_f` of `m` readings,
+/// residual sums of squares `Q_r`, `Q_f` in the readings' units (each residual divided by
+/// `|P^T u|`: the distance of the reading from the fitted ellipsoid, to first order) and
+/// parameters `p_r < p_f` of `m` readings,
 /// `F = ((Q_r - Q_f) / (p_f - p_r)) / (Q_f / (m - p_f))`, F-distributed with
 /// `(p_f - p_r, m - p_f)` degrees of freedom when the reduced model is true and the noise is
 /// Gaussian (to first order in the noise: the models are nonlinear).
@@ -138,7 +140,9 @@ fn raw_sum_of_squares(p: &Mat3, bias: Vec3, readings: &[Vec3], magnitude: f64) -
         .map(|&s| {
             let b = mat_vec(p, sub(s, bias));
             let n = norm(b);
-            let g = mat_t_vec(p, b.map(|v| v / n));
+            // A reading at the bias has no direction; any one gives its distance's order.
+            let u = if n > 0.0 { b.map(|v| v / n) } else { [1.0, 0.0, 0.0] };
+            let g = mat_t_vec(p, u);
             (n - magnitude).powi(2) / g.iter().map(|v| v * v).sum::<f64>()
         })
         .sum()
@@ -184,11 +188,11 @@ impl LackOfFit {
         let tests: Vec<Self> = candidates
             .into_iter()
             .filter(|(model, _)| model.parameters() > pr && m > model.parameters())
-            .map(|(model, rms)| {
+            .map(|(model, q)| {
                 let pf = model.parameters();
                 let dof = (pf - pr, m - pf);
-                let drop = (q_reduced - rms).max(0.0) / dof.0 as f64;
-                let variance = rms / dof.1 as f64;
+                let drop = (q_reduced - q).max(0.0) / dof.0 as f64;
+                let variance = q / dof.1 as f64;
                 let stat = if exact || drop == 0.0 {
                     0.0
                 } else if variance > 0.0 {
@@ -222,8 +226,8 @@ impl LackOfFit {
             })
     }
 
-    /// In words, for a verdict: "the log rejects this model against the full model: lack-of-fit
-    /// F = 97.2 on (5, 11) degrees of freedom, p = 3.1e-9; ...".
+    /// In words, for a verdict: "the log rejects this model (lack-of-fit F = 73.7127 on (2, 14)
+    /// degrees of freedom against the diagonal model, p = 7.38e-8): ...".
     pub fn words(&self) -> String {
         let test = format!(
             "lack-of-fit F = {:.4} on ({}, {}) degrees of freedom against the {} model, p = {:.2e}",

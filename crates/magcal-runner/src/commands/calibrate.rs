@@ -406,6 +406,23 @@ impl Vehicle {
         })
     }
 
+    /// The vehicle of `--scenario`, else of the box flags with `[--site, --date, --wmm]`; `None`
+    /// when neither is given.
+    fn from_options(
+        scenario: Option<&Path>,
+        flags: &BoxFlags,
+        [site, date, wmm]: [Option<&str>; 3],
+    ) -> Result<Option<Self>> {
+        match (scenario, &flags.roll, &flags.pitch, &flags.yaw) {
+            (Some(path), ..) => Self::from_scenario(path).map(Some),
+            (None, Some(_), Some(_), _) => {
+                Self::from_flags(flags, site.unwrap_or(""), date.unwrap_or(""), wmm).map(Some)
+            }
+            (None, None, None, None) => Ok(None),
+            _ => bail!("the box as flags needs both --roll and --pitch"),
+        }
+    }
+
     /// `--roll, --pitch [--yaw] --site --date [--wmm]`.
     fn from_flags(args: &BoxFlags, site: &str, date: &str, wmm: Option<&str>) -> Result<Self> {
         let range = |name: &str, value: Option<&String>, default: [f64; 2]| -> Result<[f64; 2]> {
@@ -546,17 +563,11 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
-    let vehicle = match (&args.scenario, &args.attitude.roll, &args.attitude.pitch) {
-        (Some(path), _, _) => Some(Vehicle::from_scenario(path)?),
-        (None, Some(_), Some(_)) => Some(Vehicle::from_flags(
-            &args.attitude,
-            args.site.as_deref().unwrap_or(""),
-            args.date.as_deref().unwrap_or(""),
-            args.wmm.as_deref(),
-        )?),
-        (None, None, None) => None,
-        _ => return Err(anyhow::anyhow!("the box as flags needs both --roll and --pitch").into()),
-    };
+    let vehicle = Vehicle::from_options(
+        args.scenario.as_deref(),
+        &args.attitude,
+        [&args.site, &args.date, &args.wmm].map(|a| a.as_deref()),
+    )?;
     if let Some(vehicle) = &vehicle {
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)
             .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
@@ -859,15 +870,12 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
-    let scenario = match &args.scenario {
-        Some(path) => Vehicle::from_scenario(path)?,
-        None => Vehicle::from_flags(
-            &args.attitude,
-            args.site.as_deref().unwrap_or(""),
-            args.date.as_deref().unwrap_or(""),
-            args.wmm.as_deref(),
-        )?,
-    };
+    let scenario = Vehicle::from_options(
+        args.scenario.as_deref(),
+        &args.attitude,
+        [&args.site, &args.date, &args.wmm].map(|a| a.as_deref()),
+    )?
+    .context("next needs --scenario, or the box as flags with --site and --date")?;
     let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
     if !cal.identifiable {
         eprintln!(
