@@ -167,8 +167,7 @@ fn distance_refine(model: FitModel, p: &Mat3, bias: Vec3, readings: &[Vec3], mag
     let offset: [[f64; 4]; 9] = std::array::from_fn(|i| {
         std::array::from_fn(|j| f64::from(u8::from(matches!((i, j), (0 | 3 | 5, 0)) || (i >= 6 && j == i - 5))))
     });
-    let o = bias.map(|v| v / magnitude);
-    let theta = [p[0][0], p[0][1], p[0][2], p[1][1], p[1][2], p[2][2], o[0], o[1], o[2]];
+    let theta = crate::calibration::step2::pack(p, bias.map(|v| v / magnitude));
     let q = match model {
         FitModel::Full => distance_lm(&full, theta, readings, magnitude),
         FitModel::Diagonal => distance_lm(&diagonal, theta, readings, magnitude),
@@ -188,42 +187,18 @@ fn distance_lm<const N: usize>(T: &[[f64; N]; 9], theta0: [f64; 9], readings: &[
         ..TwoStep::default()
     };
     let (x, _, _) = levenberg_marquardt(x0, &u, 1.0, &settings, |x, u| {
-        let t = theta(x);
-        let d = [u[0] - t[6], u[1] - t[7], u[2] - t[8]];
-        let b = [
-            t[0] * d[0] + t[1] * d[1] + t[2] * d[2],
-            t[3] * d[1] + t[4] * d[2],
-            t[5] * d[2],
-        ];
-        let n = norm(b);
-        let w = if n > 0.0 { b.map(|v| v / n) } else { [1.0, 0.0, 0.0] };
-        let g = [
-            t[0] * w[0],
-            t[1] * w[0] + t[3] * w[1],
-            t[2] * w[0] + t[4] * w[1] + t[5] * w[2],
-        ];
-        let G = norm(g);
-        // d n / d theta, weighted; then d / d x = T^T (...).
-        let dn = [
-            w[0] * d[0],
-            w[0] * d[1],
-            w[0] * d[2],
-            w[1] * d[1],
-            w[1] * d[2],
-            w[2] * d[2],
-            -g[0],
-            -g[1],
-            -g[2],
-        ];
+        // Step 2's residual |P d| - 1 and its gradient in theta; |P^T w| is the norm of the
+        // gradient's bias part.
+        let (r, dn) = crate::calibration::step2::residual_and_gradient(&theta(x), u);
+        let G = norm([dn[6], dn[7], dn[8]]);
         (
-            1.0 + (n - 1.0) / G,
+            1.0 + r / G,
             std::array::from_fn(|j| (0..9).map(|i| T[i][j] * dn[i]).sum::<f64>() / G),
         )
     })
     .ok()?;
-    let t = theta(&x);
-    let p = [[t[0], t[1], t[2]], [0.0, t[3], t[4]], [0.0, 0.0, t[5]]];
-    let q = raw_sum_of_squares(&p, [t[6], t[7], t[8]].map(|v| v * magnitude), readings, magnitude);
+    let (p, o) = crate::calibration::step2::unpack(&theta(&x));
+    let q = raw_sum_of_squares(&p, o.map(|v| v * magnitude), readings, magnitude);
     q.is_finite().then_some(q)
 }
 
