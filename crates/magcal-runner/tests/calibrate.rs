@@ -466,21 +466,33 @@ fn reject_drops_outliers_and_counts_them() {
     assert!(spoiled.residual_rms > 5.0 * c.residual_rms);
 }
 
+/// `magcal simulate scenarios/NAME.toml --design DESIGN` into `dir/NAME.csv`: the scenario's path,
+/// the log's, and the field magnitude simulate reports (nT).
+fn simulated(dir: &Path, name: &str, design: &str) -> (PathBuf, PathBuf, f64) {
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../scenarios/{name}.toml"));
+    let log = dir.join(format!("{name}.csv"));
+    let out = magcal()
+        .arg("simulate")
+        .arg(&scenario)
+        .args(["--design", design, "--out"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let magnitude = String::from_utf8_lossy(&out.stderr)
+        .split("--magnitude ")
+        .nth(1)
+        .and_then(|v| v.trim_end_matches(|c: char| c == ')' || c.is_whitespace()).parse().ok())
+        .unwrap();
+    (scenario, log, magnitude)
+}
+
 #[test]
 fn simulate_writes_a_log_that_calibrate_recovers() {
     // The 300-reading plan of scenarios/plan300.toml, simulated at 30 nT, then calibrated: the
     // scenario's sensor within 5 standard errors.
     let tmp = TempDir::new().unwrap();
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/plan300.toml");
-    let log = tmp.path().join("sim.csv");
-    magcal()
-        .arg("simulate")
-        .arg(&scenario)
-        .args(["--design", "plan300", "--out"])
-        .arg(&log)
-        .assert()
-        .success();
-    let r = paper::changsha_field().magnitude();
+    let (scenario, log, r) = simulated(tmp.path(), "plan300", "plan300");
     let c = calibrate(&["--magnitude", &r.to_string()], &log);
     assert_eq!(c.samples, 300);
     let truth = paper::true_error_model();
@@ -504,21 +516,7 @@ fn simulate_writes_a_log_that_calibrate_recovers() {
     // The ship's 20-attitude optimum: the full and diagonal fits are not determined (the up
     // axis barely turns), the offset fit is, and auto takes it; but the sensor's scale factors
     // differ (1.3, 0.7, 1.2) and the log rejects one common scale, which auto says.
-    let ship = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/ship.toml");
-    let log = tmp.path().join("ship.csv");
-    let out = magcal()
-        .arg("simulate")
-        .arg(&ship)
-        .args(["--design", "optimum20", "--out"])
-        .arg(&log)
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    let r: f64 = String::from_utf8_lossy(&out.stderr)
-        .split("--magnitude ")
-        .nth(1)
-        .and_then(|v| v.trim_end_matches(|c: char| c == ')' || c.is_whitespace()).parse().ok())
-        .unwrap();
+    let (_, log, r) = simulated(tmp.path(), "ship", "optimum20");
     let c = calibrate(&["--fit", "auto", "--magnitude", &r.to_string()], &log);
     let t = c.lack_of_fit.unwrap();
     assert!(c.fit == "offset" && c.identifiable && t.rejected, "{t:?}");
@@ -647,15 +645,7 @@ fn calibrate_takes_the_coverage_box_from_a_scenario_or_from_flags() {
     // attitude at Trondheim) the log is the box optimum under its fitted sensor, whether the box
     // comes from the scenario or from flags (each certificate's own search: equal within 1e-3).
     let tmp = TempDir::new().unwrap();
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/drone.toml");
-    let log = tmp.path().join("drone.csv");
-    magcal()
-        .arg("simulate")
-        .arg(&scenario)
-        .args(["--design", "optimum12", "--out"])
-        .arg(&log)
-        .assert()
-        .success();
+    let (scenario, log, _) = simulated(tmp.path(), "drone", "optimum12");
     let from_scenario = calibrate(&["--scenario", scenario.to_str().unwrap()], &log);
     let site = ["--site", "63.43,10.40,50", "--date", "2026.5", "--units", "nT"];
     let from_flags = calibrate(&[&site[..], &["--roll=-180,180", "--pitch=-90,90"]].concat(), &log);
