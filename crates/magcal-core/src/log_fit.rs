@@ -210,9 +210,9 @@ impl LackOfFit {
     /// `readings` to the same magnitude, where they exist; a model that leaves no degrees of
     /// freedom is skipped).
     ///
-    /// The statistic compares least sums of the readings' distances ([`raw_sum_of_squares`]),
-    /// the quantity the F distribution is about; the fits themselves minimise calibrated
-    /// residuals (\[P1\]'s step 2), which differ from it where the scale factors differ. So the
+    /// The statistic compares least sums of the readings' distances from the ellipsoid (each
+    /// residual over `|P^T u|`), the quantity the F distribution is about; the fits minimise
+    /// calibrated residuals (\[P1\]'s step 2), which differ where the scale factors differ. So the
     /// reduced model's sum is that of its fit refined to least distances, and a richer model's
     /// the least of: its own fit; the reduced fit refined to least distances within the richer
     /// model (the reduced sensor is a point of it, so this never ends above the reduced sum,
