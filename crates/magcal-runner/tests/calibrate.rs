@@ -655,6 +655,32 @@ fn calibrate_takes_the_coverage_box_from_a_scenario_or_from_flags() {
     );
     assert!((a - 1.0).abs() <= 1e-3 && (a - b).abs() <= 1e-3, "{a} {b}");
     assert!(from_flags.coverage.box_from.unwrap().contains("WMM2025 at 63.43"));
+    // A magnitude of one's own with the box flags: the site then gives the field's direction.
+    let own = calibrate(
+        &[
+            "--magnitude",
+            "52000",
+            "--site",
+            "63.43,10.40,50",
+            "--date",
+            "2026.5",
+            "--roll=-180,180",
+            "--pitch=-90,90",
+        ],
+        &log,
+    );
+    assert!(own.magnitude_source == "given" && (own.magnitude - 52000.0).abs() < 1e-9);
+    let c = own.coverage.d_efficiency_per_reading.unwrap();
+    assert!((c - b).abs() <= 1e-3, "{c} {b}");
+    // A site without units or a magnitude has no magnitude to give: refused, saying what to add.
+    let out = magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--site", "63.43,10.40,50", "--date", "2026.5"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("give --units"));
     // One of the two angles alone is refused, naming what is missing.
     let out = magcal()
         .arg("calibrate")

@@ -160,11 +160,12 @@ pub struct CalibrateArgs {
     pub columns: Option<String>,
     /// The field magnitude in the log's units (default: the fitted mean radius, and scale factors
     /// relative to it).
-    #[arg(long, conflicts_with = "site")]
+    #[arg(long, conflicts_with = "units")]
     pub magnitude: Option<f64>,
     /// The magnitude from the World Magnetic Model at a site: `LAT,LON[,ALT_M]` (WGS 84 degrees,
-    /// metres above the ellipsoid; default 0); needs `--date` and `--units`.
-    #[arg(long, requires_all = ["date", "units"])]
+    /// metres above the ellipsoid; default 0); needs `--date`, and `--units` unless `--magnitude`
+    /// gives the magnitude (the site then serves the box flags' field direction only).
+    #[arg(long, requires = "date")]
     pub site: Option<String>,
     /// The date of the log: `YYYY-MM-DD` or a decimal year.
     #[arg(long)]
@@ -521,6 +522,11 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let wmm = match (&args.site, &args.date, args.units) {
         (Some(site), Some(date), Some(units)) => Some(wmm_magnitude(site, date, units, args.wmm.as_deref())?),
+        (Some(_), _, None) if args.magnitude.is_none() => {
+            return Err(
+                anyhow::anyhow!("--site: give --units (the log's) for the WMM magnitude, or --magnitude").into(),
+            );
+        }
         _ => None,
     };
     let given = args.magnitude.map(|r| (r, "given".to_string())).or(wmm);
