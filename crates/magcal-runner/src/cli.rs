@@ -32,11 +32,11 @@ enum Command {
     /// and whether the log determines them.
     Calibrate(commands::calibrate::CalibrateArgs),
     /// Calibrate every reading of a log with a calibration.json.
-    Apply(commands::calibrate::ApplyArgs),
+    Apply(commands::apply::ApplyArgs),
     /// The attitudes a vehicle should visit next to most increase the information of its log.
-    Next(commands::calibrate::NextArgs),
+    Next(commands::next::NextArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
-    Simulate(commands::calibrate::SimulateArgs),
+    Simulate(commands::simulate::SimulateArgs),
 }
 
 /// `magcal plot`.
@@ -136,9 +136,9 @@ pub fn main() -> ExitCode {
         Command::Check(args) => commands::check::run(&args),
         Command::Plot(args) => commands::plot::run(&args),
         Command::Calibrate(args) => commands::calibrate::run(&args),
-        Command::Apply(args) => commands::calibrate::apply(&args),
-        Command::Next(args) => commands::calibrate::next(&args),
-        Command::Simulate(args) => commands::calibrate::simulate(&args),
+        Command::Apply(args) => commands::apply::run(&args),
+        Command::Next(args) => commands::next::run(&args),
+        Command::Simulate(args) => commands::simulate::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -7,14 +7,15 @@
 //! manifest, the result set swapped in whole) and [`plots`]. [`cli`] parses the command line and
 //! matches the command once; each command is a module of [`commands`].
 //!
-//! Logs: [`log_file`] reads raw readings for `calibrate` and `apply` ([`commands::calibrate`]).
+//! Logs: [`log`] reads raw readings and the calibration file for the log commands
+//! ([`commands::calibrate`], [`commands::apply`], [`commands::next`], [`commands::simulate`]).
 //!
 //! Exit codes: 0 success, 1 regression found by `check`, 2 bad input or usage.
 
 pub mod cli;
 pub mod commands;
 pub mod limits;
-pub mod log_file;
+pub mod log;
 pub mod output;
 pub mod pipeline;
 pub mod plots;

@@ -8,7 +8,7 @@ use assert_cmd::Command;
 use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, ErrorModel, paper};
-use magcal_runner::commands::calibrate::CalibrationJson;
+use magcal_runner::log::calibration::CalibrationJson;
 use tempfile::TempDir;
 
 fn magcal() -> Command {

@@ -482,7 +482,7 @@ proptest! {
     #[test]
     fn mutated_logs_calibrate_apply_and_next_or_say_why(x in fuzz_log()) {
         use clap::Parser;
-        use magcal_runner::commands::calibrate::{self, ApplyArgs, CalibrateArgs, NextArgs};
+        use magcal_runner::commands::{apply::{self, ApplyArgs}, calibrate::{self, CalibrateArgs}, next::{self, NextArgs}};
         #[derive(Parser)]
         struct Calibrate {
             #[command(flatten)]
@@ -516,7 +516,7 @@ proptest! {
         let json = out.join("calibration.json");
         prop_assert!(json.is_file());
         let apply = ApplyArgs { calibration: json.clone(), log: log.clone(), columns: None, skip_bad: x.skip_bad, out: Some(tmp.path().join("calibrated.csv")) };
-        if let Err(e) = calibrate::apply(&apply) {
+        if let Err(e) = apply::run(&apply) {
             let why = names_the_input(e, &log);
             prop_assert!(why.is_ok(), "apply: {why:?}\n{}", x.text());
         }
@@ -525,7 +525,7 @@ proptest! {
             argv.push("--skip-bad".into());
         }
         let next = Next::try_parse_from(&argv).unwrap().args;
-        if let Err(e) = calibrate::next(&next) {
+        if let Err(e) = next::run(&next) {
             let why = names_the_input(e, &log);
             prop_assert!(why.is_ok(), "next: {why:?}\n{}", x.text());
         }

@@ -1,11 +1,14 @@
 //! One module per command. `run` and `design` share [`run::produce`]; every command that reads a
 //! scenario starts from [`setup`].
 
+pub mod apply;
 pub mod calibrate;
 pub mod check;
 pub mod design;
+pub mod next;
 pub mod plot;
 pub mod run;
+pub mod simulate;
 
 use std::io::IsTerminal;
 

@@ -6,6 +6,7 @@
 //! bytes for the same value on every platform and thread count. A statistic that is undefined (no
 //! successful trial, or a standard deviation of one value) is an empty cell, never `NaN`.
 
+pub mod file;
 pub mod manifest;
 pub mod print;
 pub mod staging;

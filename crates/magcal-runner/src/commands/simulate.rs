@@ -1,0 +1,101 @@
+//! `magcal simulate SCENARIO --design NAME`: a log of a known sensor.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+use crate::cli::Failure;
+use crate::output::file::replace_with;
+
+/// `magcal simulate`.
+#[derive(Debug, Args)]
+pub struct SimulateArgs {
+    /// The scenario: its field, sensor (the truth to recover), box and designs.
+    pub scenario: PathBuf,
+    /// The design whose attitudes the log visits (each reading of a plan once).
+    #[arg(long)]
+    pub design: String,
+    /// Noise per component, nT (default: the scenario's first `sigma_nt`).
+    #[arg(long)]
+    pub sigma_nt: Option<f64>,
+    /// Seed of the noise (default: the scenario's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Write the log here (default: stdout).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Runs `simulate`: a log of noisy readings (nT) of the scenario's sensor at the attitudes of one
+/// of its designs, `roll_deg,yaw_deg,pitch_deg,mx,my,mz`, to try `calibrate` on a known truth.
+///
+/// # Errors
+/// A bad scenario, an unknown design, a bad noise level (exit 2).
+pub fn run(args: &SimulateArgs) -> Result<(), Failure> {
+    Ok(simulate_inner(args)?)
+}
+
+fn simulate_inner(args: &SimulateArgs) -> Result<()> {
+    let scenario = crate::scenario::load(&args.scenario)?;
+    let sigma = args.sigma_nt.unwrap_or(scenario.sigmas_nt[0]);
+    if !(sigma.is_finite() && (0.0..=crate::limits::MAX_SIGMA_NT).contains(&sigma)) {
+        bail!(
+            "--sigma-nt {sigma}: must lie in [0, {}] nT",
+            crate::limits::MAX_SIGMA_NT
+        );
+    }
+    let Some(index) = scenario.designs.iter().position(|d| d.name == args.design) else {
+        bail!(
+            "{}: no design named {:?} (designs: {})",
+            args.scenario.display(),
+            args.design,
+            scenario
+                .designs
+                .iter()
+                .map(|d| d.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    };
+    // Every design is built, so that each gets the random stream it gets in `magcal run`.
+    let mut designs_only = scenario.clone();
+    designs_only.pso_runs = None;
+    let out = crate::pipeline::run(
+        &designs_only,
+        crate::pipeline::RunOptions {
+            progress: false,
+            designs_only: true,
+        },
+    )?;
+    let attitudes = out.designs[index].expanded();
+    let mut rng = crate::pipeline::simulated_log_rng(args.seed.unwrap_or(scenario.seed));
+    let readings = scenario
+        .truth
+        .noisy_readings(&scenario.field.body_fields(&attitudes), sigma, &mut rng)?;
+    let rows = |out: &mut dyn Write| -> Result<()> {
+        writeln!(out, "roll_deg,yaw_deg,pitch_deg,mx,my,mz")?;
+        for (a, s) in attitudes.iter().zip(&readings) {
+            let [r, y, p] = a.to_degrees();
+            writeln!(out, "{r},{y},{p},{},{},{}", s[0], s[1], s[2])?;
+        }
+        Ok(())
+    };
+    match &args.out {
+        Some(path) => replace_with(path, rows)?,
+        None => {
+            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
+            rows(&mut w)?;
+            w.flush().context("stdout")?;
+        }
+    }
+    eprintln!(
+        "magcal: {} readings of design {:?} at {sigma} nT; the field magnitude is {} nT (calibrate with --magnitude {})",
+        readings.len(),
+        args.design,
+        scenario.field.magnitude(),
+        scenario.field.magnitude()
+    );
+    Ok(())
+}

@@ -1,0 +1,146 @@
+//! The vehicle a log is judged against: its site's field, its attitude box, from a scenario file
+//! or from flags.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+use super::calibration::CalibrationJson;
+use super::site::wmm_field;
+
+/// A vehicle's attitude box as flags (with `--site` and `--date` for the field's direction).
+#[derive(Debug, Args)]
+pub struct BoxFlags {
+    /// Roll range, degrees: `MIN,MAX` (with `--site`).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub roll: Option<String>,
+    /// Pitch range, degrees: `MIN,MAX` (with `--site`).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub pitch: Option<String>,
+    /// Yaw range, degrees: `MIN,MAX` (with `--site`; default any yaw).
+    #[arg(long, requires = "site", allow_hyphen_values = true)]
+    pub yaw: Option<String>,
+}
+
+/// What `next` and the coverage need of a vehicle: its site's field (nT), its attitude box, the
+/// certificate's search and a seed; from a scenario file or from flags.
+pub struct Vehicle {
+    pub field: magcal_core::ReferenceField,
+    pub bounds: magcal_core::AttitudeBox,
+    pub certificate: magcal_core::design::approximate::Approximate,
+    pub seed: u64,
+    pub label: String,
+}
+
+impl Vehicle {
+    /// The certificate of the vehicle's box under `problem`'s sensor, from the stream `run` uses
+    /// for the same seed; `None` when no design in the box identifies the linear model.
+    pub fn certificate(
+        &self,
+        problem: &magcal_core::design::DesignProblem,
+    ) -> Option<magcal_core::design::approximate::Certificate> {
+        self.certificate
+            .compute(problem, &mut crate::pipeline::certificate_rng(self.seed))
+            .ok()
+            .map(|a| a.certificate)
+    }
+
+    pub fn from_scenario(path: &Path) -> Result<Self> {
+        let s = crate::scenario::load(path)?;
+        Ok(Self {
+            field: s.field,
+            bounds: s.bounds,
+            certificate: s.certificate,
+            seed: s.seed,
+            label: path.display().to_string(),
+        })
+    }
+
+    /// The vehicle of `--scenario`, else of the box flags with `[--site, --date, --wmm]`; `None`
+    /// when neither is given.
+    pub fn from_options(
+        scenario: Option<&Path>,
+        flags: &BoxFlags,
+        [site, date, wmm]: [Option<&str>; 3],
+    ) -> Result<Option<Self>> {
+        match (scenario, &flags.roll, &flags.pitch, &flags.yaw) {
+            (Some(path), ..) => Self::from_scenario(path).map(Some),
+            (None, Some(_), Some(_), _) => {
+                Self::from_flags(flags, site.unwrap_or(""), date.unwrap_or(""), wmm).map(Some)
+            }
+            (None, None, None, None) => Ok(None),
+            _ => bail!("the box as flags needs both --roll and --pitch"),
+        }
+    }
+
+    /// `--roll, --pitch [--yaw] --site --date [--wmm]`.
+    pub fn from_flags(args: &BoxFlags, site: &str, date: &str, wmm: Option<&str>) -> Result<Self> {
+        let range = |name: &str, value: Option<&String>, default: [f64; 2]| -> Result<[f64; 2]> {
+            let Some(text) = value else { return Ok(default) };
+            let v: Vec<f64> = text
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| anyhow::anyhow!("--{name} {text:?}: give MIN,MAX in degrees"))?;
+            match v[..] {
+                [a, b]
+                    if a.is_finite()
+                        && b.is_finite()
+                        && a < b
+                        && b - a <= 360.0
+                        && a.abs() <= 360.0
+                        && b.abs() <= 360.0 =>
+                {
+                    Ok([a, b])
+                }
+                _ => bail!(
+                    "--{name} {text:?}: give MIN,MAX in degrees, MIN < MAX, at most 360 apart, each in [-360, 360]"
+                ),
+            }
+        };
+        let roll = range("roll", args.roll.as_ref(), [0.0, 0.0])?;
+        let pitch = range("pitch", args.pitch.as_ref(), [0.0, 0.0])?;
+        let yaw = range("yaw", args.yaw.as_ref(), [-180.0, 180.0])?;
+        let bounds = magcal_core::AttitudeBox::from_degrees(roll, yaw, pitch).context("the attitude box")?;
+        let (ned, source) = wmm_field(site, date, wmm)?;
+        let field = magcal_core::ReferenceField::from_ned(ned[0], ned[1], ned[2]).context("the WMM field")?;
+        Ok(Self {
+            field,
+            bounds,
+            certificate: Default::default(),
+            seed: 0,
+            label: format!("roll {roll:?}, pitch {pitch:?}, yaw {yaw:?} deg, {source}"),
+        })
+    }
+}
+
+/// The fitted sensor as a design problem in the vehicle's field (nT) and box, and the factor from
+/// the log's units to nT (only the field's direction comes from the site).
+pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magcal_core::design::DesignProblem, f64)> {
+    let field = scenario.field;
+    let factor = field.magnitude() / cal.magnitude;
+    if !(factor.is_finite() && factor > 0.0) {
+        bail!("magnitude {} is not usable", cal.magnitude);
+    }
+    let model = magcal_core::ErrorModel::new(cal.psi_deg, cal.scale, cal.bias.map(|b| b * factor))
+        .context("the fitted sensor is outside what the model takes")?;
+    Ok((
+        magcal_core::design::DesignProblem::new(field, model, scenario.bounds, 9)?,
+        factor,
+    ))
+}
+
+/// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box.
+pub fn log_efficiency(
+    cal: &CalibrationJson,
+    scenario: &Vehicle,
+    readings: &[magcal_core::Vec3],
+) -> Result<Option<f64>> {
+    let (problem, factor) = fitted_problem(cal, scenario)?;
+    let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|s| s.map(|v| v * factor)).collect();
+    let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
+    Ok(scenario
+        .certificate(&problem)
+        .map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len())))
+}
