@@ -60,6 +60,77 @@ impl Attitude {
             ],
         ]
     }
+
+    /// The compass heading of the nose, degrees clockwise from **true** north in `[0, 360)`, when
+    /// yaw 0 puts the nose `yaw_offset_deg` counter-clockwise from north: positive yaw turns the
+    /// nose west (\[P1\] eq. (2) with the n-frame North-Up-East, docs/conventions "Sense of the
+    /// angles"), so the heading is `-(yaw + yaw_offset)` wrapped.
+    pub fn heading_deg(&self, yaw_offset_deg: f64) -> f64 {
+        (-(self.yaw.to_degrees() + yaw_offset_deg)).rem_euclid(360.0)
+    }
+
+    /// The Hamilton unit quaternion `(w, x, y, z)`, `w >= 0`, of `C_b^n`: the rotation that takes
+    /// body vectors (nose, up, right) into North-Up-East, with the yaw offset included.
+    pub fn body_to_nav_quaternion(&self, yaw_offset_deg: f64) -> [f64; 4] {
+        let flown = Self {
+            yaw: self.yaw + yaw_offset_deg.to_radians(),
+            ..*self
+        };
+        quaternion_of_transpose(&flown.dcm())
+    }
+}
+
+/// The unit quaternion `(w, x, y, z)` (Hamilton, `w >= 0`) of `C_b^n = (C_n^b)^T`, from the
+/// direction cosine matrix `C_n^b` of \[P1\] eq. (2), by Shepperd's method (the largest of the
+/// four squared components first, for accuracy).
+fn quaternion_of_transpose(c_nb: &Mat3) -> [f64; 4] {
+    // m = C_b^n.
+    let m = |i: usize, j: usize| c_nb[j][i];
+    let trace = m(0, 0) + m(1, 1) + m(2, 2);
+    let candidates = [trace, m(0, 0), m(1, 1), m(2, 2)];
+    let k = (0..4)
+        .max_by(|&a, &b| candidates[a].total_cmp(&candidates[b]))
+        .unwrap_or(0);
+    let q = match k {
+        0 => {
+            let w = (1.0 + trace).sqrt() / 2.0;
+            [
+                w,
+                (m(2, 1) - m(1, 2)) / (4.0 * w),
+                (m(0, 2) - m(2, 0)) / (4.0 * w),
+                (m(1, 0) - m(0, 1)) / (4.0 * w),
+            ]
+        }
+        1 => {
+            let x = (1.0 + m(0, 0) - m(1, 1) - m(2, 2)).sqrt() / 2.0;
+            [
+                (m(2, 1) - m(1, 2)) / (4.0 * x),
+                x,
+                (m(0, 1) + m(1, 0)) / (4.0 * x),
+                (m(0, 2) + m(2, 0)) / (4.0 * x),
+            ]
+        }
+        2 => {
+            let y = (1.0 - m(0, 0) + m(1, 1) - m(2, 2)).sqrt() / 2.0;
+            [
+                (m(0, 2) - m(2, 0)) / (4.0 * y),
+                (m(0, 1) + m(1, 0)) / (4.0 * y),
+                y,
+                (m(1, 2) + m(2, 1)) / (4.0 * y),
+            ]
+        }
+        _ => {
+            let z = (1.0 - m(0, 0) - m(1, 1) + m(2, 2)).sqrt() / 2.0;
+            [
+                (m(1, 0) - m(0, 1)) / (4.0 * z),
+                (m(0, 2) + m(2, 0)) / (4.0 * z),
+                (m(1, 2) + m(2, 1)) / (4.0 * z),
+                z,
+            ]
+        }
+    };
+    let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
+    q.map(|v| v * sign)
 }
 
 /// A closed interval of one Euler angle, radians, with `min < max`, both finite.
@@ -229,6 +300,49 @@ mod tests {
         let c = Attitude::from_degrees(0.0, 0.0, 90.0).dcm();
         let b = crate::small::mat_vec(&c, [0.0, 1.0, 0.0]);
         assert!((b[0] - 1.0).abs() < 1e-15 && b[1].abs() < 1e-15 && b[2].abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_quaternion_rotates_body_vectors_into_north_up_east() {
+        use crate::small::{mat_t_vec, norm};
+        let mut rng = crate::rng::stream_rng(5, 0);
+        for _ in 0..10_000 {
+            let a = crate::design::sources::random_attitude(&crate::AttitudeBox::full(), &mut rng);
+            let c_nb = a.dcm();
+            let [w, x, y, z] = a.body_to_nav_quaternion(0.0);
+            assert!(w >= 0.0 && (norm([x, y, z]).hypot(w) - 1.0).abs() < 1e-14);
+            // v' = q v q*, by the rotation matrix of q.
+            let r = [
+                [
+                    1.0 - 2.0 * (y * y + z * z),
+                    2.0 * (x * y - w * z),
+                    2.0 * (x * z + w * y),
+                ],
+                [
+                    2.0 * (x * y + w * z),
+                    1.0 - 2.0 * (x * x + z * z),
+                    2.0 * (y * z - w * x),
+                ],
+                [
+                    2.0 * (x * z - w * y),
+                    2.0 * (y * z + w * x),
+                    1.0 - 2.0 * (x * x + y * y),
+                ],
+            ];
+            for v in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, -0.2, 0.9]] {
+                let want = mat_t_vec(&c_nb, v);
+                let got = [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);
+                for i in 0..3 {
+                    assert!((got[i] - want[i]).abs() < 1e-14, "{a:?}");
+                }
+            }
+        }
+        // Level, yaw -60 (heading 60): the nose points north-east-ish, 60 degrees east of north.
+        let q = Attitude::from_degrees(0.0, -60.0, 0.0).body_to_nav_quaternion(0.0);
+        assert!((Attitude::from_degrees(0.0, -60.0, 0.0).heading_deg(0.0) - 60.0).abs() < 1e-12);
+        // yaw 0 with the nose put on west (offset 90): heading 270.
+        assert!((Attitude::from_degrees(0.0, 0.0, 0.0).heading_deg(90.0) - 270.0).abs() < 1e-12);
+        assert!((q[0] - 30f64.to_radians().cos()).abs() < 1e-15 && (q[2] + 30f64.to_radians().sin()).abs() < 1e-15);
     }
 
     #[test]

@@ -127,13 +127,13 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         "k", "roll_deg", "pitch_deg", "heading_deg", "readings", "variance d"
     );
     for (k, (a, n, d)) in rows.iter().enumerate() {
-        let [roll, yaw, pitch] = a.to_degrees();
+        let [roll, _, pitch] = a.to_degrees();
         println!(
             "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>12.4}",
             k + 1,
             roll,
             pitch,
-            (-(yaw + field.yaw_offset_deg())).rem_euclid(360.0),
+            a.heading_deg(field.yaw_offset_deg()),
             n,
             d
         );

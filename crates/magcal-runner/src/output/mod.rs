@@ -522,11 +522,7 @@ pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item =
         d.order.iter().enumerate().map(move |(v, &i)| {
             let a = &d.attitudes[i];
             let [r, y, p] = a.to_degrees();
-            let flown = magcal_core::Attitude {
-                yaw: a.yaw + yaw_offset_deg.to_radians(),
-                ..*a
-            };
-            let [qw, qx, qy, qz] = body_to_nav_quaternion(&flown.dcm());
+            let [qw, qx, qy, qz] = a.body_to_nav_quaternion(yaw_offset_deg);
             let turn = (v > 0).then(|| tour::rotation_angle(&d.attitudes[d.order[v - 1]], a).to_degrees());
             DesignPointRow {
                 design: d.name.clone(),
@@ -535,7 +531,7 @@ pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item =
                 roll_deg: degrees(r),
                 yaw_deg: degrees(y),
                 pitch_deg: degrees(p),
-                heading_deg: degrees((-(y + yaw_offset_deg)).rem_euclid(360.0)),
+                heading_deg: degrees(a.heading_deg(yaw_offset_deg)),
                 qw: Real(qw),
                 qx: Real(qx),
                 qy: Real(qy),
@@ -545,59 +541,6 @@ pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item =
             }
         })
     })
-}
-
-/// The unit quaternion `(w, x, y, z)` (Hamilton, `w >= 0`) of `C_b^n = (C_n^b)^T`, from the
-/// direction cosine matrix `C_n^b` of \[P1\] eq. (2), by Shepperd's method (the largest of the
-/// four squared components first, for accuracy).
-fn body_to_nav_quaternion(c_nb: &magcal_core::Mat3) -> [f64; 4] {
-    // m = C_b^n.
-    let m = |i: usize, j: usize| c_nb[j][i];
-    let trace = m(0, 0) + m(1, 1) + m(2, 2);
-    let candidates = [trace, m(0, 0), m(1, 1), m(2, 2)];
-    let k = (0..4)
-        .max_by(|&a, &b| candidates[a].total_cmp(&candidates[b]))
-        .unwrap_or(0);
-    let q = match k {
-        0 => {
-            let w = (1.0 + trace).sqrt() / 2.0;
-            [
-                w,
-                (m(2, 1) - m(1, 2)) / (4.0 * w),
-                (m(0, 2) - m(2, 0)) / (4.0 * w),
-                (m(1, 0) - m(0, 1)) / (4.0 * w),
-            ]
-        }
-        1 => {
-            let x = (1.0 + m(0, 0) - m(1, 1) - m(2, 2)).sqrt() / 2.0;
-            [
-                (m(2, 1) - m(1, 2)) / (4.0 * x),
-                x,
-                (m(0, 1) + m(1, 0)) / (4.0 * x),
-                (m(0, 2) + m(2, 0)) / (4.0 * x),
-            ]
-        }
-        2 => {
-            let y = (1.0 - m(0, 0) + m(1, 1) - m(2, 2)).sqrt() / 2.0;
-            [
-                (m(0, 2) - m(2, 0)) / (4.0 * y),
-                (m(0, 1) + m(1, 0)) / (4.0 * y),
-                y,
-                (m(1, 2) + m(2, 1)) / (4.0 * y),
-            ]
-        }
-        _ => {
-            let z = (1.0 - m(0, 0) - m(1, 1) + m(2, 2)).sqrt() / 2.0;
-            [
-                (m(1, 0) - m(0, 1)) / (4.0 * z),
-                (m(0, 2) + m(2, 0)) / (4.0 * z),
-                (m(1, 2) + m(2, 1)) / (4.0 * z),
-                z,
-            ]
-        }
-    };
-    let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
-    q.map(|v| v * sign)
 }
 
 /// The rows of `design_metrics.csv`.
@@ -643,7 +586,7 @@ pub fn approximate_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<I
                 roll_deg: degrees(r),
                 yaw_deg: degrees(y),
                 pitch_deg: degrees(p),
-                heading_deg: degrees((-(y + yaw_offset_deg)).rem_euclid(360.0)),
+                heading_deg: degrees(at.heading_deg(yaw_offset_deg)),
                 weight: Real(*w),
             }
         })
@@ -685,47 +628,6 @@ pub fn pso_run_rows(out: &RunOutput) -> impl Iterator<Item = PsoRunRow> + '_ {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_quaternion_rotates_body_vectors_into_north_up_east() {
-        use magcal_core::Attitude;
-        use magcal_core::small::{mat_t_vec, norm};
-        let mut rng = magcal_core::rng::stream_rng(5, 0);
-        for _ in 0..10_000 {
-            let a = magcal_core::design::sources::random_attitude(&magcal_core::AttitudeBox::full(), &mut rng);
-            let c_nb = a.dcm();
-            let [w, x, y, z] = body_to_nav_quaternion(&c_nb);
-            assert!(w >= 0.0 && (norm([x, y, z]).hypot(w) - 1.0).abs() < 1e-14);
-            // v' = q v q*, by the rotation matrix of q.
-            let r = [
-                [
-                    1.0 - 2.0 * (y * y + z * z),
-                    2.0 * (x * y - w * z),
-                    2.0 * (x * z + w * y),
-                ],
-                [
-                    2.0 * (x * y + w * z),
-                    1.0 - 2.0 * (x * x + z * z),
-                    2.0 * (y * z - w * x),
-                ],
-                [
-                    2.0 * (x * z - w * y),
-                    2.0 * (y * z + w * x),
-                    1.0 - 2.0 * (x * x + y * y),
-                ],
-            ];
-            for v in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, -0.2, 0.9]] {
-                let want = mat_t_vec(&c_nb, v);
-                let got = [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);
-                for i in 0..3 {
-                    assert!((got[i] - want[i]).abs() < 1e-14, "{a:?}");
-                }
-            }
-        }
-        // Level, yaw -60 (heading 60): the nose points north-east-ish, 60 degrees east of north.
-        let q = body_to_nav_quaternion(&Attitude::from_degrees(0.0, -60.0, 0.0).dcm());
-        assert!((q[0] - 30f64.to_radians().cos()).abs() < 1e-15 && (q[2] + 30f64.to_radians().sin()).abs() < 1e-15);
-    }
 
     #[test]
     fn headers_come_from_the_row_types() {
