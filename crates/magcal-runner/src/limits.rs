@@ -3,13 +3,20 @@
 //! checked against what the machine has before any work starts ([`check_memory`]). A refusal names
 //! the number, the estimate and the limit.
 
-use anyhow::{Result, bail};
+use std::io::Read;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
 use magcal_core::monte_carlo::TrialOutcome;
 
 use crate::scenario::{DesignSource, Scenario};
 
 /// Largest scenario file read, bytes.
 pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+/// Largest `manifest.json` read, bytes.
+pub const MAX_MANIFEST_BYTES: u64 = 16 << 20;
+/// Largest `calibration.json` read, bytes (one is about 4 KiB).
+pub const MAX_CALIBRATION_BYTES: u64 = 1 << 20;
 /// Longest scenario or design name (it names files).
 pub const MAX_NAME: usize = 64;
 /// Noisy trials per design and noise level.
@@ -75,7 +82,7 @@ pub fn show(x: f64) -> String {
 }
 
 /// Bytes, for people.
-fn bytes(n: u64) -> String {
+pub fn bytes(n: u64) -> String {
     const GIB: f64 = (1u64 << 30) as f64;
     const MIB: f64 = (1u64 << 20) as f64;
     let x = n as f64;
@@ -84,6 +91,40 @@ fn bytes(n: u64) -> String {
     } else {
         format!("{:.1} MiB", x / MIB)
     }
+}
+
+/// The whole of `path`, at most `max` bytes, whatever it is (a regular file, a FIFO, a device):
+/// a directory, or more than `max` bytes, is refused naming the file and the limit.
+///
+/// # Errors
+/// An unreadable file, a directory, or a file larger than `max`.
+pub fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>> {
+    let shown = path.display();
+    let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read"))?;
+    let meta = file.metadata().with_context(|| format!("{shown}: cannot read"))?;
+    if meta.is_dir() {
+        bail!("{shown}: is a directory");
+    }
+    if meta.len() > max {
+        bail!("{shown}: {} bytes; at most {} are read", meta.len(), bytes(max));
+    }
+    let mut out = Vec::with_capacity(meta.len() as usize);
+    file.take(max + 1)
+        .read_to_end(&mut out)
+        .with_context(|| format!("{shown}: cannot read"))?;
+    if out.len() as u64 > max {
+        bail!(
+            "{shown}: more than {} bytes (not a regular file?); at most that is read",
+            bytes(max)
+        );
+    }
+    Ok(out)
+}
+
+/// Largest file of a result set read whole (`trials.csv` the largest), bytes: a quarter of what
+/// the process may use, so that its text and its parsed rows fit in half.
+pub fn max_result_file_bytes() -> u64 {
+    available_memory().map_or(u64::MAX, |(a, _)| a / 4)
 }
 
 /// The memory a run of `scenario` needs, item by item: (what, bytes).

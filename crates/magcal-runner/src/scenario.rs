@@ -410,17 +410,7 @@ pub struct Scenario {
 /// A missing, unreadable or oversized file, a TOML syntax error (with line and column), an unknown
 /// key, a wrong type, or an invalid value; each message names the file, the key and the value.
 pub fn load(path: &Path) -> Result<Scenario> {
-    let size = std::fs::metadata(path)
-        .with_context(|| format!("{}: cannot read scenario file", path.display()))?
-        .len();
-    if size > limits::MAX_SCENARIO_BYTES {
-        bail!(
-            "{}: {size} bytes; a scenario file may have at most {} bytes",
-            path.display(),
-            limits::MAX_SCENARIO_BYTES
-        );
-    }
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read scenario file", path.display()))?;
+    let bytes = limits::read_bounded(path, limits::MAX_SCENARIO_BYTES)?;
     parse(&bytes, path)
 }
 
