@@ -510,6 +510,9 @@ fn a_calibration_file_with_a_byte_order_mark_is_read() {
     assert_eq!(String::from_utf8(a.stdout).unwrap().lines().count(), 2001);
 }
 
+/// What a case does to its copy of the set.
+type Damage = Box<dyn Fn(&Path)>;
+
 /// A result set of the smoke scenario, made once per test that needs one.
 fn baseline() -> (TempDir, PathBuf) {
     let tmp = TempDir::new().unwrap();
@@ -537,7 +540,7 @@ fn check_and_plot_read_only_the_regular_files_of_the_set() {
         &["check", drone.to_str().unwrap(), "--baseline", "set"],
         &["set: the baseline of scenario \"smoke\", not of \"drone\""],
     );
-    let cases: Vec<(&str, Box<dyn Fn(&Path)>, Vec<&str>)> = vec![
+    let cases: Vec<(&str, Damage, Vec<&str>)> = vec![
         (
             "up",
             Box::new(|s: &Path| {
