@@ -60,6 +60,9 @@ pub struct Common {
     /// No progress bars and no summary table.
     #[arg(long)]
     pub quiet: bool,
+    /// Run even when the PSO work is estimated above one day (the estimate is printed first).
+    #[arg(long)]
+    pub allow_long: bool,
 }
 
 /// `magcal run`.
@@ -111,6 +114,27 @@ impl From<anyhow::Error> for Failure {
     }
 }
 
+/// Longest error line about the command line, characters (it may quote a value as given).
+const MAX_USAGE_ERROR: usize = 300;
+
+/// A clap error as one line: its message and tips, without the usage and help pointers, at most
+/// [`MAX_USAGE_ERROR`] characters.
+fn one_line(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    let line = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("Usage:") && !l.starts_with("For more information"))
+        .map(|l| l.strip_prefix("error: ").unwrap_or(l))
+        .collect::<Vec<_>>()
+        .join(" ");
+    if line.chars().count() > MAX_USAGE_ERROR {
+        format!("{}...", line.chars().take(MAX_USAGE_ERROR).collect::<String>())
+    } else {
+        line
+    }
+}
+
 /// Parses the command line, runs the command, prints an error as one line; the exit code.
 pub fn main() -> ExitCode {
     // Rust ignores SIGPIPE, so that printing into a closed pipe (`magcal calibrate LOG | head`)
@@ -123,10 +147,20 @@ pub fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
-            let _ = e.print();
+            use clap::error::ErrorKind;
             return match e.kind() {
-                clap::error::ErrorKind::DisplayHelp | clap::error::ErrorKind::DisplayVersion => ExitCode::SUCCESS,
-                _ => ExitCode::from(2),
+                ErrorKind::DisplayHelp | ErrorKind::DisplayVersion => {
+                    let _ = e.print();
+                    ExitCode::SUCCESS
+                }
+                ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => {
+                    let _ = e.print();
+                    ExitCode::from(2)
+                }
+                _ => {
+                    eprintln!("magcal: error: {}", one_line(&e));
+                    ExitCode::from(2)
+                }
             };
         }
     };

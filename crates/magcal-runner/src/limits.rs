@@ -3,13 +3,20 @@
 //! checked against what the machine has before any work starts ([`check_memory`]). A refusal names
 //! the number, the estimate and the limit.
 
-use anyhow::{Result, bail};
+use std::io::Read;
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
 use magcal_core::monte_carlo::TrialOutcome;
 
 use crate::scenario::{DesignSource, Scenario};
 
 /// Largest scenario file read, bytes.
 pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+/// Largest `manifest.json` read, bytes.
+pub const MAX_MANIFEST_BYTES: u64 = 16 << 20;
+/// Largest `calibration.json` read, bytes (one is about 4 KiB).
+pub const MAX_CALIBRATION_BYTES: u64 = 1 << 20;
 /// Longest scenario or design name (it names files).
 pub const MAX_NAME: usize = 64;
 /// Noisy trials per design and noise level.
@@ -75,7 +82,7 @@ pub fn show(x: f64) -> String {
 }
 
 /// Bytes, for people.
-fn bytes(n: u64) -> String {
+pub fn bytes(n: u64) -> String {
     const GIB: f64 = (1u64 << 30) as f64;
     const MIB: f64 = (1u64 << 20) as f64;
     let x = n as f64;
@@ -84,6 +91,74 @@ fn bytes(n: u64) -> String {
     } else {
         format!("{:.1} MiB", x / MIB)
     }
+}
+
+/// The whole of `path`, at most `max` bytes, whatever it is (a regular file, a FIFO, a device):
+/// a directory, or more than `max` bytes, is refused naming the file and the limit.
+///
+/// # Errors
+/// An unreadable file, a directory, or a file larger than `max`.
+pub fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>> {
+    let shown = path.display();
+    let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read"))?;
+    let meta = file.metadata().with_context(|| format!("{shown}: cannot read"))?;
+    if meta.is_dir() {
+        bail!("{shown}: is a directory");
+    }
+    if meta.len() > max {
+        bail!("{shown}: {} bytes; at most {} are read", meta.len(), bytes(max));
+    }
+    let mut out = Vec::with_capacity(meta.len() as usize);
+    file.take(max + 1)
+        .read_to_end(&mut out)
+        .with_context(|| format!("{shown}: cannot read"))?;
+    if out.len() as u64 > max {
+        bail!(
+            "{shown}: more than {} bytes (not a regular file?); at most that is read",
+            bytes(max)
+        );
+    }
+    Ok(out)
+}
+
+/// The file `name` of the result set in `dir`, as its manifest names it: a plain name (no
+/// separator, not `.` or `..`, so never a path outside the set) of a regular file (not a symlink,
+/// a FIFO or a device: magcal writes none of those into a set).
+///
+/// # Errors
+/// A name that is not plain, or a file that is missing or not regular.
+pub fn set_member(dir: &Path, name: &str) -> Result<std::path::PathBuf> {
+    let plain =
+        !name.is_empty() && name != "." && name != ".." && !name.contains(['/', '\\', '\0']) && name.len() <= 255;
+    let shown: String = name.chars().take(60).collect();
+    if !plain {
+        bail!(
+            "{}: names the file {shown:?}, which is not a plain file name of the set; the baseline is damaged or not magcal's",
+            dir.join("manifest.json").display()
+        );
+    }
+    let path = dir.join(name);
+    let meta = std::fs::symlink_metadata(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+    if !meta.is_file() {
+        let kind = if meta.file_type().is_symlink() {
+            "a symbolic link"
+        } else if meta.is_dir() {
+            "a directory"
+        } else {
+            "a special file"
+        };
+        bail!(
+            "{}: is {kind}, not a regular file; magcal writes only regular files into a result set",
+            path.display()
+        );
+    }
+    Ok(path)
+}
+
+/// Largest file of a result set read whole (`trials.csv` the largest), bytes: a quarter of what
+/// the process may use, so that its text and its parsed rows fit in half.
+pub fn max_result_file_bytes() -> u64 {
+    available_memory().map_or(u64::MAX, |(a, _)| a / 4)
 }
 
 /// The memory a run of `scenario` needs, item by item: (what, bytes).
@@ -138,6 +213,83 @@ pub fn estimate(scenario: &Scenario, with_trials: bool, threads: usize) -> Vec<(
         ));
     }
     items
+}
+
+/// Seconds of one PSO fitness evaluation and particle update for 9 attitudes on one thread: one
+/// paper PSO run (300 particles x 3000 iterations, 903,000 evaluations) takes 0.34 s on one
+/// thread (README, benchmarks); the cost grows with the attitudes per design.
+pub const PSO_SECONDS_PER_EVALUATION: f64 = 0.38e-6;
+/// Estimated work above which a run is refused unless the user passes `--allow-long`, seconds
+/// (one day).
+pub const MAX_ESTIMATED_SECONDS: f64 = 86_400.0;
+/// Estimated work above which the estimate is printed before the run starts, seconds.
+pub const NOTE_ESTIMATED_SECONDS: f64 = 60.0;
+
+/// The time the PSO work of `scenario` takes on `threads`, item by item: (what, seconds). The
+/// other designs and the trials take far less for the sizes allowed.
+pub fn estimate_time(scenario: &Scenario, threads: usize) -> Vec<(String, f64)> {
+    let evaluation = |m: usize| PSO_SECONDS_PER_EVALUATION * (m.max(1) as f64 / 9.0);
+    let threads = threads.max(1) as f64;
+    let mut items = Vec::new();
+    for d in &scenario.designs {
+        if let DesignSource::Pso { m, swarm } = &d.source {
+            let evaluations = swarm.particles as f64 * (swarm.iterations as f64 + 1.0);
+            items.push((
+                format!(
+                    "design {:?} ({} particles x {} iterations)",
+                    d.name, swarm.particles, swarm.iterations
+                ),
+                evaluations * evaluation(*m) / threads,
+            ));
+        }
+    }
+    if let Some(runs) = &scenario.pso_runs {
+        let evaluations = runs.runs as f64 * runs.swarm.particles as f64 * (runs.swarm.iterations as f64 + 1.0);
+        items.push((
+            format!(
+                "{} PSO runs of {} particles x {} iterations",
+                runs.runs, runs.swarm.particles, runs.swarm.iterations
+            ),
+            evaluations * evaluation(runs.m) / threads,
+        ));
+    }
+    items
+}
+
+/// Time for people: seconds, minutes, hours or days.
+pub fn duration(seconds: f64) -> String {
+    match seconds {
+        s if s < 120.0 => format!("{s:.0} s"),
+        s if s < 7_200.0 => format!("{:.0} min", s / 60.0),
+        s if s < 172_800.0 => format!("{:.1} h", s / 3_600.0),
+        s => format!("{:.1} days", s / 86_400.0),
+    }
+}
+
+/// Refuses a run whose PSO work is estimated above [`MAX_ESTIMATED_SECONDS`] unless `allow_long`;
+/// returns the estimate in words when it is above [`NOTE_ESTIMATED_SECONDS`], for the caller to
+/// print before the run starts.
+///
+/// # Errors
+/// The estimate, its largest item and the limit.
+pub fn check_time(scenario: &Scenario, threads: usize, allow_long: bool) -> Result<Option<String>> {
+    let items = estimate_time(scenario, threads);
+    let total: f64 = items.iter().map(|(_, s)| s).sum();
+    let Some((item, largest)) = items.iter().max_by(|a, b| a.1.total_cmp(&b.1)) else {
+        return Ok(None);
+    };
+    let words = format!(
+        "the run's PSO work is estimated at {} on {threads} threads, most of it for {item} ({})",
+        duration(total),
+        duration(*largest)
+    );
+    if total > MAX_ESTIMATED_SECONDS && !allow_long {
+        bail!(
+            "{words}; runs above {} are refused unless --allow-long is given",
+            duration(MAX_ESTIMATED_SECONDS)
+        );
+    }
+    Ok((total > NOTE_ESTIMATED_SECONDS).then_some(words))
 }
 
 /// What this process may use: the smallest of the memory the system reports available and the
@@ -199,6 +351,64 @@ pub fn check_memory(scenario: &Scenario, with_trials: bool, threads: usize) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn durations_are_shown_in_their_unit() {
+        assert_eq!(duration(0.2), "0 s");
+        assert_eq!(duration(90.0), "90 s");
+        assert_eq!(duration(600.0), "10 min");
+        assert_eq!(duration(36_000.0), "10.0 h");
+        assert_eq!(duration(1.9e5), "2.2 days");
+    }
+
+    #[test]
+    fn set_members_are_plain_regular_files() {
+        let dir = tempfile::TempDir::new().unwrap();
+        std::fs::write(dir.path().join("a.csv"), "x").unwrap();
+        assert!(set_member(dir.path(), "a.csv").is_ok());
+        for bad in ["../a.csv", "/etc/hostname", "..", ".", "", "b/../a.csv", "a\\b"] {
+            let e = set_member(dir.path(), bad).unwrap_err().to_string();
+            assert!(e.contains("not a plain file name"), "{bad}: {e}");
+        }
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink("/dev/zero", dir.path().join("z.csv")).unwrap();
+            let e = set_member(dir.path(), "z.csv").unwrap_err().to_string();
+            assert!(e.contains("is a symbolic link, not a regular file"), "{e}");
+        }
+        std::fs::create_dir(dir.path().join("d")).unwrap();
+        assert!(
+            set_member(dir.path(), "d")
+                .unwrap_err()
+                .to_string()
+                .contains("is a directory")
+        );
+    }
+
+    #[test]
+    fn bounded_reads_stop_at_the_bound() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let p = dir.path().join("f");
+        std::fs::write(&p, [7u8; 100]).unwrap();
+        assert_eq!(read_bounded(&p, 100).unwrap().len(), 100);
+        assert!(
+            read_bounded(&p, 99)
+                .unwrap_err()
+                .to_string()
+                .contains("100 bytes; at most")
+        );
+        #[cfg(unix)]
+        {
+            let e = read_bounded(Path::new("/dev/zero"), 1 << 20).unwrap_err().to_string();
+            assert!(e.contains("more than 1.0 MiB"), "{e}");
+        }
+        assert!(
+            read_bounded(dir.path(), 10)
+                .unwrap_err()
+                .to_string()
+                .contains("is a directory")
+        );
+    }
 
     #[test]
     fn numbers_are_shown_as_written() {

@@ -17,6 +17,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
+use crate::limits::set_member;
 use crate::output::manifest::Manifest;
 use crate::output::staging::ResultSet;
 use crate::output::{DesignMetricsRow, DesignPointRow, Metric, PsoRunRow, SummaryRow, read_csv};
@@ -166,7 +167,7 @@ pub fn draw(src: &Path, manifest: &Manifest, set: &mut ResultSet, prefix: &str) 
     let mut drawn = Vec::new();
     let name = manifest.name.as_str();
 
-    let designs = read_designs(&src.join("designs.csv"))?;
+    let designs = read_designs(&set_member(src, "designs.csv")?)?;
     let f = manifest.field_ned_nt;
     let reference = ReferenceField::from_ned(f[0], f[1], f[2])
         .and_then(|x| x.with_yaw_offset_deg(manifest.yaw_offset_deg))
@@ -185,7 +186,7 @@ pub fn draw(src: &Path, manifest: &Manifest, set: &mut ResultSet, prefix: &str) 
     }
 
     if manifest.lists("summary.csv") {
-        let stats: Vec<Stat> = read_csv::<SummaryRow>(&src.join("summary.csv"))?
+        let stats: Vec<Stat> = read_csv::<SummaryRow>(&set_member(src, "summary.csv")?)?
             .iter()
             .map(Stat::of)
             .collect();
@@ -229,11 +230,11 @@ pub fn draw(src: &Path, manifest: &Manifest, set: &mut ResultSet, prefix: &str) 
     }
 
     if manifest.lists("pso_runs.csv") {
-        let runs = read_csv::<PsoRunRow>(&src.join("pso_runs.csv"))?;
+        let runs = read_csv::<PsoRunRow>(&set_member(src, "pso_runs.csv")?)?;
         let values: Vec<f64> = runs.iter().map(|r| r.final_ln_det.0).collect();
         // The reference line: the run's own best, over the runs and the designs of the same size.
         let m = runs.first().map_or(0, |r| r.m);
-        let best_design = read_csv::<DesignMetricsRow>(&src.join("design_metrics.csv"))?
+        let best_design = read_csv::<DesignMetricsRow>(&set_member(src, "design_metrics.csv")?)?
             .iter()
             .filter(|d| d.m == m && d.ln_det_mf.0.is_finite())
             .map(|d| (d.ln_det_mf.0, d.design.clone()))

@@ -410,17 +410,7 @@ pub struct Scenario {
 /// A missing, unreadable or oversized file, a TOML syntax error (with line and column), an unknown
 /// key, a wrong type, or an invalid value; each message names the file, the key and the value.
 pub fn load(path: &Path) -> Result<Scenario> {
-    let size = std::fs::metadata(path)
-        .with_context(|| format!("{}: cannot read scenario file", path.display()))?
-        .len();
-    if size > limits::MAX_SCENARIO_BYTES {
-        bail!(
-            "{}: {size} bytes; a scenario file may have at most {} bytes",
-            path.display(),
-            limits::MAX_SCENARIO_BYTES
-        );
-    }
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read scenario file", path.display()))?;
+    let bytes = limits::read_bounded(path, limits::MAX_SCENARIO_BYTES)?;
     parse(&bytes, path)
 }
 
@@ -572,20 +562,8 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         ("attitude_box.yaw_deg", b.yaw_deg),
         ("attitude_box.pitch_deg", b.pitch_deg),
     ] {
-        let shown = format!("[{}, {}]", show(range[0]), show(range[1]));
-        for v in range {
-            if !v.is_finite() {
-                bail!("{key} = {shown}: must be finite numbers");
-            }
-            if v.abs() > 360.0 {
-                bail!("{key} = {shown}: each end must lie in [-360, 360] degrees");
-            }
-        }
-        if range[0] >= range[1] {
-            bail!("{key} = {shown}: the minimum must be below the maximum");
-        }
-        if range[1] - range[0] > 360.0 {
-            bail!("{key} = {shown}: spans more than 360 degrees");
+        if let Err(rule) = check_range(range) {
+            bail!("{key} = [{}, {}]: {rule}", show(range[0]), show(range[1]));
         }
     }
     let bounds = AttitudeBox::from_degrees(b.roll_deg, b.yaw_deg, b.pitch_deg)
@@ -741,6 +719,28 @@ fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
     field
         .with_yaw_offset_deg(f.yaw_offset_deg)
         .map_err(|e| keyed("field.", &e, &show(f.yaw_offset_deg)))
+}
+
+/// The rules of an attitude range `[min, max]` in degrees, for the scenario's `[attitude_box]` and
+/// the `--roll`, `--pitch`, `--yaw` flags alike: finite, each end in [-360, 360], the minimum below
+/// the maximum, at most 360 apart. The rule broken, in words.
+///
+/// # Errors
+/// The first rule `range` breaks.
+pub fn check_range(range: [f64; 2]) -> Result<(), &'static str> {
+    if !range.iter().all(|v| v.is_finite()) {
+        return Err("must be finite numbers");
+    }
+    if range.iter().any(|v| v.abs() > 360.0) {
+        return Err("each end must lie in [-360, 360] degrees");
+    }
+    if range[0] >= range[1] {
+        return Err("the minimum must be below the maximum");
+    }
+    if range[1] - range[0] > 360.0 {
+        return Err("spans more than 360 degrees");
+    }
+    Ok(())
 }
 
 fn check_name(key: &str, name: &str) -> Result<()> {

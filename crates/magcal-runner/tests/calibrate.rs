@@ -556,7 +556,7 @@ fn the_magnitude_can_come_from_the_wmm_at_a_site_and_date() {
         ),
         (
             vec!["--site", "north", "--date", "2013.0", "--units", "G"],
-            "--site \"north\"",
+            "invalid value 'north' for '--site",
         ),
         (
             vec!["--site", "28.2,112.97", "--date", "2013-02-30", "--units", "G"],
@@ -636,7 +636,7 @@ fn next_takes_the_box_and_site_as_flags_too() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--roll \"5,-5\""));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("invalid value '5,-5' for '--roll"));
 }
 
 #[test]

@@ -340,7 +340,7 @@ proptest! {
         let scenario = tmp.path().join("fuzz.toml");
         std::fs::write(&scenario, x.toml()).unwrap();
         let out = tmp.path().join("out");
-        let common = || Common { scenario: scenario.clone(), seed: None, threads: Some(2), quiet: true };
+        let common = || Common { scenario: scenario.clone(), seed: None, threads: Some(2), quiet: true, allow_long: false };
         let run = RunArgs { common: common(), out: Some(out.clone()), trials: None };
         match commands::run::run(&run) {
             Ok(()) => {}

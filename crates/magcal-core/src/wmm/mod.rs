@@ -144,5 +144,82 @@ pub fn reference_field(model: Model, site: &Site) -> Result<ReferenceField, Para
     ReferenceField::from_ned(x, y, z)
 }
 
+/// Earliest year [`decimal_year`] takes: the shipped models start in 2010, and a bound this wide
+/// only catches a mistyped year (`20130`) before it reaches the model's window check.
+pub const MIN_YEAR: i64 = 1900;
+/// Latest year [`decimal_year`] takes (see [`MIN_YEAR`]; the shipped models end in 2030).
+pub const MAX_YEAR: i64 = 2100;
+
+/// A date that [`decimal_year`] cannot take.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DateError {
+    /// Neither `YYYY-MM-DD` nor a decimal year (the text, cut to 40 characters).
+    #[error("{0:?}: give YYYY-MM-DD or a decimal year")]
+    Format(String),
+    /// A day that the month does not have (`2013-02-30`, `2013-02-29`).
+    #[error("{year}-{month:02}-{day:02} is not a date")]
+    NotADate {
+        /// Year.
+        year: i64,
+        /// Month, 1-12 if it is one.
+        month: i64,
+        /// Day.
+        day: i64,
+    },
+    /// A year outside [[`MIN_YEAR`], [`MAX_YEAR`]].
+    #[error("year {0} is outside [{MIN_YEAR}, {MAX_YEAR}]")]
+    OutOfRange(f64),
+}
+
+/// Whether `year` (Gregorian) has a 29 February.
+pub fn is_leap_year(year: i64) -> bool {
+    (year % 4 == 0 && year % 100 != 0) || year % 400 == 0
+}
+
+/// The decimal year of `text`: a decimal year as written (`2013.5`), or `YYYY-MM-DD`, taken at
+/// the middle of that day: `year + (day_of_year - 0.5) / days_in_year`, as the WMM's date is.
+///
+/// # Errors
+/// Text that is neither, a day the month does not have, a year outside
+/// [[`MIN_YEAR`], [`MAX_YEAR`]] (a decimal year must be finite and within them too).
+pub fn decimal_year(text: &str) -> Result<f64, DateError> {
+    let text = text.trim();
+    let format = || DateError::Format(text.chars().take(40).collect());
+    if let Ok(y) = text.parse::<f64>() {
+        // The last day of MAX_YEAR ends at MAX_YEAR + 1.
+        return if (MIN_YEAR as f64..MAX_YEAR as f64 + 1.0).contains(&y) {
+            Ok(y)
+        } else {
+            Err(DateError::OutOfRange(y))
+        };
+    }
+    let parts: Vec<&str> = text.split('-').collect();
+    let [y, m, d] = parts[..] else {
+        return Err(format());
+    };
+    let digits =
+        |s: &str, n: std::ops::RangeInclusive<usize>| n.contains(&s.len()) && s.bytes().all(|b| b.is_ascii_digit());
+    if !(digits(y, 4..=4) && digits(m, 1..=2) && digits(d, 1..=2)) {
+        return Err(format());
+    }
+    let (year, month, day): (i64, i64, i64) = (
+        y.parse().map_err(|_| format())?,
+        m.parse().map_err(|_| format())?,
+        d.parse().map_err(|_| format())?,
+    );
+    if !(MIN_YEAR..=MAX_YEAR).contains(&year) {
+        return Err(DateError::OutOfRange(year as f64));
+    }
+    let leap = is_leap_year(year);
+    let month_days = [31, if leap { 29 } else { 28 }, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31];
+    if !(1..=12).contains(&month) || day < 1 || day > month_days[(month - 1) as usize] {
+        return Err(DateError::NotADate { year, month, day });
+    }
+    let day_of_year: i64 = month_days[..(month - 1) as usize].iter().sum::<i64>() + day;
+    let days = if leap { 366.0 } else { 365.0 };
+    Ok(year as f64 + (day_of_year as f64 - 0.5) / days)
+}
+
 #[cfg(test)]
 mod tests;

@@ -300,3 +300,60 @@ fn poles_are_finite_and_continuous() {
         }
     }
 }
+
+#[test]
+fn decimal_years_take_the_middle_of_the_day_and_know_leap_years() {
+    // 1 January is the first day: its middle is half a day into the year.
+    assert_eq!(decimal_year("2013-01-01"), Ok(2013.0 + 0.5 / 365.0));
+    // 2012 is a leap year: 1 March is day 61 of 366; in 2013 day 60 of 365.
+    assert_eq!(decimal_year("2012-03-01"), Ok(2012.0 + 60.5 / 366.0));
+    assert_eq!(decimal_year("2013-03-01"), Ok(2013.0 + 59.5 / 365.0));
+    // 31 December ends the year: its middle is half a day before the next.
+    assert_eq!(decimal_year("2000-12-31"), Ok(2000.0 + 365.5 / 366.0));
+    assert_eq!(decimal_year(" 2013.25 "), Ok(2013.25));
+    // Century years: 2000 is leap, 1900 and 2100 are not.
+    assert!(is_leap_year(2000) && is_leap_year(2024) && !is_leap_year(1900) && !is_leap_year(2100));
+    assert_eq!(decimal_year("2000-02-29"), Ok(2000.0 + 59.5 / 366.0));
+    for (text, year, month, day) in [
+        ("2100-02-29", 2100, 2, 29),
+        ("2013-02-29", 2013, 2, 29),
+        ("2013-13-01", 2013, 13, 1),
+        ("2013-04-31", 2013, 4, 31),
+        ("2013-01-00", 2013, 1, 0),
+    ] {
+        assert_eq!(
+            decimal_year(text),
+            Err(DateError::NotADate { year, month, day }),
+            "{text}"
+        );
+    }
+}
+
+#[test]
+fn decimal_years_are_bounded_and_malformed_dates_named() {
+    assert_eq!(decimal_year("1900-01-01"), Ok(1900.0 + 0.5 / 365.0));
+    assert_eq!(decimal_year("2100-12-31"), Ok(2100.0 + 364.5 / 365.0));
+    assert_eq!(decimal_year("1899-12-31"), Err(DateError::OutOfRange(1899.0)));
+    assert_eq!(decimal_year("20130"), Err(DateError::OutOfRange(20130.0)));
+    assert_eq!(decimal_year("2101"), Err(DateError::OutOfRange(2101.0)));
+    assert_eq!(decimal_year("1899.999"), Err(DateError::OutOfRange(1899.999)));
+    assert!(matches!(decimal_year("NaN"), Err(DateError::OutOfRange(y)) if y.is_nan()));
+    assert!(matches!(decimal_year("inf"), Err(DateError::OutOfRange(_))));
+    for text in [
+        "2013/01/01",
+        "13-01-01",
+        "2013-1",
+        "2013-01-01-01",
+        "yesterday",
+        "2013-+1-01",
+        "",
+    ] {
+        assert!(matches!(decimal_year(text), Err(DateError::Format(_))), "{text}");
+    }
+    // The text in the error is cut.
+    let long = "x".repeat(1000);
+    assert_eq!(
+        decimal_year(&long).unwrap_err().to_string().len(),
+        42 + ": give YYYY-MM-DD or a decimal year".len()
+    );
+}

@@ -10,8 +10,8 @@ use magcal_core::small::upper_triangular_inverse;
 use crate::cli::Failure;
 use crate::log::calibration::{CalibrationJson, Coverage, LackOfFitJson, StdError};
 use crate::log::read as log_file;
-use crate::log::site::{Units, wmm_magnitude};
-use crate::log::vehicle::{BoxFlags, Vehicle, log_efficiency};
+use crate::log::site::{Date, Site, Units, parse_model, wmm_magnitude};
+use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
 use crate::output::file::replace;
 use crate::output::file::replace_with;
 
@@ -61,18 +61,18 @@ pub struct CalibrateArgs {
     /// The magnitude from the World Magnetic Model at a site: `LAT,LON[,ALT_M]` (WGS 84 degrees,
     /// metres above the ellipsoid; default 0); needs `--date`, and `--units` unless `--magnitude`
     /// gives the magnitude (the site then serves the box flags' field direction only).
-    #[arg(long, requires = "date")]
-    pub site: Option<String>,
-    /// The date of the log: `YYYY-MM-DD` or a decimal year.
-    #[arg(long)]
-    pub date: Option<String>,
-    /// The log's units.
-    #[arg(long, value_enum)]
+    #[arg(long, requires = "date", allow_hyphen_values = true, value_name = "LAT,LON[,ALT_M]")]
+    pub site: Option<Site>,
+    /// The date of the log: `YYYY-MM-DD` or a decimal year (with `--site`).
+    #[arg(long, requires = "site", value_name = "DATE")]
+    pub date: Option<Date>,
+    /// The log's units (with `--site`).
+    #[arg(long, value_enum, requires = "site")]
     pub units: Option<Units>,
     /// The model (default: the newest whose five-year window holds the date): WMM2010, WMM2015,
     /// WMM2015v2, WMM2020, WMM2025.
-    #[arg(long, requires = "site")]
-    pub wmm: Option<String>,
+    #[arg(long, requires = "site", value_parser = parse_model, value_name = "MODEL")]
+    pub wmm: Option<magcal_core::wmm::Model>,
     /// The model.
     #[arg(long, value_enum, default_value = "full")]
     pub fit: Fit,
@@ -122,12 +122,23 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             .fit(&log.readings, magnitude)
             .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
     };
-    let wmm = match (&args.site, &args.date, args.units) {
-        (Some(site), Some(date), Some(units)) => Some(wmm_magnitude(site, date, units, args.wmm.as_deref())?),
-        (Some(_), _, None) if args.magnitude.is_none() => {
+    let place = args.site.zip(args.date).map(|(site, date)| Place {
+        site,
+        date,
+        model: args.wmm,
+    });
+    let wmm = match (&place, args.units) {
+        (Some(p), Some(units)) => Some(wmm_magnitude(&p.site, p.date, units, p.model)?),
+        (Some(_), None) if args.magnitude.is_none() => {
             return Err(
                 anyhow::anyhow!("--site: give --units (the log's) for the WMM magnitude, or --magnitude").into(),
             );
+        }
+        (Some(_), None) if !args.attitude.any() => {
+            return Err(anyhow::anyhow!(
+                "--site with --magnitude: the site would give only the box flags' field direction; add --roll and --pitch, or drop --site"
+            )
+            .into());
         }
         _ => None,
     };
@@ -171,11 +182,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
-    let vehicle = Vehicle::from_options(
-        args.scenario.as_deref(),
-        &args.attitude,
-        [&args.site, &args.date, &args.wmm].map(|a| a.as_deref()),
-    )?;
+    let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
     if let Some(vehicle) = &vehicle {
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)
             .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;

@@ -21,7 +21,7 @@ use crate::cli::{CheckArgs, Failure};
 use crate::output::manifest::{Manifest, sha256_hex};
 use crate::output::{self, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
 use crate::pipeline::{self, RunOptions, RunOutput};
-use crate::scenario;
+use crate::{limits, scenario};
 
 /// Runs the command.
 ///
@@ -38,6 +38,19 @@ pub fn run(args: &CheckArgs) -> Result<(), Failure> {
         return Err(anyhow::anyhow!("{}: baseline directory not found", dir.display()).into());
     }
     let manifest = Manifest::read(&dir)?;
+    if manifest.name != loaded.name {
+        return Err(anyhow::anyhow!(
+            "{}: the baseline of scenario {:?}, not of {:?} ({}); give its own with --baseline",
+            dir.display(),
+            manifest.name.chars().take(64).collect::<String>(),
+            loaded.name,
+            common.scenario.display()
+        )
+        .into());
+    }
+    for name in manifest.files.iter().chain(manifest.file_sha256.keys()) {
+        limits::set_member(&dir, name)?;
+    }
     if manifest.scenario_sha256 != loaded.hash {
         eprintln!(
             "magcal: note: {} has changed since {} was made (SHA-256 differs)",
@@ -157,7 +170,8 @@ fn cell_key(design: &str, sigma: f64, attitude_sigma: f64) -> String {
 /// A missing or malformed baseline file, or a baseline whose tolerance is not finite.
 pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<Vec<Moved>> {
     let mut f = Findings::default();
-    let file = |name: &str| baseline.join(name);
+    // Only plain names of regular files inside the baseline are read.
+    let file = |name: &str| limits::set_member(baseline, name);
 
     // --- every file as it was written
     if manifest.file_sha256.is_empty() {
@@ -167,7 +181,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         );
     }
     for (name, want) in &manifest.file_sha256 {
-        let bytes = std::fs::read(file(name)).with_context(|| format!("{}: cannot read", file(name).display()))?;
+        let bytes = limits::read_bounded(&file(name)?, limits::max_result_file_bytes())?;
         if &sha256_hex(&bytes) != want {
             f.missing(name, "edited since it was written (SHA-256 differs from manifest.json)");
         }
@@ -175,8 +189,8 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
 
     // --- summary.csv and trials.csv
     if manifest.lists("summary.csv") {
-        let shown = file("summary.csv").display().to_string();
-        let base: Vec<SummaryRow> = read_csv(&file("summary.csv"))?;
+        let shown = baseline.join("summary.csv").display().to_string();
+        let base: Vec<SummaryRow> = read_csv(&file("summary.csv")?)?;
         let now: Vec<SummaryRow> = output::summary_rows(out).collect();
         let key = |r: &SummaryRow| {
             format!(
@@ -230,16 +244,16 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             f.value(k, "std", real(b.std), real(n.std), std_tol);
         }
         if manifest.lists("trials.csv") {
-            let trials: Vec<TrialRow> = read_csv(&file("trials.csv"))?;
+            let trials: Vec<TrialRow> = read_csv(&file("trials.csv")?)?;
             compare_statuses(&mut f, &trials, out);
             baseline_consistency(&mut f, &base, &trials);
         }
     }
 
     // --- designs.csv and design_metrics.csv
-    let base_metrics: Vec<DesignMetricsRow> = read_csv(&file("design_metrics.csv"))?;
+    let base_metrics: Vec<DesignMetricsRow> = read_csv(&file("design_metrics.csv")?)?;
     let now_metrics: Vec<DesignMetricsRow> = output::design_metrics_rows(out).collect();
-    let base_points = group_points(read_csv::<DesignPointRow>(&file("designs.csv"))?);
+    let base_points = group_points(read_csv::<DesignPointRow>(&file("designs.csv")?)?);
     let now_points = group_points(output::design_rows(out, manifest.yaw_offset_deg).collect());
     let by = |rows: &[DesignMetricsRow]| -> BTreeMap<String, DesignMetricsRow> {
         rows.iter()
@@ -306,7 +320,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
     // --- pso_runs.csv: the runs are chaotic, so compare their mean final ln det M_F.
     match (manifest.lists("pso_runs.csv"), out.pso_runs.is_some()) {
         (true, true) => {
-            let base: Vec<f64> = read_csv::<PsoRunRow>(&file("pso_runs.csv"))?
+            let base: Vec<f64> = read_csv::<PsoRunRow>(&file("pso_runs.csv")?)?
                 .iter()
                 .map(|r| r.final_ln_det.0)
                 .collect();

@@ -67,6 +67,10 @@ pub fn setup_with(
             scenario.trials
         )
     })?;
+    let context = || format!("{}", common.scenario.display());
+    if let Some(words) = limits::check_time(&scenario, threads, common.allow_long).with_context(context)? {
+        eprintln!("magcal: note: {}: {words}", common.scenario.display());
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()

@@ -9,7 +9,8 @@ use magcal_core::log_fit;
 use crate::cli::Failure;
 use crate::log::calibration::read_calibration;
 use crate::log::read as log_file;
-use crate::log::vehicle::{BoxFlags, Vehicle, fitted_problem};
+use crate::log::site::{Date, Site, parse_model};
+use crate::log::vehicle::{BoxFlags, Place, Vehicle, fitted_problem};
 
 /// `magcal next`.
 #[derive(Debug, Args)]
@@ -27,14 +28,14 @@ pub struct NextArgs {
     pub attitude: BoxFlags,
     /// The site, `LAT,LON[,ALT_M]`, for the field's direction from the World Magnetic Model; needs
     /// `--date`, `--roll` and `--pitch`.
-    #[arg(long, requires_all = ["date", "roll", "pitch"], allow_hyphen_values = true)]
-    pub site: Option<String>,
+    #[arg(long, requires_all = ["date", "roll", "pitch"], allow_hyphen_values = true, value_name = "LAT,LON[,ALT_M]")]
+    pub site: Option<Site>,
     /// The date, `YYYY-MM-DD` or a decimal year (with `--site`).
-    #[arg(long)]
-    pub date: Option<String>,
+    #[arg(long, requires = "site", value_name = "DATE")]
+    pub date: Option<Date>,
     /// The model (default: the newest whose window holds the date).
-    #[arg(long, requires = "site")]
-    pub wmm: Option<String>,
+    #[arg(long, requires = "site", value_parser = parse_model, value_name = "MODEL")]
+    pub wmm: Option<magcal_core::wmm::Model>,
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub count: u64,
@@ -64,12 +65,13 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
-    let scenario = Vehicle::from_options(
-        args.scenario.as_deref(),
-        &args.attitude,
-        [&args.site, &args.date, &args.wmm].map(|a| a.as_deref()),
-    )?
-    .context("next needs --scenario, or the box as flags with --site and --date")?;
+    let place = args.site.zip(args.date).map(|(site, date)| Place {
+        site,
+        date,
+        model: args.wmm,
+    });
+    let scenario = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?
+        .context("next needs --scenario, or the box as flags with --site and --date")?;
     let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
     if !cal.identifiable {
         eprintln!(

@@ -55,7 +55,7 @@ pub struct CalibrationJson {
     pub coverage: Coverage,
 }
 
-/// [`log_fit::LackOfFit`] in the JSON.
+/// [`magcal_core::log_fit::LackOfFit`] in the JSON.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LackOfFitJson {
     /// The richer model of the most significant test.
@@ -98,9 +98,10 @@ impl CalibrationJson {
 /// A `calibration.json` whose `p`, `bias` and `magnitude` are usable.
 pub fn read_calibration(path: &Path) -> Result<CalibrationJson> {
     let shown = path.display().to_string();
-    let text = std::fs::read(path).with_context(|| format!("{shown}: cannot read"))?;
+    let text = crate::limits::read_bounded(path, crate::limits::MAX_CALIBRATION_BYTES)?;
+    let text = text.strip_prefix(b"\xef\xbb\xbf").unwrap_or(&text);
     let cal: CalibrationJson =
-        serde_json::from_slice(&text).with_context(|| format!("{shown}: not a magcal calibration"))?;
+        serde_json::from_slice(text).with_context(|| format!("{shown}: not a magcal calibration"))?;
     if !(cal.p.iter().flatten().all(|v| v.is_finite())
         && cal.bias.iter().all(|v| v.is_finite())
         && cal.magnitude.is_finite()

@@ -1,16 +1,48 @@
-//! Magnetometer logs: CSV files of raw readings, one per row.
+//! Magnetometer logs: text files of raw readings, one per row.
 //!
 //! Columns by name (any case) or by 1-based index (`--columns mx,my,mz` or `--columns 4,5,6`);
-//! by default the columns named `x`, `y`, `z` (with or without an `m` prefix, any case), else the
-//! first three columns whose first data row is numeric. A first row with a cell that is not a
-//! number is a header. Every row is read; a cell that is not a number is an error naming its line
-//! and column, and so is a row with a non-finite or missing value unless the caller skips such
-//! rows, counting them (`--skip-bad`). The readings are held: 32 bytes each with their line.
+//! by default the columns named `x`, `y`, `z` (with or without an `m`, `mag` or `mag_` prefix, any
+//! case), else the first three columns whose first data row is numeric. A first row with a cell
+//! that is not a number is a header. Every row is read; a cell that is not a number is an error
+//! naming its line and column, and so is a row with a non-finite or missing value unless the
+//! caller skips such rows, counting them (`--skip-bad`).
+//!
+//! # Format
+//! - The separator is taken from the first line that is not blank or a comment: `;` if it has
+//!   one, else a tab, else `,`, else runs of spaces. With `;`, tab or spaces a number may have a
+//!   decimal comma (`0,123`); with `,` it cannot, and such a cell is refused naming the reason.
+//! - Lines end in `\n`, `\r\n` or `\r` (each counts as one line, so line numbers are those an
+//!   editor shows); blank lines and lines starting with `#` are skipped; a UTF-8 byte-order mark
+//!   is ignored. A cell may be quoted (`"mx"`); a quote must close on its line.
+//!
+//! # Bounds
+//! Every read is bounded, whatever the file is (a regular file, a FIFO, a device): a line longer
+//! than [`MAX_LINE_BYTES`] is an error, and so is a log with more rows than half of the memory the
+//! process may use can hold ([`limits::available_memory`]) at the caller's cost per reading
+//! ([`HELD_BYTES_PER_READING`] for [`read`]). Errors quote at most [`EXCERPT_CHARS`] characters
+//! of the input.
 
+use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use magcal_core::Vec3;
+
+use crate::limits;
+
+/// Longest line read, bytes: a row of a hundred columns of 20 characters is 2 KiB.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+/// Memory a held reading costs the commands that hold a log, bytes: the reading and its line
+/// (32 B), the fit's copies and residuals, and `next`'s scaled and calibrated copies; measured at
+/// 61 B (`calibrate`), 95 B (`calibrate --reject --out`) and 126 B (`next`) at their peak, and
+/// doubled for the growth of the vectors that hold them.
+pub const HELD_BYTES_PER_READING: u64 = 256;
+/// Memory a skipped row costs (its line and reason), bytes.
+const SKIPPED_BYTES: u64 = 96;
+/// Characters of the input an error quotes at most.
+pub const EXCERPT_CHARS: usize = 40;
+/// Column names an error lists at most.
+const LISTED_COLUMNS: usize = 12;
 
 /// The readings of a log and what was skipped.
 #[derive(Debug, Clone)]
@@ -25,133 +57,686 @@ pub struct Log {
     pub columns: [String; 3],
 }
 
-/// Reads `path`. `columns`: names or 1-based indices, comma-separated.
+/// What [`stream`] read.
+#[derive(Debug, Clone)]
+pub struct Streamed {
+    /// Readings passed on.
+    pub readings: usize,
+    /// Lines skipped for a non-finite or missing value (only with `skip_bad`), with the reason.
+    pub skipped: Vec<(usize, String)>,
+    /// The names of the three columns read (`column 4` without a header).
+    pub columns: [String; 3],
+}
+
+/// Reads `path` and holds its readings. `columns`: names or 1-based indices, comma-separated.
 ///
 /// # Errors
-/// A missing or unreadable file, no data rows, an unknown column, a cell that is not a number
-/// (line and column named), a non-finite or missing value (unless `skip_bad`).
+/// As [`stream`], with [`HELD_BYTES_PER_READING`] per reading.
 pub fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Log> {
+    let mut readings = Vec::new();
+    let mut lines = Vec::new();
+    let s = stream(path, columns, skip_bad, HELD_BYTES_PER_READING, |line, reading| {
+        readings.push(reading);
+        lines.push(line);
+        Ok(())
+    })?;
+    Ok(Log {
+        readings,
+        lines,
+        skipped: s.skipped,
+        columns: s.columns,
+    })
+}
+
+/// Reads `path` row by row, calling `each(line, reading)` for every reading in file order, and
+/// returns the columns read and the rows skipped. `held_bytes_per_reading` is what the caller
+/// keeps of each reading (0 when it keeps nothing): the log may hold as many readings as half of
+/// the memory the process may use allows at that cost.
+///
+/// # Errors
+/// A missing or unreadable file, a directory, a line longer than [`MAX_LINE_BYTES`], more rows
+/// than memory allows, no data rows, an unknown, ambiguous or repeated column, a cell that is not
+/// a number (line and column named), a non-finite or missing value (unless `skip_bad`), a quote
+/// not closed on its line, or an error of `each`.
+pub fn stream<F>(
+    path: &Path,
+    columns: Option<&str>,
+    skip_bad: bool,
+    held_bytes_per_reading: u64,
+    mut each: F,
+) -> Result<Streamed>
+where
+    F: FnMut(usize, Vec3) -> Result<()>,
+{
     let shown = path.display().to_string();
+    let meta = std::fs::metadata(path).with_context(|| format!("{shown}: cannot read the log"))?;
+    if meta.is_dir() {
+        bail!("{shown}: is a directory, not a log");
+    }
     let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read the log"))?;
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(std::io::BufReader::new(file));
-    let mut records = reader.records();
-    let Some(first) = records.next() else {
-        bail!("{shown}: the log is empty");
-    };
-    let first = first.with_context(|| format!("{shown}: line 1"))?;
-    let header = first.iter().any(|c| c.parse::<f64>().is_err());
-    let names: Vec<String> = if header {
-        first.iter().map(str::to_string).collect()
-    } else {
-        (1..=first.len()).map(|i| format!("column {i}")).collect()
-    };
-    // The first data row decides which columns are numeric.
-    let mut pending = if header { None } else { Some(first.clone()) };
-    if pending.is_none() {
-        match records.next() {
-            Some(r) => pending = Some(r.with_context(|| format!("{shown}: line 2"))?),
-            None => bail!("{shown}: the log has a header but no readings"),
+    let budget = Budget::new(held_bytes_per_reading);
+    read_from(
+        BufReader::with_capacity(1 << 16, file),
+        &shown,
+        columns,
+        skip_bad,
+        &budget,
+        &mut each,
+    )
+}
+
+/// The memory a log may take: half of what the process may use.
+struct Budget {
+    held: u64,
+    limit: Option<(u64, u64, &'static str)>,
+}
+
+impl Budget {
+    fn new(held: u64) -> Self {
+        Self {
+            held,
+            limit: limits::available_memory().map(|(a, what)| (a / 2, a, what)),
         }
     }
-    let sample = pending.clone().expect("a first data row");
-    let pick = choose(&names, &sample, columns).with_context(|| shown.clone())?;
-    let mut log = Log {
-        readings: Vec::new(),
-        lines: Vec::new(),
-        skipped: Vec::new(),
-        columns: pick.map(|i| names[i].clone()),
+
+    /// Refuses one more row when `readings` held and `skipped` rows already take the budget.
+    fn check(&self, shown: &str, line: usize, readings: usize, skipped: usize) -> Result<()> {
+        let Some((limit, available, what)) = self.limit else {
+            return Ok(());
+        };
+        let used = self.held.saturating_mul(readings as u64 + 1) + SKIPPED_BYTES * skipped as u64;
+        if used > limit {
+            bail!(
+                "{shown}: line {line}: the log holds more rows than fit in memory ({readings} readings of about {} B and {skipped} skipped rows; the limit is {}, half of {} {what})",
+                self.held,
+                limits::bytes(limit),
+                limits::bytes(available)
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The field separator of a log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Separator {
+    /// One byte: `,`, `;` or a tab.
+    Byte(u8),
+    /// Runs of spaces or tabs.
+    Whitespace,
+}
+
+impl Separator {
+    /// From the first line that is not blank or a comment (see the module docs).
+    fn sniff(line: &[u8]) -> Self {
+        let mut quoted = false;
+        let (mut semicolons, mut tabs, mut commas) = (0, 0, 0);
+        for &b in line {
+            match b {
+                b'"' => quoted = !quoted,
+                b';' if !quoted => semicolons += 1,
+                b'\t' if !quoted => tabs += 1,
+                b',' if !quoted => commas += 1,
+                _ => {}
+            }
+        }
+        if semicolons > 0 {
+            Self::Byte(b';')
+        } else if tabs > 0 {
+            Self::Byte(b'\t')
+        } else if commas > 0 {
+            Self::Byte(b',')
+        } else if line.trim_ascii().contains(&b' ') {
+            Self::Whitespace
+        } else {
+            Self::Byte(b',')
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Self::Byte(b',') => "comma-separated",
+            Self::Byte(b';') => "semicolon-separated",
+            Self::Byte(b'\t') => "tab-separated",
+            Self::Byte(_) => "separated",
+            Self::Whitespace => "space-separated",
+        }
+    }
+
+    /// A decimal comma is read only when the comma does not separate cells.
+    fn decimal_comma(self) -> bool {
+        self != Self::Byte(b',')
+    }
+}
+
+/// Splits one line into cells, unquoting them (csv-core), or at runs of whitespace.
+struct Splitter {
+    separator: Separator,
+    reader: csv_core::Reader,
+    out: Vec<u8>,
+    ends: Vec<usize>,
+    count: usize,
+}
+
+impl Splitter {
+    fn new(separator: Separator) -> Self {
+        let mut builder = csv_core::ReaderBuilder::new();
+        if let Separator::Byte(b) = separator {
+            builder.delimiter(b);
+        }
+        Self {
+            separator,
+            reader: builder.build(),
+            out: Vec::new(),
+            ends: Vec::new(),
+            count: 0,
+        }
+    }
+
+    /// Splits `line` (which ends in the `\n` the caller appended). `Err(())`: a quote not closed.
+    fn split(&mut self, line: &[u8]) -> Result<(), ()> {
+        self.out.clear();
+        self.ends.clear();
+        match self.separator {
+            Separator::Whitespace => {
+                for token in line.split(|b| b.is_ascii_whitespace()).filter(|t| !t.is_empty()) {
+                    self.out.extend_from_slice(token);
+                    self.ends.push(self.out.len());
+                }
+                self.count = self.ends.len();
+                Ok(())
+            }
+            Separator::Byte(_) => {
+                // Unquoted cells are never longer than the line, and there are at most as many
+                // cells as bytes plus one.
+                self.out.resize(line.len(), 0);
+                self.ends.resize(line.len() + 1, 0);
+                self.reader.reset();
+                let (result, _, _, count) = self.reader.read_record(line, &mut self.out, &mut self.ends);
+                self.count = count;
+                match result {
+                    csv_core::ReadRecordResult::Record => Ok(()),
+                    _ => Err(()),
+                }
+            }
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.count
+    }
+
+    /// Cell `i`, trimmed of spaces; `None` past the end.
+    fn get(&self, i: usize) -> Option<&[u8]> {
+        if i >= self.count {
+            return None;
+        }
+        let start = if i == 0 { 0 } else { self.ends[i - 1] };
+        Some(self.out[start..self.ends[i]].trim_ascii())
+    }
+}
+
+/// The lines of a reader, each without its terminator (`\n`, `\r\n` or `\r`), numbered from 1,
+/// at most [`MAX_LINE_BYTES`] long.
+struct Lines<R> {
+    inner: R,
+    line: usize,
+    after_cr: bool,
+}
+
+impl<R: BufRead> Lines<R> {
+    fn new(inner: R) -> Self {
+        Self {
+            inner,
+            line: 0,
+            after_cr: false,
+        }
+    }
+
+    /// The next line into `buf`, and its number; `None` at the end.
+    fn next(&mut self, buf: &mut Vec<u8>, shown: &str) -> Result<Option<usize>> {
+        buf.clear();
+        let mut started = false;
+        loop {
+            let chunk = match self.inner.fill_buf() {
+                Ok(c) => c,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => bail!("{shown}: line {}: cannot read: {e}", self.line + 1),
+            };
+            if chunk.is_empty() {
+                if started {
+                    self.line += 1;
+                    return Ok(Some(self.line));
+                }
+                return Ok(None);
+            }
+            // The `\n` of a `\r\n` split across two reads.
+            let skip = usize::from(std::mem::take(&mut self.after_cr) && chunk[0] == b'\n');
+            let rest = &chunk[skip..];
+            let end = rest.iter().position(|&b| b == b'\n' || b == b'\r');
+            let take = end.unwrap_or(rest.len());
+            if buf.len() + take > MAX_LINE_BYTES {
+                buf.extend_from_slice(&rest[..take.min(4 * EXCERPT_CHARS)]);
+                bail!(
+                    "{shown}: line {} is longer than {} (it starts {}); is this a log?",
+                    self.line + 1,
+                    limits::bytes(MAX_LINE_BYTES as u64),
+                    excerpt(buf)
+                );
+            }
+            buf.extend_from_slice(&rest[..take]);
+            started |= take > 0;
+            match end {
+                Some(i) => {
+                    self.after_cr = rest[i] == b'\r';
+                    self.inner.consume(skip + i + 1);
+                    self.line += 1;
+                    return Ok(Some(self.line));
+                }
+                None => {
+                    let n = chunk.len();
+                    self.inner.consume(n);
+                }
+            }
+        }
+    }
+}
+
+/// At most [`EXCERPT_CHARS`] characters of `bytes`, quoted, with `...` when cut.
+pub fn excerpt(bytes: &[u8]) -> String {
+    let text = String::from_utf8_lossy(&bytes[..bytes.len().min(4 * EXCERPT_CHARS)]);
+    let cut: String = text.chars().take(EXCERPT_CHARS).collect();
+    if cut.len() < bytes.len() {
+        format!("{cut:?}...")
+    } else {
+        format!("{cut:?}")
+    }
+}
+
+/// A cell as a number: plain, or with a decimal comma where the separator allows one.
+fn number(cell: &[u8], separator: Separator) -> Option<f64> {
+    let text = std::str::from_utf8(cell).ok()?;
+    if let Ok(v) = text.parse::<f64>() {
+        return Some(v);
+    }
+    if separator.decimal_comma() && decimal_comma(cell) {
+        return text.replacen(',', ".", 1).parse::<f64>().ok();
+    }
+    None
+}
+
+/// `-1,5`, `0,123e3`: digits, one comma, digits.
+fn decimal_comma(cell: &[u8]) -> bool {
+    let body = cell
+        .strip_prefix(b"-")
+        .or_else(|| cell.strip_prefix(b"+"))
+        .unwrap_or(cell);
+    let Some(comma) = body.iter().position(|&b| b == b',') else {
+        return false;
     };
-    let first_data_line = if header { 2 } else { 1 };
-    let rows = pending.into_iter().map(Ok).chain(records);
-    for (k, record) in rows.enumerate() {
-        let record = record.with_context(|| format!("{shown}: line {}", first_data_line + k))?;
-        let line = record.position().map_or(first_data_line + k, |p| p.line() as usize);
-        if record.iter().all(str::is_empty) {
+    let (int, frac) = (&body[..comma], &body[comma + 1..]);
+    !int.is_empty()
+        && int.iter().all(u8::is_ascii_digit)
+        && frac.first().is_some_and(u8::is_ascii_digit)
+        && frac
+            .iter()
+            .all(|b| b.is_ascii_digit() || matches!(b, b'e' | b'E' | b'-' | b'+'))
+}
+
+/// Names for an error: at most [`LISTED_COLUMNS`], each cut to a few characters.
+fn list(names: &[String]) -> String {
+    let mut shown: Vec<String> = names
+        .iter()
+        .take(LISTED_COLUMNS)
+        .map(|n| {
+            let cut: String = n.chars().take(24).collect();
+            if cut.len() < n.len() { format!("{cut}...") } else { cut }
+        })
+        .collect();
+    if names.len() > LISTED_COLUMNS {
+        shown.push(format!("... ({} columns)", names.len()));
+    }
+    shown.join(", ")
+}
+
+/// The reading loop of [`stream`] over any reader.
+fn read_from<R: Read>(
+    input: BufReader<R>,
+    shown: &str,
+    columns: Option<&str>,
+    skip_bad: bool,
+    budget: &Budget,
+    each: &mut dyn FnMut(usize, Vec3) -> Result<()>,
+) -> Result<Streamed> {
+    let mut lines = Lines::new(input);
+    let mut buf = Vec::new();
+    let mut splitter: Option<Splitter> = None;
+    let mut names: Vec<String> = Vec::new();
+    let mut pick: Option<[usize; 3]> = None;
+    let mut first_row = true;
+    let mut readings = 0usize;
+    let mut skipped: Vec<(usize, String)> = Vec::new();
+    while let Some(line) = lines.next(&mut buf, shown)? {
+        if line == 1 && buf.starts_with(b"\xef\xbb\xbf") {
+            buf.drain(..3);
+        }
+        let content = buf.trim_ascii_start();
+        if content.is_empty() || content[0] == b'#' {
             continue;
         }
+        let s = splitter.get_or_insert_with(|| Splitter::new(Separator::sniff(content)));
+        let separator = s.separator;
+        buf.push(b'\n');
+        if s.split(&buf).is_err() {
+            bail!(
+                "{shown}: line {line}: a quote (\") is not closed on its line: {}",
+                excerpt(buf.trim_ascii())
+            );
+        }
+        if (0..s.len()).all(|i| s.get(i).is_some_and(<[u8]>::is_empty)) {
+            continue;
+        }
+        if first_row {
+            first_row = false;
+            let header = (0..s.len()).any(|i| {
+                let cell = s.get(i).unwrap_or_default();
+                !cell.is_empty() && number(cell, separator).is_none()
+            });
+            if header {
+                names = (0..s.len())
+                    .map(|i| {
+                        let name = String::from_utf8_lossy(s.get(i).unwrap_or_default()).into_owned();
+                        if name.is_empty() {
+                            format!("column {}", i + 1)
+                        } else {
+                            name
+                        }
+                    })
+                    .collect();
+                continue;
+            }
+            names = (1..=s.len()).map(|i| format!("column {i}")).collect();
+        }
+        let pick = match pick {
+            Some(p) => p,
+            None => {
+                // The first data row decides which columns are numeric.
+                let numeric: Vec<bool> = (0..names.len())
+                    .map(|i| s.get(i).is_some_and(|c| number(c, separator).is_some()))
+                    .collect();
+                let p = choose(&names, &numeric, columns)
+                    .with_context(|| format!("{shown} (read as {})", separator.name()))?;
+                *pick.insert(p)
+            }
+        };
         let mut value = [0.0; 3];
         let mut bad = None;
         for (j, &c) in pick.iter().enumerate() {
-            match record.get(c) {
-                None | Some("") => bad = Some(format!("no value in column {} ({})", c + 1, names[c])),
-                Some(cell) => match cell.parse::<f64>() {
-                    Ok(v) if v.is_finite() => value[j] = v,
-                    Ok(v) => bad = Some(format!("column {} ({}) is {v}", c + 1, names[c])),
-                    Err(_) => bail!(
-                        "{shown}: line {line}, column {} ({}): {cell:?} is not a number",
-                        c + 1,
-                        names[c]
-                    ),
+            match s.get(c) {
+                None | Some(b"") => bad = Some(format!("no value in column {} ({})", c + 1, names[c])),
+                Some(cell) => match number(cell, separator) {
+                    Some(v) if v.is_finite() => value[j] = v,
+                    Some(v) => bad = Some(format!("column {} ({}) is {v}", c + 1, names[c])),
+                    None => {
+                        let why = if decimal_comma(cell) {
+                            " (a decimal comma cannot be read where the comma separates cells; use decimal points, or ';' between cells)"
+                        } else {
+                            ""
+                        };
+                        bail!(
+                            "{shown}: line {line}, column {} ({}): {} is not a number{why}",
+                            c + 1,
+                            names[c],
+                            excerpt(cell)
+                        )
+                    }
                 },
             }
         }
+        budget.check(shown, line, readings, skipped.len())?;
         match bad {
-            Some(reason) if skip_bad => log.skipped.push((line, reason)),
+            Some(reason) if skip_bad => skipped.push((line, reason)),
             Some(reason) => bail!("{shown}: line {line}: {reason} (--skip-bad drops such rows and counts them)"),
             None => {
-                log.readings.push(value);
-                log.lines.push(line);
+                each(line, value)?;
+                readings += 1;
             }
         }
     }
-    if log.readings.is_empty() {
-        bail!("{shown}: no readings ({} rows skipped)", log.skipped.len());
+    if splitter.is_none() {
+        bail!("{shown}: the log is empty");
     }
-    Ok(log)
+    let Some(pick) = pick else {
+        bail!("{shown}: the log has a header but no readings");
+    };
+    if readings == 0 {
+        bail!("{shown}: no readings ({} rows skipped)", skipped.len());
+    }
+    Ok(Streamed {
+        readings,
+        skipped,
+        columns: pick.map(|i| names[i].clone()),
+    })
 }
 
 /// The three columns to read: asked for (names or 1-based indices), or `x, y, z` (optionally
-/// `m`-prefixed, any case), or the first three numeric ones.
-fn choose(names: &[String], sample: &csv::StringRecord, asked: Option<&str>) -> Result<[usize; 3]> {
+/// prefixed, any case), or the first three numeric ones. A name that several columns carry, and a
+/// column chosen twice, are refused.
+fn choose(names: &[String], numeric: &[bool], asked: Option<&str>) -> Result<[usize; 3]> {
+    let positions = |name: &str| -> Vec<usize> {
+        (0..names.len())
+            .filter(|&i| names[i].eq_ignore_ascii_case(name))
+            .collect()
+    };
     if let Some(asked) = asked {
+        let shown = excerpt(asked.as_bytes());
         let parts: Vec<&str> = asked.split(',').map(str::trim).collect();
         if parts.len() != 3 {
-            bail!("--columns {asked:?}: give three columns, names or 1-based indices");
+            bail!("--columns {shown}: give three columns, names or 1-based indices");
         }
         let mut out = [0; 3];
         for (j, p) in parts.iter().enumerate() {
             out[j] = match p.parse::<usize>() {
                 Ok(i) if (1..=names.len()).contains(&i) => i - 1,
                 Ok(i) => bail!(
-                    "--columns {asked:?}: column {i} is not in the log ({} columns)",
+                    "--columns {shown}: column {i} is not in the log ({} columns)",
                     names.len()
                 ),
-                Err(_) => names.iter().position(|n| n.eq_ignore_ascii_case(p)).with_context(|| {
-                    format!(
-                        "--columns {asked:?}: no column named {p:?} (columns: {})",
-                        names.join(", ")
-                    )
-                })?,
+                Err(_) => match positions(p)[..] {
+                    [i] => i,
+                    [] => bail!(
+                        "--columns {shown}: no column named {} (columns: {})",
+                        excerpt(p.as_bytes()),
+                        list(names)
+                    ),
+                    [a, b, ..] => bail!(
+                        "--columns {shown}: columns {} and {} are both named {}; give indices",
+                        a + 1,
+                        b + 1,
+                        excerpt(p.as_bytes())
+                    ),
+                },
             };
+        }
+        for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+            if out[a] == out[b] {
+                bail!(
+                    "--columns {shown}: column {} ({}) is chosen twice; give three different columns",
+                    out[a] + 1,
+                    names[out[a]]
+                );
+            }
         }
         return Ok(out);
     }
     for prefix in ["", "m", "mag", "mag_"] {
-        let found: Vec<Option<usize>> = ["x", "y", "z"]
+        let found: Vec<Vec<usize>> = ["x", "y", "z"]
             .iter()
-            .map(|axis| {
-                names
-                    .iter()
-                    .position(|n| n.eq_ignore_ascii_case(&format!("{prefix}{axis}")))
-            })
+            .map(|axis| positions(&format!("{prefix}{axis}")))
             .collect();
-        if let [Some(a), Some(b), Some(c)] = found[..] {
-            return Ok([a, b, c]);
+        if found.iter().all(|f| f.len() == 1) {
+            return Ok([found[0][0], found[1][0], found[2][0]]);
+        }
+        if found.iter().all(|f| !f.is_empty()) {
+            let twice = found.iter().find(|f| f.len() > 1).expect("a name found twice");
+            bail!(
+                "columns {} are all named {:?}; choose with --columns (columns: {})",
+                twice.iter().map(|i| (i + 1).to_string()).collect::<Vec<_>>().join(", "),
+                names[twice[0]],
+                list(names)
+            );
         }
     }
-    let numeric: Vec<usize> = (0..sample.len())
-        .filter(|&i| sample.get(i).is_some_and(|c| c.parse::<f64>().is_ok()))
-        .collect();
-    match numeric[..] {
+    let found: Vec<usize> = (0..numeric.len()).filter(|&i| numeric[i]).collect();
+    match found[..] {
         [a, b, c, ..] => Ok([a, b, c]),
         _ => bail!(
-            "no columns named x, y, z and fewer than three numeric columns (columns: {}); name them with --columns",
-            names.join(", ")
+            "no columns named x, y, z and fewer than three numeric columns in the first data row ({} columns: {}); name them with --columns",
+            names.len(),
+            list(names)
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &[u8], columns: Option<&str>, skip_bad: bool) -> Result<(Vec<(usize, Vec3)>, Streamed)> {
+        let mut rows = Vec::new();
+        let budget = Budget { held: 32, limit: None };
+        let s = read_from(
+            BufReader::new(text),
+            "t.csv",
+            columns,
+            skip_bad,
+            &budget,
+            &mut |l, r| {
+                rows.push((l, r));
+                Ok(())
+            },
+        )?;
+        Ok((rows, s))
+    }
+
+    fn error(text: &[u8], columns: Option<&str>) -> String {
+        format!("{:#}", parse(text, columns, false).unwrap_err())
+    }
+
+    #[test]
+    fn line_numbers_count_every_terminator() {
+        // Two blank lines, then the bad row on line 6.
+        let e = error(b"x,y,z\n1,2,3\n2,3,4\n\n\nnan,1,2\n", None);
+        assert!(e.contains("line 6: column 1 (x) is NaN"), "{e}");
+        // CR-only, CRLF and a mix: the same lines.
+        for text in [
+            &b"x,y,z\r1,2,3\r\r2,3,nan\r"[..],
+            b"x,y,z\r\n1,2,3\r\n\r\n2,3,nan\r\n",
+            b"x,y,z\n1,2,3\r\n\r2,3,nan",
+        ] {
+            let e = error(text, None);
+            assert!(e.contains("line 4: column 3 (z) is NaN"), "{e}");
+        }
+        let (rows, _) = parse(b"# c\n\nx,y,z\n1,2,3\n\n2,3,4\r\n5,6,7", None, false).unwrap();
+        assert_eq!(rows, [(4, [1.0, 2.0, 3.0]), (6, [2.0, 3.0, 4.0]), (7, [5.0, 6.0, 7.0])]);
+    }
+
+    #[test]
+    fn a_crlf_split_across_reads_is_one_terminator() {
+        // A buffer of one byte splits every `\r\n`.
+        let text = b"x,y,z\r\n1,2,3\r\n4,5,6\r\n";
+        let mut lines = Lines::new(BufReader::with_capacity(1, &text[..]));
+        let mut buf = Vec::new();
+        let mut got = Vec::new();
+        while let Some(n) = lines.next(&mut buf, "t").unwrap() {
+            got.push((n, String::from_utf8(buf.clone()).unwrap()));
+        }
+        assert_eq!(got, [(1, "x,y,z".into()), (2, "1,2,3".into()), (3, "4,5,6".into())]);
+    }
+
+    #[test]
+    fn separators_are_sniffed_and_decimal_commas_read_where_unambiguous() {
+        let want = [[1.5, -2.25, 3.0], [4.0, 5.0, 6.0]];
+        for text in [
+            &b"x;y;z\n1,5;-2,25;3\n4;5;6\n"[..],
+            b"x\ty\tz\n1.5\t-2.25\t3\n4\t5\t6\n",
+            b"x y  z\n 1,5  -2,25 3\n4 5 6\n",
+            b"\xef\xbb\xbf\"x\",\"y\",\"z\"\n\"1.5\",-2.25,3\n4,5,6\n",
+        ] {
+            let (rows, s) = parse(text, None, false).unwrap();
+            let got: Vec<Vec3> = rows.iter().map(|r| r.1).collect();
+            assert_eq!(got, want, "{}", String::from_utf8_lossy(text));
+            assert_eq!(s.columns, ["x", "y", "z"]);
+        }
+        // A decimal comma in a comma-separated log is named.
+        let e = error(b"x,y,z\n\"1,5\",2,3\n", None);
+        assert!(e.contains("\"1,5\" is not a number (a decimal comma"), "{e}");
+    }
+
+    #[test]
+    fn columns_chosen_twice_or_ambiguous_are_refused() {
+        let e = error(b"x,y,z\n1,2,3\n", Some("1,1,1"));
+        assert!(e.contains("column 1 (x) is chosen twice"), "{e}");
+        let e = error(b"x,y,z\n1,2,3\n", Some("x,Y,x"));
+        assert!(e.contains("column 1 (x) is chosen twice"), "{e}");
+        let e = error(b"x,y,z,x,y,z\n1,2,3,4,5,6\n", None);
+        assert!(e.contains("columns 1, 4 are all named \"x\""), "{e}");
+        let e = error(b"a,b,a\n1,2,3\n", Some("a,b,3"));
+        assert!(e.contains("columns 1 and 3 are both named \"a\""), "{e}");
+        let (rows, _) = parse(b"x,y,z,x,y,z\n1,2,3,4,5,6\n", Some("4,5,6"), false).unwrap();
+        assert_eq!(rows, [(2, [4.0, 5.0, 6.0])]);
+    }
+
+    #[test]
+    fn errors_quote_a_short_excerpt() {
+        let long = format!("x,y,z\n1,2,{}\n", "a".repeat(10_000));
+        let e = error(long.as_bytes(), None);
+        assert!(e.len() < 200 && e.contains("line 2, column 3 (z)"), "{e}");
+        let open = format!("x,y,z\n1,2,\"3{}\n4,5,6\n", "b".repeat(10_000));
+        let e = error(open.as_bytes(), None);
+        assert!(e.len() < 200 && e.contains("line 2: a quote"), "{e}");
+        let huge = vec![b'0'; MAX_LINE_BYTES + 1];
+        let e = error(&huge, None);
+        assert!(e.len() < 200 && e.contains("line 1 is longer than 1.0 MiB"), "{e}");
+        // Exactly the limit is a line.
+        let mut at = b"x,y,z\n1,2,3".to_vec();
+        at.extend(std::iter::repeat_n(b' ', MAX_LINE_BYTES - 5));
+        assert_eq!(parse(&at, None, false).unwrap().0.len(), 1);
+    }
+
+    #[test]
+    fn skipped_rows_are_counted_and_the_budget_bounds_the_rows() {
+        let (rows, s) = parse(b"x,y,z\n1,2,3\n1,,3\ninf,1,1\n4,5,6\n", None, true).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!(s.skipped.iter().map(|s| s.0).collect::<Vec<_>>(), [3, 4]);
+        // A budget of two readings at 32 B stops at the third, naming its line.
+        let budget = Budget {
+            held: 32,
+            limit: Some((64, 128, "test")),
+        };
+        let e = read_from(
+            BufReader::new(&b"x,y,z\n1,2,3\n\n4,5,6\n7,8,9\n"[..]),
+            "t.csv",
+            None,
+            false,
+            &budget,
+            &mut |_, _| Ok(()),
+        )
+        .unwrap_err();
+        assert!(
+            format!("{e:#}").contains("t.csv: line 5: the log holds more rows than fit"),
+            "{e:#}"
+        );
+    }
+
+    #[test]
+    fn empty_and_header_only_logs_are_named() {
+        assert!(error(b"\n# only a comment\n\n", None).contains("the log is empty"));
+        assert!(error(b"x,y,z\n\n", None).contains("has a header but no readings"));
+        let e = error(b"x y\n1 2\n", None);
+        assert!(
+            e.contains("read as space-separated") && e.contains("fewer than three"),
+            "{e}"
+        );
     }
 }

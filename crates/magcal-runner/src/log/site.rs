@@ -1,6 +1,6 @@
 //! The site and date of a log: its units, and the World Magnetic Model's field there.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::ValueEnum;
 
 /// `--units`: the log's units, for a magnitude from the WMM (nT).
@@ -32,44 +32,121 @@ impl Units {
     }
 }
 
-/// The WMM magnitude at `--site` on `--date` in `--units`, and its source in words.
-pub fn wmm_magnitude(site: &str, date: &str, units: Units, model: Option<&str>) -> Result<(f64, String)> {
+/// `--site LAT,LON[,ALT_M]`: WGS 84 geodetic latitude and longitude (degrees) and height above
+/// the ellipsoid (metres, default 0), checked where the command line is read.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Site {
+    /// Latitude, degrees, in [-90, 90].
+    pub lat_deg: f64,
+    /// Longitude, degrees east, in [-360, 360].
+    pub lon_deg: f64,
+    /// Height above the ellipsoid, metres, within the WMM's range.
+    pub alt_m: f64,
+}
+
+impl std::str::FromStr for Site {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        use magcal_core::wmm::{MAX_ALT_M, MIN_ALT_M};
+        let numbers: Vec<f64> = text
+            .split(',')
+            .map(|v| v.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| "give LAT,LON or LAT,LON,ALT_M in numbers (degrees, metres)".to_string())?;
+        let (lat, lon, alt) = match numbers[..] {
+            [lat, lon] => (lat, lon, 0.0),
+            [lat, lon, alt] => (lat, lon, alt),
+            _ => return Err("give LAT,LON or LAT,LON,ALT_M (degrees, metres)".into()),
+        };
+        if !(-90.0..=90.0).contains(&lat) {
+            return Err(format!("latitude {} is outside [-90, 90] degrees", show(lat)));
+        }
+        if !(-360.0..=360.0).contains(&lon) {
+            return Err(format!("longitude {} is outside [-360, 360] degrees", show(lon)));
+        }
+        if !(MIN_ALT_M..=MAX_ALT_M).contains(&alt) {
+            return Err(format!(
+                "height {} m is outside the WMM's [{}, {}] m",
+                show(alt),
+                show(MIN_ALT_M),
+                show(MAX_ALT_M)
+            ));
+        }
+        Ok(Self {
+            lat_deg: lat,
+            lon_deg: lon,
+            alt_m: alt,
+        })
+    }
+}
+
+/// `--date YYYY-MM-DD` (the middle of that day) or a decimal year
+/// ([`magcal_core::wmm::decimal_year`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Date {
+    /// Decimal year.
+    pub year: f64,
+}
+
+impl std::str::FromStr for Date {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        magcal_core::wmm::decimal_year(text)
+            .map(|year| Self { year })
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// `--wmm NAME`: a model of [`magcal_core::wmm::Model::ALL`].
+///
+/// # Errors
+/// An unknown name, with the known ones.
+pub fn parse_model(name: &str) -> Result<magcal_core::wmm::Model, String> {
+    use magcal_core::wmm::Model;
+    Model::from_name(name).ok_or_else(|| {
+        let known: Vec<&str> = Model::ALL.iter().map(|m| m.name()).collect();
+        format!("unknown model; known: {}", known.join(", "))
+    })
+}
+
+/// The WMM magnitude at `site` on `date` in `units`, and its source in words.
+///
+/// # Errors
+/// As [`wmm_field`].
+pub fn wmm_magnitude(
+    site: &Site,
+    date: Date,
+    units: Units,
+    model: Option<magcal_core::wmm::Model>,
+) -> Result<(f64, String)> {
     let (v, source) = wmm_field(site, date, model)?;
     let nt = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     Ok((nt / units.nt(), source))
 }
 
-/// The WMM field (North, East, Down, nT) at `site` (`LAT,LON[,ALT_M]`) on `date`, by `model` or
-/// the newest whose window holds the date, and its source in words.
-pub fn wmm_field(site: &str, date: &str, model: Option<&str>) -> Result<([f64; 3], String)> {
+/// The WMM field (North, East, Down, nT) at `site` on `date`, by `model` or the newest whose
+/// window holds the date, and its source in words.
+///
+/// # Errors
+/// A date that no model (or not the model asked for) holds.
+pub fn wmm_field(site: &Site, date: Date, model: Option<magcal_core::wmm::Model>) -> Result<([f64; 3], String)> {
     use magcal_core::wmm;
-    let numbers: Vec<f64> = site
-        .split(',')
-        .map(|v| v.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| anyhow::anyhow!("--site {site:?}: give LAT,LON or LAT,LON,ALT_M in numbers"))?;
-    let (lat, lon, alt) = match numbers[..] {
-        [lat, lon] => (lat, lon, 0.0),
-        [lat, lon, alt] => (lat, lon, alt),
-        _ => bail!("--site {site:?}: give LAT,LON or LAT,LON,ALT_M"),
-    };
-    let year = decimal_year(date)?;
-    let site = wmm::Site {
+    let (lat, lon, alt, year) = (site.lat_deg, site.lon_deg, site.alt_m, date.year);
+    let at = wmm::Site {
         lat_deg: lat,
         lon_deg: lon,
         alt_m: alt,
         year,
     };
     let candidates: Vec<wmm::Model> = match model {
-        Some(name) => vec![wmm::Model::from_name(name).with_context(|| {
-            let known: Vec<&str> = wmm::Model::ALL.iter().map(|m| m.name()).collect();
-            format!("--wmm {name:?}: unknown model; known: {}", known.join(", "))
-        })?],
+        Some(m) => vec![m],
         None => wmm::Model::ALL.iter().rev().copied().collect(),
     };
     let mut last = None;
     for m in candidates {
-        match wmm::field_ned(m, &site) {
+        match wmm::field_ned(m, &at) {
             Ok(v) => {
                 let nt = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
                 return Ok((
@@ -81,30 +158,43 @@ pub fn wmm_field(site: &str, date: &str, model: Option<&str>) -> Result<([f64; 3
         }
     }
     bail!(
-        "--site {lat},{lon},{alt} --date {date}: no model holds it ({})",
+        "--site {lat},{lon},{alt} --date {year:.3}: no model holds it ({})",
         last.map_or(String::new(), |e| e.to_string())
     )
 }
 
-/// `YYYY-MM-DD` (the middle of that day) or a decimal year.
-pub fn decimal_year(date: &str) -> Result<f64> {
-    if let Ok(y) = date.trim().parse::<f64>() {
-        return Ok(y);
+fn show(x: f64) -> String {
+    crate::limits::show(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sites_are_checked_where_they_are_read() {
+        let s: Site = "-33.92,18.42".parse().unwrap();
+        assert_eq!((s.lat_deg, s.lon_deg, s.alt_m), (-33.92, 18.42, 0.0));
+        let s: Site = " 28.2, 112.97 , 50".parse().unwrap();
+        assert_eq!((s.lat_deg, s.lon_deg, s.alt_m), (28.2, 112.97, 50.0));
+        for (text, needle) in [
+            ("north", "in numbers"),
+            ("1,2,3,4", "give LAT,LON"),
+            ("91,0", "latitude 91 is outside"),
+            ("NaN,0", "latitude NaN is outside"),
+            ("0,400", "longitude 400 is outside"),
+            ("0,0,1e7", "height 10000000 m is outside"),
+        ] {
+            let e = text.parse::<Site>().unwrap_err();
+            assert!(e.contains(needle), "{text}: {e}");
+        }
     }
-    let parts: Vec<i64> = date
-        .split('-')
-        .map(|v| v.parse::<i64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| anyhow::anyhow!("--date {date:?}: give YYYY-MM-DD or a decimal year"))?;
-    let [y, m, d] = parts[..] else {
-        bail!("--date {date:?}: give YYYY-MM-DD or a decimal year");
-    };
-    let leap = (y % 4 == 0 && y % 100 != 0) || y % 400 == 0;
-    let month_days = [31, if leap { 29 } else { 28 }, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31];
-    if !(1..=12).contains(&m) || d < 1 || d > month_days[(m - 1) as usize] {
-        bail!("--date {date:?}: not a date");
+
+    #[test]
+    fn dates_and_models_are_typed() {
+        assert_eq!("2013.0".parse::<Date>().unwrap().year, 2013.0);
+        assert!("2013-02-30".parse::<Date>().unwrap_err().contains("not a date"));
+        assert_eq!(parse_model("WMM2010"), Ok(magcal_core::wmm::Model::Wmm2010));
+        assert!(parse_model("WMM1999").unwrap_err().contains("unknown model"));
     }
-    let day_of_year: i64 = month_days[..(m - 1) as usize].iter().sum::<i64>() + d;
-    let days = if leap { 366.0 } else { 365.0 };
-    Ok(y as f64 + (day_of_year as f64 - 0.5) / days)
 }

@@ -7,20 +7,60 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::calibration::CalibrationJson;
-use super::site::wmm_field;
+use super::site::{Date, Site, wmm_field};
+
+/// `--roll`, `--pitch`, `--yaw MIN,MAX`: an attitude range in degrees, under the rules the
+/// scenario's `[attitude_box]` follows ([`crate::scenario::check_range`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Range(pub [f64; 2]);
+
+impl std::str::FromStr for Range {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let v: Vec<f64> = text
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| "give MIN,MAX in degrees".to_string())?;
+        let [a, b] = v[..] else {
+            return Err("give MIN,MAX in degrees (two numbers)".into());
+        };
+        crate::scenario::check_range([a, b]).map_err(str::to_string)?;
+        Ok(Self([a, b]))
+    }
+}
+
+/// The site, date and model the field comes from.
+#[derive(Debug, Clone, Copy)]
+pub struct Place {
+    /// `--site`.
+    pub site: Site,
+    /// `--date`.
+    pub date: Date,
+    /// `--wmm` (default: the newest model whose window holds the date).
+    pub model: Option<magcal_core::wmm::Model>,
+}
 
 /// A vehicle's attitude box as flags (with `--site` and `--date` for the field's direction).
 #[derive(Debug, Args)]
 pub struct BoxFlags {
     /// Roll range, degrees: `MIN,MAX` (with `--site`).
-    #[arg(long, requires = "site", allow_hyphen_values = true)]
-    pub roll: Option<String>,
+    #[arg(long, requires = "site", allow_hyphen_values = true, value_name = "MIN,MAX")]
+    pub roll: Option<Range>,
     /// Pitch range, degrees: `MIN,MAX` (with `--site`).
-    #[arg(long, requires = "site", allow_hyphen_values = true)]
-    pub pitch: Option<String>,
+    #[arg(long, requires = "site", allow_hyphen_values = true, value_name = "MIN,MAX")]
+    pub pitch: Option<Range>,
     /// Yaw range, degrees: `MIN,MAX` (with `--site`; default any yaw).
-    #[arg(long, requires = "site", allow_hyphen_values = true)]
-    pub yaw: Option<String>,
+    #[arg(long, requires = "site", allow_hyphen_values = true, value_name = "MIN,MAX")]
+    pub yaw: Option<Range>,
+}
+
+impl BoxFlags {
+    /// Whether any of the flags is given.
+    pub fn any(&self) -> bool {
+        self.roll.is_some() || self.pitch.is_some() || self.yaw.is_some()
+    }
 }
 
 /// What `next` and the coverage need of a vehicle: its site's field (nT), its attitude box, the
@@ -57,53 +97,31 @@ impl Vehicle {
         })
     }
 
-    /// The vehicle of `--scenario`, else of the box flags with `[--site, --date, --wmm]`; `None`
-    /// when neither is given.
-    pub fn from_options(
-        scenario: Option<&Path>,
-        flags: &BoxFlags,
-        [site, date, wmm]: [Option<&str>; 3],
-    ) -> Result<Option<Self>> {
-        match (scenario, &flags.roll, &flags.pitch, &flags.yaw) {
+    /// The vehicle of `--scenario`, else of the box flags at `place`; `None` when neither is
+    /// given.
+    ///
+    /// # Errors
+    /// A bad scenario, one of `--roll` and `--pitch` without the other, box flags without a
+    /// place, or a place no model holds.
+    pub fn from_options(scenario: Option<&Path>, flags: &BoxFlags, place: Option<&Place>) -> Result<Option<Self>> {
+        match (scenario, flags.roll, flags.pitch, place) {
             (Some(path), ..) => Self::from_scenario(path).map(Some),
-            (None, Some(_), Some(_), _) => {
-                Self::from_flags(flags, site.unwrap_or(""), date.unwrap_or(""), wmm).map(Some)
-            }
-            (None, None, None, None) => Ok(None),
+            (None, Some(roll), Some(pitch), Some(place)) => Self::from_flags(roll, pitch, flags.yaw, place).map(Some),
+            (None, Some(_), Some(_), None) => bail!("the box as flags needs --site and --date"),
+            (None, None, None, _) if flags.yaw.is_none() => Ok(None),
             _ => bail!("the box as flags needs both --roll and --pitch"),
         }
     }
 
     /// `--roll, --pitch [--yaw] --site --date [--wmm]`.
-    pub fn from_flags(args: &BoxFlags, site: &str, date: &str, wmm: Option<&str>) -> Result<Self> {
-        let range = |name: &str, value: Option<&String>, default: [f64; 2]| -> Result<[f64; 2]> {
-            let Some(text) = value else { return Ok(default) };
-            let v: Vec<f64> = text
-                .split(',')
-                .map(|x| x.trim().parse::<f64>())
-                .collect::<Result<_, _>>()
-                .map_err(|_| anyhow::anyhow!("--{name} {text:?}: give MIN,MAX in degrees"))?;
-            match v[..] {
-                [a, b]
-                    if a.is_finite()
-                        && b.is_finite()
-                        && a < b
-                        && b - a <= 360.0
-                        && a.abs() <= 360.0
-                        && b.abs() <= 360.0 =>
-                {
-                    Ok([a, b])
-                }
-                _ => bail!(
-                    "--{name} {text:?}: give MIN,MAX in degrees, MIN < MAX, at most 360 apart, each in [-360, 360]"
-                ),
-            }
-        };
-        let roll = range("roll", args.roll.as_ref(), [0.0, 0.0])?;
-        let pitch = range("pitch", args.pitch.as_ref(), [0.0, 0.0])?;
-        let yaw = range("yaw", args.yaw.as_ref(), [-180.0, 180.0])?;
+    ///
+    /// # Errors
+    /// A box the core refuses, or a place no model holds.
+    pub fn from_flags(roll: Range, pitch: Range, yaw: Option<Range>, place: &Place) -> Result<Self> {
+        let (roll, pitch) = (roll.0, pitch.0);
+        let yaw = yaw.map_or([-180.0, 180.0], |y| y.0);
         let bounds = magcal_core::AttitudeBox::from_degrees(roll, yaw, pitch).context("the attitude box")?;
-        let (ned, source) = wmm_field(site, date, wmm)?;
+        let (ned, source) = wmm_field(&place.site, place.date, place.model)?;
         let field = magcal_core::ReferenceField::from_ned(ned[0], ned[1], ned[2]).context("the WMM field")?;
         Ok(Self {
             field,
@@ -143,4 +161,27 @@ pub fn log_efficiency(
     Ok(scenario
         .certificate(&problem)
         .map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Range;
+
+    #[test]
+    fn ranges_follow_the_scenario_rules() {
+        assert_eq!("-5,5".parse::<Range>(), Ok(Range([-5.0, 5.0])));
+        assert_eq!(" -180 , 180 ".parse::<Range>(), Ok(Range([-180.0, 180.0])));
+        for (text, needle) in [
+            ("5,-5", "the minimum must be below the maximum"),
+            ("5,5", "the minimum must be below the maximum"),
+            ("-400,0", "[-360, 360]"),
+            ("-200,200", "more than 360"),
+            ("nan,1", "finite"),
+            ("1", "two numbers"),
+            ("a,b", "give MIN,MAX"),
+        ] {
+            let e = text.parse::<Range>().unwrap_err();
+            assert!(e.contains(needle), "{text}: {e}");
+        }
+    }
 }

@@ -157,7 +157,7 @@ impl Manifest {
     pub fn read(dir: &std::path::Path) -> anyhow::Result<Self> {
         use anyhow::Context;
         let path = dir.join("manifest.json");
-        let bytes = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+        let bytes = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES)?;
         serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal manifest", path.display()))
     }
 

@@ -378,7 +378,7 @@ pub fn csv_bytes<T: Serialize + Default>(rows: impl IntoIterator<Item = T>) -> R
 
 /// Reads a CSV file of `T` rows; an error names the file, the line, the column and the value.
 pub fn read_csv<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let bytes = crate::limits::read_bounded(path, crate::limits::max_result_file_bytes())?;
     parse_csv(&bytes, &path.display().to_string())
 }
 

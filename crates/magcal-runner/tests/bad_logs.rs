@@ -1,0 +1,622 @@
+//! Bad logs, options and result sets, end to end: every case exits 2 with ONE stderr line that
+//! names the file and the line, column or option, quotes at most a short excerpt, and leaves every
+//! input and earlier output byte-identical. The binary runs under the memory limit of
+//! [`common::magcal`], so an unbounded read fails here instead of exhausting the machine.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use common::{magcal, magcal_with_limits, run_into, scenarios};
+use tempfile::TempDir;
+
+const CK: &str = "/work/shared/data/ck-explorer/acc_mag_log.csv";
+
+/// Every entry below `dir`: a file's bytes, or a symbolic link's target (never followed).
+fn state(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
+        for e in fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+            let meta = fs::symlink_metadata(&p).unwrap();
+            if meta.file_type().is_symlink() {
+                out.insert(rel, fs::read_link(&p).unwrap().into_os_string().into_encoded_bytes());
+            } else if meta.is_dir() {
+                walk(root, &p, out);
+            } else if meta.is_file() {
+                out.insert(rel, fs::read(&p).unwrap());
+            } else {
+                out.insert(rel, b"<special>".to_vec());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(dir, dir, &mut out);
+    out
+}
+
+/// Runs `args` (`{}` replaced by the temporary directory) in `dir`; asserts exit 2, one stderr
+/// line of at most 400 characters holding every needle, and `dir` unchanged.
+fn refused(dir: &Path, args: &[&str], needles: &[&str]) {
+    refused_with(magcal(), dir, args, needles);
+}
+
+fn refused_with(mut cmd: assert_cmd::Command, dir: &Path, args: &[&str], needles: &[&str]) {
+    let before = state(dir);
+    let root = dir.to_str().unwrap();
+    let args: Vec<String> = args.iter().map(|a| a.replace("{}", root)).collect();
+    let out = cmd.current_dir(dir).args(&args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let what = format!("magcal {}: {stderr}", args.join(" "));
+    assert_eq!(out.status.code(), Some(2), "{what}");
+    assert!(
+        stderr.starts_with("magcal: error: ") && stderr.ends_with('\n'),
+        "{what}"
+    );
+    assert_eq!(stderr.lines().count(), 1, "{what}");
+    assert!(stderr.len() <= 400, "{} characters: {what}", stderr.len());
+    for needle in needles {
+        assert!(stderr.contains(needle), "{needle:?} missing: {what}");
+    }
+    assert!(state(dir) == before, "{what}: the directory changed");
+}
+
+/// A directory with `files` and an earlier calibration output `out/calibration.json`.
+fn with_files(files: &[(&str, &[u8])]) -> TempDir {
+    let tmp = TempDir::new().unwrap();
+    for (name, bytes) in files {
+        fs::write(tmp.path().join(name), bytes).unwrap();
+    }
+    fs::create_dir(tmp.path().join("out")).unwrap();
+    fs::write(tmp.path().join("out/calibration.json"), b"{\"earlier\": true}\n").unwrap();
+    tmp
+}
+
+/// The first `rows` data rows of the ck-explorer log (header `ax,ay,az,mx,my,mz`).
+fn ck(rows: usize) -> String {
+    let text = fs::read_to_string(CK).unwrap();
+    text.lines().take(rows + 1).map(|l| format!("{l}\n")).collect()
+}
+
+#[test]
+fn bad_cells_are_named_by_the_line_an_editor_shows() {
+    let good = ck(200);
+    let mut lines: Vec<&str> = good.lines().collect();
+    lines.insert(3, "");
+    lines.insert(3, "");
+    let blank = format!("{}\n", lines.join("\n"));
+    // Line 6 of `blank` is the 3rd data row after two blank lines: make it NaN.
+    let blank = blank.replacen(lines[5], "NaN,0,0,NaN,0.1,0.2", 1);
+    let cr_only = good.replace('\n', "\r").replacen("\r", "\r\r", 2);
+    let cr_only = {
+        let mut l: Vec<String> = cr_only.split('\r').map(str::to_string).collect();
+        l[4] = "0,0,0,0.1,0.2,inf".into();
+        l.join("\r")
+    };
+    let crlf = good.replace('\n', "\r\n").replacen("\r\n", "\r\n\r\n", 1);
+    let crlf = {
+        let mut l: Vec<String> = crlf.split("\r\n").map(str::to_string).collect();
+        l[9] = "0,0,0,0.1,,0.2".into();
+        l.join("\r\n")
+    };
+    let tmp = with_files(&[
+        ("blank.csv", blank.as_bytes()),
+        ("cr.csv", cr_only.as_bytes()),
+        ("crlf.csv", crlf.as_bytes()),
+    ]);
+    let d = tmp.path();
+    refused(
+        d,
+        &["calibrate", "blank.csv", "--out", "out"],
+        &["blank.csv: line 6: column 4 (mx) is NaN"],
+    );
+    refused(
+        d,
+        &["calibrate", "cr.csv", "--out", "out"],
+        &["cr.csv: line 5: column 6 (mz) is inf"],
+    );
+    refused(
+        d,
+        &["calibrate", "crlf.csv"],
+        &["crlf.csv: line 10: no value in column 5 (my)"],
+    );
+    refused(
+        d,
+        &["apply", "out/calibration.json", "blank.csv"],
+        &["out/calibration.json"],
+    );
+}
+
+#[test]
+fn unbounded_inputs_stop_with_one_short_line() {
+    let long_line = format!("x,y,z\n1,2,3\n{}\n", "7".repeat(2 << 20));
+    let open_quote = format!("x,y,z\n1,2,3\n4,5,\"6{}\n7,8,9\n", ",1".repeat(50_000));
+    let long_cell = format!("x,y,z\n1,2,3\n4,5,{}\n", "z".repeat(100_000));
+    let tmp = with_files(&[
+        ("long.csv", long_line.as_bytes()),
+        ("quote.csv", open_quote.as_bytes()),
+        ("cell.csv", long_cell.as_bytes()),
+        ("cal.json", b"{"),
+    ]);
+    let d = tmp.path();
+    refused(
+        d,
+        &["calibrate", "/dev/zero", "--out", "out"],
+        &["/dev/zero: line 1 is longer than 1.0 MiB"],
+    );
+    refused(
+        d,
+        &["calibrate", "long.csv"],
+        &["long.csv: line 3 is longer than 1.0 MiB"],
+    );
+    refused(
+        d,
+        &["calibrate", "quote.csv"],
+        &["quote.csv: line 3: a quote (\") is not closed"],
+    );
+    refused(
+        d,
+        &["calibrate", "cell.csv"],
+        &["cell.csv: line 3, column 3 (z): \"zzzz", "is not a number"],
+    );
+    refused(d, &["apply", "/dev/zero", CK], &["/dev/zero: more than 1.0 MiB"]);
+    refused(d, &["apply", "cal.json", "/dev/zero"], &["cal.json"]);
+    refused(d, &["calibrate", "{}"], &["is a directory, not a log"]);
+    refused(d, &["calibrate", "missing.csv"], &["missing.csv: cannot read the log"]);
+    refused(d, &["run", "/dev/zero"], &["/dev/zero: more than 16.0 MiB"]);
+}
+
+#[test]
+fn a_fifo_that_never_ends_is_stopped_by_the_memory_budget() {
+    let tmp = with_files(&[]);
+    let fifo = tmp.path().join("endless.csv");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let writer = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || {
+            use std::io::Write;
+            let mut f = fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+            let block = "0.1,0.2,0.3\n".repeat(10_000);
+            let _ = f.write_all(b"x,y,z\n");
+            // Until the reader gives up (EPIPE: the test harness ignores SIGPIPE).
+            while f.write_all(block.as_bytes()).is_ok() {}
+        })
+    };
+    // 1 GiB of address space: a budget of half of it at 256 B per reading, about 2.1 million rows.
+    refused_with(
+        magcal_with_limits(1 << 30, None),
+        tmp.path(),
+        &["calibrate", "endless.csv", "--out", "out"],
+        &["endless.csv: line ", "the log holds more rows than fit in memory"],
+    );
+    writer.join().unwrap();
+}
+
+#[test]
+fn separators_are_detected_and_give_the_same_readings() {
+    let comma = ck(3000);
+    let semicolon_decimal_comma = comma.replace(',', ";").replace('.', ",");
+    let tab = comma.replace(',', "\t");
+    let spaces = comma.replace(',', "   ");
+    let bom = format!("\u{feff}{}", comma.replace('\n', "\r\n"));
+    let tmp = with_files(&[
+        ("comma.csv", comma.as_bytes()),
+        ("semi.csv", semicolon_decimal_comma.as_bytes()),
+        ("tab.tsv", tab.as_bytes()),
+        ("spaces.txt", spaces.as_bytes()),
+        ("bom.csv", bom.as_bytes()),
+    ]);
+    let json = |name: &str| -> serde_json::Value {
+        let out = magcal()
+            .current_dir(tmp.path())
+            .args(["calibrate", name, "--json"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        // What the fit made of the readings (not what names the file).
+        [
+            "samples",
+            "columns",
+            "bias",
+            "psi_deg",
+            "scale",
+            "p",
+            "residual_rms",
+            "noise",
+        ]
+        .map(|k| v[k].clone())
+        .to_vec()
+        .into()
+    };
+    let want = json("comma.csv");
+    assert_eq!(want[0], 3000);
+    assert_eq!(want[1], serde_json::json!(["mx", "my", "mz"]));
+    // The same numbers parse to the same f64: the calibrations are identical, not merely close.
+    for name in ["semi.csv", "tab.tsv", "spaces.txt", "bom.csv"] {
+        assert_eq!(json(name), want, "{name}");
+    }
+}
+
+#[test]
+fn unclear_columns_are_refused_naming_the_reason() {
+    let log = ck(100);
+    let decimal_comma_in_commas = "x,y,z\n\"0,5\",1,2\n";
+    let dup = "x,y,z,x,y,z\n1,2,3,4,5,6\n";
+    let two = "a b\n1 2\n";
+    let tmp = with_files(&[
+        ("log.csv", log.as_bytes()),
+        ("dc.csv", decimal_comma_in_commas.as_bytes()),
+        ("dup.csv", dup.as_bytes()),
+        ("two.txt", two.as_bytes()),
+        ("empty.csv", b""),
+        ("comments.csv", b"# nothing\n\n# here\n"),
+        ("header.csv", b"x,y,z\n\n"),
+        ("allbad.csv", b"x,y,z\nnan,1,2\n1,,2\n"),
+    ]);
+    let d = tmp.path();
+    for (args, needles) in [
+        (
+            vec!["calibrate", "log.csv", "--columns", "1,1,1"],
+            vec!["--columns \"1,1,1\": column 1 (ax) is chosen twice"],
+        ),
+        (
+            vec!["calibrate", "log.csv", "--columns", "mx,MX,my"],
+            vec!["column 4 (mx) is chosen twice"],
+        ),
+        (
+            vec!["calibrate", "log.csv", "--columns", "a,b,c"],
+            vec!["log.csv", "no column named \"a\""],
+        ),
+        (
+            vec!["calibrate", "log.csv", "--columns", "1,2,9"],
+            vec!["log.csv", "column 9 is not in the log (6 columns)"],
+        ),
+        (
+            vec!["calibrate", "log.csv", "--columns", "1,2"],
+            vec!["--columns \"1,2\": give three columns"],
+        ),
+        (
+            vec!["calibrate", "dc.csv"],
+            vec!["dc.csv: line 2, column 1 (x): \"0,5\"", "decimal comma"],
+        ),
+        (
+            vec!["calibrate", "dup.csv"],
+            vec!["dup.csv", "columns 1, 4 are all named \"x\""],
+        ),
+        (
+            vec!["calibrate", "dup.csv", "--columns", "x,y,z"],
+            vec!["columns 1 and 4 are both named \"x\""],
+        ),
+        (
+            vec!["calibrate", "two.txt"],
+            vec!["two.txt (read as space-separated)", "fewer than three numeric columns"],
+        ),
+        (vec!["calibrate", "empty.csv"], vec!["empty.csv: the log is empty"]),
+        (
+            vec!["calibrate", "comments.csv"],
+            vec!["comments.csv: the log is empty"],
+        ),
+        (
+            vec!["calibrate", "header.csv"],
+            vec!["header.csv: the log has a header but no readings"],
+        ),
+        (
+            vec!["calibrate", "allbad.csv"],
+            vec!["allbad.csv: line 2: column 1 (x) is NaN"],
+        ),
+        (
+            vec!["calibrate", "allbad.csv", "--skip-bad"],
+            vec!["allbad.csv: no readings (2 rows skipped)"],
+        ),
+        (
+            vec!["apply", "out/calibration.json", "log.csv", "--columns", "1,1,2"],
+            vec!["out/calibration.json"],
+        ),
+    ] {
+        refused(d, &args, &needles);
+    }
+}
+
+#[test]
+fn site_date_units_and_box_flags_are_typed_at_the_edge() {
+    let log = ck(2000);
+    let tmp = with_files(&[("log.csv", log.as_bytes())]);
+    let d = tmp.path();
+    let cal = |extra: &[&'static str]| [&["calibrate", "log.csv"][..], extra].concat();
+    for (args, needles) in [
+        (
+            cal(&["--site", "north", "--date", "2013.0", "--units", "G"]),
+            vec!["invalid value 'north' for '--site", "in numbers"],
+        ),
+        (
+            cal(&["--site", "91,0", "--date", "2013.0", "--units", "G"]),
+            vec!["'--site", "latitude 91 is outside [-90, 90]"],
+        ),
+        (
+            cal(&["--site", "1,2,1e9", "--date", "2013.0", "--units", "G"]),
+            vec!["'--site", "height 1000000000 m is outside"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2013-02-30", "--units", "G"]),
+            vec!["'--date", "2013-02-30 is not a date"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2013-02-29", "--units", "G"]),
+            vec!["'--date", "2013-02-29 is not a date"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "20130", "--units", "G"]),
+            vec!["'--date", "year 20130 is outside [1900, 2100]"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "13/01/2013", "--units", "G"]),
+            vec!["'--date", "give YYYY-MM-DD or a decimal year"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2040-01-01", "--units", "G"]),
+            vec!["no model holds it"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2013.0", "--units", "G", "--wmm", "WMM1999"]),
+            vec!["'--wmm", "unknown model; known: WMM2010"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2013.0", "--units", "furlongs"]),
+            vec!["'--units", "furlongs"],
+        ),
+        (cal(&["--units", "G"]), vec!["--site"]),
+        (cal(&["--date", "2013.0"]), vec!["--site"]),
+        (cal(&["--wmm", "WMM2010"]), vec!["--site"]),
+        (cal(&["--site", "1,2", "--units", "G"]), vec!["--date"]),
+        (
+            cal(&["--site", "1,2", "--date", "2013.0"]),
+            vec!["--site: give --units"],
+        ),
+        (
+            cal(&["--site", "-33.92,18.42", "--date", "2013.0", "--magnitude", "0.5"]),
+            vec!["--site with --magnitude", "drop --site"],
+        ),
+        (
+            cal(&[
+                "--site",
+                "1,2",
+                "--date",
+                "2013.0",
+                "--units",
+                "G",
+                "--roll=5,-5",
+                "--pitch=-5,5",
+            ]),
+            vec!["'--roll", "the minimum must be below the maximum"],
+        ),
+        (
+            cal(&[
+                "--site",
+                "1,2",
+                "--date",
+                "2013.0",
+                "--units",
+                "G",
+                "--roll=-400,0",
+                "--pitch=-5,5",
+            ]),
+            vec!["'--roll", "[-360, 360]"],
+        ),
+        (
+            cal(&[
+                "--site",
+                "1,2",
+                "--date",
+                "2013.0",
+                "--units",
+                "G",
+                "--roll=-5,5",
+                "--pitch=-200,200",
+            ]),
+            vec!["'--pitch", "spans more than 360 degrees"],
+        ),
+        (
+            cal(&[
+                "--site",
+                "1,2",
+                "--date",
+                "2013.0",
+                "--units",
+                "G",
+                "--roll=-5,5",
+                "--pitch=nan,5",
+            ]),
+            vec!["'--pitch", "finite"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2013.0", "--units", "G", "--yaw", "1,2,3"]),
+            vec!["'--yaw", "two numbers"],
+        ),
+        (
+            cal(&["--site", "1,2", "--date", "2013.0", "--units", "G", "--roll=-5,5"]),
+            vec!["needs both --roll and --pitch"],
+        ),
+        (cal(&["--roll=-5,5", "--pitch=-5,5"]), vec!["--site"]),
+        (cal(&["--magnitude=-1"]), vec!["--magnitude -1: must be positive"]),
+        (cal(&["--reject", "0"]), vec!["--reject 0: must be positive"]),
+    ] {
+        refused(d, &args, &needles);
+    }
+}
+
+#[test]
+fn a_southern_site_is_taken_with_or_without_an_equals_sign() {
+    let log = ck(2000);
+    let tmp = with_files(&[("log.csv", log.as_bytes())]);
+    let magnitude = |site: &[&str]| -> f64 {
+        let out = magcal()
+            .current_dir(tmp.path())
+            .args(["calibrate", "log.csv", "--json", "--date", "2024-06-01", "--units", "G"])
+            .args(site)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert!(
+            v["magnitude_source"]
+                .as_str()
+                .unwrap()
+                .starts_with("WMM2020 at -33.92, 18.42"),
+            "{v}"
+        );
+        v["magnitude"].as_f64().unwrap()
+    };
+    let (a, b) = (
+        magnitude(&["--site", "-33.92,18.42"]),
+        magnitude(&["--site=-33.92,18.42"]),
+    );
+    // Cape Town's field is about 25,600 nT (0.256 G): weak, as the South Atlantic Anomaly is.
+    assert!(a.to_bits() == b.to_bits() && (0.2..0.3).contains(&a), "{a} {b}");
+}
+
+#[test]
+fn a_calibration_file_with_a_byte_order_mark_is_read() {
+    let log = ck(2000);
+    let tmp = with_files(&[("log.csv", log.as_bytes())]);
+    let d = tmp.path();
+    magcal()
+        .current_dir(d)
+        .args(["calibrate", "log.csv", "--out", "cal"])
+        .assert()
+        .success();
+    let plain = fs::read(d.join("cal/calibration.json")).unwrap();
+    let mut bom = b"\xef\xbb\xbf".to_vec();
+    bom.extend_from_slice(&plain);
+    fs::write(d.join("bom.json"), bom).unwrap();
+    let apply = |cal: &str| {
+        magcal()
+            .current_dir(d)
+            .args(["apply", cal, "log.csv"])
+            .output()
+            .unwrap()
+    };
+    let (a, b) = (apply("cal/calibration.json"), apply("bom.json"));
+    assert!(
+        a.status.success() && b.status.success(),
+        "{}",
+        String::from_utf8_lossy(&b.stderr)
+    );
+    assert_eq!(a.stdout, b.stdout);
+    assert_eq!(String::from_utf8(a.stdout).unwrap().lines().count(), 2001);
+}
+
+/// What a case does to its copy of the set.
+type Damage = Box<dyn Fn(&Path)>;
+
+/// A result set of the smoke scenario, made once per test that needs one.
+fn baseline() -> (TempDir, PathBuf) {
+    let tmp = TempDir::new().unwrap();
+    let set = tmp.path().join("set");
+    run_into(&set, 7);
+    (tmp, set)
+}
+
+fn edit_manifest(set: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
+    let path = set.join("manifest.json");
+    let mut m: serde_json::Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
+    edit(&mut m);
+    fs::write(path, serde_json::to_vec_pretty(&m).unwrap()).unwrap();
+}
+
+#[test]
+fn check_and_plot_read_only_the_regular_files_of_the_set() {
+    let (tmp, set) = baseline();
+    let smoke = scenarios().join("smoke.toml");
+    let smoke = smoke.to_str().unwrap();
+    let drone = scenarios().join("drone.toml");
+    // Another scenario's baseline: named, before any run.
+    refused(
+        tmp.path(),
+        &["check", drone.to_str().unwrap(), "--baseline", "set"],
+        &["set: the baseline of scenario \"smoke\", not of \"drone\""],
+    );
+    let cases: Vec<(&str, Damage, Vec<&str>)> = vec![
+        (
+            "up",
+            Box::new(|s: &Path| {
+                edit_manifest(s, |m| {
+                    m["files"].as_array_mut().unwrap().push("../../../etc/hostname".into())
+                })
+            }),
+            vec!["manifest.json: names the file \"../../../etc/hostname\", which is not a plain file name"],
+        ),
+        (
+            "abs",
+            Box::new(|s: &Path| {
+                edit_manifest(s, |m| {
+                    m["file_sha256"]["/etc/hostname"] = "00".into();
+                })
+            }),
+            vec!["manifest.json: names the file \"/etc/hostname\""],
+        ),
+        (
+            "zero",
+            Box::new(|s: &Path| {
+                fs::remove_file(s.join("summary.csv")).unwrap();
+                std::os::unix::fs::symlink("/dev/zero", s.join("summary.csv")).unwrap();
+            }),
+            vec!["summary.csv: is a symbolic link, not a regular file"],
+        ),
+        (
+            "designs",
+            Box::new(|s: &Path| {
+                fs::remove_file(s.join("designs.csv")).unwrap();
+                std::os::unix::fs::symlink("/dev/zero", s.join("designs.csv")).unwrap();
+            }),
+            vec!["designs.csv: is a symbolic link, not a regular file"],
+        ),
+        (
+            "manifest",
+            Box::new(|s: &Path| {
+                fs::remove_file(s.join("manifest.json")).unwrap();
+                std::os::unix::fs::symlink("/dev/zero", s.join("manifest.json")).unwrap();
+            }),
+            vec!["manifest.json: more than 16.0 MiB"],
+        ),
+    ];
+    for (name, damage, needles) in cases {
+        let copy = tmp.path().join(name);
+        fs::create_dir(&copy).unwrap();
+        for e in fs::read_dir(&set).unwrap() {
+            let e = e.unwrap();
+            if e.file_type().unwrap().is_file() {
+                fs::copy(e.path(), copy.join(e.file_name())).unwrap();
+            }
+        }
+        damage(&copy);
+        refused(tmp.path(), &["check", smoke, "--baseline", name], &needles);
+        if name != "up" && name != "abs" {
+            refused(tmp.path(), &["plot", name], &needles);
+        }
+    }
+}
+
+#[test]
+fn a_pso_run_of_days_is_refused_with_its_estimate() {
+    let tmp = TempDir::new().unwrap();
+    let text = fs::read_to_string(scenarios().join("smoke.toml")).unwrap();
+    assert!(text.contains("\nparticles = 40\n") && text.contains("\niterations = 150\n"));
+    let big = text
+        .replace("\nparticles = 40\n", "\nparticles = 100000\n")
+        .replace("\niterations = 150\n", "\niterations = 10000000\n");
+    fs::write(tmp.path().join("big.toml"), big).unwrap();
+    // 4 runs + 1 design of 1e5 x (1e7 + 1) evaluations at 0.38 us each, on 2 threads: 11.0 days.
+    refused(
+        tmp.path(),
+        &["design", "big.toml", "--threads", "2", "--out", "out"],
+        &[
+            "big.toml: the run's PSO work is estimated at 11.0 days on 2 threads",
+            "--allow-long",
+        ],
+    );
+}
