@@ -125,10 +125,11 @@ pub const MAX_FILE_BYTES: u64 = 1 << 20;
 /// The calibrated field `P (raw - bias)` carries a reading's relative error amplified by up to
 /// `cond(P)`: the ratio of the longest to the shortest axis of the ellipsoid the raw readings lie
 /// on. A magnetometer's axes, with their soft iron, differ in gain by percent to tens of percent
-/// (\[P1\]'s sensor: scale factors 0.7 to 1.3; the public logs' fits `cond_F` 3.2 to 3.4, and 35
-/// for a full fit of the constrained log that ran away). At 1000 a reading good to 0.1 % gives a
-/// calibrated field good to nothing: such a `p` is a garbled or nearly singular matrix, not a
-/// calibration.
+/// (\[P1\]'s sensor: scale factors 0.7 to 1.3). On the public logs, `cond_F` is 3.01 and 3.02
+/// for the full fits of ck-explorer and hamagure set 1 (3 is the least, a multiple of the
+/// identity), and 17 and 21 for the full and diagonal fits of hamagure set 2 that run away. At
+/// 1000 a reading good to 0.1 % gives a calibrated field good to nothing: such a `p` is a garbled
+/// or nearly singular matrix, not a calibration.
 pub const MAX_CONDITION: f64 = 1e3;
 
 /// The Earth's main field at the surface lies between about 22,000 and 67,000 nT (WMM), so a log
@@ -142,6 +143,20 @@ pub fn excerpt(text: &str, max: usize) -> String {
     match text.char_indices().nth(max) {
         Some((i, _)) => format!("{}...", &text[..i]),
         None => text.to_string(),
+    }
+}
+
+/// `value <= tol`, false for NaN: a check that cannot be computed fails.
+fn within(value: f64, tol: f64) -> bool {
+    value <= tol
+}
+
+/// A ratio for a message: fixed point near 1, scientific far from it.
+fn show_ratio(r: f64) -> String {
+    if (1e-3..1e3).contains(&r) {
+        format!("{r:.4}")
+    } else {
+        format!("{r:.4e}")
     }
 }
 
@@ -216,6 +231,9 @@ impl CalibrationJson {
                 p[i][i]
             ));
         }
+        if !frobenius(&mat_mul(&transpose(p), p)).is_finite() {
+            return Err(format!("p {}: too large (G = P^T P overflows)", show(p)));
+        }
         let cond = self.condition();
         if cond.is_nan() || cond > MAX_CONDITION {
             return Err(format!(
@@ -230,7 +248,7 @@ impl CalibrationJson {
         let off = frobenius(&std::array::from_fn(|i| {
             std::array::from_fn(|j| kp[i][j] - if i == j { 1.0 } else { 0.0 })
         }));
-        if off > 64.0 * eps * frobenius(&self.k) * frobenius(p) {
+        if !within(off, 64.0 * eps * frobenius(&self.k) * frobenius(p)) {
             return Err(format!(
                 "k {}: not the inverse of p (|K P - I| = {off:.3e})",
                 show(&self.k)
@@ -240,14 +258,14 @@ impl CalibrationJson {
         let derived = magcal_core::ErrorModel::from_k(&inverse, self.bias);
         let tol = 64.0 * eps * cond;
         let scale = derived.scale();
-        if (0..3).any(|i| (self.scale[i] - scale[i]).abs() > tol * scale[i]) {
+        if (0..3).any(|i| !within((self.scale[i] - scale[i]).abs(), tol * scale[i])) {
             return Err(format!(
                 "scale {:?}: not the scale factors of p (from p: {scale:?})",
                 self.scale
             ));
         }
         let psi = derived.psi_deg();
-        if (0..3).any(|i| (self.psi_deg[i] - psi[i]).abs().to_radians() > tol) {
+        if (0..3).any(|i| !within((self.psi_deg[i] - psi[i]).abs().to_radians(), tol)) {
             return Err(format!(
                 "psi_deg {:?}: not the non-orthogonality of p (from p: {psi:?})",
                 self.psi_deg
@@ -259,7 +277,7 @@ impl CalibrationJson {
         let aa = mat_mul(a, a);
         let off = frobenius(&std::array::from_fn(|i| std::array::from_fn(|j| aa[i][j] - g[i][j])));
         let asymmetry = frobenius(&std::array::from_fn(|i| std::array::from_fn(|j| a[i][j] - a[j][i])));
-        if off > 256.0 * eps * frobenius(&g) || asymmetry > 256.0 * eps * frobenius(a) {
+        if !(within(off, 256.0 * eps * frobenius(&g)) && within(asymmetry, 256.0 * eps * frobenius(a))) {
             return Err(format!(
                 "soft_iron_inverse {}: not the symmetric square root of P^T P",
                 show(a)
@@ -290,12 +308,14 @@ impl CalibrationJson {
         );
         Some(if (1.0 / SITE_RATIO..=SITE_RATIO).contains(&ratio) {
             format!(
-                "its median radius under the calibration is {ratio:.4} times the magnitude {} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
+                "its median radius under the calibration is {} times the magnitude {} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
+                show_ratio(ratio),
                 self.magnitude
             )
         } else {
             format!(
-                "its median radius under the calibration is {ratio:.4e} times the magnitude {}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
+                "its median radius under the calibration is {} times the magnitude {}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
+                show_ratio(ratio),
                 self.magnitude
             )
         })
@@ -467,5 +487,43 @@ impl RadiusMedian {
             }
         }
         f64::INFINITY
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{RadiusMedian, excerpt};
+
+    #[test]
+    fn the_histogram_median_is_the_median_to_half_a_bin() {
+        // Radii 1, 2, ..., 1001 times a magnitude of 0.3: the median is 501; one bin is 2^(1/256).
+        let half_bin = 2_f64.powf(0.5 / 256.0) - 1.0;
+        let mut h = RadiusMedian::new(0.3);
+        for i in 1..=1001 {
+            h.push([0.0, 0.3 * f64::from(i), 0.0]);
+        }
+        assert_eq!(h.count(), 1001);
+        let r = h.ratio();
+        assert!((r / 501.0 - 1.0).abs() <= half_bin, "{r}");
+        // Ratios beyond 2^40 land in the end bin; non-finite ones count above all.
+        let mut h = RadiusMedian::new(1.0);
+        h.push([1e300, 0.0, 0.0]);
+        h.push([f64::INFINITY, 0.0, 0.0]);
+        h.push([f64::NAN, 0.0, 0.0]);
+        assert!(h.ratio().is_infinite());
+        let mut h = RadiusMedian::new(1.0);
+        for _ in 0..3 {
+            h.push([0.0; 3]);
+        }
+        h.push([1.0, 0.0, 0.0]);
+        assert!(h.ratio() <= 2_f64.powi(-39), "{}", h.ratio());
+        assert!(RadiusMedian::new(1.0).ratio().is_nan());
+    }
+
+    #[test]
+    fn excerpts_cut_long_text() {
+        assert_eq!(excerpt("abcdef", 3), "abc...");
+        assert_eq!(excerpt("abc", 3), "abc");
+        assert_eq!(excerpt("ééé", 2), "éé...");
     }
 }
