@@ -182,6 +182,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
+    record_provenance(&mut json, args)?;
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
     if let Some(vehicle) = &vehicle {
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)
@@ -236,11 +237,30 @@ fn reject(log: &mut log_file::Log, k: f64, model: Fit) -> Result<usize> {
     Ok(keep.iter().filter(|k| !**k).count())
 }
 
+/// What the calibration was made from: the format, magcal's version, the log's SHA-256 and data
+/// rows (readings, skipped, rejected), and its units where given.
+fn record_provenance(json: &mut CalibrationJson, args: &CalibrateArgs) -> Result<()> {
+    json.format = Some(crate::log::calibration::FORMAT.to_string());
+    json.magcal_version = Some(env!("CARGO_PKG_VERSION").to_string());
+    json.log_sha256 = Some(crate::log::calibration::sha256_file(&args.log)?);
+    json.log_rows = Some(json.samples + json.skipped + json.rejected);
+    json.units = args
+        .units
+        .and_then(|u| u.to_possible_value())
+        .map(|v| v.get_name().to_string());
+    Ok(())
+}
+
 fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {
     let fields: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
         log: path.display().to_string(),
+        format: None,
+        magcal_version: None,
+        log_sha256: None,
+        log_rows: None,
+        units: None,
         columns: log.columns.clone(),
         samples: log.readings.len(),
         skipped: log.skipped.len(),

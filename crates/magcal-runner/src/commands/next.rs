@@ -2,15 +2,15 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::Args;
 use magcal_core::log_fit;
 
 use crate::cli::Failure;
-use crate::log::calibration::read_calibration;
+use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration, sha256_file};
 use crate::log::read as log_file;
 use crate::log::site::{Date, Site, parse_model};
-use crate::log::vehicle::{BoxFlags, Place, Vehicle, fitted_problem};
+use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
 
 /// `magcal next`.
 #[derive(Debug, Args)]
@@ -39,7 +39,7 @@ pub struct NextArgs {
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub count: u64,
-    /// As for `calibrate`.
+    /// As for `calibrate` (default: the columns the calibration was made from).
     #[arg(long)]
     pub columns: Option<String>,
     /// As for `calibrate`.
@@ -47,74 +47,159 @@ pub struct NextArgs {
     pub skip_bad: bool,
 }
 
-/// per reading before and after.
-///
-/// # Errors
-/// A bad calibration, log or scenario (exit 2).
 /// Runs `next`: the attitudes that most increase the information of the log (D-optimal
 /// augmentation under the fitted model), with the standard errors and the certified D-efficiency
 /// per reading before and after.
 ///
+/// The calibration is checked before use, the log read with its columns unless `--columns` says
+/// otherwise; a log whose median calibrated radius is outside the fit's band is refused (its
+/// efficiencies and standard errors would be of another sensor or units), and a log that is not
+/// the one the calibration was fitted to (SHA-256) is warned about.
+///
 /// # Errors
-/// A bad calibration, log or scenario (exit 2).
+/// A bad calibration, log or scenario, a log that does not fit the calibration, or a box with a
+/// range too narrow to search (exit 2).
 pub fn run(args: &NextArgs) -> Result<(), Failure> {
     Ok(next_inner(args)?)
+}
+
+/// An efficiency for the screen: `None` (no certificate) and values above 1 in words, since a
+/// certified D-efficiency bounds designs inside the box and is at most 1 there.
+fn show_efficiency(e: Option<f64>) -> String {
+    match e {
+        None => "none".to_string(),
+        Some(e) if e > 1.0 => format!("none ({e:.4} times the best design's information per reading)"),
+        Some(e) if e >= 1e-3 => format!("{e:.4}"),
+        Some(e) => format!("{e:.3e}"),
+    }
+}
+
+/// Whether the full model is identifiable from `readings` (the log's units), as `calibrate` says
+/// it: from the calibration when it is the full fit of these very readings, else by the same
+/// fit ([`log_fit::fit`] of the full model at the calibration's magnitude); with the source.
+fn identifiable_before(cal: &CalibrationJson, same_readings: bool, readings: &[magcal_core::Vec3]) -> (bool, String) {
+    if same_readings && cal.fit == log_fit::FitModel::Full.as_str() {
+        return (cal.identifiable, "calibrate's verdict of this log".to_string());
+    }
+    match log_fit::fit(readings, cal.magnitude, log_fit::FitModel::Full) {
+        Ok(f) => (
+            f.identifiable,
+            "the full fit of this log, as calibrate fits it".to_string(),
+        ),
+        Err(e) => (false, format!("the full fit of this log fails: {e}")),
+    }
 }
 
 fn next_inner(args: &NextArgs) -> Result<()> {
     use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
+    let log_shown = args.log.display().to_string();
     let cal = read_calibration(&args.calibration)?;
     let place = args.site.zip(args.date).map(|(site, date)| Place {
         site,
         date,
         model: args.wmm,
     });
-    let scenario = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?
+    let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?
         .context("next needs --scenario, or the box as flags with --site and --date")?;
-    let log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    check_box(&vehicle)?;
+    let (problem, factor) = fitted_problem(&cal, &vehicle).with_context(|| shown.clone())?;
+    let columns = columns_for(&cal, &shown, &args.log, args.columns.as_deref())?;
+    let log_file::Log {
+        readings: mut log_readings,
+        skipped,
+        columns: read_columns,
+        ..
+    } = log_file::read(&args.log, columns.as_deref(), args.skip_bad)?;
+    // The readings alone are kept (24 bytes each), turned into nT and then into body fields in
+    // place.
+    let m = log_readings.len();
+    let mut radius = RadiusMedian::new(cal.magnitude);
+    for s in &log_readings {
+        radius.push(cal.apply(*s));
+    }
+    if let Some(why) = cal.radius_mismatch(radius.ratio()) {
+        bail!("{log_shown}: {why}; next needs the log the calibration {shown} was fitted to");
+    }
+    let same_file = match &cal.log_sha256 {
+        Some(recorded) => {
+            let sha = sha256_file(&args.log)?;
+            if &sha != recorded {
+                eprintln!(
+                    "magcal: warning: {log_shown} is not the log {shown} was fitted to ({}; SHA-256 {} there, {} here): the suggestions add to the log given",
+                    cal.log,
+                    crate::log::calibration::excerpt(recorded, 12),
+                    &sha[..12]
+                );
+            }
+            &sha == recorded
+        }
+        None => false,
+    };
+    let same_readings = same_file && read_columns == cal.columns && m == cal.samples && skipped.len() == cal.skipped;
+    let (before_identifiable, before_source) = identifiable_before(&cal, same_readings, &log_readings);
     if !cal.identifiable {
         eprintln!(
             "magcal: warning: {shown} is not identifiable ({}); the suggestions assume its fitted sensor",
             cal.verdict
         );
     }
-    // The log's units to the scenario field's (nT): only the field's direction comes from the site.
-    let field = scenario.field;
-    let (problem, factor) = fitted_problem(&cal, &scenario).with_context(|| shown.clone())?;
+    let field = vehicle.field;
     let model = *problem.model();
-    let readings: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| s.map(|v| v * factor)).collect();
     let r = field.magnitude();
+    // The log's units to the vehicle field's (nT): only the field's direction comes from the site.
+    for s in log_readings.iter_mut() {
+        *s = s.map(|v| v * factor);
+    }
+    let mut readings = log_readings;
     let before = InformationMatrix::from_readings(&readings, r);
-    let chosen = scenario
+    let chosen = vehicle
         .certificate
         .augment(&problem, before.matrix(), args.count as usize)
-        .with_context(|| format!("{}: the log's information is singular", args.log.display()))?;
+        .with_context(|| format!("{log_shown}: the log's information is singular"))?;
     let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
-    let added = model.measure_all(&field.body_fields(&attitudes));
-    let all: Vec<magcal_core::Vec3> = readings.iter().chain(&added).copied().collect();
-    let after = InformationMatrix::from_readings(&all, r);
-    let certificate = scenario.certificate(&problem);
-    let efficiency = |info: &InformationMatrix, m: usize| {
-        certificate
-            .as_ref()
-            .map_or(f64::NAN, |c| c.efficiency_bound(info.ln_det_nt(), m))
-    };
-    // Standard errors under the fitted model, noise from the residuals.
-    let body_log: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| cal.apply(*s).map(|v| v * factor)).collect();
-    let body_all: Vec<magcal_core::Vec3> = body_log.iter().copied().chain(field.body_fields(&attitudes)).collect();
+    let added_fields = field.body_fields(&attitudes);
     let sigma = cal.noise * factor;
+    // After: what the full fit makes of the log with readings of the fitted sensor at the
+    // suggested attitudes (noise drawn as `simulate` draws it), so that "identifiable" is what a
+    // fit gives, not only what the bound at the fitted sensor predicts.
+    let simulated = model
+        .noisy_readings(
+            &added_fields,
+            sigma,
+            &mut crate::pipeline::simulated_log_rng(vehicle.seed),
+        )
+        .with_context(|| format!("{shown}: noise {}", cal.noise))?;
+    readings.reserve_exact(attitudes.len());
+    readings.extend(simulated);
+    let after_fit = log_fit::fit(&readings, r, log_fit::FitModel::Full);
+    readings.truncate(m);
+    // The information of noise-free readings ([P1] eq. (12)).
+    readings.extend(model.measure_all(&added_fields));
+    let after = InformationMatrix::from_readings(&readings, r);
+    // The body fields: the log's calibrated (P (s - O), in nT), then the added attitudes'.
+    readings.truncate(m);
+    let bias_nt = cal.bias.map(|b| b * factor);
+    for s in readings.iter_mut() {
+        *s = magcal_core::small::mat_vec(&cal.p, magcal_core::small::sub(*s, bias_nt));
+    }
+    readings.extend(added_fields);
+    let (body_log, body_all) = (&readings[..m], &readings[..]);
+    let certificate = vehicle.certificate(&problem);
+    let efficiency =
+        |info: &InformationMatrix, m: usize| certificate.as_ref().map(|c| c.efficiency_bound(info.ln_det_nt(), m));
+    // Standard errors under the fitted model, noise from the residuals.
     let scales = PhysicalScales::default();
     let (crb_before, crb_after) = (
-        CramerRao::new(&model, &body_log, sigma, &scales),
-        CramerRao::new(&model, &body_all, sigma, &scales),
+        CramerRao::new(&model, body_log, sigma, &scales),
+        CramerRao::new(&model, body_all, sigma, &scales),
     );
+    for (line, reason) in &skipped {
+        eprintln!("magcal: skipped line {line}: {reason}");
+    }
     println!(
-        "{} readings of {}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
-        log.readings.len(),
-        args.log.display(),
-        args.count,
-        scenario.label
+        "{m} readings of {log_shown}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
+        args.count, vehicle.label
     );
     // The same attitude chosen again is one row with its readings.
     let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
@@ -151,29 +236,36 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         let name = names[i].trim_end_matches("_nt");
         println!("  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after));
     }
-    let m = log.readings.len();
-    let show = |e: f64| {
-        if e >= 1e-3 {
-            format!("{e:.4}")
-        } else {
-            format!("{e:.3e}")
-        }
-    };
+    let (e_before, e_after) = (efficiency(&before, m), efficiency(&after, m + attitudes.len()));
     println!(
         "\ncertified D-efficiency per reading in this box: before {}, after {} (against every design of as many readings)",
-        show(efficiency(&before, m)),
-        show(efficiency(&after, m + attitudes.len()))
+        show_efficiency(e_before),
+        show_efficiency(e_after)
     );
+    if e_before.is_none() {
+        println!(
+            "  no design in this box determines the linear model ([P1] eq. (9)-(12)): there is no bound to compare with"
+        );
+    } else if e_before.into_iter().chain(e_after).any(|e| e > 1.0) {
+        println!(
+            "  above 1 is no efficiency: the certificate bounds designs inside the box, and these readings hold more information per reading than any of them, so they come from attitudes outside it"
+        );
+    }
     println!(
         "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
-        log_fit::motioncal_gaps(&body_log),
-        log_fit::motioncal_gaps(&body_all),
-        log_fit::microstrain_coverage_percent(&body_log),
-        log_fit::microstrain_coverage_percent(&body_all)
+        log_fit::motioncal_gaps(body_log),
+        log_fit::motioncal_gaps(body_all),
+        log_fit::microstrain_coverage_percent(body_log),
+        log_fit::microstrain_coverage_percent(body_all)
     );
+    let after_identifiable = after_fit.as_ref().is_ok_and(|f| f.identifiable);
     println!(
-        "identifiable: before {}, after {}",
-        crb_before.verdict.identifiable, crb_after.verdict.identifiable
+        "identifiable: before {before_identifiable}, after {after_identifiable} (full model; before: {before_source}; after: the full fit of the log with the suggested readings simulated from the fitted sensor{})",
+        match &after_fit {
+            Ok(f) if !f.identifiable => format!(": {}", f.verdict),
+            Ok(_) => String::new(),
+            Err(e) => format!(": {e}"),
+        }
     );
     Ok(())
 }

@@ -18,6 +18,23 @@ pub struct StdError {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CalibrationJson {
     pub log: String,
+    // What the calibration was made from. A file written before these fields existed lacks them
+    // (`null`): its numbers are still checked, the log's identity is not.
+    /// [`FORMAT`]: a file of another format is refused rather than misread.
+    #[serde(default)]
+    pub format: Option<String>,
+    /// The magcal version that wrote the file.
+    #[serde(default)]
+    pub magcal_version: Option<String>,
+    /// The SHA-256 of the log's bytes, lowercase hex: `next` warns when given another log.
+    #[serde(default)]
+    pub log_sha256: Option<String>,
+    /// The log's data rows: readings fitted, skipped and rejected.
+    #[serde(default)]
+    pub log_rows: Option<usize>,
+    /// The log's units where `calibrate` was told them (`--units`), else `null`.
+    #[serde(default)]
+    pub units: Option<String>,
     pub columns: [String; 3],
     pub samples: usize,
     pub skipped: usize,
@@ -95,19 +112,408 @@ impl CalibrationJson {
     }
 }
 
-/// A `calibration.json` whose `p`, `bias` and `magnitude` are usable.
+/// The `format` this magcal writes and reads.
+pub const FORMAT: &str = "magcal-calibration-1";
+
+/// Largest Frobenius condition number `|P|_F |P^-1|_F` of a usable `p` (at least the 2-norm
+/// condition number, at most 3 times it).
+///
+/// The calibrated field `P (raw - bias)` carries a reading's relative error amplified by up to
+/// `cond(P)`: the ratio of the longest to the shortest axis of the ellipsoid the raw readings lie
+/// on. A magnetometer's axes, with their soft iron, differ in gain by percent to tens of percent
+/// (\[P1\]'s sensor: scale factors 0.7 to 1.3). On the public logs, `cond_F` is 3.01 and 3.02
+/// for the full fits of ck-explorer and hamagure set 1 (3 is the least, a multiple of the
+/// identity), and 17 and 21 for the full and diagonal fits of hamagure set 2 that run away. At
+/// 1000 a reading good to 0.1 % gives a calibrated field good to nothing: such a `p` is a garbled
+/// or nearly singular matrix, not a calibration.
+pub const MAX_CONDITION: f64 = 1e3;
+
+/// The Earth's main field at the surface lies between about 22,000 and 67,000 nT (WMM), so a log
+/// of the calibrated sensor from any site has a median calibrated radius within a factor
+/// 67 / 22 = 3.05 of the calibration's magnitude. Beyond this factor no site explains the log:
+/// other units, another sensor or the wrong columns.
+pub const SITE_RATIO: f64 = 3.2;
+
+/// `text`, cut to `max` characters (with "...") for an error message.
+pub fn excerpt(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        Some((i, _)) => format!("{}...", &text[..i]),
+        None => text.to_string(),
+    }
+}
+
+/// `value <= tol`, false for NaN: a check that cannot be computed fails.
+fn within(value: f64, tol: f64) -> bool {
+    value <= tol
+}
+
+/// A ratio for a message: fixed point near 1, scientific far from it.
+fn show_ratio(r: f64) -> String {
+    if (1e-3..1e3).contains(&r) {
+        format!("{r:.4}")
+    } else {
+        format!("{r:.4e}")
+    }
+}
+
+fn frobenius(m: &Mat3) -> f64 {
+    m.iter().flatten().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+impl CalibrationJson {
+    /// `p`'s Frobenius condition number `|P|_F |P^-1|_F` (infinite when singular).
+    pub fn condition(&self) -> f64 {
+        magcal_core::small::upper_triangular_inverse(&self.p)
+            .map_or(f64::INFINITY, |k| frobenius(&self.p) * frobenius(&k))
+    }
+
+    /// The checks of a calibration before use; the error names the field and its value.
+    ///
+    /// `p` upper triangular with a positive diagonal (\[P1\] eq. (6): the Cholesky factor of
+    /// `G = P^T P`), finite, invertible and conditioned below [`MAX_CONDITION`]; `bias` finite;
+    /// `magnitude` finite and positive; `noise` and `residual_rms` finite and not negative; and
+    /// what is derived from `p` agrees with it: `k = P^-1`, `scale` and `psi_deg` (CONVENTIONS.md's
+    /// inverse map of `K`), `soft_iron_inverse` (the symmetric square root of `P^T P`).
+    ///
+    /// # Errors
+    /// The first check that fails, in words.
+    pub fn check(&self) -> Result<(), String> {
+        use magcal_core::small::{mat_mul, transpose, upper_triangular_inverse};
+        if let Some(f) = &self.format
+            && f != FORMAT
+        {
+            return Err(format!("format {:?}: this magcal reads {FORMAT:?}", excerpt(f, 40)));
+        }
+        let show = |m: &Mat3| format!("{m:?}");
+        for (name, m) in [
+            ("p", &self.p),
+            ("k", &self.k),
+            ("soft_iron_inverse", &self.soft_iron_inverse),
+        ] {
+            if !m.iter().flatten().all(|v| v.is_finite()) {
+                return Err(format!("{name} {}: not finite", show(m)));
+            }
+        }
+        for (name, v) in [("bias", self.bias), ("scale", self.scale), ("psi_deg", self.psi_deg)] {
+            if !v.iter().all(|x| x.is_finite()) {
+                return Err(format!("{name} {v:?}: not finite"));
+            }
+        }
+        if !(self.magnitude.is_finite() && self.magnitude > 0.0) {
+            return Err(format!("magnitude {}: must be finite and positive", self.magnitude));
+        }
+        for (name, v) in [("noise", self.noise), ("residual_rms", self.residual_rms)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{name} {v}: must be finite and not negative"));
+            }
+        }
+        let p = &self.p;
+        for (i, j) in [(1, 0), (2, 0), (2, 1)] {
+            if p[i][j] != 0.0 {
+                return Err(format!(
+                    "p {}: entry ({}, {}) is {}; P is upper triangular ([P1] eq. (6))",
+                    show(p),
+                    i + 1,
+                    j + 1,
+                    p[i][j]
+                ));
+            }
+        }
+        if let Some(i) = (0..3).find(|&i| p[i][i] <= 0.0) {
+            return Err(format!(
+                "p {}: diagonal entry {} is {}; P has a positive diagonal (the Cholesky factor of G = P^T P)",
+                show(p),
+                i + 1,
+                p[i][i]
+            ));
+        }
+        if !frobenius(&mat_mul(&transpose(p), p)).is_finite() {
+            return Err(format!("p {}: too large (G = P^T P overflows)", show(p)));
+        }
+        let cond = self.condition();
+        if cond.is_nan() || cond > MAX_CONDITION {
+            return Err(format!(
+                "p {}: condition number {cond:.3e} above {MAX_CONDITION:e} (singular or garbled: it would amplify a reading's error by as much)",
+                show(p)
+            ));
+        }
+        let inverse = upper_triangular_inverse(p).ok_or_else(|| format!("p {}: singular", show(p)))?;
+        // Substitution is backward stable: |K P - I| <= c n eps |K| |P| with c n well below 64.
+        let eps = f64::EPSILON;
+        let kp = mat_mul(&self.k, p);
+        let off = frobenius(&std::array::from_fn(|i| {
+            std::array::from_fn(|j| kp[i][j] - if i == j { 1.0 } else { 0.0 })
+        }));
+        if !within(off, 64.0 * eps * frobenius(&self.k) * frobenius(p)) {
+            return Err(format!(
+                "k {}: not the inverse of p (|K P - I| = {off:.3e})",
+                show(&self.k)
+            ));
+        }
+        // psi and scale from K = P^-1; each is good to cond(P) eps relative.
+        let derived = magcal_core::ErrorModel::from_k(&inverse, self.bias);
+        let tol = 64.0 * eps * cond;
+        let scale = derived.scale();
+        if (0..3).any(|i| !within((self.scale[i] - scale[i]).abs(), tol * scale[i])) {
+            return Err(format!(
+                "scale {:?}: not the scale factors of p (from p: {scale:?})",
+                self.scale
+            ));
+        }
+        let psi = derived.psi_deg();
+        if (0..3).any(|i| !within((self.psi_deg[i] - psi[i]).abs().to_radians(), tol)) {
+            return Err(format!(
+                "psi_deg {:?}: not the non-orthogonality of p (from p: {psi:?})",
+                self.psi_deg
+            ));
+        }
+        // A^-1 A^-1 = G = P^T P, to the accuracy of a symmetric eigendecomposition of G.
+        let a = &self.soft_iron_inverse;
+        let g = mat_mul(&transpose(p), p);
+        let aa = mat_mul(a, a);
+        let off = frobenius(&std::array::from_fn(|i| std::array::from_fn(|j| aa[i][j] - g[i][j])));
+        let asymmetry = frobenius(&std::array::from_fn(|i| std::array::from_fn(|j| a[i][j] - a[j][i])));
+        if !(within(off, 256.0 * eps * frobenius(&g)) && within(asymmetry, 256.0 * eps * frobenius(a))) {
+            return Err(format!(
+                "soft_iron_inverse {}: not the symmetric square root of P^T P",
+                show(a)
+            ));
+        }
+        Ok(())
+    }
+
+    /// The band of `median |P (raw - bias)| / magnitude` around 1 within which a log is one of the
+    /// calibrated sensor in the calibration's field: 5 times the fit's residual rms relative to
+    /// the magnitude (the median of the log it was fitted to lies within one), and at least 1 %
+    /// (four bins of [`RadiusMedian`]).
+    pub fn radius_band(&self) -> f64 {
+        (5.0 * self.residual_rms / self.magnitude).max(0.01)
+    }
+
+    /// What a median calibrated radius of `ratio` times the magnitude says about a log: `None`
+    /// within [`Self::radius_band`], else why it is not the calibration's log, in words.
+    pub fn radius_mismatch(&self, ratio: f64) -> Option<String> {
+        let band = self.radius_band();
+        if (ratio - 1.0).abs() <= band {
+            return None;
+        }
+        let made_from = format!(
+            "the calibration was made from columns {}{}",
+            self.columns.join(", "),
+            self.units.as_ref().map_or(String::new(), |u| format!(" in {u}"))
+        );
+        Some(if (1.0 / SITE_RATIO..=SITE_RATIO).contains(&ratio) {
+            format!(
+                "its median radius under the calibration is {} times the magnitude {} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
+                show_ratio(ratio),
+                self.magnitude
+            )
+        } else {
+            format!(
+                "its median radius under the calibration is {} times the magnitude {}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
+                show_ratio(ratio),
+                self.magnitude
+            )
+        })
+    }
+}
+
+/// A `calibration.json` that passes [`CalibrationJson::check`].
+///
+/// # Errors
+/// A file that cannot be read, is larger than [`crate::limits::MAX_CALIBRATION_BYTES`], is not a calibration, or fails
+/// a check; one line naming the file and the field.
 pub fn read_calibration(path: &Path) -> Result<CalibrationJson> {
     let shown = path.display().to_string();
     let text = crate::limits::read_bounded(path, crate::limits::MAX_CALIBRATION_BYTES)?;
+    // A byte-order mark, as editors on Windows write it, is not part of the JSON.
     let text = text.strip_prefix(b"\xef\xbb\xbf").unwrap_or(&text);
-    let cal: CalibrationJson =
-        serde_json::from_slice(text).with_context(|| format!("{shown}: not a magcal calibration"))?;
-    if !(cal.p.iter().flatten().all(|v| v.is_finite())
-        && cal.bias.iter().all(|v| v.is_finite())
-        && cal.magnitude.is_finite()
-        && cal.magnitude > 0.0)
-    {
-        bail!("{shown}: p, bias or magnitude is not finite and positive");
-    }
+    let cal: CalibrationJson = serde_json::from_slice(text)
+        .map_err(|e| anyhow::anyhow!("{shown}: not a magcal calibration: {}", excerpt(&e.to_string(), 160)))?;
+    cal.check().map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     Ok(cal)
+}
+
+/// The SHA-256 of a file's bytes, lowercase hex, read in blocks.
+///
+/// # Errors
+/// A file that cannot be read.
+pub fn sha256_file(path: &Path) -> Result<String> {
+    use sha2::{Digest, Sha256};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let mut hash = Sha256::new();
+    let mut block = vec![0_u8; 1 << 16];
+    loop {
+        let n = file
+            .read(&mut block)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        if n == 0 {
+            break;
+        }
+        hash.update(&block[..n]);
+    }
+    Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// The columns to read `log` with: `asked` (`--columns`) when given, else the columns `cal` was
+/// made from, as 1-based indices of `log`'s header (or, for a log without a header, the
+/// `column N` it recorded). `None` when the log's first row cannot be read (the reader then says
+/// why).
+///
+/// # Errors
+/// A log without the recorded columns: one line naming the log, the calibration and both sets
+/// of columns.
+pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, asked: Option<&str>) -> Result<Option<String>> {
+    if let Some(asked) = asked {
+        return Ok(Some(asked.to_string()));
+    }
+    let Some((header, names)) = first_row(log) else {
+        return Ok(None);
+    };
+    let recorded = cal.columns.join(", ");
+    let shown = log.display();
+    let mut picks = Vec::with_capacity(3);
+    for name in &cal.columns {
+        let found = if header {
+            names.iter().position(|n| n.eq_ignore_ascii_case(name)).map(|i| i + 1)
+        } else {
+            name.strip_prefix("column ")
+                .and_then(|i| i.parse::<usize>().ok())
+                .filter(|i| (1..=names.len()).contains(i))
+        };
+        match found {
+            Some(i) => picks.push(i.to_string()),
+            None if header => bail!(
+                "{shown}: no column {:?}, which {cal_shown} was made from (columns {}; the log's: {}); give --columns",
+                excerpt(name, 40),
+                excerpt(&recorded, 80),
+                excerpt(&names.join(", "), 120)
+            ),
+            None => bail!(
+                "{shown}: no header and {} columns, and {cal_shown} was made from columns {}; give --columns",
+                names.len(),
+                excerpt(&recorded, 80)
+            ),
+        }
+    }
+    Ok(Some(picks.join(",")))
+}
+
+/// Whether the log's first row is a header (a cell that is not a number) and its cells, read as
+/// the log reader reads them; `None` when the file cannot be read or is empty.
+fn first_row(path: &Path) -> Option<(bool, Vec<String>)> {
+    let file = std::fs::File::open(path).ok()?;
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(std::io::BufReader::new(file));
+    let first = reader.records().next()?.ok()?;
+    let header = first.iter().any(|c| c.parse::<f64>().is_err());
+    Some((header, first.iter().map(str::to_string).collect()))
+}
+
+/// Bins of [`RadiusMedian`] per octave.
+const PER_OCTAVE: f64 = 256.0;
+/// Octaves of [`RadiusMedian`] on each side of the magnitude.
+const OCTAVES: f64 = 40.0;
+
+/// The median of `|b| / magnitude` over the calibrated readings `b` of a log, in constant memory
+/// (so that a log can be streamed): a histogram of `log2(|b| / magnitude)` in bins of 1/256
+/// octave (0.27 %) from 2^-40 to 2^40, whose end bins hold everything beyond; a non-finite
+/// radius counts above all.
+#[derive(Debug, Clone)]
+pub struct RadiusMedian {
+    magnitude: f64,
+    bins: Vec<u64>,
+    nonfinite: u64,
+    count: u64,
+}
+
+impl RadiusMedian {
+    /// An empty histogram for `magnitude` (finite and positive).
+    pub fn new(magnitude: f64) -> Self {
+        Self {
+            magnitude,
+            bins: vec![0; (2.0 * OCTAVES * PER_OCTAVE) as usize],
+            nonfinite: 0,
+            count: 0,
+        }
+    }
+
+    /// Adds one calibrated reading.
+    pub fn push(&mut self, b: magcal_core::Vec3) {
+        self.count += 1;
+        let ratio = magcal_core::small::norm(b) / self.magnitude;
+        if !ratio.is_finite() {
+            self.nonfinite += 1;
+            return;
+        }
+        let at = ((ratio.log2() + OCTAVES) * PER_OCTAVE).floor();
+        let last = self.bins.len() - 1;
+        // The saturating cast takes -inf (a zero radius) to 0.
+        self.bins[(at.max(0.0) as usize).min(last)] += 1;
+    }
+
+    /// Readings added.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// The (lower) median of `|b| / magnitude`, to half a bin (0.14 %); infinite when it is a
+    /// non-finite radius, NaN without readings.
+    pub fn ratio(&self) -> f64 {
+        if self.count == 0 {
+            return f64::NAN;
+        }
+        let rank = (self.count - 1) / 2;
+        let mut seen = 0;
+        for (i, &n) in self.bins.iter().enumerate() {
+            seen += n;
+            if seen > rank {
+                return ((i as f64 + 0.5) / PER_OCTAVE - OCTAVES).exp2();
+            }
+        }
+        f64::INFINITY
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{RadiusMedian, excerpt};
+
+    #[test]
+    fn the_histogram_median_is_the_median_to_half_a_bin() {
+        // Radii 1, 2, ..., 1001 times a magnitude of 0.3: the median is 501; one bin is 2^(1/256).
+        let half_bin = 2_f64.powf(0.5 / 256.0) - 1.0;
+        let mut h = RadiusMedian::new(0.3);
+        for i in 1..=1001 {
+            h.push([0.0, 0.3 * f64::from(i), 0.0]);
+        }
+        assert_eq!(h.count(), 1001);
+        let r = h.ratio();
+        assert!((r / 501.0 - 1.0).abs() <= half_bin, "{r}");
+        // Ratios beyond 2^40 land in the end bin; non-finite ones count above all.
+        let mut h = RadiusMedian::new(1.0);
+        h.push([1e300, 0.0, 0.0]);
+        h.push([f64::INFINITY, 0.0, 0.0]);
+        h.push([f64::NAN, 0.0, 0.0]);
+        assert!(h.ratio().is_infinite());
+        let mut h = RadiusMedian::new(1.0);
+        for _ in 0..3 {
+            h.push([0.0; 3]);
+        }
+        h.push([1.0, 0.0, 0.0]);
+        assert!(h.ratio() <= 2_f64.powi(-39), "{}", h.ratio());
+        assert!(RadiusMedian::new(1.0).ratio().is_nan());
+    }
+
+    #[test]
+    fn excerpts_cut_long_text() {
+        assert_eq!(excerpt("abcdef", 3), "abc...");
+        assert_eq!(excerpt("abc", 3), "abc");
+        assert_eq!(excerpt("ééé", 2), "éé...");
+    }
 }

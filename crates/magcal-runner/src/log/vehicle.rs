@@ -133,9 +133,36 @@ impl Vehicle {
     }
 }
 
+/// The narrowest range of roll, pitch or yaw a box may have, degrees: the attitude accuracy of a
+/// navigation-grade reference. A narrower range is a fixed angle written as a range, which no
+/// vehicle holds and no reference resolves; searched, it gives rounding (a box 1e-9 degree wide
+/// gave a certificate of NaN).
+pub const MIN_RANGE_DEG: f64 = 0.01;
+
+/// Every range of the vehicle's box at least [`MIN_RANGE_DEG`] wide.
+///
+/// # Errors
+/// The first range that is narrower, named with its width.
+pub fn check_box(scenario: &Vehicle) -> Result<()> {
+    for (name, range) in ["roll", "yaw", "pitch"].iter().zip(scenario.bounds.ranges()) {
+        let width = range.width().to_degrees();
+        if width < MIN_RANGE_DEG {
+            bail!(
+                "the box of {}: the {name} range is {width:.3e} degree wide; a range narrower than {MIN_RANGE_DEG} degree (a navigation-grade reference's accuracy) is a fixed angle and cannot be searched",
+                scenario.label
+            );
+        }
+    }
+    Ok(())
+}
+
 /// The fitted sensor as a design problem in the vehicle's field (nT) and box, and the factor from
 /// the log's units to nT (only the field's direction comes from the site).
+///
+/// # Errors
+/// A range of the box narrower than [`MIN_RANGE_DEG`], or a sensor the model does not take.
 pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magcal_core::design::DesignProblem, f64)> {
+    check_box(scenario)?;
     let field = scenario.field;
     let factor = field.magnitude() / cal.magnitude;
     if !(factor.is_finite() && factor > 0.0) {
@@ -149,7 +176,12 @@ pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magc
     ))
 }
 
-/// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box.
+/// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box:
+/// `None` when no design in the box determines the linear model. Above 1 when the readings hold
+/// more information per reading than any design in the box: they come from outside it.
+///
+/// # Errors
+/// As [`fitted_problem`].
 pub fn log_efficiency(
     cal: &CalibrationJson,
     scenario: &Vehicle,
