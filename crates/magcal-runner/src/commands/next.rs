@@ -1,5 +1,6 @@
 //! `magcal next CAL.json LOG`: the attitudes to visit next.
 
+use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -10,6 +11,7 @@ use crate::cli::Failure;
 use crate::log::calibration::read_calibration;
 use crate::log::read as log_file;
 use crate::log::vehicle::{BoxFlags, Vehicle, fitted_problem};
+use crate::output::file::to_stdout;
 
 /// `magcal next`.
 #[derive(Debug, Args)]
@@ -107,13 +109,17 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         CramerRao::new(&model, &body_log, sigma, &scales),
         CramerRao::new(&model, &body_all, sigma, &scales),
     );
-    println!(
+    // The table is formatted in memory (a few kilobytes) and written at the end, so that a
+    // failed write is one error.
+    let mut w = Vec::new();
+    writeln!(
+        w,
         "{} readings of {}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
         log.readings.len(),
         args.log.display(),
         args.count,
         scenario.label
-    );
+    )?;
     // The same attitude chosen again is one row with its readings.
     let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
     for (a, d) in &chosen {
@@ -122,13 +128,15 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             _ => rows.push((*a, 1, *d)),
         }
     }
-    println!(
+    writeln!(
+        w,
         "  {:>4} {:>9} {:>9} {:>11} {:>8} {:>12}",
         "k", "roll_deg", "pitch_deg", "heading_deg", "readings", "variance d"
-    );
+    )?;
     for (k, (a, n, d)) in rows.iter().enumerate() {
         let [roll, yaw, pitch] = a.to_degrees();
-        println!(
+        writeln!(
+            w,
             "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>12.4}",
             k + 1,
             roll,
@@ -136,18 +144,19 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             (-(yaw + field.yaw_offset_deg())).rem_euclid(360.0),
             n,
             d
-        );
+        )?;
     }
     let names = magcal_core::identifiability::PARAMETERS;
-    println!(
+    writeln!(
+        w,
         "\n  {:<10} {:>14} {:>14}  (bias in the log's units)",
         "parameter", "std before", "std after"
-    );
+    )?;
     for i in 0..9 {
         let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
         let show = |c: &CramerRao| c.std.map_or("singular".to_string(), |s| format!("{:.4e}", s[i] * unit));
         let name = names[i].trim_end_matches("_nt");
-        println!("  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after));
+        writeln!(w, "  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after))?;
     }
     let m = log.readings.len();
     let show = |e: f64| {
@@ -157,21 +166,24 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             format!("{e:.3e}")
         }
     };
-    println!(
+    writeln!(
+        w,
         "\ncertified D-efficiency per reading in this box: before {}, after {} (against every design of as many readings)",
         show(efficiency(&before, m)),
         show(efficiency(&after, m + attitudes.len()))
-    );
-    println!(
+    )?;
+    writeln!(
+        w,
         "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
         log_fit::motioncal_gaps(&body_log),
         log_fit::motioncal_gaps(&body_all),
         log_fit::microstrain_coverage_percent(&body_log),
         log_fit::microstrain_coverage_percent(&body_all)
-    );
-    println!(
+    )?;
+    writeln!(
+        w,
         "identifiable: before {}, after {}",
         crb_before.verdict.identifiable, crb_after.verdict.identifiable
-    );
-    Ok(())
+    )?;
+    to_stdout(|out| Ok(out.write_all(&w)?))
 }

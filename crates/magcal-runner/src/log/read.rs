@@ -12,6 +12,8 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use magcal_core::Vec3;
 
+use crate::output::manifest::Hashing;
+
 /// The readings of a log and what was skipped.
 #[derive(Debug, Clone)]
 pub struct Log {
@@ -23,6 +25,10 @@ pub struct Log {
     pub skipped: Vec<(usize, String)>,
     /// The names of the three columns read (`column 4` without a header).
     pub columns: [String; 3],
+    /// SHA-256 of the file's bytes as read (lower-case hex).
+    pub sha256: String,
+    /// The file's size in bytes as read.
+    pub bytes: u64,
 }
 
 /// Reads `path`. `columns`: names or 1-based indices, comma-separated.
@@ -38,7 +44,7 @@ pub fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Log> {
         .flexible(true)
         .trim(csv::Trim::All)
         .comment(Some(b'#'))
-        .from_reader(std::io::BufReader::new(file));
+        .from_reader(std::io::BufReader::new(Hashing::new(file)));
     let mut records = reader.records();
     let Some(first) = records.next() else {
         bail!("{shown}: the log is empty");
@@ -65,6 +71,8 @@ pub fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Log> {
         lines: Vec::new(),
         skipped: Vec::new(),
         columns: pick.map(|i| names[i].clone()),
+        sha256: String::new(),
+        bytes: 0,
     };
     let first_data_line = if header { 2 } else { 1 };
     let rows = pending.into_iter().map(Ok).chain(records);
@@ -102,6 +110,10 @@ pub fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Log> {
     if log.readings.is_empty() {
         bail!("{shown}: no readings ({} rows skipped)", log.skipped.len());
     }
+    // Every record was read: the hash covers the whole file.
+    let hashed = reader.into_inner().into_inner();
+    log.sha256 = hashed.hex();
+    log.bytes = hashed.bytes();
     Ok(log)
 }
 
