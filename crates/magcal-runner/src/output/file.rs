@@ -86,9 +86,7 @@ pub fn note_stdout_closed_at_start() {
 /// A standard output that was closed (`magcal ... >&-`).
 pub fn check_stdout() -> Result<()> {
     if STDOUT_CLOSED.load(Ordering::SeqCst) {
-        bail!(
-            "standard output is closed: redirect it to a file (or /dev/null), or give --out FILE where the command takes one"
-        );
+        bail!("standard output is closed: redirect it (to /dev/null to discard what the command prints)");
     }
     Ok(())
 }

@@ -82,10 +82,10 @@ impl ResultSet {
         if name.len() > 200 {
             bail!("{}: the directory name is longer than 200 bytes", target.display());
         }
+        check_inputs(target, inputs)?;
         if let Some(want) = kind.kind() {
             check_replaceable(target, want)?;
         }
-        check_inputs(target, inputs)?;
         let parent = match target.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
