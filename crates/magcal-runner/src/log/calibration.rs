@@ -55,7 +55,7 @@ pub struct CalibrationJson {
     pub coverage: Coverage,
 }
 
-/// [`log_fit::LackOfFit`] in the JSON.
+/// [`magcal_core::log_fit::LackOfFit`] in the JSON.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LackOfFitJson {
     /// The richer model of the most significant test.
