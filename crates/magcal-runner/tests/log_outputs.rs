@@ -308,6 +308,23 @@ fn outputs_never_replace_an_input_or_a_set_of_another_kind() {
         &in_dir(&["design", "--quiet", "--out", "d", "s.toml"]),
         &["d: holds a magcal calibration set"],
     );
+    // Nothing is written into a set, which the next command into it would replace whole.
+    refused(
+        &in_dir(&["apply", "d/calibration.json", "x.csv", "--out", "d/applied.csv"]),
+        &["d/applied.csv: d holds a magcal calibration set"],
+    );
+    refused(
+        &in_dir(&["apply", "d/calibration.json", "x.csv", "--out", "d/residuals.csv"]),
+        &["d/residuals.csv: d holds a magcal calibration set"],
+    );
+    refused(
+        &in_dir(&["calibrate", "x.csv", "--out", "r/cal"]),
+        &["r/cal: r holds a magcal run set"],
+    );
+    refused(
+        &in_dir(&["run", "--quiet", "--trials", "5", "--out", "d/run", "s.toml"]),
+        &["d/run: d holds a magcal calibration set"],
+    );
     // A run never replaces the directory of its scenario.
     fs::create_dir(dir.join("inside")).unwrap();
     fs::copy(smoke(), dir.join("inside/s.toml")).unwrap();

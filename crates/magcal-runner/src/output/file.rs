@@ -7,7 +7,7 @@
 //! file or a missing path: never a directory, a device, a FIFO or a symbolic link (write to standard
 //! output with `--out -` and redirect it for those), and never a file that is one of the command's
 //! inputs, compared by device and inode so that `./x.csv`, `x.csv` and a hard link of it are the
-//! same file. An error removes the temporary and leaves the path as it was; a temporary left by a
+//! same file, and never a file inside a magcal result set. An error removes the temporary and leaves the path as it was; a temporary left by a
 //! killed process is removed by the next write beside it.
 //!
 //! [`Output::Stdout`] writes to standard output and reports every failure (a full device, a closed
@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
 
+use super::manifest::SetKind;
 use super::staging::{alive, step};
 
 const TEMPORARY: &str = "magcal-tmp";
@@ -203,10 +204,19 @@ fn split(path: &Path) -> Result<(PathBuf, String)> {
     Ok((parent, name.to_string_lossy().into_owned()))
 }
 
-/// Refuses a path that is not a regular file or missing, or that is one of `inputs`.
+/// Refuses a path that is not a regular file or missing, that is one of `inputs`, or that lies in
+/// a magcal result set (which the next command into it replaces whole, this file with it).
 fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
     let shown = path.display();
     let (parent, _) = split(path)?;
+    let not_in_a_set = || match SetKind::of(&parent) {
+        Some(kind) => bail!(
+            "{shown}: {} holds a magcal {} set, which is replaced whole: write the file elsewhere",
+            parent.display(),
+            kind.as_str()
+        ),
+        None => Ok(()),
+    };
     match std::fs::symlink_metadata(path) {
         Ok(meta) => {
             let kind = meta.file_type();
@@ -231,10 +241,10 @@ fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
                     );
                 }
             }
-            Ok(())
+            not_in_a_set()
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => match std::fs::metadata(&parent) {
-            Ok(meta) if meta.is_dir() => Ok(()),
+            Ok(meta) if meta.is_dir() => not_in_a_set(),
             Ok(_) => bail!("{shown}: {} is not a directory", parent.display()),
             Err(_) => bail!("{shown}: no directory {}", parent.display()),
         },

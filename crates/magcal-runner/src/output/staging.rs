@@ -83,13 +83,22 @@ impl ResultSet {
             bail!("{}: the directory name is longer than 200 bytes", target.display());
         }
         check_inputs(target, inputs)?;
-        if let Some(want) = kind.kind() {
-            check_replaceable(target, want)?;
-        }
         let parent = match target.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
+        if let Some(want) = kind.kind() {
+            check_replaceable(target, want)?;
+            // A set inside another would go with it when that one is replaced.
+            if let Some(outer) = SetKind::of(&parent) {
+                bail!(
+                    "{}: {} holds a magcal {} set, which is replaced whole: give another --out",
+                    target.display(),
+                    parent.display(),
+                    outer.as_str()
+                );
+            }
+        }
         std::fs::create_dir_all(&parent).with_context(|| format!("{}: cannot create", parent.display()))?;
         recover(&parent, &name, target)?;
         let staging = parent.join(format!(".{name}.{STAGING}.{}", std::process::id()));
