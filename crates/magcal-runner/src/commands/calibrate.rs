@@ -111,10 +111,10 @@ pub struct CalibrateArgs {
 /// prints the table or the JSON.
 ///
 /// # Errors
-/// A bad log or option, a log that no model fits, or an output that cannot be written (exit 2,
-/// nothing replaced but what was written before the failure: the set is swapped in before
-/// printing); a calibration that is not identifiable or whose model the log rejects
-/// ([`Failure::Unusable`], exit 3, after its outputs are written).
+/// A bad log or option, a log that no model fits, or an output that cannot be written (exit 2; a
+/// failure before the swap replaces nothing, and a failed print leaves the new set in place); a
+/// calibration that is not identifiable or whose model the log rejects ([`Failure::Unusable`],
+/// exit 3, after its outputs are written).
 pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let inputs: Vec<&Path> = [Some(args.log.as_path()), args.scenario.as_deref()]
         .into_iter()
