@@ -8,6 +8,7 @@ use clap::{Args, Parser, Subcommand};
 
 use crate::commands;
 use crate::limits;
+use crate::output::file::Output;
 
 /// Calibration of strapdown three-axis magnetometers and D-optimal calibration manoeuvres, after
 /// Wu, Hu, Wu, Liu, "D-Optimal Design Applied to Calibration of Strapdown Three-axis Magnetometer".
@@ -29,7 +30,8 @@ enum Command {
     /// Redraw the figures of a results directory from its CSV files (into DIR/plots/).
     Plot(PlotArgs),
     /// Fit a log of raw readings: bias, non-orthogonality, scale factors, their standard errors,
-    /// and whether the log determines them.
+    /// and whether the log determines them; exit 3 when it does not, or when the log rejects the
+    /// model (the outputs are written all the same).
     Calibrate(commands::calibrate::CalibrateArgs),
     /// Calibrate every reading of a log with a calibration.json.
     Apply(commands::apply::ApplyArgs),
@@ -99,13 +101,31 @@ pub struct CheckArgs {
     pub baseline: Option<PathBuf>,
 }
 
+impl Command {
+    /// Whether the command writes to standard output.
+    fn writes_stdout(&self) -> bool {
+        let to_stdout = |out: &Option<PathBuf>| Output::from_flag(out.as_deref()) == Output::Stdout;
+        match self {
+            Self::Run(a) => !a.common.quiet,
+            Self::Design(a) => !a.common.quiet,
+            Self::Check(a) => !a.common.quiet,
+            Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) => true,
+            Self::Apply(a) => to_stdout(&a.out),
+            Self::Simulate(a) => to_stdout(&a.out),
+        }
+    }
+}
+
 /// A failure with its exit code.
 #[derive(Debug)]
 pub enum Failure {
-    /// Bad input or usage: exit 2.
+    /// Bad input or usage, or an output that cannot be written: exit 2.
     Input(anyhow::Error),
     /// `check` found a regression: exit 1 (the table of what moved).
     Regression(String),
+    /// The command ran and wrote its outputs, but the result is not a calibration to use: the log
+    /// does not determine it, or rejects its model. Exit 3, with the reason.
+    Unusable(String),
 }
 
 impl From<anyhow::Error> for Failure {
@@ -144,6 +164,13 @@ pub fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // A write past the file-size limit (`ulimit -f`) then fails with EFBIG, an error like a full
+    // disk, instead of killing the process by SIGXFSZ with its temporary files left behind.
+    #[cfg(unix)]
+    // SAFETY: as above.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
@@ -164,6 +191,12 @@ pub fn main() -> ExitCode {
             };
         }
     };
+    if cli.command.writes_stdout()
+        && let Err(e) = crate::output::file::check_stdout()
+    {
+        eprintln!("magcal: error: {e:#}");
+        return ExitCode::from(2);
+    }
     let result = match cli.command {
         Command::Run(args) => commands::run::run(&args),
         Command::Design(args) => commands::design::run(&args),
@@ -183,6 +216,10 @@ pub fn main() -> ExitCode {
         Err(Failure::Regression(table)) => {
             eprintln!("magcal: regression: these results moved beyond their tolerance:\n{table}");
             ExitCode::from(1)
+        }
+        Err(Failure::Unusable(why)) => {
+            eprintln!("magcal: not a calibration to use: {}", why.replace('\n', " "));
+            ExitCode::from(3)
         }
     }
 }

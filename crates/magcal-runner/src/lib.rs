@@ -10,7 +10,9 @@
 //! Logs: [`log`] reads raw readings and the calibration file for the log commands
 //! ([`commands::calibrate`], [`commands::apply`], [`commands::next`], [`commands::simulate`]).
 //!
-//! Exit codes: 0 success, 1 regression found by `check`, 2 bad input or usage.
+//! Exit codes: 0 success, 1 regression found by `check`, 2 bad input or usage or an output that
+//! cannot be written, 3 `calibrate` ran and wrote its outputs but the result is not a calibration
+//! to use (the log does not determine it, or rejects its model).
 
 pub mod cli;
 pub mod commands;

@@ -12,7 +12,13 @@ use std::path::{Path, PathBuf};
 use common::{magcal, magcal_with_limits, run_into, scenarios};
 use tempfile::TempDir;
 
-const CK: &str = "/work/shared/data/ck-explorer/acc_mag_log.csv";
+/// The public ck-explorer log, in `../shared/data/` beside the repository.
+fn ck_log() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ck-explorer/acc_mag_log.csv")
+        .display()
+        .to_string()
+}
 
 /// Every entry below `dir`: a file's bytes, or a symbolic link's target (never followed).
 fn state(dir: &Path) -> BTreeMap<String, Vec<u8>> {
@@ -63,20 +69,23 @@ fn refused_with(mut cmd: assert_cmd::Command, dir: &Path, args: &[&str], needles
     assert!(state(dir) == before, "{what}: the directory changed");
 }
 
-/// A directory with `files` and an earlier calibration output `out/calibration.json`.
+/// A directory with `files` and an earlier calibration set `out/` (of the ck-explorer log).
 fn with_files(files: &[(&str, &[u8])]) -> TempDir {
     let tmp = TempDir::new().unwrap();
     for (name, bytes) in files {
         fs::write(tmp.path().join(name), bytes).unwrap();
     }
-    fs::create_dir(tmp.path().join("out")).unwrap();
-    fs::write(tmp.path().join("out/calibration.json"), b"{\"earlier\": true}\n").unwrap();
+    magcal()
+        .current_dir(tmp.path())
+        .args(["calibrate", &ck_log(), "--out", "out"])
+        .assert()
+        .success();
     tmp
 }
 
 /// The first `rows` data rows of the ck-explorer log (header `ax,ay,az,mx,my,mz`).
 fn ck(rows: usize) -> String {
-    let text = fs::read_to_string(CK).unwrap();
+    let text = fs::read_to_string(ck_log()).unwrap();
     text.lines().take(rows + 1).map(|l| format!("{l}\n")).collect()
 }
 
@@ -125,7 +134,7 @@ fn bad_cells_are_named_by_the_line_an_editor_shows() {
     refused(
         d,
         &["apply", "out/calibration.json", "blank.csv"],
-        &["out/calibration.json"],
+        &["blank.csv: line 6: column 4 (mx) is NaN"],
     );
 }
 
@@ -161,7 +170,7 @@ fn unbounded_inputs_stop_with_one_short_line() {
         &["calibrate", "cell.csv"],
         &["cell.csv: line 3, column 3 (z): \"zzzz", "is not a number"],
     );
-    refused(d, &["apply", "/dev/zero", CK], &["/dev/zero: more than 1.0 MiB"]);
+    refused(d, &["apply", "/dev/zero", &ck_log()], &["/dev/zero: more than 1.0 MiB"]);
     refused(d, &["apply", "cal.json", "/dev/zero"], &["cal.json"]);
     refused(d, &["calibrate", "{}"], &["is a directory, not a log"]);
     refused(d, &["calibrate", "missing.csv"], &["missing.csv: cannot read the log"]);
@@ -315,7 +324,7 @@ fn unclear_columns_are_refused_naming_the_reason() {
         ),
         (
             vec!["apply", "out/calibration.json", "log.csv", "--columns", "1,1,2"],
-            vec!["out/calibration.json"],
+            vec!["log.csv", "--columns \"1,1,2\": column 1 (ax) is chosen twice"],
         ),
     ] {
         refused(d, &args, &needles);
@@ -324,7 +333,7 @@ fn unclear_columns_are_refused_naming_the_reason() {
 
 #[test]
 fn site_date_units_and_box_flags_are_typed_at_the_edge() {
-    let log = ck(2000);
+    let log = ck(12_000);
     let tmp = with_files(&[("log.csv", log.as_bytes())]);
     let d = tmp.path();
     let cal = |extra: &[&'static str]| [&["calibrate", "log.csv"][..], extra].concat();
@@ -451,7 +460,7 @@ fn site_date_units_and_box_flags_are_typed_at_the_edge() {
 
 #[test]
 fn a_southern_site_is_taken_with_or_without_an_equals_sign() {
-    let log = ck(2000);
+    let log = ck(12_000);
     let tmp = with_files(&[("log.csv", log.as_bytes())]);
     let magnitude = |site: &[&str]| -> f64 {
         let out = magcal()
@@ -481,7 +490,7 @@ fn a_southern_site_is_taken_with_or_without_an_equals_sign() {
 
 #[test]
 fn a_calibration_file_with_a_byte_order_mark_is_read() {
-    let log = ck(2000);
+    let log = ck(12_000);
     let tmp = with_files(&[("log.csv", log.as_bytes())]);
     let d = tmp.path();
     magcal()
@@ -507,7 +516,7 @@ fn a_calibration_file_with_a_byte_order_mark_is_read() {
         String::from_utf8_lossy(&b.stderr)
     );
     assert_eq!(a.stdout, b.stdout);
-    assert_eq!(String::from_utf8(a.stdout).unwrap().lines().count(), 2001);
+    assert_eq!(String::from_utf8(a.stdout).unwrap().lines().count(), 12_001);
 }
 
 /// What a case does to its copy of the set.

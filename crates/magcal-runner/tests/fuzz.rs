@@ -351,6 +351,7 @@ proptest! {
                 return Ok(());
             }
             Err(Failure::Regression(r)) => prop_assert!(false, "run reported a regression: {r}"),
+            Err(Failure::Unusable(r)) => prop_assert!(false, "run reported an unusable calibration: {r}"),
         }
         for f in ["summary.csv", "trials.csv", "design_metrics.csv", "designs.csv", "approximate.csv", "certificate.csv"] {
             let text = std::fs::read_to_string(out.join(f)).unwrap();
@@ -362,6 +363,7 @@ proptest! {
             Ok(()) => {}
             Err(Failure::Regression(r)) => prop_assert!(false, "check against itself moved:\n{r}\n{}", x.toml()),
             Err(Failure::Input(e)) => prop_assert!(false, "check: {e:#}\n{}", x.toml()),
+            Err(Failure::Unusable(r)) => prop_assert!(false, "check reported an unusable calibration: {r}"),
         }
     }
 }
@@ -473,6 +475,9 @@ fn names_the_input(e: Failure, log: &Path) -> Result<(), String> {
             }
         }
         Failure::Regression(r) => Err(format!("a regression from a log command: {r}")),
+        Failure::Unusable(r) => Err(format!(
+            "an unusable calibration from a command that does not calibrate: {r}"
+        )),
     }
 }
 
@@ -508,10 +513,15 @@ proptest! {
             argv.push(format!("--magnitude={r}"));
         }
         let args = Calibrate::try_parse_from(&argv).unwrap().args;
-        if let Err(e) = calibrate::run(&args) {
-            let why = names_the_input(e, &log);
-            prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
-            return Ok(());
+        match calibrate::run(&args) {
+            // A calibration that should not be used is still written, and named.
+            Ok(()) => {}
+            Err(Failure::Unusable(why)) => prop_assert!(why.contains(&log.display().to_string()), "{why}"),
+            Err(e) => {
+                let why = names_the_input(e, &log);
+                prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
+                return Ok(());
+            }
         }
         let json = out.join("calibration.json");
         prop_assert!(json.is_file());

@@ -1,15 +1,16 @@
 //! `magcal apply CAL.json LOG`: calibrate every reading of a log.
 
-use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::Args;
 
 use crate::cli::Failure;
 use crate::log::calibration::{RadiusMedian, columns_for, read_calibration};
 use crate::log::read as log_file;
-use crate::output::file::replace_with;
+use crate::output::file::Output;
+use crate::output::log_rows::AppliedRow;
+use crate::output::{self, Real};
 
 /// `magcal apply`.
 #[derive(Debug, Args)]
@@ -25,7 +26,8 @@ pub struct ApplyArgs {
     /// on stderr.
     #[arg(long)]
     pub skip_bad: bool,
-    /// Write the calibrated readings here (default: stdout).
+    /// Write the calibrated readings to this file, replaced whole (default, or `-`: standard
+    /// output). Only a regular file or a missing path is replaced, and never an input.
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
@@ -43,6 +45,9 @@ pub fn run(args: &ApplyArgs) -> Result<(), Failure> {
 }
 
 fn apply_inner(args: &ApplyArgs) -> Result<()> {
+    let out = Output::from_flag(args.out.as_deref());
+    let inputs = [args.calibration.as_path(), args.log.as_path()];
+    out.check(&inputs)?;
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
     let columns = columns_for(&cal, &shown, &args.log, args.columns.as_deref())?;
@@ -68,20 +73,15 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     if let Some(why) = cal.radius_mismatch(radius.ratio()) {
         eprintln!("magcal: warning: {}: {why}", args.log.display());
     }
-    let rows = |out: &mut dyn Write| -> Result<()> {
-        writeln!(out, "line,x,y,z,norm")?;
-        for (raw, line) in log.readings.iter().zip(&log.lines) {
-            let b = cal.apply(*raw);
-            writeln!(out, "{line},{},{},{},{}", b[0], b[1], b[2], magcal_core::small::norm(b))?;
+    let rows = log.readings.iter().zip(&log.lines).map(|(raw, &line)| {
+        let b = cal.apply(*raw);
+        AppliedRow {
+            line,
+            x: Real(b[0]),
+            y: Real(b[1]),
+            z: Real(b[2]),
+            norm: Real(magcal_core::small::norm(b)),
         }
-        Ok(())
-    };
-    match &args.out {
-        Some(path) => replace_with(path, rows),
-        None => {
-            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
-            rows(&mut w)?;
-            w.flush().context("stdout")
-        }
-    }
+    });
+    out.write(&inputs, |w| output::write_csv(rows, w))
 }

@@ -1,5 +1,7 @@
 //! `magcal calibrate LOG`: fit a log (CONVENTIONS.md "Real data" and its calibration forms).
 
+use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -12,8 +14,11 @@ use crate::log::calibration::{CalibrationJson, Coverage, LackOfFitJson, StdError
 use crate::log::read as log_file;
 use crate::log::site::{Date, Site, Units, parse_model, wmm_magnitude};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
-use crate::output::file::replace;
-use crate::output::file::replace_with;
+use crate::output::file::to_stdout;
+use crate::output::log_rows::ResidualRow;
+use crate::output::manifest::{CalibrationManifest, Hashing, sha256_hex};
+use crate::output::staging::{ResultSet, Target};
+use crate::output::{self, Real};
 
 /// `--fit`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -88,7 +93,9 @@ pub struct CalibrateArgs {
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
-    /// Also write DIR/calibration.json and DIR/residuals.csv.
+    /// Also write the calibration set DIR: calibration.json, residuals.csv and manifest.json,
+    /// replaced whole (DIR must be missing, empty or an earlier calibration set, and hold none of
+    /// the inputs).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// A scenario file whose attitude box and site give the coverage its D-efficiency: the log's
@@ -100,12 +107,26 @@ pub struct CalibrateArgs {
     pub attitude: BoxFlags,
 }
 
-/// Runs `calibrate`.
+/// Runs `calibrate`: fits the log, writes the calibration set of `--out` (swapped in whole), then
+/// prints the table or the JSON.
 ///
 /// # Errors
-/// A bad log or option (exit 2), or a log that no model fits.
+/// A bad log or option, a log that no model fits, or an output that cannot be written (exit 2; a
+/// failure before the swap replaces nothing, and a failed print leaves the new set in place); a
+/// calibration that is not identifiable or whose model the log rejects ([`Failure::Unusable`],
+/// exit 3, after its outputs are written).
 pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
+    let inputs: Vec<&Path> = [Some(args.log.as_path()), args.scenario.as_deref()]
+        .into_iter()
+        .flatten()
+        .collect();
+    // The target is checked, and what killed runs left beside it removed, before any work.
+    let set = match &args.out {
+        Some(dir) => Some(ResultSet::begin(dir, Target::Calibration, &inputs)?),
+        None => None,
+    };
     let mut log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    let rows = log.readings.len() + log.skipped.len();
     let rejected = match args.reject {
         Some(k) if k.is_finite() && k > 0.0 => reject(&mut log, k, args.fit)?,
         Some(k) => return Err(anyhow::anyhow!("--reject {k}: must be positive and finite").into()),
@@ -189,15 +210,32 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
         json.coverage.box_from = Some(vehicle.label.clone());
     }
-    if let Some(dir) = &args.out {
-        write_out(dir, &json, &log, &fit)?;
+    if let Some(set) = set {
+        write_out(set, &args.log, rows, &json, &log, &fit)?;
     }
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&json).context("JSON")?);
-    } else {
-        print_table(&json);
+    to_stdout(|w| {
+        if args.json {
+            serde_json::to_writer_pretty(&mut *w, &json).context("JSON")?;
+            writeln!(w)?;
+        } else {
+            print_table(w, &json)?;
+        }
+        Ok(())
+    })?;
+    unusable(&args.log, &json).map_or(Ok(()), |why| Err(Failure::Unusable(why)))
+}
+
+/// Why a calibration should not be used, if it should not: the log does not determine it, or
+/// rejects its model.
+fn unusable(log: &Path, json: &CalibrationJson) -> Option<String> {
+    let mut why = Vec::new();
+    if !json.identifiable {
+        why.push(format!("not identifiable: {}", json.verdict));
     }
-    Ok(())
+    if let Some(t) = json.lack_of_fit.as_ref().filter(|t| t.rejected) {
+        why.push(format!("the log rejects the {} model: {}", json.fit, t.words));
+    }
+    (!why.is_empty()).then(|| format!("{}: {}", log.display(), why.join("; ")))
 }
 
 /// Rounds of `--reject`: fit the kept readings (to a unit field: the residuals are relative),
@@ -324,42 +362,45 @@ fn top_level_parts(text: &str) -> Vec<&str> {
     parts
 }
 
-fn print_table(j: &CalibrationJson) {
+fn print_table(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     let v = |x: [f64; 3]| format!("{:>12.6} {:>12.6} {:>12.6}", x[0], x[1], x[2]);
-    println!(
+    writeln!(
+        w,
         "{}: {} readings (columns {}), {} skipped, {} rejected",
         j.log,
         j.samples,
         j.columns.join(", "),
         j.skipped,
         j.rejected
-    );
-    println!("fit {}", j.fit);
+    )?;
+    writeln!(w, "fit {}", j.fit)?;
     // `auto`'s reasons, one model per line (they are joined by "; " outside parentheses).
     for reason in j.fit_reason.as_deref().map(top_level_parts).unwrap_or_default() {
-        println!("  {reason}");
+        writeln!(w, "  {reason}")?;
     }
-    println!("magnitude {:.6} ({})", j.magnitude, j.magnitude_source);
-    println!("{:<22} {}", "bias", v(j.bias));
-    println!("{:<22} {}", "psi_deg", v(j.psi_deg));
-    println!("{:<22} {}", "scale", v(j.scale));
+    writeln!(w, "magnitude {:.6} ({})", j.magnitude, j.magnitude_source)?;
+    writeln!(w, "{:<22} {}", "bias", v(j.bias))?;
+    writeln!(w, "{:<22} {}", "psi_deg", v(j.psi_deg))?;
+    writeln!(w, "{:<22} {}", "scale", v(j.scale))?;
     let std = |x: Option<[f64; 3]>| x.map_or("singular".to_string(), v);
-    println!("{:<22} {}", "std error bias", std(j.std_error.bias));
-    println!("{:<22} {}", "std error psi_deg", std(j.std_error.psi_deg));
-    println!("{:<22} {}", "std error scale", std(j.std_error.scale));
+    writeln!(w, "{:<22} {}", "std error bias", std(j.std_error.bias))?;
+    writeln!(w, "{:<22} {}", "std error psi_deg", std(j.std_error.psi_deg))?;
+    writeln!(w, "{:<22} {}", "std error scale", std(j.std_error.scale))?;
     for (name, m) in [
         ("P (b = P (raw - bias))", j.p),
         ("A^-1 (symmetric)", j.soft_iron_inverse),
     ] {
         for (r, row) in m.iter().enumerate() {
-            println!("{:<22} {}", if r == 0 { name } else { "" }, v(*row));
+            writeln!(w, "{:<22} {}", if r == 0 { name } else { "" }, v(*row))?;
         }
     }
-    println!(
+    writeln!(
+        w,
         "residual | |b| - R |: rms {:.6} ({:.3} % of R), max {:.6}; noise per component {:.6}",
         j.residual_rms, j.residual_rms_percent, j.residual_max, j.noise
-    );
-    println!(
+    )?;
+    writeln!(
+        w,
         "{}: {}",
         if j.identifiable {
             "IDENTIFIABLE"
@@ -367,16 +408,17 @@ fn print_table(j: &CalibrationJson) {
             "NOT IDENTIFIABLE"
         },
         j.verdict
-    );
+    )?;
     if let Some(t) = &j.lack_of_fit {
         let head = if t.rejected {
             "MODEL REJECTED BY THE LOG"
         } else {
             "lack of fit"
         };
-        println!("{head}: {}", t.words);
+        writeln!(w, "{head}: {}", t.words)?;
     }
-    println!(
+    writeln!(
+        w,
         "coverage: MotionCal gaps {:.1} %, MicroStrain spatial coverage {:.1} %{}",
         j.coverage.motioncal_gap_percent,
         j.coverage.microstrain_coverage_percent,
@@ -386,35 +428,52 @@ fn print_table(j: &CalibrationJson) {
             (Some(e), Some(b)) => format!("; certified D-efficiency per reading {e:.3e} in the box of {b}"),
             _ => String::new(),
         }
-    );
+    )?;
+    Ok(())
 }
 
-/// Writes `calibration.json` and `residuals.csv` into `dir` (created), each through a temporary
-/// file renamed into place.
-fn write_out(dir: &Path, json: &CalibrationJson, log: &log_file::Log, fit: &LogFit) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
+/// Writes the calibration set: `calibration.json`, `residuals.csv` (one [`ResidualRow`] per
+/// reading fitted) and `manifest.json` with the log's and every file's SHA-256, into the staging
+/// directory of `set`, and swaps it in. `rows`: the data rows read from the log.
+fn write_out(
+    mut set: ResultSet,
+    path: &Path,
+    rows: usize,
+    json: &CalibrationJson,
+    log: &log_file::Log,
+    fit: &LogFit,
+) -> Result<()> {
+    let mut files = BTreeMap::new();
     let mut text = serde_json::to_vec_pretty(json).context("JSON")?;
     text.push(b'\n');
-    replace(&dir.join("calibration.json"), &text)?;
-    replace_with(&dir.join("residuals.csv"), |csv| {
-        writeln!(csv, "line,raw_x,raw_y,raw_z,x,y,z,norm,residual")?;
-        for (raw, line) in log.readings.iter().zip(&log.lines) {
+    set.put("calibration.json", &text)?;
+    files.insert("calibration.json".to_string(), sha256_hex(&text));
+    let mut hex = String::new();
+    set.put_with("residuals.csv", |w| {
+        let mut w = Hashing::new(w);
+        let residuals = log.readings.iter().zip(&log.lines).map(|(raw, &line)| {
             let b = fit.apply(*raw);
-            let n = magcal_core::small::norm(b);
-            writeln!(
-                csv,
-                "{line},{},{},{},{},{},{},{n},{}",
-                raw[0],
-                raw[1],
-                raw[2],
-                b[0],
-                b[1],
-                b[2],
-                n - fit.magnitude
-            )?;
-        }
+            let norm = magcal_core::small::norm(b);
+            ResidualRow {
+                line,
+                raw_x: Real(raw[0]),
+                raw_y: Real(raw[1]),
+                raw_z: Real(raw[2]),
+                x: Real(b[0]),
+                y: Real(b[1]),
+                z: Real(b[2]),
+                norm: Real(norm),
+                residual: Real(norm - fit.magnitude),
+            }
+        });
+        output::write_csv(residuals, &mut w)?;
+        hex = w.hex();
         Ok(())
-    })
+    })?;
+    files.insert("residuals.csv".to_string(), hex);
+    let manifest = CalibrationManifest::new(path, log.sha256.clone(), log.bytes, rows, files);
+    set.put("manifest.json", &manifest.to_bytes()?)?;
+    set.commit()
 }
 
 #[cfg(test)]

@@ -79,13 +79,16 @@ pub fn run(args: &CheckArgs) -> Result<(), Failure> {
         return Err(Failure::Regression(report(&moved)));
     }
     if !common.quiet {
-        println!(
-            "magcal check: {} matches {} within tolerance (seed {}, {} trials)",
-            common.scenario.display(),
-            dir.display(),
-            setup.scenario.seed,
-            setup.scenario.trials
-        );
+        crate::output::file::to_stdout(|w| {
+            Ok(writeln!(
+                w,
+                "magcal check: {} matches {} within tolerance (seed {}, {} trials)",
+                common.scenario.display(),
+                dir.display(),
+                setup.scenario.seed,
+                setup.scenario.trials
+            )?)
+        })?;
     }
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! `magcal next CAL.json LOG`: the attitudes to visit next.
 
+use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
@@ -11,6 +12,7 @@ use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_c
 use crate::log::read as log_file;
 use crate::log::site::{Date, Site, parse_model};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
+use crate::output::file::to_stdout;
 
 /// `magcal next`.
 #[derive(Debug, Args)]
@@ -194,13 +196,17 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         CramerRao::new(&model, body_log, sigma, &scales),
         CramerRao::new(&model, body_all, sigma, &scales),
     );
+    // The table is formatted in memory (a few kilobytes) and written at the end, so that a
+    // failed write is one error.
+    let mut w = Vec::new();
     for (line, reason) in &skipped {
         eprintln!("magcal: skipped line {line}: {reason}");
     }
-    println!(
+    writeln!(
+        w,
         "{m} readings of {log_shown}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
         args.count, vehicle.label
-    );
+    )?;
     // The same attitude chosen again is one row with its readings.
     let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
     for (a, d) in &chosen {
@@ -209,13 +215,15 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             _ => rows.push((*a, 1, *d)),
         }
     }
-    println!(
+    writeln!(
+        w,
         "  {:>4} {:>9} {:>9} {:>11} {:>8} {:>12}",
         "k", "roll_deg", "pitch_deg", "heading_deg", "readings", "variance d"
-    );
+    )?;
     for (k, (a, n, d)) in rows.iter().enumerate() {
         let [roll, _, pitch] = a.to_degrees();
-        println!(
+        writeln!(
+            w,
             "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>12.4}",
             k + 1,
             roll,
@@ -223,49 +231,55 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             a.heading_deg(field.yaw_offset_deg()),
             n,
             d
-        );
+        )?;
     }
     let names = magcal_core::identifiability::PARAMETERS;
-    println!(
+    writeln!(
+        w,
         "\n  {:<10} {:>14} {:>14}  (bias in the log's units)",
         "parameter", "std before", "std after"
-    );
+    )?;
     for i in 0..9 {
         let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
         let show = |c: &CramerRao| c.std.map_or("singular".to_string(), |s| format!("{:.4e}", s[i] * unit));
         let name = names[i].trim_end_matches("_nt");
-        println!("  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after));
+        writeln!(w, "  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after))?;
     }
     let (e_before, e_after) = (efficiency(&before, m), efficiency(&after, m + attitudes.len()));
-    println!(
+    writeln!(
+        w,
         "\ncertified D-efficiency per reading in this box: before {}, after {} (against every design of as many readings)",
         show_efficiency(e_before),
         show_efficiency(e_after)
-    );
+    )?;
     if e_before.is_none() {
-        println!(
+        writeln!(
+            w,
             "  no design in this box determines the linear model ([P1] eq. (9)-(12)): there is no bound to compare with"
-        );
+        )?;
     } else if e_before.into_iter().chain(e_after).any(|e| e > 1.0) {
-        println!(
+        writeln!(
+            w,
             "  above 1 is no efficiency: the certificate bounds designs inside the box, and these readings hold more information per reading than any of them, so they come from attitudes outside it"
-        );
+        )?;
     }
-    println!(
+    writeln!(
+        w,
         "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
         log_fit::motioncal_gaps(body_log),
         log_fit::motioncal_gaps(body_all),
         log_fit::microstrain_coverage_percent(body_log),
         log_fit::microstrain_coverage_percent(body_all)
-    );
+    )?;
     let after_identifiable = after_fit.as_ref().is_ok_and(|f| f.identifiable);
-    println!(
+    writeln!(
+        w,
         "identifiable: before {before_identifiable}, after {after_identifiable} (full model; before: {before_source}; after: the full fit of the log with the suggested readings simulated from the fitted sensor{})",
         match &after_fit {
             Ok(f) if !f.identifiable => format!(": {}", f.verdict),
             Ok(_) => String::new(),
             Err(e) => format!(": {e}"),
         }
-    );
-    Ok(())
+    )?;
+    to_stdout(|out| Ok(out.write_all(&w)?))
 }

@@ -4,6 +4,7 @@
 use anyhow::Result;
 
 use crate::cli::{Failure, PlotArgs};
+use crate::output::file::to_stdout;
 use crate::output::manifest::Manifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::plots;
@@ -15,9 +16,16 @@ use crate::plots;
 pub fn run(args: &PlotArgs) -> Result<(), Failure> {
     let manifest = Manifest::read(&args.dir)?;
     let target = args.dir.join("plots");
-    let mut set = ResultSet::begin(&target, Target::Owned)?;
+    let mut set = ResultSet::begin(&target, Target::Owned, &[])?;
     let drawn = plots::draw(&args.dir, &manifest, &mut set, "")?;
     set.commit()?;
-    println!("{} figures (SVG and PNG) drawn in {}", drawn.len(), target.display());
+    to_stdout(|w| {
+        Ok(writeln!(
+            w,
+            "{} figures (SVG and PNG) drawn in {}",
+            drawn.len(),
+            target.display()
+        )?)
+    })?;
     Ok(())
 }

@@ -7,6 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 
 use crate::cli::{Common, Failure, RunArgs};
+use crate::output::file::to_stdout;
 use crate::output::manifest::{Hashing, Manifest, sha256_hex};
 use crate::output::staging::{ResultSet, Target};
 use crate::output::{self, print};
@@ -38,7 +39,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     let setup = super::setup(common, common.seed, trials, !designs_only)?;
     let scenario = &setup.scenario;
     let dir = out.map_or_else(|| PathBuf::from("results").join(&scenario.name), Path::to_path_buf);
-    let mut set = ResultSet::begin(&dir, Target::Results)?;
+    let mut set = ResultSet::begin(&dir, Target::Results, &[&common.scenario])?;
     let options = RunOptions {
         progress: setup.progress,
         designs_only,
@@ -52,15 +53,19 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     let drawn = plots::draw(&staged, &manifest, &mut set, "plots/").context("drawing the figures")?;
     set.commit()?;
     if !common.quiet {
-        if designs_only {
-            print::flight_plans(&run, scenario.field.yaw_offset_deg());
-        }
-        print::summary(&run, &dir);
-        println!(
-            "{} figures (SVG and PNG) in {}",
-            drawn.len(),
-            dir.join("plots").display()
-        );
+        to_stdout(|w| {
+            if designs_only {
+                print::flight_plans(w, &run, scenario.field.yaw_offset_deg())?;
+            }
+            print::summary(w, &run, &dir)?;
+            writeln!(
+                w,
+                "{} figures (SVG and PNG) in {}",
+                drawn.len(),
+                dir.join("plots").display()
+            )?;
+            Ok(())
+        })?;
     }
     Ok(())
 }

@@ -1,13 +1,14 @@
 //! `magcal simulate SCENARIO --design NAME`: a log of a known sensor.
 
-use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::Args;
 
 use crate::cli::Failure;
-use crate::output::file::replace_with;
+use crate::output::file::Output;
+use crate::output::log_rows::SimulatedRow;
+use crate::output::{self, Real};
 
 /// `magcal simulate`.
 #[derive(Debug, Args)]
@@ -23,7 +24,8 @@ pub struct SimulateArgs {
     /// Seed of the noise (default: the scenario's).
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Write the log here (default: stdout).
+    /// Write the log to this file, replaced whole (default, or `-`: standard output). Only a
+    /// regular file or a missing path is replaced, and never the scenario.
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
@@ -38,6 +40,9 @@ pub fn run(args: &SimulateArgs) -> Result<(), Failure> {
 }
 
 fn simulate_inner(args: &SimulateArgs) -> Result<()> {
+    let target = Output::from_flag(args.out.as_deref());
+    let inputs = [args.scenario.as_path()];
+    target.check(&inputs)?;
     let scenario = crate::scenario::load(&args.scenario)?;
     let sigma = args.sigma_nt.unwrap_or(scenario.sigmas_nt[0]);
     if !(sigma.is_finite() && (0.0..=crate::limits::MAX_SIGMA_NT).contains(&sigma)) {
@@ -74,22 +79,18 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
     let readings = scenario
         .truth
         .noisy_readings(&scenario.field.body_fields(&attitudes), sigma, &mut rng)?;
-    let rows = |out: &mut dyn Write| -> Result<()> {
-        writeln!(out, "roll_deg,yaw_deg,pitch_deg,mx,my,mz")?;
-        for (a, s) in attitudes.iter().zip(&readings) {
-            let [r, y, p] = a.to_degrees();
-            writeln!(out, "{r},{y},{p},{},{},{}", s[0], s[1], s[2])?;
+    let rows = attitudes.iter().zip(&readings).map(|(a, s)| {
+        let [r, y, p] = a.to_degrees();
+        SimulatedRow {
+            roll_deg: Real(r),
+            yaw_deg: Real(y),
+            pitch_deg: Real(p),
+            mx: Real(s[0]),
+            my: Real(s[1]),
+            mz: Real(s[2]),
         }
-        Ok(())
-    };
-    match &args.out {
-        Some(path) => replace_with(path, rows)?,
-        None => {
-            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
-            rows(&mut w)?;
-            w.flush().context("stdout")?;
-        }
-    }
+    });
+    target.write(&inputs, |w| output::write_csv(rows, w))?;
     eprintln!(
         "magcal: {} readings of design {:?} at {sigma} nT; the field magnitude is {} nT (calibrate with --magnitude {})",
         readings.len(),

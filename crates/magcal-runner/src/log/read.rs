@@ -29,6 +29,7 @@ use anyhow::{Context, Result, bail};
 use magcal_core::Vec3;
 
 use crate::limits;
+use crate::output::manifest::Hashing;
 
 /// Longest line read, bytes: a row of a hundred columns of 20 characters is 2 KiB.
 pub const MAX_LINE_BYTES: usize = 1 << 20;
@@ -55,6 +56,10 @@ pub struct Log {
     pub skipped: Vec<(usize, String)>,
     /// The names of the three columns read (`column 4` without a header).
     pub columns: [String; 3],
+    /// SHA-256 of the file's bytes as read (lower-case hex).
+    pub sha256: String,
+    /// The file's size in bytes as read.
+    pub bytes: u64,
 }
 
 /// What [`stream`] read.
@@ -66,6 +71,10 @@ pub struct Streamed {
     pub skipped: Vec<(usize, String)>,
     /// The names of the three columns read (`column 4` without a header).
     pub columns: [String; 3],
+    /// SHA-256 of the file's bytes as read (lower-case hex).
+    pub sha256: String,
+    /// The file's size in bytes as read.
+    pub bytes: u64,
 }
 
 /// Reads `path` and holds its readings. `columns`: names or 1-based indices, comma-separated.
@@ -85,6 +94,8 @@ pub fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Log> {
         lines,
         skipped: s.skipped,
         columns: s.columns,
+        sha256: s.sha256,
+        bytes: s.bytes,
     })
 }
 
@@ -115,14 +126,19 @@ where
     }
     let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read the log"))?;
     let budget = Budget::new(held_bytes_per_reading);
-    read_from(
-        BufReader::with_capacity(1 << 16, file),
+    let mut hashing = Hashing::new(file);
+    let mut s = read_from(
+        BufReader::with_capacity(1 << 16, &mut hashing),
         &shown,
         columns,
         skip_bad,
         &budget,
         &mut each,
-    )
+    )?;
+    // Every line was read: the hash covers the whole file, the bytes the reader parsed.
+    s.sha256 = hashing.hex();
+    s.bytes = Hashing::bytes(&hashing);
+    Ok(s)
 }
 
 /// The memory a log may take: half of what the process may use.
@@ -516,6 +532,8 @@ fn read_from<R: Read>(
         readings,
         skipped,
         columns: pick.map(|i| names[i].clone()),
+        sha256: String::new(),
+        bytes: 0,
     })
 }
 

@@ -7,6 +7,7 @@
 //! successful trial, or a standard deviation of one value) is an empty cell, never `NaN`.
 
 pub mod file;
+pub mod log_rows;
 pub mod manifest;
 pub mod print;
 pub mod staging;

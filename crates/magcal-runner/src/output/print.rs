@@ -1,5 +1,7 @@
-//! The table `run` and `design` print on stdout.
+//! The table `run` and `design` print on stdout, written to any `io::Write` so that a failed
+//! write is an error.
 
+use std::io::Write;
 use std::path::Path;
 
 use crate::pipeline::RunOutput;
@@ -14,24 +16,27 @@ const FLIGHT_PLAN_ROWS: usize = 40;
 
 /// Each design as a pilot flies it: the attitudes in visiting order with roll, pitch, the compass
 /// heading of the nose, the readings to log there and the turn from the previous attitude.
-pub fn flight_plans(out: &RunOutput, yaw_offset_deg: f64) {
+pub fn flight_plans(w: &mut dyn Write, out: &RunOutput, yaw_offset_deg: f64) -> std::io::Result<()> {
     let rows: Vec<_> = crate::output::design_rows(out, yaw_offset_deg).collect();
     for d in &out.designs {
         let plan: Vec<_> = rows.iter().filter(|r| r.design == d.name).collect();
         let total: f64 = plan.iter().filter_map(|r| r.turn_deg.map(|t| t.0)).sum();
-        println!(
+        writeln!(
+            w,
             "flight plan {} ({} attitudes, {} readings, {:.0} deg of turning in all):",
             d.name,
             plan.len(),
             d.m(),
             total
-        );
-        println!(
+        )?;
+        writeln!(
+            w,
             "  {:>5} {:>9} {:>9} {:>11} {:>8} {:>9}",
             "visit", "roll_deg", "pitch_deg", "heading_deg", "readings", "turn_deg"
-        );
+        )?;
         for r in plan.iter().take(FLIGHT_PLAN_ROWS) {
-            println!(
+            writeln!(
+                w,
                 "  {:>5} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>9}",
                 r.visit,
                 r.roll_deg.0,
@@ -39,41 +44,48 @@ pub fn flight_plans(out: &RunOutput, yaw_offset_deg: f64) {
                 r.heading_deg.0,
                 r.readings,
                 r.turn_deg.map_or("-".to_string(), |t| format!("{:.1}", t.0))
-            );
+            )?;
         }
         if plan.len() > FLIGHT_PLAN_ROWS {
-            println!("  ... {} more in designs.csv", plan.len() - FLIGHT_PLAN_ROWS);
+            writeln!(w, "  ... {} more in designs.csv", plan.len() - FLIGHT_PLAN_ROWS)?;
         }
-        println!();
+        writeln!(w)?;
     }
+    Ok(())
 }
 
 /// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
 /// the outcome counts and the median of the main metrics beside their Cramer-Rao rms, with a
 /// warning line under a cell where fewer than 95 % of the trials are `ok`.
-pub fn summary(out: &RunOutput, dir: &Path) {
+pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Result<()> {
     match &out.approximate {
-        Some(a) => println!(
+        Some(a) => writeln!(
+            w,
             "certificate: no design of m readings in this box has ln det M_F above 9 ln m + {:.4} \
              (approximate design of {} points, d_max = {:.5}{})",
             a.certificate.ln_det_bound,
             a.support.len(),
             a.certificate.d_max,
             if a.converged { "" } else { ", tolerance NOT reached" }
-        ),
-        None => println!("certificate: none (no design in this box identifies the linear model)"),
+        )?,
+        None => writeln!(
+            w,
+            "certificate: none (no design in this box identifies the linear model)"
+        )?,
     }
-    println!(
+    writeln!(
+        w,
         "{:<14} {:>4} {:>10} {:>9} {:>9}  verdict",
         "design", "m", "ln det M_F", "D-eff", "certified"
-    );
+    )?;
     for (i, d) in out.designs.iter().enumerate() {
         let verdict = if d.verdict.identifiable {
             "identifiable".to_string()
         } else {
             format!("NOT IDENTIFIABLE: {}", d.verdict.weakest)
         };
-        println!(
+        writeln!(
+            w,
             "{:<14} {:>4} {:>10.4} {:>9.4} {:>9}  {verdict}",
             d.name,
             d.m(),
@@ -81,11 +93,12 @@ pub fn summary(out: &RunOutput, dir: &Path) {
             out.d_efficiency(i),
             out.d_efficiency_bound(i)
                 .map_or("-".to_string(), |e| format!(">= {e:.4}"))
-        );
+        )?;
     }
     if !out.cells.is_empty() {
-        println!();
-        println!(
+        writeln!(w)?;
+        writeln!(
+            w,
             "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {:>17} {:>17} {:>17} {:>12}",
             "design",
             "sigma_nt",
@@ -97,7 +110,7 @@ pub fn summary(out: &RunOutput, dir: &Path) {
             "eta_S med/crb %",
             "eta_O med/crb %",
             "heading med"
-        );
+        )?;
         for c in &out.cells {
             let s = c.summaries();
             let o = c.outcomes();
@@ -110,7 +123,8 @@ pub fn summary(out: &RunOutput, dir: &Path) {
             } else {
                 out.designs[c.design].name.clone()
             };
-            println!(
+            writeln!(
+                w,
                 "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
                 name,
                 c.sigma_nt,
@@ -122,16 +136,17 @@ pub fn summary(out: &RunOutput, dir: &Path) {
                 pair(1),
                 pair(2),
                 cell(s[6].summary.median)
-            );
+            )?;
             if 100 * o.ok < 95 * c.trials.len() {
-                println!(
+                writeln!(
+                    w,
                     "  warning: only {} of {} trials ok ({} not converged, {} not identifiable, {} failed); statistics are over the ok ones",
                     o.ok,
                     c.trials.len(),
                     o.not_converged,
                     o.not_identifiable,
                     o.failed
-                );
+                )?;
             }
         }
     }
@@ -140,9 +155,10 @@ pub fn summary(out: &RunOutput, dir: &Path) {
         let (lo, hi) = v
             .iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        println!("\n{} PSO runs: final ln det M_F from {lo:.4} to {hi:.4}", v.len());
+        writeln!(w, "\n{} PSO runs: final ln det M_F from {lo:.4} to {hi:.4}", v.len())?;
     }
     let times: Vec<String> = out.stages.iter().map(|(n, t)| format!("{n} {t:.3} s")).collect();
-    println!("\ntimes: {}", times.join(", "));
-    println!("written to {}", dir.display());
+    writeln!(w, "\ntimes: {}", times.join(", "))?;
+    writeln!(w, "written to {}", dir.display())?;
+    Ok(())
 }

@@ -10,6 +10,10 @@
 //! same target. An error before the swap removes the staging directory and leaves the target as it
 //! was.
 //!
+//! A result set is of one kind (its manifest's `kind`; see [`SetKind`]): a set of one kind never
+//! replaces a directory holding a set of another, and never a directory that holds one of the
+//! command's inputs.
+//!
 //! For tests, `MAGCAL_TEST_ABORT_AFTER_STEP=k` aborts the process right after the k-th step of the
 //! write phase (each file written, each rename), as a kill would.
 
@@ -20,16 +24,33 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
 
+use super::manifest::SetKind;
+
 const STAGING: &str = "magcal-staging";
 const OLD: &str = "magcal-old";
 
 /// What may be replaced at the target.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Target {
-    /// A results directory: replaced only when it is missing, empty, or holds a magcal manifest.
+    /// A results directory of `run` or `design`: replaced only when it is missing, empty, or holds
+    /// a magcal run set.
     Results,
+    /// A calibration set of `calibrate --out`: replaced only when it is missing, empty, or holds a
+    /// magcal calibration set.
+    Calibration,
     /// A part of a results directory that the result set owns whole (its `plots/`).
     Owned,
+}
+
+impl Target {
+    /// The kind of set a directory must hold to be replaced (none for an owned part).
+    fn kind(self) -> Option<SetKind> {
+        match self {
+            Self::Results => Some(SetKind::Run),
+            Self::Calibration => Some(SetKind::Calibration),
+            Self::Owned => None,
+        }
+    }
 }
 
 /// A result set being written.
@@ -37,17 +58,20 @@ pub enum Target {
 pub struct ResultSet {
     target: PathBuf,
     staging: PathBuf,
+    kind: Target,
     committed: bool,
 }
 
 impl ResultSet {
     /// Checks that `target` may be replaced, removes what killed runs left beside it, and creates
-    /// an empty staging directory.
+    /// an empty staging directory. `inputs` are the files the command reads: none may lie inside
+    /// the target.
     ///
     /// # Errors
     /// A target that names no directory of its own (`.`, `..`, `/`), that exists and is not a
-    /// magcal results directory, or whose parent cannot be created or written.
-    pub fn begin(target: &Path, kind: Target) -> Result<Self> {
+    /// magcal result set of the kind `kind` asks for, that holds one of `inputs`, or whose parent
+    /// cannot be created or written.
+    pub fn begin(target: &Path, kind: Target, inputs: &[&Path]) -> Result<Self> {
         let name = match target.components().next_back() {
             Some(std::path::Component::Normal(n)) => n.to_string_lossy().into_owned(),
             _ => bail!(
@@ -58,13 +82,23 @@ impl ResultSet {
         if name.len() > 200 {
             bail!("{}: the directory name is longer than 200 bytes", target.display());
         }
-        if kind == Target::Results {
-            check_replaceable(target)?;
-        }
+        check_inputs(target, inputs)?;
         let parent = match target.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
+        if let Some(want) = kind.kind() {
+            check_replaceable(target, want)?;
+            // A set inside another would go with it when that one is replaced.
+            if let Some(outer) = SetKind::of(&parent) {
+                bail!(
+                    "{}: {} holds a magcal {} set, which is replaced whole: give another --out",
+                    target.display(),
+                    parent.display(),
+                    outer.as_str()
+                );
+            }
+        }
         std::fs::create_dir_all(&parent).with_context(|| format!("{}: cannot create", parent.display()))?;
         recover(&parent, &name, target)?;
         let staging = parent.join(format!(".{name}.{STAGING}.{}", std::process::id()));
@@ -75,6 +109,7 @@ impl ResultSet {
         Ok(Self {
             target: target.to_path_buf(),
             staging,
+            kind,
             committed: false,
         })
     }
@@ -127,10 +162,30 @@ impl ResultSet {
         if let Ok(dir) = File::open(&self.staging) {
             let _ = dir.sync_all();
         }
+        // Another process may have written the target since `begin`: it must still be one this
+        // set may replace.
+        let recheck = |target: &Path| match self.kind.kind() {
+            Some(want) => check_replaceable(target, want),
+            None => Ok(()),
+        };
+        recheck(&self.target)?;
         if std::fs::symlink_metadata(&self.target).is_err() {
-            rename(&self.staging, &self.target)?;
-            step();
-        } else if exchange(&self.staging, &self.target)? {
+            match std::fs::rename(&self.staging, &self.target) {
+                Ok(()) => {
+                    step();
+                    self.committed = true;
+                    return Ok(());
+                }
+                // A set that another process put there meanwhile is exchanged like any other.
+                Err(_) if std::fs::symlink_metadata(&self.target).is_ok() => recheck(&self.target)?,
+                Err(e) => {
+                    return Err(e).with_context(|| {
+                        format!("{}: cannot rename to {}", self.staging.display(), self.target.display())
+                    });
+                }
+            }
+        }
+        if exchange(&self.staging, &self.target)? {
             step();
             // The old set is now at the staging path.
             remove_any(&self.staging)?;
@@ -162,8 +217,8 @@ impl Drop for ResultSet {
     }
 }
 
-/// Refuses to replace a directory that holds anything but a magcal result set.
-fn check_replaceable(target: &Path) -> Result<()> {
+/// Refuses to replace a directory that holds anything but a magcal result set of kind `want`.
+fn check_replaceable(target: &Path, want: SetKind) -> Result<()> {
     let Ok(meta) = std::fs::symlink_metadata(target) else {
         return Ok(());
     };
@@ -174,17 +229,42 @@ fn check_replaceable(target: &Path) -> Result<()> {
     if entries.next().is_none() {
         return Ok(());
     }
-    let manifest = target.join("manifest.json");
-    let ours = std::fs::read(&manifest)
-        .ok()
-        .and_then(|b| serde_json::from_slice::<super::manifest::Identity>(&b).ok())
-        .is_some();
-    if !ours {
-        bail!(
+    match SetKind::of(target) {
+        None => bail!(
             "{}: exists and is not a magcal results directory (no magcal manifest.json); \
              give another --out, or remove it",
             target.display()
-        );
+        ),
+        Some(kind) if kind != want => bail!(
+            "{}: holds a magcal {} set, not a {} set; give another --out, or remove it",
+            target.display(),
+            kind.as_str(),
+            want.as_str()
+        ),
+        Some(_) => Ok(()),
+    }
+}
+
+/// Refuses a target that is, or holds, one of `inputs` (compared by device and inode, so that a
+/// relative and an absolute path of the same file are caught).
+fn check_inputs(target: &Path, inputs: &[&Path]) -> Result<()> {
+    let Ok(dir) = std::fs::symlink_metadata(target) else {
+        return Ok(());
+    };
+    for input in inputs {
+        // An input that cannot be found is the command's to report.
+        let Ok(real) = std::fs::canonicalize(input) else {
+            continue;
+        };
+        for ancestor in real.ancestors() {
+            if std::fs::metadata(ancestor).is_ok_and(|m| super::file::same_inode(&m, &dir)) {
+                bail!(
+                    "{}: holds the input {}; replacing the directory would destroy it: give another --out",
+                    target.display(),
+                    input.display()
+                );
+            }
+        }
     }
     Ok(())
 }
@@ -218,7 +298,7 @@ fn recover(parent: &Path, name: &str, target: &Path) -> Result<()> {
 }
 
 /// Whether process `pid` runs (Linux: it has a `/proc` entry; elsewhere assumed not).
-fn alive(pid: u32) -> bool {
+pub(super) fn alive(pid: u32) -> bool {
     cfg!(target_os = "linux") && Path::new("/proc").join(pid.to_string()).exists()
 }
 
@@ -255,7 +335,7 @@ fn exchange(_: &Path, _: &Path) -> Result<bool> {
 }
 
 /// One step of the write phase; the test hook aborts after the k-th.
-fn step() {
+pub(super) fn step() {
     static STEPS: AtomicUsize = AtomicUsize::new(0);
     static LIMIT: std::sync::OnceLock<Option<usize>> = std::sync::OnceLock::new();
     let limit = LIMIT.get_or_init(|| {

@@ -19,6 +19,21 @@ pub fn magcal() -> assert_cmd::Command {
 /// `magcal` under an address-space limit and, optionally, a file-size limit (RLIMIT_FSIZE, with
 /// SIGXFSZ ignored so that a write past it fails with EFBIG as on a full disk).
 pub fn magcal_with_limits(address_space: u64, file_size: Option<u64>) -> assert_cmd::Command {
+    assert_cmd::Command::from_std(process_with_limits(address_space, file_size, true))
+}
+
+/// `magcal` under [`MEMORY_LIMIT`], as a process to spawn and wait on.
+pub fn magcal_process() -> std::process::Command {
+    process_with_limits(MEMORY_LIMIT, None, true)
+}
+
+/// `magcal` under [`MEMORY_LIMIT`] and a file-size limit with SIGXFSZ left at its default action
+/// (which kills): the binary must turn a write past the limit into an error itself.
+pub fn magcal_with_file_size(file_size: u64) -> assert_cmd::Command {
+    assert_cmd::Command::from_std(process_with_limits(MEMORY_LIMIT, Some(file_size), false))
+}
+
+fn process_with_limits(address_space: u64, file_size: Option<u64>, ignore_sigxfsz: bool) -> std::process::Command {
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_magcal"));
     // SAFETY: only async-signal-safe calls (setrlimit, signal) between fork and exec.
     unsafe {
@@ -35,7 +50,10 @@ pub fn magcal_with_limits(address_space: u64, file_size: Option<u64>) -> assert_
                     rlim_cur: size,
                     rlim_max: size,
                 };
-                libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+                libc::signal(
+                    libc::SIGXFSZ,
+                    if ignore_sigxfsz { libc::SIG_IGN } else { libc::SIG_DFL },
+                );
                 if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }
@@ -43,7 +61,7 @@ pub fn magcal_with_limits(address_space: u64, file_size: Option<u64>) -> assert_
             Ok(())
         });
     }
-    assert_cmd::Command::from_std(cmd)
+    cmd
 }
 
 pub fn scenarios() -> PathBuf {
