@@ -51,21 +51,47 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
     let columns = columns_for(&cal, &shown, &args.log, args.columns.as_deref())?;
-    let log = log_file::read(&args.log, columns.as_deref(), args.skip_bad)?;
-    // Every calibrated reading before anything is written: a non-finite one is refused whole.
+    // The log is streamed: each reading is calibrated and written as it is read, and nothing of
+    // it is held. An error part way (a bad row, a reading whose calibrated value is not finite)
+    // leaves the output as it was: the rows went to a temporary file that is then removed (on
+    // standard output, the rows before it have been written, as with any filter).
     let mut radius = RadiusMedian::new(cal.magnitude);
-    for (raw, line) in log.readings.iter().zip(&log.lines) {
-        let b = cal.apply(*raw);
-        if !(b.iter().all(|v| v.is_finite()) && magcal_core::small::norm(b).is_finite()) {
-            bail!(
-                "{}: line {line}: the reading {raw:?} calibrated by {shown} is {b:?}, not finite (is the calibration for this sensor and units?)",
-                args.log.display()
-            );
+    let mut streamed = None;
+    out.write(&inputs, |w| {
+        let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(w);
+        csv.write_record(&output::header::<AppliedRow>()?)?;
+        streamed = Some(log_file::stream(
+            &args.log,
+            columns.as_deref(),
+            args.skip_bad,
+            0,
+            |line, raw| {
+                let b = cal.apply(raw);
+                let norm = magcal_core::small::norm(b);
+                if !(b.iter().all(|v| v.is_finite()) && norm.is_finite()) {
+                    bail!(
+                        "{}: line {line}: the reading {raw:?} calibrated by {shown} is {b:?}, not finite (is the calibration for this sensor and units?)",
+                        args.log.display()
+                    );
+                }
+                radius.push(b);
+                csv.serialize(AppliedRow {
+                    line,
+                    x: Real(b[0]),
+                    y: Real(b[1]),
+                    z: Real(b[2]),
+                    norm: Real(norm),
+                })?;
+                Ok(())
+            },
+        )?);
+        csv.flush()?;
+        Ok(())
+    })?;
+    if let Some(s) = &streamed {
+        for (line, reason) in &s.skipped {
+            eprintln!("magcal: skipped line {line}: {reason}");
         }
-        radius.push(b);
-    }
-    for (line, reason) in &log.skipped {
-        eprintln!("magcal: skipped line {line}: {reason}");
     }
     if !cal.identifiable {
         eprintln!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
@@ -73,15 +99,5 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     if let Some(why) = cal.radius_mismatch(radius.ratio()) {
         eprintln!("magcal: warning: {}: {why}", args.log.display());
     }
-    let rows = log.readings.iter().zip(&log.lines).map(|(raw, &line)| {
-        let b = cal.apply(*raw);
-        AppliedRow {
-            line,
-            x: Real(b[0]),
-            y: Real(b[1]),
-            z: Real(b[2]),
-            norm: Real(magcal_core::small::norm(b)),
-        }
-    });
-    out.write(&inputs, |w| output::write_csv(rows, w))
+    Ok(())
 }
