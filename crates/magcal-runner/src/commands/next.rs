@@ -101,7 +101,10 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     // Standard errors under the fitted model, noise from the residuals.
     let body_log: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| cal.apply(*s).map(|v| v * factor)).collect();
     let body_all: Vec<magcal_core::Vec3> = body_log.iter().copied().chain(field.body_fields(&attitudes)).collect();
-    let sigma = cal.noise * factor;
+    let sigma = cal
+        .noise
+        .ok_or_else(|| anyhow::anyhow!("{shown}: the calibration's noise is unknown (calibrate with --noise)"))?
+        * factor;
     let scales = PhysicalScales::default();
     let (crb_before, crb_after) = (
         CramerRao::new(&model, &body_log, sigma, &scales),
