@@ -245,6 +245,33 @@ fn dK(truth: &ErrorModel) -> [Mat3; 6] {
     ]
 }
 
+/// Per body field, the gradient `J_i = d r_i / d theta` of the residual `r_i = |P (b_i - O)| - R`
+/// in `theta = (psi_deg, S, O_nt)` and `|g_i|^2`, `g_i = grad_b r_i = P^T w_i` (the module
+/// documentation): the residual's variance is `sigma^2 |g_i|^2`. The Fisher information is
+/// `sum J_i J_i^T / |g_i|^2` ([`information_per_unit_variance`]); an unweighted least-squares fit
+/// of the residuals has the covariance `sigma^2 A^-1 B A^-1` with `A = sum J_i J_i^T` and
+/// `B = sum |g_i|^2 J_i J_i^T`.
+pub fn residual_jacobian(truth: &ErrorModel, body_fields: &[Vec3]) -> Vec<([f64; 9], f64)> {
+    let P = truth.P();
+    let dk = dK(truth);
+    body_fields
+        .iter()
+        .map(|&B| {
+            let R = norm(B);
+            let w = B.map(|v| v / R);
+            let g = mat_t_vec(&P, w);
+            let mut J = [0.0; 9];
+            for (a, dka) in dk.iter().enumerate() {
+                J[a] = -dot(g, mat_vec(dka, B));
+            }
+            for i in 0..3 {
+                J[6 + i] = -g[i];
+            }
+            (J, dot(g, g))
+        })
+        .collect()
+}
+
 /// The Fisher information of `(psi_deg, S, O_nt)` for unit noise variance (nT^2).
 pub fn information_per_unit_variance(truth: &ErrorModel, body_fields: &[Vec3]) -> [[f64; 9]; 9] {
     let P = truth.P();

@@ -49,6 +49,8 @@ struct Coverage {
     failed: usize,
     /// Per parameter, the usable fits whose interval holds the truth.
     hits: [usize; 9],
+    /// Per parameter, the sum and the sum of squares of `(estimate - truth) / std`.
+    z: [(f64, f64); 9],
 }
 
 fn coverage(bounds: &AttitudeBox, m: usize, seed0: u64, settings: &FitSettings) -> Coverage {
@@ -61,6 +63,7 @@ fn coverage(bounds: &AttitudeBox, m: usize, seed0: u64, settings: &FitSettings) 
         not_usable: 0,
         failed: 0,
         hits: [0; 9],
+        z: [(0.0, 0.0); 9],
     };
     for seed in 0..LOGS {
         let readings = log(&truth, bounds, m, seed0 + seed);
@@ -71,8 +74,12 @@ fn coverage(bounds: &AttitudeBox, m: usize, seed0: u64, settings: &FitSettings) 
         match (f.usable, estimates(&f)) {
             (true, Some((e, h))) => {
                 c.usable += 1;
+                let t = f.quantile95.unwrap();
                 for i in 0..9 {
                     c.hits[i] += usize::from((e[i] - want[i]).abs() <= h[i]);
+                    let z = (e[i] - want[i]) / (h[i] / t);
+                    c.z[i].0 += z;
+                    c.z[i].1 += z * z;
                 }
             }
             (_, None) => c.unknown += 1,
@@ -83,8 +90,8 @@ fn coverage(bounds: &AttitudeBox, m: usize, seed0: u64, settings: &FitSettings) 
 }
 
 /// Every parameter's coverage within 3 binomial standard errors of 95 % (where at least 50 logs
-/// gave a usable fit; fewer are reported and not judged).
-fn assert_honest(label: &str, c: &Coverage) {
+/// gave a usable fit; fewer are reported and not judged); the failures in words.
+fn honest(label: &str, c: &Coverage) -> Vec<String> {
     let shares: Vec<String> = c
         .hits
         .iter()
@@ -98,19 +105,29 @@ fn assert_honest(label: &str, c: &Coverage) {
         c.failed,
         shares.join(" ")
     );
+    let n = c.usable.max(1) as f64;
+    eprintln!(
+        "  z mean {:?}\n  z sd {:?}",
+        c.z.map(|z| (100.0 * z.0 / n).round() / 100.0),
+        c.z.map(|z| (100.0 * (z.1 / n - (z.0 / n).powi(2)).max(0.0).sqrt()).round() / 100.0)
+    );
     if c.usable < 50 {
-        return;
+        return Vec::new();
     }
     let n = c.usable as f64;
     let se = (0.95 * 0.05 / n).sqrt();
-    for (i, &h) in c.hits.iter().enumerate() {
-        let share = h as f64 / n;
-        assert!(
-            (share - 0.95).abs() <= 3.0 * se,
-            "{label}: parameter {i} coverage {share:.3} of {n} usable fits, 3 se = {:.3}",
-            3.0 * se
-        );
-    }
+    c.hits
+        .iter()
+        .enumerate()
+        .filter(|(_, h)| (**h as f64 / n - 0.95).abs() > 3.0 * se)
+        .map(|(i, h)| {
+            format!(
+                "{label}: parameter {i} coverage {:.3} of {n} usable fits, 3 se = {:.3}",
+                *h as f64 / n,
+                3.0 * se
+            )
+        })
+        .collect()
 }
 
 fn restricted() -> AttitudeBox {
@@ -119,21 +136,23 @@ fn restricted() -> AttitudeBox {
 
 #[test]
 fn confidence_intervals_hold_the_truth_95_percent_of_the_time() {
+    let mut failures = Vec::new();
     for (name, bounds) in [
         ("every attitude", AttitudeBox::full()),
         ("roll, pitch +-30", restricted()),
     ] {
         for m in [12, 30, 300] {
             let c = coverage(&bounds, m, 10_000 * m as u64, &FitSettings::default());
-            assert_honest(&format!("{name}, m = {m}, noise estimated"), &c);
+            failures.extend(honest(&format!("{name}, m = {m}, noise estimated"), &c));
             let given = FitSettings {
                 noise: Some(SIGMA_NT),
                 truncation: None,
             };
             let c = coverage(&bounds, m, 10_000 * m as u64, &given);
-            assert_honest(&format!("{name}, m = {m}, noise given"), &c);
+            failures.extend(honest(&format!("{name}, m = {m}, noise given"), &c));
         }
     }
+    assert!(failures.is_empty(), "{failures:#?}");
 }
 
 #[test]
@@ -162,7 +181,7 @@ fn nine_readings_leave_the_noise_and_the_standard_errors_unknown() {
     let (std, sb) = (crb.std.unwrap(), g.std_bias.unwrap());
     for i in 0..3 {
         assert!(
-            (sb[i] - std[6 + i]).abs() <= 1e-9 * std[6 + i],
+            (sb[i] - std[6 + i]).abs() <= 1e-6 * std[6 + i],
             "{i}: {} {}",
             sb[i],
             std[6 + i]
@@ -248,7 +267,7 @@ fn rejection_corrects_the_noise_and_the_standard_errors_for_the_truncation() {
         let kept = rejection.kept(&readings);
         let settings = FitSettings {
             noise: None,
-            truncation: Some(k),
+            truncation: Some(rejection.half_width),
         };
         let f = log_fit::fit_with(&kept, r, FitModel::Full, &settings).unwrap();
         noise.push(f.noise.value().unwrap());
@@ -400,7 +419,8 @@ fn a_yaw_only_log_gets_no_confident_bias() {
         assert!(!f.usable, "tilt {tilt}: {why}");
     }
     // A sensor with one common scale on the same tilted circles: the offset model is true, and
-    // where the log determines it, its interval holds the true z bias.
+    // where the log determines it, its interval holds the true bias of the vertical axis (y,
+    // the body's up axis).
     let common = ErrorModel::new([0.0; 3], [1.1; 3], [3000.0, -6000.0, 5000.0]).unwrap();
     let bounds = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
     let f = log_fit::fit_tested(
@@ -413,6 +433,6 @@ fn a_yaw_only_log_gets_no_confident_bias() {
     eprintln!("common scale, tilt 3: {} {:?} {:?}", f.verdict, f.bias, f.std_bias);
     if f.usable {
         let (_, _, hb) = f.interval95().unwrap();
-        assert!((f.bias[2] - 5000.0).abs() <= hb[2], "{:?} +- {hb:?}", f.bias);
+        assert!((f.bias[1] + 6000.0).abs() <= hb[1], "{:?} +- {hb:?}", f.bias);
     }
 }

@@ -72,6 +72,10 @@ pub struct Rejection {
     pub rounds: usize,
     /// The K used.
     pub k: f64,
+    /// The truncation's half-width: K robust standard deviations of the last round, in the
+    /// readings' units (the distance from the ellipsoid beyond which a reading was dropped); the
+    /// fit of the kept readings takes it as [`super::FitSettings::truncation`].
+    pub half_width: f64,
 }
 
 impl Rejection {
@@ -98,9 +102,22 @@ pub fn truncated_variance_factor(k: f64) -> f64 {
     (1.0 - 2.0 * k * n.pdf(k) / inside).max(0.0)
 }
 
-/// Rounds of rejection: fit the kept readings with `fit`, keep every reading whose relative
-/// residual `|b| / R - 1` lies within `k` robust standard deviations (1.4826 median absolute
-/// deviations, [`crate::metrics::median`]) of the median residual, until the kept set is stable.
+/// The signed distance of a raw reading from a fit's ellipsoid, to first order:
+/// `(|b| - R) / |P^T u|` with `b = P (s - O)` and `u = b / |b|`. Its scatter is the sensor's
+/// noise whatever the direction (the calibrated residual `|b| - R` scatters `|P^T u|` times
+/// more, unequally for unequal scale factors, which would give a mixture of normals with heavier
+/// tails than the truncation assumes).
+fn distance(f: &LogFit, s: Vec3) -> f64 {
+    let b = f.apply(s);
+    let n = norm(b);
+    let u = if n > 0.0 { b.map(|v| v / n) } else { [1.0, 0.0, 0.0] };
+    (n - f.magnitude) / norm(crate::small::mat_t_vec(&f.p, u))
+}
+
+/// Rounds of rejection: fit the kept readings with `fit`, keep every reading whose distance
+/// from the fitted ellipsoid (in the readings' units) lies within `k` robust standard deviations (1.4826 median absolute
+/// deviations, [`crate::metrics::median`]) of the median residual, until the kept set is stable
+/// (or cycles: then the readings kept in every set of the cycle).
 ///
 /// # Errors
 /// [`RejectError`]: `k` below [`REJECT_MIN_K`], a round that would drop more than
@@ -115,6 +132,7 @@ pub fn reject_outliers(
         return Err(RejectError::TooSmall { k });
     }
     let mut keep = vec![true; readings.len()];
+    let mut history: Vec<Vec<bool>> = Vec::new();
     for round in 1..=MAX_ROUNDS {
         let kept: Vec<Vec3> = readings
             .iter()
@@ -126,7 +144,7 @@ pub fn reject_outliers(
             kept: kept.len(),
             source,
         })?;
-        let r: Vec<f64> = readings.iter().map(|s| norm(f.apply(*s)) / f.magnitude - 1.0).collect();
+        let r: Vec<f64> = readings.iter().map(|s| distance(&f, *s)).collect();
         let centre = median(&r);
         let spread = 1.4826 * median(&r.iter().map(|x| (x - centre).abs()).collect::<Vec<_>>());
         let next: Vec<bool> = r.iter().map(|x| (x - centre).abs() <= k * spread).collect();
@@ -144,9 +162,32 @@ pub fn reject_outliers(
                 dropped,
                 rounds: round,
                 k,
+                half_width: k * spread,
             });
         }
-        keep = next;
+        // Readings at the edge can flip back and forth between two fits: a kept set seen before
+        // closes a cycle, and the readings kept in every set of it are kept.
+        if let Some(start) = history.iter().position(|h| *h == next) {
+            let keep: Vec<bool> = (0..readings.len())
+                .map(|i| history[start..].iter().all(|h| h[i]) && next[i])
+                .collect();
+            let dropped = keep.iter().filter(|k| !**k).count();
+            if dropped as f64 > REJECT_MAX_SHARE * readings.len() as f64 {
+                return Err(RejectError::TooMany {
+                    k,
+                    dropped,
+                    readings: readings.len(),
+                });
+            }
+            return Ok(Rejection {
+                keep,
+                dropped,
+                rounds: round,
+                k,
+                half_width: k * spread,
+            });
+        }
+        history.push(std::mem::replace(&mut keep, next));
     }
     Err(RejectError::Unstable { k })
 }

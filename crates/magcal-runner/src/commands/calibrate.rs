@@ -132,8 +132,8 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let rejected = match args.reject {
         Some(k) => {
             let r = reject(&mut log, k, args.fit, &settings).with_context(|| format!("{shown}: --reject {k}"))?;
-            settings.truncation = Some(k);
-            r
+            settings.truncation = Some(r.half_width);
+            r.dropped
         }
         None => 0,
     };
@@ -195,7 +195,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
-        n.truncation_k = settings.truncation;
+        n.truncation_k = args.reject;
     }
     let vehicle = Vehicle::from_options(
         args.scenario.as_deref(),
@@ -219,13 +219,12 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
 }
 
 /// `--reject K` ([`log_fit::reject_outliers`]): the fits of its rounds are made to a unit field
-/// (the residuals are relative) with `settings`; `log` keeps the readings kept. Returns how many
-/// were dropped.
-fn reject(log: &mut log_file::Log, k: f64, model: Fit, settings: &FitSettings) -> Result<usize> {
+/// (the residuals are relative) with `settings`; `log` keeps the readings kept.
+fn reject(log: &mut log_file::Log, k: f64, model: Fit, settings: &FitSettings) -> Result<log_fit::Rejection> {
     let r = log_fit::reject_outliers(&log.readings, k, |kept| model.fit(kept, 1.0, settings).map(|(f, _)| f))?;
     log.readings = r.kept(&log.readings);
     log.lines = r.kept(&log.lines);
-    Ok(r.dropped)
+    Ok(r)
 }
 
 fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {
