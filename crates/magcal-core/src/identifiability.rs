@@ -257,8 +257,9 @@ pub fn residual_jacobian(truth: &ErrorModel, body_fields: &[Vec3]) -> Vec<([f64;
     body_fields
         .iter()
         .map(|&B| {
+            // A field of zero length (a reading at the bias) has no direction; any one serves.
             let R = norm(B);
-            let w = B.map(|v| v / R);
+            let w = if R > 0.0 { B.map(|v| v / R) } else { [1.0, 0.0, 0.0] };
             let g = mat_t_vec(&P, w);
             let mut J = [0.0; 9];
             for (a, dka) in dk.iter().enumerate() {

@@ -282,7 +282,9 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
                 _ => None,
             },
             interval95: match fit.noise {
-                Noise::Estimated { interval95, .. } => Some([interval95.0, interval95.1]),
+                Noise::Estimated { interval95, .. } if interval95.0.is_finite() && interval95.1.is_finite() => {
+                    Some([interval95.0, interval95.1])
+                }
                 _ => None,
             },
             truncation_k: None,

@@ -108,7 +108,7 @@ pub struct EllipsoidJson {
     pub words: String,
 }
 
-/// [`log_fit::LackOfFit`] in the JSON.
+/// [`magcal_core::log_fit::LackOfFit`] in the JSON.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LackOfFitJson {
     /// The richer model of the most significant test.
