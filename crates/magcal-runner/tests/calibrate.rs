@@ -881,3 +881,35 @@ fn random_points_are_not_an_ellipsoid_and_rejection_keeps_to_outliers() {
     assert!(c.rejected <= 6, "{}", c.rejected);
     assert_eq!(c.noise_estimate.as_ref().unwrap().truncation_k, Some(3.0));
 }
+
+#[test]
+fn a_yaw_only_log_gets_no_calibration_under_any_model() {
+    // 400 readings of [P1]'s sensor turned about the vertical with +-3 degrees of tilt (readings
+    // near a circle), with the magnitude given or not: no model is usable, and the table prints
+    // no bias.
+    let tmp = TempDir::new().unwrap();
+    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
+    let log = synthetic(tmp.path(), &paper::true_error_model(), &cap, 400, 30.0);
+    let r = (paper::changsha_field().magnitude() / 1e5).to_string();
+    for magnitude in [vec![], vec!["--magnitude", r.as_str()]] {
+        for fit in ["full", "diagonal", "offset", "auto"] {
+            let args = [&["--fit", fit][..], &magnitude[..]].concat();
+            let out = magcal()
+                .arg("calibrate")
+                .arg(&log)
+                .args(&args)
+                .arg("--json")
+                .output()
+                .unwrap();
+            if !out.status.success() {
+                // No estimate at all is as good an answer, said in one line.
+                assert_eq!(out.status.code(), Some(2));
+                continue;
+            }
+            let c: CalibrationJson = serde_json::from_slice(&out.stdout).unwrap();
+            assert!(!c.usable && !c.reasons.is_empty(), "{fit} {magnitude:?}: {}", c.verdict);
+            let (_, text, _) = table(&log, &args);
+            assert!(!text.lines().any(|l| l.starts_with("bias")), "{text}");
+        }
+    }
+}
