@@ -38,9 +38,26 @@ pub const PARAMETERS: [&str; 9] = [
 /// The unit of each of [`PARAMETERS`].
 pub const UNITS: [&str; 9] = ["deg", "deg", "deg", "-", "-", "-", "nT", "nT", "nT"];
 
-/// Body axes of the sensor axes (the sensor's axes are the body's, to first order): x nose, y up,
-/// z right (\[P1\] II.A).
-const AXES: [&str; 3] = ["1 (nose)", "2 (up)", "3 (right)"];
+/// How a verdict names the three sensor axes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AxisNames {
+    /// \[P1\]'s body frame, for designs (the sensor's axes are the body's, to first order): "1
+    /// (nose)", "2 (up)", "3 (right)" (\[P1\] II.A).
+    #[default]
+    Body,
+    /// A log's own columns, whose mounting is unknown: "x", "y", "z".
+    Sensor,
+}
+
+impl AxisNames {
+    /// The three names.
+    pub fn names(self) -> [&'static str; 3] {
+        match self {
+            Self::Body => ["1 (nose)", "2 (up)", "3 (right)"],
+            Self::Sensor => ["x", "y", "z"],
+        }
+    }
+}
 
 /// Scales beyond which a parameter is not determined.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -98,6 +115,21 @@ impl CramerRao {
     /// If `sigma_nt` is negative or not finite (a caller bug: scenarios are validated).
     #[track_caller]
     pub fn new(truth: &ErrorModel, body_fields: &[Vec3], sigma_nt: f64, scales: &PhysicalScales) -> Self {
+        Self::named(truth, body_fields, sigma_nt, scales, AxisNames::Body)
+    }
+
+    /// [`Self::new`] with the verdict naming the axes by `names`.
+    ///
+    /// # Panics
+    /// As [`Self::new`].
+    #[track_caller]
+    pub fn named(
+        truth: &ErrorModel,
+        body_fields: &[Vec3],
+        sigma_nt: f64,
+        scales: &PhysicalScales,
+        names: AxisNames,
+    ) -> Self {
         assert!(
             sigma_nt.is_finite() && sigma_nt >= 0.0,
             "sigma_nt must be finite and >= 0"
@@ -141,8 +173,8 @@ impl CramerRao {
         let verdict = Verdict {
             identifiable: within,
             weakest: match &covariance {
-                Some(c) => describe_by_correlation(c, &d, sigma_nt, within),
-                None => describe_singular(&direction),
+                Some(c) => describe_by_correlation(c, &d, sigma_nt, within, names),
+                None => describe_singular(&direction, names),
             },
             direction,
             std_in_scales,
@@ -213,6 +245,34 @@ fn dK(truth: &ErrorModel) -> [Mat3; 6] {
     ]
 }
 
+/// Per body field, the gradient `J_i = d r_i / d theta` of the residual `r_i = |P (b_i - O)| - R`
+/// in `theta = (psi_deg, S, O_nt)` and `|g_i|^2`, `g_i = grad_b r_i = P^T w_i` (the module
+/// documentation): the residual's variance is `sigma^2 |g_i|^2`. The Fisher information is
+/// `sum J_i J_i^T / |g_i|^2` ([`information_per_unit_variance`]); an unweighted least-squares fit
+/// of the residuals has the covariance `sigma^2 A^-1 B A^-1` with `A = sum J_i J_i^T` and
+/// `B = sum |g_i|^2 J_i J_i^T`.
+pub fn residual_jacobian(truth: &ErrorModel, body_fields: &[Vec3]) -> Vec<([f64; 9], f64)> {
+    let P = truth.P();
+    let dk = dK(truth);
+    body_fields
+        .iter()
+        .map(|&B| {
+            // A field of zero length (a reading at the bias) has no direction; any one serves.
+            let R = norm(B);
+            let w = if R > 0.0 { B.map(|v| v / R) } else { [1.0, 0.0, 0.0] };
+            let g = mat_t_vec(&P, w);
+            let mut J = [0.0; 9];
+            for (a, dka) in dk.iter().enumerate() {
+                J[a] = -dot(g, mat_vec(dka, B));
+            }
+            for i in 0..3 {
+                J[6 + i] = -g[i];
+            }
+            (J, dot(g, g))
+        })
+        .collect()
+}
+
 /// The Fisher information of `(psi_deg, S, O_nt)` for unit noise variance (nT^2).
 pub fn information_per_unit_variance(truth: &ErrorModel, body_fields: &[Vec3]) -> [[f64; 9]; 9] {
     let P = truth.P();
@@ -241,19 +301,29 @@ pub fn information_per_unit_variance(truth: &ErrorModel, body_fields: &[Vec3]) -
 }
 
 /// The name of parameter `i` in words.
-fn parameter_words(i: usize) -> String {
-    const PSI: [&str; 3] = ["psi1 (axes 2-3)", "psi2 (axes 1-3)", "psi3 (axes 1-2)"];
+fn parameter_words(i: usize, names: AxisNames) -> String {
+    let psi = match names {
+        AxisNames::Body => ["psi1 (axes 2-3)", "psi2 (axes 1-3)", "psi3 (axes 1-2)"],
+        AxisNames::Sensor => ["psi1 (axes y-z)", "psi2 (axes x-z)", "psi3 (axes x-y)"],
+    };
+    let axes = names.names();
     match i {
-        0..=2 => format!("non-orthogonality {}", PSI[i]),
-        3..=5 => format!("scale of axis {}", AXES[i - 3]),
-        _ => format!("bias of axis {}", AXES[i - 6]),
+        0..=2 => format!("non-orthogonality {}", psi[i]),
+        3..=5 => format!("scale of axis {}", axes[i - 3]),
+        _ => format!("bias of axis {}", axes[i - 6]),
     }
 }
 
 /// The weakest parameter in words (the largest std in units of its physical scale), with the
 /// parameter most correlated with it when the correlation exceeds 0.9 in magnitude: "scale and
 /// bias of sensor axis 2 (up) are confounded (correlation -0.9993); largest predicted std: ...".
-fn describe_by_correlation(cov: &[[f64; 9]; 9], scales: &[f64; 9], sigma_nt: f64, identifiable: bool) -> String {
+fn describe_by_correlation(
+    cov: &[[f64; 9]; 9],
+    scales: &[f64; 9],
+    sigma_nt: f64,
+    identifiable: bool,
+    axes: AxisNames,
+) -> String {
     let std: [f64; 9] = std::array::from_fn(|i| cov[i][i].max(0.0).sqrt());
     let worst = (0..9)
         .max_by(|&a, &b| (std[a] / scales[a]).total_cmp(&(std[b] / scales[b])))
@@ -263,7 +333,7 @@ fn describe_by_correlation(cov: &[[f64; 9]; 9], scales: &[f64; 9], sigma_nt: f64
         .filter(|&j| j != worst && std[j] > 0.0)
         .max_by(|&a, &b| corr(a).abs().total_cmp(&corr(b).abs()))
         .filter(|&j| corr(j).abs() >= 0.9);
-    let (names, _) = name_parameters(&[Some(worst), partner].into_iter().flatten().collect::<Vec<_>>());
+    let (names, _) = name_parameters(&[Some(worst), partner].into_iter().flatten().collect::<Vec<_>>(), axes);
     let correlation = partner.map_or(String::new(), |j| format!(" (correlation {:.4})", corr(j)));
     let what = match (identifiable, partner) {
         (true, _) => format!("weakest: {names}{correlation}"),
@@ -278,7 +348,7 @@ fn describe_by_correlation(cov: &[[f64; 9]; 9], scales: &[f64; 9], sigma_nt: f64
 
 /// The weakest direction (an eigenvector of a singular information) in words: its components
 /// that carry at least 4 % of its squared length, at most three.
-fn describe_singular(direction: &[f64; 9]) -> String {
+fn describe_singular(direction: &[f64; 9], axes: AxisNames) -> String {
     let mut order: Vec<usize> = (0..9).collect();
     order.sort_by(|&a, &b| direction[b].abs().total_cmp(&direction[a].abs()));
     let top: Vec<usize> = order
@@ -288,7 +358,7 @@ fn describe_singular(direction: &[f64; 9]) -> String {
         .filter(|&i| direction[i].abs() >= 0.2)
         .collect();
     let top = if top.is_empty() { vec![order[0]] } else { top };
-    let (names, with) = name_parameters(&top);
+    let (names, with) = name_parameters(&top, axes);
     let verb = if top.len() == 1 {
         "is not determined"
     } else {
@@ -300,17 +370,18 @@ fn describe_singular(direction: &[f64; 9]) -> String {
 /// Parameters in words: a scale and the bias of the same axis (the classic confusion of an axis
 /// that barely turns against the field) as "scale and bias of sensor axis k", the others joined
 /// by "and". Returns the names and, when a pair stands with others, `", with <the others>"`.
-fn name_parameters(params: &[usize]) -> (String, String) {
+fn name_parameters(params: &[usize], axes: AxisNames) -> (String, String) {
+    let names = axes.names();
     let pair = (0..3).find(|k| params.contains(&(3 + k)) && params.contains(&(6 + k)));
     let others: Vec<String> = params
         .iter()
         .filter(|&&i| pair.is_none_or(|k| i != 3 + k && i != 6 + k))
-        .map(|&i| parameter_words(i))
+        .map(|&i| parameter_words(i, axes))
         .collect();
     match pair {
-        Some(k) if others.is_empty() => (format!("scale and bias of sensor axis {}", AXES[k]), String::new()),
+        Some(k) if others.is_empty() => (format!("scale and bias of sensor axis {}", names[k]), String::new()),
         Some(k) => (
-            format!("scale and bias of sensor axis {}", AXES[k]),
+            format!("scale and bias of sensor axis {}", names[k]),
             format!(", with {}", others.join(" and ")),
         ),
         None => (others.join(" and "), String::new()),

@@ -121,6 +121,13 @@ impl Summary {
     }
 }
 
+/// The median of `values` (type 7, as [`Summary::median`]); NaN when empty.
+pub fn median(values: &[f64]) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    percentile(&sorted, 0.5)
+}
+
 /// Type-7 percentile `q` in [0, 1] of sorted values; NaN when empty.
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     match sorted.len() {

@@ -452,7 +452,7 @@ fn site_date_units_and_box_flags_are_typed_at_the_edge() {
         ),
         (cal(&["--roll=-5,5", "--pitch=-5,5"]), vec!["--site"]),
         (cal(&["--magnitude=-1"]), vec!["--magnitude -1: must be positive"]),
-        (cal(&["--reject", "0"]), vec!["--reject 0: must be positive"]),
+        (cal(&["--reject", "0"]), vec!["--reject 0: K = 0: must be at least 2"]),
     ] {
         refused(d, &args, &needles);
     }

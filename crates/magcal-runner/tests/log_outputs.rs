@@ -678,7 +678,7 @@ fn a_calibration_not_to_use_is_written_and_exits_3() {
     let full = log(&dir.join("full.csv"), 4, 2000);
     for (log, fit, why) in [
         (&flat, "diagonal", "not identifiable"),
-        (&full, "offset", "the log rejects the offset model"),
+        (&full, "offset", "the log rejects this model"),
     ] {
         let out = dir.join(format!("cal-{fit}"));
         let run = magcal()

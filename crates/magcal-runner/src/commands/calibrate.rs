@@ -6,11 +6,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use magcal_core::log_fit::{self, FitModel, LogFit};
+use magcal_core::log_fit::{self, FitModel, FitSettings, LogFit, Noise, significant};
 use magcal_core::small::upper_triangular_inverse;
 
 use crate::cli::Failure;
-use crate::log::calibration::{CalibrationJson, Coverage, LackOfFitJson, StdError};
+use crate::log::calibration::{
+    CalibrationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
+};
 use crate::log::read as log_file;
 use crate::log::site::{Date, Site, Units, parse_model, wmm_magnitude};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
@@ -39,14 +41,17 @@ impl Fit {
         self,
         readings: &[magcal_core::Vec3],
         magnitude: f64,
+        settings: &FitSettings,
     ) -> Result<(LogFit, Option<String>), magcal_core::CalibrationError> {
         let model = match self {
-            Fit::Auto => return log_fit::fit_auto(readings, magnitude).map(|(f, why)| (f, Some(why))),
+            Fit::Auto => {
+                return log_fit::fit_auto(readings, magnitude, settings).map(|(f, why)| (f, Some(why)));
+            }
             Fit::Full => FitModel::Full,
             Fit::Diagonal => FitModel::Diagonal,
             Fit::Offset => FitModel::Offset,
         };
-        log_fit::fit_tested(readings, magnitude, model).map(|f| (f, None))
+        log_fit::fit_tested(readings, magnitude, model, settings).map(|f| (f, None))
     }
 }
 
@@ -87,9 +92,15 @@ pub struct CalibrateArgs {
     pub skip_bad: bool,
     /// Drop readings whose `|calibrated| - R` lies more than K robust standard deviations
     /// (1.4826 median absolute deviations) from the median, refit, and repeat until the kept set
-    /// does not change; `rejected` counts them. Off by default.
+    /// does not change; `rejected` counts them. K is at least 2, and at most a tenth of the log
+    /// may go; the noise and standard errors are corrected for the truncation. Off by default.
     #[arg(long, value_name = "K")]
     pub reject: Option<f64>,
+    /// The readings' noise per component, in the log's units (a data sheet, a stationary
+    /// recording): the standard errors rest on it, and the readings' scatter is tested against
+    /// it. Default: estimated from the residuals (unknown when the fit is exact).
+    #[arg(long, value_name = "SIGMA")]
+    pub noise: Option<f64>,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -126,21 +137,30 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         None => None,
     };
     let mut log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
+        if let Some(v) = value
+            && !(v.is_finite() && v > 0.0)
+        {
+            return Err(anyhow::anyhow!("{name} {v}: must be positive and finite").into());
+        }
+    }
     let rows = log.readings.len() + log.skipped.len();
+    let shown = args.log.display().to_string();
+    let mut settings = FitSettings {
+        noise: args.noise,
+        truncation: None,
+    };
     let rejected = match args.reject {
-        Some(k) if k.is_finite() && k > 0.0 => reject(&mut log, k, args.fit)?,
-        Some(k) => return Err(anyhow::anyhow!("--reject {k}: must be positive and finite").into()),
+        Some(k) => {
+            let r = reject(&mut log, k, args.fit, &settings).with_context(|| format!("{shown}: --reject {k}"))?;
+            settings.truncation = Some(r.half_width);
+            r.dropped
+        }
         None => 0,
     };
-    if let Some(r) = args.magnitude
-        && !(r.is_finite() && r > 0.0)
-    {
-        return Err(anyhow::anyhow!("--magnitude {r}: must be positive and finite").into());
-    }
-    let shown = args.log.display().to_string();
     let fit_with = |magnitude: f64| -> Result<(LogFit, Option<String>)> {
         args.fit
-            .fit(&log.readings, magnitude)
+            .fit(&log.readings, magnitude, &settings)
             .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
     };
     let place = args.site.zip(args.date).map(|(site, date)| Place {
@@ -172,22 +192,23 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
                 && !(1e-2..=1e2).contains(&(radius / r))
             {
                 eprintln!(
-                    "magcal: warning: {shown}: the readings lie about {radius:.6e} from their centre, {:.1e} times the magnitude {r} ({source}); are they in the same units?",
-                    radius / r
+                    "magcal: warning: {shown}: the readings lie about {} from their centre, {:.1e} times the magnitude {} ({source}); are they in the same units?",
+                    significant(radius, 4),
+                    radius / r,
+                    significant(r, 7)
                 );
             }
             let (f, why) = fit_with(r)?;
             (f, why, source)
         }
         None => {
-            // The fitted mean radius: the geometric mean of the scale factors of a fit to a unit
-            // field, so that the scale factors are relative with product 1; when that fit is not
-            // determined, the radius of the best-fitting sphere.
-            let (unit, _) = fit_with(1.0)?;
+            // The fitted mean radius: the magnitude that makes the scale factors relative with
+            // product 1; when the fit is not determined, the radius of the best-fitting sphere.
+            // A fit does not depend on its magnitude but through that scale, so one fit serves.
+            let (unit, why) = fit_with(1.0)?;
             let (radius, source) = if unit.identifiable {
-                let s = unit.errors.scale();
                 (
-                    (s[0] * s[1] * s[2]).cbrt(),
+                    unit.mean_radius(),
                     "fitted mean radius (scale factors are relative to it, product 1)",
                 )
             } else {
@@ -197,12 +218,17 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
                     "radius of the best-fitting sphere (scale factors are relative to it)",
                 )
             };
-            let (f, why) = fit_with(radius)?;
+            let f = unit
+                .at_magnitude(radius)
+                .with_context(|| format!("{shown}: no calibration at the magnitude {}", significant(radius, 7)))?;
             (f, why, source.to_string())
         }
     };
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
+    if let Some(n) = json.noise_estimate.as_mut() {
+        n.truncation_k = args.reject;
+    }
     record_provenance(&mut json, args)?;
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
     if let Some(vehicle) = &vehicle {
@@ -222,57 +248,24 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         }
         Ok(())
     })?;
-    unusable(&args.log, &json).map_or(Ok(()), |why| Err(Failure::Unusable(why)))
+    if json.usable {
+        Ok(())
+    } else {
+        Err(Failure::Unusable(format!(
+            "{}: {}",
+            args.log.display(),
+            json.reasons.join("; ")
+        )))
+    }
 }
 
-/// Why a calibration should not be used, if it should not: the log does not determine it, or
-/// rejects its model.
-fn unusable(log: &Path, json: &CalibrationJson) -> Option<String> {
-    let mut why = Vec::new();
-    if !json.identifiable {
-        why.push(format!("not identifiable: {}", json.verdict));
-    }
-    if let Some(t) = json.lack_of_fit.as_ref().filter(|t| t.rejected) {
-        why.push(format!("the log rejects the {} model: {}", json.fit, t.words));
-    }
-    (!why.is_empty()).then(|| format!("{}: {}", log.display(), why.join("; ")))
-}
-
-/// Rounds of `--reject`: fit the kept readings (to a unit field: the residuals are relative),
-/// keep every reading within `k` robust standard deviations of the median residual, until the kept
-/// set is stable (at most 100 rounds). Returns how many were dropped; `log` keeps the rest.
-fn reject(log: &mut log_file::Log, k: f64, model: Fit) -> Result<usize> {
-    let all = std::mem::take(&mut log.readings);
-    let lines = std::mem::take(&mut log.lines);
-    let mut keep = vec![true; all.len()];
-    for _ in 0..100 {
-        let kept: Vec<magcal_core::Vec3> = all.iter().zip(&keep).filter(|(_, k)| **k).map(|(s, _)| *s).collect();
-        let (fit, _) = model
-            .fit(&kept, 1.0)
-            .with_context(|| format!("--reject {k}: no calibration of the {} readings kept", kept.len()))?;
-        let r: Vec<f64> = all
-            .iter()
-            .map(|s| magcal_core::small::norm(fit.apply(*s)) - 1.0)
-            .collect();
-        let median = |v: &mut Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
-        let centre = median(&mut r.clone());
-        let spread = 1.4826 * median(&mut r.iter().map(|x| (x - centre).abs()).collect());
-        let next: Vec<bool> = r.iter().map(|x| (x - centre).abs() <= k * spread).collect();
-        if next == keep {
-            break;
-        }
-        keep = next;
-    }
-    for ((s, line), k) in all.into_iter().zip(lines).zip(&keep) {
-        if *k {
-            log.readings.push(s);
-            log.lines.push(line);
-        }
-    }
-    Ok(keep.iter().filter(|k| !**k).count())
+/// `--reject K` ([`log_fit::reject_outliers`]): the fits of its rounds are made to a unit field
+/// (the residuals are relative) with `settings`; `log` keeps the readings kept.
+fn reject(log: &mut log_file::Log, k: f64, model: Fit, settings: &FitSettings) -> Result<log_fit::Rejection> {
+    let r = log_fit::reject_outliers(&log.readings, k, |kept| model.fit(kept, 1.0, settings).map(|(f, _)| f))?;
+    log.readings = r.kept(&log.readings);
+    log.lines = r.kept(&log.lines);
+    Ok(r)
 }
 
 /// What the calibration was made from: the format, magcal's version, the log's SHA-256 and data
@@ -316,7 +309,7 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
         residual_rms: fit.residual_rms,
         residual_max: fit.residual_max,
         residual_rms_percent: 100.0 * fit.residual_rms / fit.magnitude,
-        noise: fit.noise,
+        noise: fit.noise.value(),
         std_error: StdError {
             psi_deg: fit.std_psi_deg,
             scale: fit.std_scale,
@@ -340,6 +333,38 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
             d_efficiency_per_reading: None,
             box_from: None,
         },
+        usable: fit.usable,
+        reasons: fit.reasons.clone(),
+        noise_estimate: Some(NoiseJson {
+            source: fit.noise.source().to_string(),
+            dof: match fit.noise {
+                Noise::Estimated { dof, .. } => Some(dof),
+                _ => None,
+            },
+            interval95: match fit.noise {
+                Noise::Estimated { interval95, .. } if interval95.0.is_finite() && interval95.1.is_finite() => {
+                    Some([interval95.0, interval95.1])
+                }
+                _ => None,
+            },
+            truncation_k: None,
+        }),
+        interval95: fit
+            .interval95()
+            .zip(fit.quantile95)
+            .map(|((psi, scale, bias), q)| IntervalJson {
+                quantile: q,
+                psi_deg: psi,
+                scale,
+                bias,
+            }),
+        ellipsoid: Some(EllipsoidJson {
+            passed: fit.ellipsoid.passed,
+            residual_rms_percent: fit.ellipsoid.residual_percent,
+            limit_percent: log_fit::ELLIPSOID_LIMIT_PERCENT,
+            chi_square_p: fit.ellipsoid.chi_square_p,
+            words: fit.ellipsoid.words.clone(),
+        }),
     }
 }
 
@@ -362,8 +387,12 @@ fn top_level_parts(text: &str) -> Vec<&str> {
     parts
 }
 
+/// Three numbers of 7 significant digits in columns of 15.
+fn row(x: [f64; 3]) -> String {
+    x.map(|v| format!("{:>15}", significant(v, 7))).join("")
+}
+
 fn print_table(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
-    let v = |x: [f64; 3]| format!("{:>12.6} {:>12.6} {:>12.6}", x[0], x[1], x[2]);
     writeln!(
         w,
         "{}: {} readings (columns {}), {} skipped, {} rejected",
@@ -378,26 +407,66 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     for reason in j.fit_reason.as_deref().map(top_level_parts).unwrap_or_default() {
         writeln!(w, "  {reason}")?;
     }
-    writeln!(w, "magnitude {:.6} ({})", j.magnitude, j.magnitude_source)?;
-    writeln!(w, "{:<22} {}", "bias", v(j.bias))?;
-    writeln!(w, "{:<22} {}", "psi_deg", v(j.psi_deg))?;
-    writeln!(w, "{:<22} {}", "scale", v(j.scale))?;
-    let std = |x: Option<[f64; 3]>| x.map_or("singular".to_string(), v);
-    writeln!(w, "{:<22} {}", "std error bias", std(j.std_error.bias))?;
-    writeln!(w, "{:<22} {}", "std error psi_deg", std(j.std_error.psi_deg))?;
-    writeln!(w, "{:<22} {}", "std error scale", std(j.std_error.scale))?;
-    for (name, m) in [
-        ("P (b = P (raw - bias))", j.p),
-        ("A^-1 (symmetric)", j.soft_iron_inverse),
-    ] {
-        for (r, row) in m.iter().enumerate() {
-            writeln!(w, "{:<22} {}", if r == 0 { name } else { "" }, v(*row))?;
+    writeln!(w, "magnitude {} ({})", significant(j.magnitude, 7), j.magnitude_source)?;
+    if j.usable {
+        writeln!(w, "{:<22}{}", "bias", row(j.bias))?;
+        writeln!(w, "{:<22}{}", "psi_deg", row(j.psi_deg))?;
+        writeln!(w, "{:<22}{}", "scale", row(j.scale))?;
+        let std = |x: Option<[f64; 3]>| x.map_or(format!("{:>15}", "unknown"), row);
+        writeln!(w, "{:<22}{}", "std error bias", std(j.std_error.bias))?;
+        writeln!(w, "{:<22}{}", "std error psi_deg", std(j.std_error.psi_deg))?;
+        writeln!(w, "{:<22}{}", "std error scale", std(j.std_error.scale))?;
+        if let Some(i) = &j.interval95 {
+            writeln!(
+                w,
+                "95 % intervals: estimate +- {} standard errors ({})",
+                significant(i.quantile, 4),
+                match j.noise_estimate.as_ref().and_then(|n| n.dof) {
+                    Some(dof) => format!("Student t, {dof} degrees of freedom"),
+                    None => "normal, the noise given".to_string(),
+                }
+            )?;
         }
+        for (name, m) in [
+            ("P (b = P (raw - bias))", j.p),
+            ("A^-1 (symmetric)", j.soft_iron_inverse),
+        ] {
+            for (r, x) in m.iter().enumerate() {
+                writeln!(w, "{:<22}{}", if r == 0 { name } else { "" }, row(*x))?;
+            }
+        }
+    } else {
+        writeln!(
+            w,
+            "NO CALIBRATION TO USE: the estimates are not printed (--json has them, with \"usable\": false)"
+        )?;
     }
     writeln!(
         w,
-        "residual | |b| - R |: rms {:.6} ({:.3} % of R), max {:.6}; noise per component {:.6}",
-        j.residual_rms, j.residual_rms_percent, j.residual_max, j.noise
+        "residual | |b| - R |: rms {} ({} % of R), max {}",
+        significant(j.residual_rms, 4),
+        significant(j.residual_rms_percent, 4),
+        significant(j.residual_max, 4)
+    )?;
+    let n = j.noise_estimate.as_ref();
+    writeln!(
+        w,
+        "noise per component: {}",
+        match (j.noise, n) {
+            (Some(v), Some(n)) if n.source == "given" => format!("{} (given)", significant(v, 4)),
+            (Some(v), Some(n)) => format!(
+                "{} (from the residuals, {} degrees of freedom; 95 % interval {} to {}{})",
+                significant(v, 4),
+                n.dof.unwrap_or(0),
+                n.interval95.map_or("?".into(), |i| significant(i[0], 3)),
+                n.interval95.map_or("?".into(), |i| significant(i[1], 3)),
+                n.truncation_k.map_or(String::new(), |k| format!(
+                    "; corrected for the rejection at {k} robust standard deviations, whose kept readings scatter less"
+                ))
+            ),
+            (Some(v), None) => significant(v, 4),
+            (None, _) => "unknown: the fit is exact, so the log does not give it (give --noise)".to_string(),
+        }
     )?;
     writeln!(
         w,
@@ -417,15 +486,38 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
         };
         writeln!(w, "{head}: {}", t.words)?;
     }
+    if let Some(e) = &j.ellipsoid {
+        writeln!(
+            w,
+            "{}: {}",
+            if e.passed { "ellipsoid" } else { "NOT AN ELLIPSOID" },
+            e.words
+        )?;
+    }
+    if j.usable {
+        writeln!(
+            w,
+            "USABLE: identifiable, not rejected by the log, on an ellipsoid, standard errors known"
+        )?;
+    } else {
+        writeln!(w, "NOT USABLE: {}", j.reasons.join("; "))?;
+    }
     writeln!(
         w,
         "coverage: MotionCal gaps {:.1} %, MicroStrain spatial coverage {:.1} %{}",
         j.coverage.motioncal_gap_percent,
         j.coverage.microstrain_coverage_percent,
         match (&j.coverage.d_efficiency_per_reading, &j.coverage.box_from) {
-            (Some(e), Some(b)) if *e >= 1e-3 =>
-                format!("; certified D-efficiency per reading {e:.4} in the box of {b}"),
-            (Some(e), Some(b)) => format!("; certified D-efficiency per reading {e:.3e} in the box of {b}"),
+            // The certificate bounds designs inside the box: more information per reading than
+            // any of them comes from attitudes outside it, and is no efficiency.
+            (Some(e), Some(b)) if *e > 1.0 => format!(
+                "; certified D-efficiency per reading: none in the box of {b} (the log holds {} times the information per reading of the best design in it: its attitudes lie outside the box)",
+                significant(*e, 4)
+            ),
+            (Some(e), Some(b)) => format!(
+                "; certified D-efficiency per reading {} in the box of {b}",
+                significant(*e, 4)
+            ),
             _ => String::new(),
         }
     )?;

@@ -161,7 +161,10 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         .with_context(|| format!("{log_shown}: the log's information is singular"))?;
     let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
     let added_fields = field.body_fields(&attitudes);
-    let sigma = cal.noise * factor;
+    let noise = cal
+        .noise
+        .ok_or_else(|| anyhow::anyhow!("{shown}: the calibration's noise is unknown (calibrate with --noise)"))?;
+    let sigma = noise * factor;
     // After: what the full fit makes of the log with readings of the fitted sensor at the
     // suggested attitudes (noise drawn as `simulate` draws it), so that "identifiable" is what a
     // fit gives, not only what the bound at the fitted sensor predicts.
@@ -171,7 +174,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             sigma,
             &mut crate::pipeline::simulated_log_rng(vehicle.seed),
         )
-        .with_context(|| format!("{shown}: noise {}", cal.noise))?;
+        .with_context(|| format!("{shown}: noise {noise}"))?;
     readings.reserve_exact(attitudes.len());
     readings.extend(simulated);
     let after_fit = log_fit::fit(&readings, r, log_fit::FitModel::Full);

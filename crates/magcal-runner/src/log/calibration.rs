@@ -59,8 +59,9 @@ pub struct CalibrationJson {
     pub residual_rms: f64,
     pub residual_max: f64,
     pub residual_rms_percent: f64,
-    /// The noise per component estimated from the residuals, in the log's units.
-    pub noise: f64,
+    /// The noise per component the standard errors rest on, in the log's units: given
+    /// (`--noise`) or estimated from the residuals; `null` when neither (an exact fit).
+    pub noise: Option<f64>,
     pub std_error: StdError,
     pub identifiable: bool,
     pub verdict: String,
@@ -70,6 +71,58 @@ pub struct CalibrationJson {
     pub status: String,
     pub iterations: usize,
     pub coverage: Coverage,
+    /// A calibration to use: identifiable, its model not rejected by the log, the readings on an
+    /// ellipsoid, and standard errors known.
+    #[serde(default)]
+    pub usable: bool,
+    /// Why not `usable`, one reason each.
+    #[serde(default)]
+    pub reasons: Vec<String>,
+    /// Where `noise` comes from and how sure it is.
+    #[serde(default)]
+    pub noise_estimate: Option<NoiseJson>,
+    /// Half-widths of the 95 % confidence intervals (`null` where the standard errors are
+    /// unknown).
+    #[serde(default)]
+    pub interval95: Option<IntervalJson>,
+    /// Whether the readings lie on an ellipsoid.
+    #[serde(default)]
+    pub ellipsoid: Option<EllipsoidJson>,
+}
+
+/// Where the noise comes from.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct NoiseJson {
+    /// `given`, `residuals` or `unknown`.
+    pub source: String,
+    /// Residual degrees of freedom of an estimate.
+    pub dof: Option<usize>,
+    /// 95 % interval of an estimate (chi-square).
+    pub interval95: Option<[f64; 2]>,
+    /// `--reject K`: the estimate is corrected for the truncation at K.
+    pub truncation_k: Option<f64>,
+}
+
+/// Half-widths of 95 % confidence intervals: `quantile` standard errors.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct IntervalJson {
+    /// Student's t of the residual degrees of freedom, or 1.96 with a given noise.
+    pub quantile: f64,
+    pub psi_deg: [f64; 3],
+    pub scale: [f64; 3],
+    pub bias: [f64; 3],
+}
+
+/// The ellipsoid test.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EllipsoidJson {
+    pub passed: bool,
+    pub residual_rms_percent: f64,
+    /// The limit on `residual_rms_percent`.
+    pub limit_percent: f64,
+    /// With `--noise`: the chi-square p-value of the readings' scatter about the ellipsoid.
+    pub chi_square_p: Option<f64>,
+    pub words: String,
 }
 
 /// [`magcal_core::log_fit::LackOfFit`] in the JSON.
@@ -202,8 +255,11 @@ impl CalibrationJson {
         if !(self.magnitude.is_finite() && self.magnitude > 0.0) {
             return Err(format!("magnitude {}: must be finite and positive", self.magnitude));
         }
-        for (name, v) in [("noise", self.noise), ("residual_rms", self.residual_rms)] {
-            if !(v.is_finite() && v >= 0.0) {
+        // The noise is `null` where the log cannot give it (an exact fit without --noise).
+        for (name, v) in [("noise", self.noise), ("residual_rms", Some(self.residual_rms))] {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
                 return Err(format!("{name} {v}: must be finite and not negative"));
             }
         }

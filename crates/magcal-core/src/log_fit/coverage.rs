@@ -1,0 +1,153 @@
+//! Coverage heuristics of calibrated field directions: MotionCal's surface gaps and MicroStrain's
+//! spatial coverage.
+
+use crate::small::{Vec3, norm};
+
+/// MotionCal's surface-gap error of calibrated field directions, in percent of the sphere: the
+/// sphere cut into 100 regions of equal area (two polar caps above 78.52 degrees of latitude, two
+/// bands of 15 regions to 42.84 degrees, two of 34 about the equator: the boundaries where
+/// `sin(latitude)` is 0.98 and 0.68), and each region adds 1 with no direction in it, 0.2 with one,
+/// 0.01 with two (PJRC MotionCal, `quality.c`). 0 is full coverage, 100 none. Latitude is taken
+/// from the third component.
+pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
+    region_counts(fields)
+        .iter()
+        .map(|&c| match c {
+            0 => 1.0,
+            1 => 0.2,
+            2 => 0.01,
+            _ => 0.0,
+        })
+        .sum()
+}
+
+/// MicroStrain's spatial coverage, in percent: the sphere of directions cut into 18 bands of 10
+/// degrees of latitude and 32 sectors of 11.25 degrees of longitude (latitude `asin` of the third
+/// component, longitude `atan2` of the second and first), and the share of those 576 bins that
+/// hold at least one direction (MicroStrain by HBK, `microstrain_mag_cal`,
+/// `calculateSpatialCoverage`, MIT). The bins have equal angles, not equal areas: a polar bin is
+/// 11 times smaller than an equatorial one, so even uniform directions need many readings to
+/// fill them. MicroStrain calls more than 70 % good. Their tool bins the raw readings less their
+/// mean; magcal bins the calibrated field directions, as it does for [`motioncal_gaps`].
+pub fn microstrain_coverage_percent(fields: &[Vec3]) -> f64 {
+    const LATITUDE_BINS: usize = 18;
+    const LONGITUDE_BINS: usize = 32;
+    let mut occupied = [false; LATITUDE_BINS * LONGITUDE_BINS];
+    for b in fields {
+        let n = norm(*b);
+        if !(n > 0.0 && n.is_finite()) {
+            continue;
+        }
+        let latitude = (b[2] / n).clamp(-1.0, 1.0).asin();
+        let longitude = b[1].atan2(b[0]);
+        let bin = |angle: f64, half_range: f64, bins: usize| {
+            (((angle + half_range) / (2.0 * half_range) * bins as f64) as usize).min(bins - 1)
+        };
+        let i = bin(latitude, std::f64::consts::FRAC_PI_2, LATITUDE_BINS);
+        let j = bin(longitude, std::f64::consts::PI, LONGITUDE_BINS);
+        occupied[i * LONGITUDE_BINS + j] = true;
+    }
+    100.0 * occupied.iter().filter(|&&o| o).count() as f64 / (LATITUDE_BINS * LONGITUDE_BINS) as f64
+}
+
+/// Directions per region of the 100 equal-area regions of [`motioncal_gaps`].
+fn region_counts(fields: &[Vec3]) -> [usize; 100] {
+    let mut counts = [0usize; 100];
+    for b in fields {
+        let n = norm(*b);
+        if !(n > 0.0 && n.is_finite()) {
+            continue;
+        }
+        let sin_latitude = b[2] / n;
+        // Longitude in [0, 1) of a turn.
+        let turn = (b[1].atan2(b[0]) / std::f64::consts::TAU).rem_euclid(1.0);
+        let band = |regions: usize| ((turn * regions as f64) as usize).min(regions - 1);
+        let region = if sin_latitude > 0.98 {
+            0
+        } else if sin_latitude < -0.98 {
+            99
+        } else if sin_latitude > 0.68 {
+            1 + band(15)
+        } else if sin_latitude < -0.68 {
+            84 + band(15)
+        } else if sin_latitude >= 0.0 {
+            16 + band(34)
+        } else {
+            50 + band(34)
+        };
+        counts[region] += 1;
+    }
+    counts
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::stream_rng;
+
+    #[test]
+    fn motioncal_gaps_count_empty_regions_of_equal_area() {
+        assert!((motioncal_gaps(&[]) - 100.0).abs() < 1e-12);
+        // One direction per region (centres of the bands): 20 % of the sphere's error left.
+        let mut one = Vec::new();
+        for (lat_sin, regions) in [(0.99, 1), (0.83, 15), (0.34, 34), (-0.34, 34), (-0.83, 15), (-0.99, 1)] {
+            let lat: f64 = f64::asin(lat_sin);
+            for k in 0..regions {
+                let lon = std::f64::consts::TAU * (k as f64 + 0.5) / regions as f64;
+                one.push([lat.cos() * lon.cos(), lat.cos() * lon.sin(), lat.sin()]);
+            }
+        }
+        assert_eq!(one.len(), 100);
+        assert!((motioncal_gaps(&one) - 20.0).abs() < 1e-9, "{}", motioncal_gaps(&one));
+        let three: Vec<Vec3> = one.iter().flat_map(|d| [*d; 3]).collect();
+        assert!(motioncal_gaps(&three).abs() < 1e-12);
+        // Equal area: 20,000 uniform directions leave no region empty.
+        let mut rng = stream_rng(8, 0);
+        let uniform: Vec<Vec3> = (0..20_000)
+            .map(|_| {
+                use rand::RngExt;
+                let z: f64 = rng.random_range(-1.0..1.0);
+                let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                [(1.0 - z * z).sqrt() * a.cos(), (1.0 - z * z).sqrt() * a.sin(), z]
+            })
+            .collect();
+        assert!(motioncal_gaps(&uniform).abs() < 1e-12);
+    }
+
+    #[test]
+    fn microstrain_coverage_counts_equal_angle_bins() {
+        assert!(microstrain_coverage_percent(&[]).abs() < 1e-12);
+        // The centre of every one of the 18 x 32 bins: all 576 occupied; half of them: 50 %.
+        let centres: Vec<Vec3> = (0..18)
+            .flat_map(|i| {
+                (0..32).map(move |j| {
+                    let lat = (-90.0 + 10.0 * (i as f64 + 0.5)).to_radians();
+                    let lon = (-180.0 + 11.25 * (j as f64 + 0.5)).to_radians();
+                    // Any length: only the direction counts.
+                    [
+                        7.0 * lat.cos() * lon.cos(),
+                        7.0 * lat.cos() * lon.sin(),
+                        7.0 * lat.sin(),
+                    ]
+                })
+            })
+            .collect();
+        assert!((microstrain_coverage_percent(&centres) - 100.0).abs() < 1e-12);
+        assert!((microstrain_coverage_percent(&centres[..288]) - 50.0).abs() < 1e-12);
+        // The poles and the seam at 180 degrees of longitude fall in the last bins, not beyond.
+        let edges = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [-1.0, -0.0, 0.0]];
+        assert!((microstrain_coverage_percent(&edges) - 400.0 / 576.0).abs() < 1e-12);
+        // Zero, NaN and infinite vectors have no direction and are not counted.
+        let bad = [[0.0; 3], [f64::NAN, 0.0, 1.0], [f64::INFINITY, 0.0, 0.0]];
+        assert!(microstrain_coverage_percent(&bad).abs() < 1e-12);
+        // Equal angles, not equal areas: a yaw-only log at level attitude (directions on one
+        // cone of latitude) fills one band of 32, 1/18 of the bins.
+        let ring: Vec<Vec3> = (0..360)
+            .map(|k| {
+                let a = (k as f64).to_radians();
+                [0.6 * a.cos(), 0.6 * a.sin(), 0.8]
+            })
+            .collect();
+        assert!((microstrain_coverage_percent(&ring) - 100.0 / 18.0).abs() < 1e-12);
+    }
+}
