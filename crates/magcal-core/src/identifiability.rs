@@ -251,26 +251,26 @@ fn dK(truth: &ErrorModel) -> [Mat3; 6] {
 /// `sum J_i J_i^T / |g_i|^2` ([`information_per_unit_variance`]); an unweighted least-squares fit
 /// of the residuals has the covariance `sigma^2 A^-1 B A^-1` with `A = sum J_i J_i^T` and
 /// `B = sum |g_i|^2 J_i J_i^T`.
-pub fn residual_jacobian(truth: &ErrorModel, body_fields: &[Vec3]) -> Vec<([f64; 9], f64)> {
+pub fn residual_jacobian<'a>(
+    truth: &ErrorModel,
+    body_fields: &'a [Vec3],
+) -> impl Iterator<Item = ([f64; 9], f64)> + 'a {
     let P = truth.P();
     let dk = dK(truth);
-    body_fields
-        .iter()
-        .map(|&B| {
-            // A field of zero length (a reading at the bias) has no direction; any one serves.
-            let R = norm(B);
-            let w = if R > 0.0 { B.map(|v| v / R) } else { [1.0, 0.0, 0.0] };
-            let g = mat_t_vec(&P, w);
-            let mut J = [0.0; 9];
-            for (a, dka) in dk.iter().enumerate() {
-                J[a] = -dot(g, mat_vec(dka, B));
-            }
-            for i in 0..3 {
-                J[6 + i] = -g[i];
-            }
-            (J, dot(g, g))
-        })
-        .collect()
+    body_fields.iter().map(move |&B| {
+        // A field of zero length (a reading at the bias) has no direction; any one serves.
+        let R = norm(B);
+        let w = if R > 0.0 { B.map(|v| v / R) } else { [1.0, 0.0, 0.0] };
+        let g = mat_t_vec(&P, w);
+        let mut J = [0.0; 9];
+        for (a, dka) in dk.iter().enumerate() {
+            J[a] = -dot(g, mat_vec(dka, B));
+        }
+        for i in 0..3 {
+            J[6 + i] = -g[i];
+        }
+        (J, dot(g, g))
+    })
 }
 
 /// The Fisher information of `(psi_deg, S, O_nt)` for unit noise variance (nT^2).

@@ -204,12 +204,12 @@ impl LackOfFit {
     /// degrees of freedom against the diagonal model, p = 7.38e-8): ...".
     pub fn words(&self) -> String {
         let test = format!(
-            "lack-of-fit F = {:.4} on ({}, {}) degrees of freedom against the {} model, p = {:.2e}",
+            "lack-of-fit F = {:.4} on ({}, {}) degrees of freedom against the {} model, p {}",
             self.f,
             self.dof.0,
             self.dof.1,
             self.against.as_str(),
-            self.p_value
+            show_p(self.p_value)
         );
         if self.rejected {
             format!(
@@ -222,5 +222,15 @@ impl LackOfFit {
         } else {
             format!("the log does not reject this model ({test})")
         }
+    }
+}
+
+/// A p-value in words: `= 7.38e-8`, or `< 1e-300` where the tail probability underflows (an F of
+/// hundreds on thousands of degrees of freedom: the exact value is far smaller still).
+pub fn show_p(p: f64) -> String {
+    if p > 0.0 {
+        format!("= {p:.2e}")
+    } else {
+        "< 1e-300".to_string()
     }
 }

@@ -645,9 +645,9 @@ fn ellipsoid_test(rms: f64, given: Option<(f64, f64, usize)>) -> EllipsoidTest {
     if let (Some((p, scatter)), Some((_, sigma, _))) = (chi, given) {
         let ratio = significant(scatter / sigma, 4);
         words.push_str(&if explained {
-            format!("; the given noise explains the scatter (distance rms {ratio} times the noise, chi-square p = {p:.2e})")
+            format!("; the given noise explains the scatter (distance rms {ratio} times the noise, chi-square p {})", lack_of_fit::show_p(p))
         } else {
-            format!("; the readings scatter about the ellipsoid {ratio} times the given noise (chi-square p = {p:.2e}): the noise is larger than given, or the log is not one sensor on one ellipsoid")
+            format!("; the readings scatter about the ellipsoid {ratio} times the given noise (chi-square p {}): the noise is larger than given, or the log is not one sensor on one ellipsoid", lack_of_fit::show_p(p))
         });
     }
     EllipsoidTest {
@@ -795,9 +795,9 @@ fn auto_reason(mut reasons: Vec<String>, chosen: &LogFit) -> String {
             format!("{model}: untested, no richer fit comes closer to the readings")
         } else {
             format!(
-                "{model} {} by the log (lack-of-fit p = {:.2e} against {})",
+                "{model} {} by the log (lack-of-fit p {} against {})",
                 if t.rejected { "but rejected" } else { "not rejected" },
-                t.p_value,
+                lack_of_fit::show_p(t.p_value),
                 t.against.as_str()
             )
         });
@@ -847,7 +847,7 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], noise: f64, model: FitModel) -
         let identity: [[f64; 9]; 9] = std::array::from_fn(|i| std::array::from_fn(|j| f64::from(u8::from(i == j))));
         let std = crb
             .std
-            .and_then(|_| sandwich_std(&residual_jacobian(errors, fields), &identity))
+            .and_then(|_| sandwich_std(residual_jacobian(errors, fields), &identity))
             .map(|v| v.map(|x| x * noise));
         let field = fields.iter().map(|b| norm(*b)).sum::<f64>() / fields.len() as f64;
         let s = errors.scale();
@@ -882,19 +882,20 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], noise: f64, model: FitModel) -
         };
     }
     // The reduced parameters (S_1..3 or s, O_1..3) map into the full ones: theta = T x.
-    let rows = residual_jacobian(errors, fields);
+    // The rows are made as they are summed, twice at most: nothing per reading is held.
+    let rows = || residual_jacobian(errors, fields);
     let field = fields.iter().map(|b| norm(*b)).sum::<f64>() / fields.len() as f64;
     let std: Option<Vec<f64>> = match model {
         FitModel::Diagonal => {
             let T: [[f64; 6]; 9] =
                 std::array::from_fn(|i| std::array::from_fn(|j| f64::from(u8::from(i >= 3 && j == i - 3))));
-            sandwich_std(&rows, &T).map(|v| v.to_vec())
+            sandwich_std(rows(), &T).map(|v| v.to_vec())
         }
         _ => {
             let T: [[f64; 4]; 9] = std::array::from_fn(|i| {
                 std::array::from_fn(|j| f64::from(u8::from((3..6).contains(&i) && j == 0 || i >= 6 && j == i - 5)))
             });
-            sandwich_std(&rows, &T).map(|v| v.to_vec())
+            sandwich_std(rows(), &T).map(|v| v.to_vec())
         }
     }
     .map(|v| v.into_iter().map(|x| x * noise).collect());
@@ -962,7 +963,7 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], noise: f64, model: FitModel) -
 /// (`A_w = sum J J^T / |g|^2`) is the covariance of the weighted fit, not of this one: with
 /// \[P1\]'s scale factors (1.3, 0.7, 1.2) in a box of +-30 degrees of tilt, intervals from it held
 /// the true psi2 in 89 % of 400 logs of 300 readings; the sandwich gives the fit's own covariance.
-fn sandwich_std<const N: usize>(rows: &[([f64; 9], f64)], T: &[[f64; N]; 9]) -> Option<[f64; N]> {
+fn sandwich_std<const N: usize>(rows: impl Iterator<Item = ([f64; 9], f64)>, T: &[[f64; N]; 9]) -> Option<[f64; N]> {
     let mut A = [[0.0; N]; N];
     let mut B = [[0.0; N]; N];
     for (J, g2) in rows {
