@@ -8,7 +8,7 @@ mod common;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::magcal;
+use common::{data, magcal};
 use magcal_runner::log::calibration::{CalibrationJson, FORMAT, MAX_CONDITION, read_calibration};
 use sha2::{Digest, Sha256};
 use tempfile::TempDir;
@@ -16,22 +16,6 @@ use tempfile::TempDir;
 const CK: &str = "ck-explorer/acc_mag_log.csv";
 const H1: &str = "hamagure/data-set_1.csv";
 const H2: &str = "hamagure/data-set_2.csv";
-
-/// The public logs, where they are.
-fn data(path: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(path);
-    if p.is_file() {
-        Some(p)
-    } else {
-        eprintln!(
-            "skipped: {} is absent (../shared/data/ holds the public logs)",
-            p.display()
-        );
-        None
-    }
-}
 
 fn scenario(name: &str) -> PathBuf {
     common::scenarios().join(format!("{name}.toml"))

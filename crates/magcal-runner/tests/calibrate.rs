@@ -1,19 +1,17 @@
 //! `magcal calibrate` and `magcal apply` on logs the tests write with a known truth, on the public
 //! logs of `../shared/data/` (skipped, saying so, where that folder is absent), and on bad logs.
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use assert_cmd::Command;
+use common::{data, magcal};
 use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, ErrorModel, paper};
 use magcal_runner::log::calibration::CalibrationJson;
 use tempfile::TempDir;
-
-fn magcal() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_magcal"))
-}
 
 /// A log of `n` noisy readings of `truth` at random attitudes of `bounds` (Changsha field), in
 /// Gauss, with a time column first and the readings as `mx,my,mz`.
@@ -151,22 +149,6 @@ fn apply_calibrates_every_row_and_names_the_rows_it_skips() {
     // Every calibrated magnitude within 6 sigma of the field (30 nT noise on 48,000 nT).
     for r in &rows {
         assert!((r[4] - 0.48).abs() < 0.48 * 6.0 * 30.0 / 48277.79 * 1.5, "{r:?}");
-    }
-}
-
-/// The public logs, where they are.
-fn data(path: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(path);
-    if p.is_file() {
-        Some(p)
-    } else {
-        eprintln!(
-            "skipped: {} is absent (../shared/data/ holds the public logs)",
-            p.display()
-        );
-        None
     }
 }
 

@@ -4,14 +4,13 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::fs;
 use std::os::unix::fs::FileTypeExt;
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Output, Stdio};
 
-use common::{leftovers, magcal, magcal_process, magcal_with_file_size, smoke, snapshot};
+use common::{leftovers, magcal, magcal_process, magcal_with_file_size, restore, smoke, snapshot, without_manifest};
 use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, paper};
@@ -86,22 +85,6 @@ fn calibrate(log: &Path, out: &Path) -> Output {
         .arg(out)
         .output()
         .unwrap()
-}
-
-fn without_manifest(mut s: BTreeMap<String, Vec<u8>>) -> BTreeMap<String, Vec<u8>> {
-    s.remove("manifest.json");
-    s
-}
-
-fn restore(dir: &Path, files: &BTreeMap<String, Vec<u8>>) {
-    if dir.exists() {
-        fs::remove_dir_all(dir).unwrap();
-    }
-    for (rel, bytes) in files {
-        let p = dir.join(rel);
-        fs::create_dir_all(p.parent().unwrap()).unwrap();
-        fs::write(p, bytes).unwrap();
-    }
 }
 
 #[test]

@@ -2,28 +2,11 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::fs;
 use std::path::Path;
 
-use common::{leftovers, magcal, magcal_with_limits, run_into, smoke, snapshot};
+use common::{leftovers, magcal, magcal_with_limits, restore, run_into, smoke, snapshot, without_manifest};
 use tempfile::TempDir;
-
-fn without_manifest(mut s: BTreeMap<String, Vec<u8>>) -> BTreeMap<String, Vec<u8>> {
-    s.remove("manifest.json");
-    s
-}
-
-fn restore(dir: &Path, files: &BTreeMap<String, Vec<u8>>) {
-    if dir.exists() {
-        fs::remove_dir_all(dir).unwrap();
-    }
-    for (rel, bytes) in files {
-        let p = dir.join(rel);
-        fs::create_dir_all(p.parent().unwrap()).unwrap();
-        fs::write(p, bytes).unwrap();
-    }
-}
 
 #[test]
 fn a_kill_at_any_step_of_the_write_phase_leaves_one_complete_set() {

@@ -109,3 +109,37 @@ pub fn run_into(out: &Path, seed: u64) {
         .assert()
         .success();
 }
+
+/// `s` less its `manifest.json` (which records timings and the command line).
+pub fn without_manifest(mut s: BTreeMap<String, Vec<u8>>) -> BTreeMap<String, Vec<u8>> {
+    s.remove("manifest.json");
+    s
+}
+
+/// Puts back a snapshot of `dir` taken by [`snapshot`], removing what else is there.
+pub fn restore(dir: &Path, files: &BTreeMap<String, Vec<u8>>) {
+    if dir.exists() {
+        fs::remove_dir_all(dir).unwrap();
+    }
+    for (rel, bytes) in files {
+        let p = dir.join(rel);
+        fs::create_dir_all(p.parent().unwrap()).unwrap();
+        fs::write(p, bytes).unwrap();
+    }
+}
+
+/// A public log of `../shared/data/` beside the repository, where it is (saying so where not).
+pub fn data(path: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(path);
+    if p.is_file() {
+        Some(p)
+    } else {
+        eprintln!(
+            "skipped: {} is absent (../shared/data/ holds the public logs)",
+            p.display()
+        );
+        None
+    }
+}
