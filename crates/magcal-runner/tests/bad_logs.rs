@@ -10,6 +10,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use common::{magcal, magcal_with_limits, run_into, scenarios};
+use magcal_runner::output::manifest::sha256_hex;
 use tempfile::TempDir;
 
 /// The public ck-explorer log, in `../shared/data/` beside the repository.
@@ -530,11 +531,187 @@ fn baseline() -> (TempDir, PathBuf) {
     (tmp, set)
 }
 
+/// Edits the manifest of `set` and seals it again with its own hash (as
+/// `scripts/seal-manifests.py` does), so that what is tested is the reader's next check.
 fn edit_manifest(set: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
     let path = set.join("manifest.json");
     let mut m: serde_json::Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
     edit(&mut m);
-    fs::write(path, serde_json::to_vec_pretty(&m).unwrap()).unwrap();
+    m.as_object_mut().unwrap().remove("manifest_sha256");
+    fs::write(path, sealed(&serde_json::to_string_pretty(&m).unwrap())).unwrap();
+}
+
+/// A pretty-printed JSON object with `manifest_sha256` appended as its last member: the SHA-256
+/// of the text with that value empty.
+fn sealed(text: &str) -> String {
+    let body = text.strip_suffix("\n}").unwrap();
+    let with = |hash: &str| format!("{body},\n  \"manifest_sha256\": \"{hash}\"\n}}");
+    with(&sha256_hex(with("").as_bytes()))
+}
+
+/// Copies the regular files of the set `from` into a new directory `to`.
+fn copy_set(from: &Path, to: &Path) {
+    fs::create_dir(to).unwrap();
+    for e in fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_file() {
+            fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+#[test]
+fn an_edited_manifest_is_damage_before_any_comparison() {
+    let (tmp, set) = baseline();
+    let d = tmp.path();
+    let smoke = scenarios().join("smoke.toml");
+    let smoke = smoke.to_str().unwrap();
+    let text = fs::read_to_string(set.join("manifest.json")).unwrap();
+    // The set as written checks, and so does the same manifest sealed by the test's own rule.
+    magcal()
+        .args(["check", smoke, "--quiet", "--baseline"])
+        .arg(&set)
+        .assert()
+        .code(0)
+        .stderr("");
+    let own = text.rsplit_once(",\n  \"manifest_sha256\"").unwrap().0.to_string() + "\n}";
+    assert_eq!(sealed(&own), text);
+    let summary_hash = serde_json::from_str::<serde_json::Value>(&text).unwrap()["file_sha256"]["summary.csv"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let mut flipped = summary_hash.clone();
+    flipped.replace_range(..1, if summary_hash.starts_with('0') { "1" } else { "0" });
+    let edits: [(&str, &str, String); 5] = [
+        // The seed: read as a regression (exit 1) without the manifest's own hash.
+        ("seed", "\"seed\": 7,", "\"seed\": 8,".into()),
+        ("hash", &summary_hash, flipped),
+        ("trials", "\"trials\": 20,", "\"trials\": 21,".into()),
+        (
+            "description",
+            "\"description\": \"",
+            "\"description\": \"edited: ".into(),
+        ),
+        ("indent", "\n  \"seed\"", "\n\t\"seed\"".into()),
+    ];
+    for (name, from, to) in &edits {
+        assert_eq!(text.matches(from).count(), 1, "{name}");
+        let copy = d.join(name);
+        copy_set(&set, &copy);
+        fs::write(copy.join("manifest.json"), text.replacen(from, to, 1)).unwrap();
+        let damaged = format!("{name}/manifest.json: damaged: manifest.json was edited");
+        refused(
+            d,
+            &["check", smoke, "--baseline", name],
+            &[&damaged, "differs from the manifest_sha256"],
+        );
+    }
+    // plot, and a run or design into the set, read the same manifest.
+    refused(
+        d,
+        &["plot", "seed"],
+        &["seed/manifest.json: damaged: manifest.json was edited"],
+    );
+    refused(
+        d,
+        &["run", smoke, "--quiet", "--trials", "5", "--out", "hash"],
+        &["hash/manifest.json: damaged: manifest.json was edited"],
+    );
+    refused(
+        d,
+        &["design", smoke, "--quiet", "--out", "trials"],
+        &["trials/manifest.json: damaged: manifest.json was edited"],
+    );
+    // The hash itself edited, moved from the end, or renamed.
+    let digits = &text[text.len() - 67..text.len() - 3];
+    assert!(
+        text.ends_with(&format!("\"manifest_sha256\": \"{digits}\"\n}}")),
+        "{text}"
+    );
+    let member = format!(",\n  \"manifest_sha256\": \"{digits}\"");
+    let moved =
+        text.replacen(&member, "", 1)
+            .replacen("{\n", &format!("{{\n  \"manifest_sha256\": \"{digits}\",\n"), 1);
+    let short = text.replacen(digits, &digits[1..], 1);
+    let renamed = text.replacen("\"manifest_sha256\"", "\"manifest_sha265\"", 1);
+    for (name, edited, why) in [
+        ("moved", moved, "manifest_sha256 is not its last field"),
+        ("short", short, "its manifest_sha256 is not a SHA-256"),
+        (
+            "renamed",
+            renamed,
+            "its last field \"manifest_sha265\" holds a SHA-256: manifest_sha256 renamed?",
+        ),
+    ] {
+        let copy = d.join(name);
+        copy_set(&set, &copy);
+        fs::write(copy.join("manifest.json"), edited).unwrap();
+        refused(
+            d,
+            &["check", smoke, "--baseline", name],
+            &[&format!(
+                "{name}/manifest.json: damaged: manifest.json was edited ({why}"
+            )],
+        );
+    }
+}
+
+#[test]
+fn an_edited_calibration_manifest_is_damage_to_every_command_that_reads_it() {
+    let tmp = with_files(&[]);
+    let d = tmp.path();
+    let path = d.join("out/manifest.json");
+    let text = fs::read_to_string(&path).unwrap();
+    let edited = text.replacen("\"log_rows\": ", "\"log_rows\": 1", 1);
+    assert_ne!(edited, text);
+    fs::write(&path, edited).unwrap();
+    let log = ck_log();
+    let damaged = "out/manifest.json: damaged: manifest.json was edited";
+    refused(d, &["calibrate", &log, "--out", "out"], &[damaged]);
+    refused(
+        d,
+        &["apply", "out/calibration.json", &log, "--out", "out/applied.csv"],
+        &[damaged],
+    );
+    refused(d, &["calibrate", &log, "--out", "out/inner"], &[damaged]);
+}
+
+#[test]
+fn a_manifest_without_its_own_hash_is_read_with_a_note() {
+    let (tmp, set) = baseline();
+    let smoke = scenarios().join("smoke.toml");
+    let path = set.join("manifest.json");
+    let text = fs::read_to_string(&path).unwrap();
+    let old = text.rsplit_once(",\n  \"manifest_sha256\"").unwrap().0.to_string() + "\n}";
+    fs::write(&path, &old).unwrap();
+    let out = magcal()
+        .current_dir(tmp.path())
+        .args(["check", "--quiet", "--baseline", "set"])
+        .arg(&smoke)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(
+        stderr,
+        "magcal: note: set/manifest.json records no manifest_sha256 (made by an older magcal): edits of the manifest itself cannot be detected\n"
+    );
+    // Sealed as the script seals the committed baselines, it is the manifest magcal writes.
+    assert_eq!(sealed(&old), text);
+}
+
+#[test]
+fn the_committed_smoke_baseline_is_sealed_and_checks() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let text = fs::read_to_string(root.join("results/smoke/manifest.json")).unwrap();
+    let own = text.rsplit_once(",\n  \"manifest_sha256\"").unwrap().0.to_string() + "\n}";
+    assert_eq!(sealed(&own), text);
+    magcal()
+        .current_dir(&root)
+        .args(["check", "scenarios/smoke.toml", "--quiet"])
+        .assert()
+        .code(0)
+        .stderr("");
 }
 
 #[test]
@@ -595,13 +772,7 @@ fn check_and_plot_read_only_the_regular_files_of_the_set() {
     ];
     for (name, damage, needles) in cases {
         let copy = tmp.path().join(name);
-        fs::create_dir(&copy).unwrap();
-        for e in fs::read_dir(&set).unwrap() {
-            let e = e.unwrap();
-            if e.file_type().unwrap().is_file() {
-                fs::copy(e.path(), copy.join(e.file_name())).unwrap();
-            }
-        }
+        copy_set(&set, &copy);
         damage(&copy);
         refused(tmp.path(), &["check", smoke, "--baseline", name], &needles);
         if name != "up" && name != "abs" {
