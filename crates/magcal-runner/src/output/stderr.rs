@@ -1,7 +1,7 @@
 //! Messages on standard error that never panic.
 //!
 //! `eprintln!` panics when standard error cannot be written (`2>/dev/full`, a closed descriptor),
-//! which would turn a warning into a crash and a refusal into exit code 101. [`to_stderr!`] writes
+//! which would turn a warning into a crash and a refusal into exit code 101. `to_stderr!` writes
 //! the line in one call and drops a failure: there is nowhere left to report it, and the exit code
 //! still says what happened.
 
