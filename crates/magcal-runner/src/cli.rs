@@ -9,6 +9,7 @@ use clap::{Args, Parser, Subcommand};
 use crate::commands;
 use crate::limits;
 use crate::output::file::Output;
+use crate::output::stderr::to_stderr;
 
 /// Calibration of strapdown three-axis magnetometers and D-optimal calibration manoeuvres, after
 /// Wu, Hu, Wu, Liu, "D-Optimal Design Applied to Calibration of Strapdown Three-axis Magnetometer".
@@ -185,7 +186,7 @@ pub fn main() -> ExitCode {
                     ExitCode::from(2)
                 }
                 _ => {
-                    eprintln!("magcal: error: {}", one_line(&e));
+                    to_stderr!("magcal: error: {}", one_line(&e));
                     ExitCode::from(2)
                 }
             };
@@ -194,7 +195,7 @@ pub fn main() -> ExitCode {
     if cli.command.writes_stdout()
         && let Err(e) = crate::output::file::check_stdout()
     {
-        eprintln!("magcal: error: {e:#}");
+        to_stderr!("magcal: error: {e:#}");
         return ExitCode::from(2);
     }
     let result = match cli.command {
@@ -210,15 +211,15 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(Failure::Input(e)) => {
-            eprintln!("magcal: error: {}", format!("{e:#}").replace('\n', " "));
+            to_stderr!("magcal: error: {}", format!("{e:#}").replace('\n', " "));
             ExitCode::from(2)
         }
         Err(Failure::Regression(table)) => {
-            eprintln!("magcal: regression: these results moved beyond their tolerance:\n{table}");
+            to_stderr!("magcal: regression: these results moved beyond their tolerance:\n{table}");
             ExitCode::from(1)
         }
         Err(Failure::Unusable(why)) => {
-            eprintln!("magcal: not a calibration to use: {}", why.replace('\n', " "));
+            to_stderr!("magcal: not a calibration to use: {}", why.replace('\n', " "));
             ExitCode::from(3)
         }
     }

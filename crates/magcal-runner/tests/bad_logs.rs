@@ -10,6 +10,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use common::{magcal, magcal_with_limits, run_into, scenarios};
+use magcal_runner::output::manifest::sha256_hex;
 use tempfile::TempDir;
 
 /// The public ck-explorer log, in `../shared/data/` beside the repository.
@@ -530,11 +531,187 @@ fn baseline() -> (TempDir, PathBuf) {
     (tmp, set)
 }
 
+/// Edits the manifest of `set` and seals it again with its own hash (as
+/// `scripts/seal-manifests.py` does), so that what is tested is the reader's next check.
 fn edit_manifest(set: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
     let path = set.join("manifest.json");
     let mut m: serde_json::Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
     edit(&mut m);
-    fs::write(path, serde_json::to_vec_pretty(&m).unwrap()).unwrap();
+    m.as_object_mut().unwrap().remove("manifest_sha256");
+    fs::write(path, sealed(&serde_json::to_string_pretty(&m).unwrap())).unwrap();
+}
+
+/// A pretty-printed JSON object with `manifest_sha256` appended as its last member: the SHA-256
+/// of the text with that value empty.
+fn sealed(text: &str) -> String {
+    let body = text.strip_suffix("\n}").unwrap();
+    let with = |hash: &str| format!("{body},\n  \"manifest_sha256\": \"{hash}\"\n}}");
+    with(&sha256_hex(with("").as_bytes()))
+}
+
+/// Copies the regular files of the set `from` into a new directory `to`.
+fn copy_set(from: &Path, to: &Path) {
+    fs::create_dir(to).unwrap();
+    for e in fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_file() {
+            fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+#[test]
+fn an_edited_manifest_is_damage_before_any_comparison() {
+    let (tmp, set) = baseline();
+    let d = tmp.path();
+    let smoke = scenarios().join("smoke.toml");
+    let smoke = smoke.to_str().unwrap();
+    let text = fs::read_to_string(set.join("manifest.json")).unwrap();
+    // The set as written checks, and so does the same manifest sealed by the test's own rule.
+    magcal()
+        .args(["check", smoke, "--quiet", "--baseline"])
+        .arg(&set)
+        .assert()
+        .code(0)
+        .stderr("");
+    let own = text.rsplit_once(",\n  \"manifest_sha256\"").unwrap().0.to_string() + "\n}";
+    assert_eq!(sealed(&own), text);
+    let summary_hash = serde_json::from_str::<serde_json::Value>(&text).unwrap()["file_sha256"]["summary.csv"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let mut flipped = summary_hash.clone();
+    flipped.replace_range(..1, if summary_hash.starts_with('0') { "1" } else { "0" });
+    let edits: [(&str, &str, String); 5] = [
+        // The seed: read as a regression (exit 1) without the manifest's own hash.
+        ("seed", "\"seed\": 7,", "\"seed\": 8,".into()),
+        ("hash", &summary_hash, flipped),
+        ("trials", "\"trials\": 20,", "\"trials\": 21,".into()),
+        (
+            "description",
+            "\"description\": \"",
+            "\"description\": \"edited: ".into(),
+        ),
+        ("indent", "\n  \"seed\"", "\n\t\"seed\"".into()),
+    ];
+    for (name, from, to) in &edits {
+        assert_eq!(text.matches(from).count(), 1, "{name}");
+        let copy = d.join(name);
+        copy_set(&set, &copy);
+        fs::write(copy.join("manifest.json"), text.replacen(from, to, 1)).unwrap();
+        let damaged = format!("{name}/manifest.json: damaged: manifest.json was edited");
+        refused(
+            d,
+            &["check", smoke, "--baseline", name],
+            &[&damaged, "differs from the manifest_sha256"],
+        );
+    }
+    // plot, and a run or design into the set, read the same manifest.
+    refused(
+        d,
+        &["plot", "seed"],
+        &["seed/manifest.json: damaged: manifest.json was edited"],
+    );
+    refused(
+        d,
+        &["run", smoke, "--quiet", "--trials", "5", "--out", "hash"],
+        &["hash/manifest.json: damaged: manifest.json was edited"],
+    );
+    refused(
+        d,
+        &["design", smoke, "--quiet", "--out", "trials"],
+        &["trials/manifest.json: damaged: manifest.json was edited"],
+    );
+    // The hash itself edited, moved from the end, or renamed.
+    let digits = &text[text.len() - 67..text.len() - 3];
+    assert!(
+        text.ends_with(&format!("\"manifest_sha256\": \"{digits}\"\n}}")),
+        "{text}"
+    );
+    let member = format!(",\n  \"manifest_sha256\": \"{digits}\"");
+    let moved =
+        text.replacen(&member, "", 1)
+            .replacen("{\n", &format!("{{\n  \"manifest_sha256\": \"{digits}\",\n"), 1);
+    let short = text.replacen(digits, &digits[1..], 1);
+    let renamed = text.replacen("\"manifest_sha256\"", "\"manifest_sha265\"", 1);
+    for (name, edited, why) in [
+        ("moved", moved, "manifest_sha256 is not its last field"),
+        ("short", short, "its manifest_sha256 is not a SHA-256"),
+        (
+            "renamed",
+            renamed,
+            "its last field \"manifest_sha265\" holds a SHA-256: manifest_sha256 renamed?",
+        ),
+    ] {
+        let copy = d.join(name);
+        copy_set(&set, &copy);
+        fs::write(copy.join("manifest.json"), edited).unwrap();
+        refused(
+            d,
+            &["check", smoke, "--baseline", name],
+            &[&format!(
+                "{name}/manifest.json: damaged: manifest.json was edited ({why}"
+            )],
+        );
+    }
+}
+
+#[test]
+fn an_edited_calibration_manifest_is_damage_to_every_command_that_reads_it() {
+    let tmp = with_files(&[]);
+    let d = tmp.path();
+    let path = d.join("out/manifest.json");
+    let text = fs::read_to_string(&path).unwrap();
+    let edited = text.replacen("\"log_rows\": ", "\"log_rows\": 1", 1);
+    assert_ne!(edited, text);
+    fs::write(&path, edited).unwrap();
+    let log = ck_log();
+    let damaged = "out/manifest.json: damaged: manifest.json was edited";
+    refused(d, &["calibrate", &log, "--out", "out"], &[damaged]);
+    refused(
+        d,
+        &["apply", "out/calibration.json", &log, "--out", "out/applied.csv"],
+        &[damaged],
+    );
+    refused(d, &["calibrate", &log, "--out", "out/inner"], &[damaged]);
+}
+
+#[test]
+fn a_manifest_without_its_own_hash_is_read_with_a_note() {
+    let (tmp, set) = baseline();
+    let smoke = scenarios().join("smoke.toml");
+    let path = set.join("manifest.json");
+    let text = fs::read_to_string(&path).unwrap();
+    let old = text.rsplit_once(",\n  \"manifest_sha256\"").unwrap().0.to_string() + "\n}";
+    fs::write(&path, &old).unwrap();
+    let out = magcal()
+        .current_dir(tmp.path())
+        .args(["check", "--quiet", "--baseline", "set"])
+        .arg(&smoke)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert_eq!(
+        stderr,
+        "magcal: note: set/manifest.json records no manifest_sha256 (made by an older magcal): edits of the manifest itself cannot be detected\n"
+    );
+    // Sealed as the script seals the committed baselines, it is the manifest magcal writes.
+    assert_eq!(sealed(&old), text);
+}
+
+#[test]
+fn the_committed_smoke_baseline_is_sealed_and_checks() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let text = fs::read_to_string(root.join("results/smoke/manifest.json")).unwrap();
+    let own = text.rsplit_once(",\n  \"manifest_sha256\"").unwrap().0.to_string() + "\n}";
+    assert_eq!(sealed(&own), text);
+    magcal()
+        .current_dir(&root)
+        .args(["check", "scenarios/smoke.toml", "--quiet"])
+        .assert()
+        .code(0)
+        .stderr("");
 }
 
 #[test]
@@ -595,13 +772,7 @@ fn check_and_plot_read_only_the_regular_files_of_the_set() {
     ];
     for (name, damage, needles) in cases {
         let copy = tmp.path().join(name);
-        fs::create_dir(&copy).unwrap();
-        for e in fs::read_dir(&set).unwrap() {
-            let e = e.unwrap();
-            if e.file_type().unwrap().is_file() {
-                fs::copy(e.path(), copy.join(e.file_name())).unwrap();
-            }
-        }
+        copy_set(&set, &copy);
         damage(&copy);
         refused(tmp.path(), &["check", smoke, "--baseline", name], &needles);
         if name != "up" && name != "abs" {
@@ -628,4 +799,284 @@ fn a_pso_run_of_days_is_refused_with_its_estimate() {
             "--allow-long",
         ],
     );
+}
+
+#[test]
+fn an_output_that_would_destroy_an_input_or_a_set_is_refused() {
+    let log = ck(500);
+    let tmp = with_files(&[("x.csv", log.as_bytes())]);
+    let d = tmp.path();
+    fs::hard_link(d.join("x.csv"), d.join("hard.csv")).unwrap();
+    fs::copy(d.join("out/calibration.json"), d.join("cal.json")).unwrap();
+    fs::copy(scenarios().join("smoke.toml"), d.join("s.toml")).unwrap();
+    fs::create_dir(d.join("dir")).unwrap();
+    fs::create_dir(d.join("dir/inside")).unwrap();
+    std::os::unix::fs::symlink("x.csv", d.join("link.csv")).unwrap();
+    std::os::unix::fs::symlink("dir", d.join("linkdir")).unwrap();
+    run_into(&d.join("run"), 7);
+    for (args, needles) in [
+        // The log inside the set it would replace.
+        (
+            vec!["calibrate", "out/residuals.csv", "--out", "out"],
+            vec!["out: holds the input out/residuals.csv"],
+        ),
+        // apply over its log by any path, a hard link, or over its calibration.
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "x.csv"],
+            vec!["x.csv: is the input x.csv"],
+        ),
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "./x.csv"],
+            vec!["./x.csv: is the input x.csv"],
+        ),
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "hard.csv"],
+            vec!["hard.csv: is the input x.csv"],
+        ),
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "cal.json"],
+            vec!["cal.json: is the input cal.json"],
+        ),
+        (
+            vec!["simulate", "s.toml", "--design", "plan300", "--out", "s.toml"],
+            vec!["s.toml: is the input s.toml"],
+        ),
+        // A calibration set never replaces a run's set, a root, a directory or a link.
+        (
+            vec!["calibrate", "x.csv", "--out", "run"],
+            vec!["run: holds a magcal run set, not a calibration set"],
+        ),
+        (
+            vec!["calibrate", "x.csv", "--out", "run/cal"],
+            vec!["run/cal: run holds a magcal run set, which is replaced whole"],
+        ),
+        (
+            vec!["calibrate", "x.csv", "--out", "/"],
+            vec!["/: name the output directory itself"],
+        ),
+        (
+            vec!["calibrate", "x.csv", "--out", "dir"],
+            vec!["dir: exists and is not a magcal results directory"],
+        ),
+        (
+            vec!["calibrate", "x.csv", "--out", "linkdir"],
+            vec!["linkdir: exists and is not a directory"],
+        ),
+        // Single files: never a directory or a symbolic link.
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "dir"],
+            vec!["dir: is a directory; give a file name"],
+        ),
+        (
+            vec!["simulate", "s.toml", "--design", "uniform", "--out", "dir"],
+            vec!["dir: is a directory; give a file name"],
+        ),
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "link.csv"],
+            vec!["link.csv: is a symbolic link"],
+        ),
+        (
+            vec!["apply", "cal.json", "x.csv", "--out", "run/applied.csv"],
+            vec!["run/applied.csv: run holds a magcal run set"],
+        ),
+    ] {
+        refused(d, &args, &needles);
+    }
+}
+
+#[test]
+fn noise_reject_site_date_and_count_flags_outside_their_range_are_refused() {
+    let log = ck(3000);
+    let tmp = with_files(&[("log.csv", log.as_bytes())]);
+    let d = tmp.path();
+    let cal = |extra: &[&'static str]| [&["calibrate", "log.csv"][..], extra].concat();
+    let wmm = |extra: &[&'static str]| [&["calibrate", "log.csv", "--units", "G"][..], extra].concat();
+    let next = |extra: &[&'static str]| {
+        let site = ["next", "out/calibration.json", "log.csv", "--site", "28.2,112.97"];
+        [&site[..], &["--date", "2013.0"], extra].concat()
+    };
+    for (args, needles) in [
+        (cal(&["--noise", "0"]), vec!["--noise 0: must be positive and finite"]),
+        (
+            cal(&["--noise", "nan"]),
+            vec!["--noise NaN: must be positive and finite"],
+        ),
+        (cal(&["--noise=-1"]), vec!["--noise -1: must be positive and finite"]),
+        (
+            cal(&["--noise", "inf"]),
+            vec!["--noise inf: must be positive and finite"],
+        ),
+        (
+            cal(&["--reject", "1"]),
+            vec!["log.csv: --reject 1: K = 1: must be at least 2"],
+        ),
+        (cal(&["--reject", "nan"]), vec!["log.csv: --reject NaN: K = NaN"]),
+        (cal(&["--reject", "inf"]), vec!["log.csv: --reject inf: K = inf"]),
+        (
+            wmm(&["--site", "0,0,1e9", "--date", "2013.0"]),
+            vec!["'--site", "height 1000000000 m is outside"],
+        ),
+        (
+            wmm(&["--site", "-91,0", "--date", "2013.0"]),
+            vec!["'--site", "latitude -91 is outside [-90, 90]"],
+        ),
+        (
+            wmm(&["--site", "0,0", "--date", "1800-01-01"]),
+            vec!["'--date", "year 1800 is outside [1900, 2100]"],
+        ),
+        (
+            wmm(&["--site", "0,0", "--date", "2026-02-30"]),
+            vec!["'--date", "2026-02-30 is not a date"],
+        ),
+        (
+            wmm(&["--site", "0,0", "--date", "2013.0", "--wmm", "WMM1990"]),
+            vec!["'--wmm", "WMM1990", "unknown model"],
+        ),
+        (
+            next(&["--roll=-5,5", "--pitch=-20,20", "--count", "0"]),
+            vec!["'--count", "0 is not in 1..=1000"],
+        ),
+        (
+            next(&["--roll=-5,5", "--pitch=-20,20", "--count", "1001"]),
+            vec!["'--count", "1001 is not in 1..=1000"],
+        ),
+        (
+            next(&["--roll=5,-5", "--pitch=-20,20"]),
+            vec!["'--roll", "the minimum must be below the maximum"],
+        ),
+        // A box narrower than 0.01 degree is a fixed angle, not a range to search.
+        (
+            next(&["--roll=-0.001,0.004", "--pitch=-20,20", "--count", "2"]),
+            vec!["the roll range is 5.000e-3 degree wide", "narrower than 0.01 degree"],
+        ),
+    ] {
+        refused(d, &args, &needles);
+    }
+}
+
+#[test]
+fn logs_that_are_not_text_or_have_no_such_columns_are_refused() {
+    let log = ck(300);
+    let headerless: String = log.lines().skip(1).map(|l| format!("{l}\n")).collect();
+    let renamed = log.replacen("ax,ay,az,mx,my,mz", "ax,ay,az,x,y,z", 1);
+    let utf16 = |bom: bool| -> Vec<u8> {
+        let units = log.encode_utf16();
+        let mut bytes: Vec<u8> = if bom { vec![0xff, 0xfe] } else { Vec::new() };
+        bytes.extend(units.flat_map(u16::to_le_bytes));
+        bytes
+    };
+    // The start of an ELF file: NUL bytes on its first line.
+    let binary = b"\x7fELF\x02\x01\x01\x00\x00\x00\x00\x00\x00\x00\x00\x00\x03\x00>\x00\n1,2,3\n";
+    let escape = "a\x1b[2Jb,y,z\n1,2,3\n4,5,6\n";
+    let tmp = with_files(&[
+        ("log.csv", log.as_bytes()),
+        ("nohead.csv", headerless.as_bytes()),
+        ("xyz.csv", renamed.as_bytes()),
+        ("u16.csv", &utf16(true)),
+        ("u16le.csv", &utf16(false)),
+        ("bin.csv", binary),
+        ("esc.csv", escape.as_bytes()),
+    ]);
+    let d = tmp.path();
+    for (args, needles) in [
+        (
+            vec!["calibrate", "log.csv", "--columns", "0,1,2"],
+            vec!["log.csv", "--columns \"0,1,2\": column 0 is not in the log (6 columns)"],
+        ),
+        (
+            vec!["calibrate", "log.csv", "--columns", "x,y"],
+            vec!["log.csv", "--columns \"x,y\": give three columns"],
+        ),
+        (
+            vec!["calibrate", "nohead.csv", "--columns", "a,b,c"],
+            vec!["nohead.csv", "no column named \"a\" (columns: column 1, column 2"],
+        ),
+        (
+            vec!["calibrate", "u16.csv"],
+            vec!["u16.csv: line 1: the log is UTF-16 text", "save it as UTF-8"],
+        ),
+        (
+            vec!["calibrate", "u16le.csv", "--out", "out"],
+            vec!["u16le.csv: line 1: byte 2 is NUL: not a text log"],
+        ),
+        (
+            vec!["calibrate", "bin.csv"],
+            vec!["bin.csv: line 1: byte 8 is NUL: not a text log"],
+        ),
+        (
+            vec!["apply", "out/calibration.json", "u16.csv", "--out", "applied.csv"],
+            vec!["u16.csv: line 1: the log is UTF-16 text"],
+        ),
+        // A header's control characters are shown escaped, never sent to the terminal.
+        (
+            vec!["calibrate", "esc.csv", "--columns", "q,r,s"],
+            vec!["esc.csv", "(columns: a\\u{1b}[2Jb, y, z)"],
+        ),
+        // A calibration of another log's columns.
+        (
+            vec!["apply", "out/calibration.json", "xyz.csv"],
+            vec![
+                "xyz.csv: no column \"mx\", which out/calibration.json was made from",
+                "give --columns",
+            ],
+        ),
+        (
+            vec!["apply", "out/calibration.json", "nohead.csv"],
+            vec!["nohead.csv: no header and 6 columns", "give --columns"],
+        ),
+    ] {
+        refused(d, &args, &needles);
+    }
+}
+
+#[test]
+fn edited_calibration_files_are_refused_naming_the_field() {
+    let log = ck(300);
+    let tmp = with_files(&[("log.csv", log.as_bytes())]);
+    let d = tmp.path();
+    let json: serde_json::Value = serde_json::from_slice(&fs::read(d.join("out/calibration.json")).unwrap()).unwrap();
+    let edited = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut v = json.clone();
+        edit(&mut v);
+        fs::write(d.join(name), serde_json::to_string_pretty(&v).unwrap()).unwrap();
+    };
+    edited("p0.json", &|v| v["p"][0][0] = 0.0.into());
+    edited("mag.json", &|v| v["magnitude"] = (-1.0).into());
+    edited("fmt.json", &|v| v["format"] = "magcal-calibration/99".into());
+    edited("cols.json", &|v| v["columns"] = serde_json::json!(["mx", "my"]));
+    // JSON has no NaN: a calibration file holding one is not JSON, named by line and column.
+    let text = serde_json::to_string_pretty(&json).unwrap();
+    let p00 = json["p"][0][0].to_string();
+    assert_eq!(text.matches(&p00).count(), 1, "{p00}");
+    fs::write(d.join("nan.json"), text.replacen(&p00, "NaN", 1)).unwrap();
+    let next = |cal: &'static str| {
+        let args = ["next", cal, "log.csv", "--site", "28.2,112.97", "--date", "2013.0"];
+        [&args[..], &["--roll=-5,5", "--pitch=-20,20", "--count", "2"]].concat()
+    };
+    for (args, needles) in [
+        (
+            vec!["apply", "p0.json", "log.csv"],
+            vec!["p0.json: p [[0.0, ", "diagonal entry 1 is 0"],
+        ),
+        (
+            vec!["apply", "mag.json", "log.csv"],
+            vec!["mag.json: magnitude -1: must be finite and positive"],
+        ),
+        (
+            vec!["apply", "fmt.json", "log.csv"],
+            vec!["fmt.json: format \"magcal-calibration/99\"", "magcal-calibration-1"],
+        ),
+        (
+            vec!["apply", "cols.json", "log.csv"],
+            vec!["cols.json: not a magcal calibration: invalid length 2"],
+        ),
+        (
+            vec!["apply", "nan.json", "log.csv"],
+            vec!["nan.json: not a magcal calibration", "line ", "column "],
+        ),
+        (next("nan.json"), vec!["nan.json: not a magcal calibration"]),
+        (next("p0.json"), vec!["p0.json: p [[0.0, ", "diagonal entry 1 is 0"]),
+    ] {
+        refused(d, &args, &needles);
+    }
 }

@@ -697,3 +697,75 @@ fn a_calibration_not_to_use_is_written_and_exits_3() {
         .unwrap();
     assert_eq!(run.status.code(), Some(0), "{}", stderr(&run));
 }
+
+/// `magcal` in `dir` with standard error on /dev/full (every write to it fails with ENOSPC) or,
+/// for comparison, piped.
+fn with_stderr(args: &[&str], dir: &Path, full: bool) -> Output {
+    let mut cmd = magcal_process();
+    cmd.current_dir(dir).args(args);
+    if full {
+        cmd.stderr(fs::OpenOptions::new().write(true).open("/dev/full").unwrap());
+    }
+    cmd.output().unwrap()
+}
+
+#[test]
+fn a_full_standard_error_loses_the_message_not_the_exit_code() {
+    let tmp = TempDir::new().unwrap();
+    let dir = tmp.path();
+    log(&dir.join("x.csv"), 1, 400);
+    // Yaw only, +-3 degrees of tilt: the diagonal model's up axis is not determined (exit 3).
+    let cap = AttitudeBox::from_degrees([-3.0, 3.0], [-180.0, 180.0], [-3.0, 3.0]).unwrap();
+    log_in(&cap, &dir.join("flat.csv"), 3, 400);
+    let flat = magcal()
+        .current_dir(dir)
+        .args(["calibrate", "flat.csv", "--fit", "diagonal", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(flat.status.code(), Some(3), "{}", stderr(&flat));
+    fs::write(dir.join("flat.json"), &flat.stdout).unwrap();
+    assert!(calibrate(&dir.join("x.csv"), &dir.join("d")).status.success());
+    // Each command with the code it exits with and a line it writes to standard error.
+    let cases: [(&[&str], i32, &str); 6] = [
+        // The log is in gauss: a magnitude in nT fits, with a warning about the units.
+        (
+            &["calibrate", "x.csv", "--magnitude", "50000"],
+            0,
+            "magcal: warning: x.csv: the readings lie about",
+        ),
+        (
+            &["apply", "flat.json", "x.csv"],
+            0,
+            "magcal: warning: flat.json is marked not identifiable",
+        ),
+        (
+            &["calibrate", "flat.csv", "--fit", "diagonal"],
+            3,
+            "magcal: not a calibration to use: ",
+        ),
+        (&["calibrate", "missing.csv"], 2, "magcal: error: missing.csv"),
+        (
+            &["calibrate", "x.csv", "--bogus"],
+            2,
+            "magcal: error: unexpected argument",
+        ),
+        (
+            &["apply", "d/calibration.json", "x.csv", "--out", "x.csv"],
+            2,
+            "magcal: error: x.csv: is the input x.csv",
+        ),
+    ];
+    for (args, code, line) in cases {
+        let piped = with_stderr(args, dir, false);
+        assert_eq!(piped.status.code(), Some(code), "{args:?}: {}", stderr(&piped));
+        assert!(stderr(&piped).contains(line), "{args:?}: {}", stderr(&piped));
+        // A panic would exit 101; the same code and the same standard output instead.
+        let full = with_stderr(args, dir, true);
+        assert_eq!(
+            full.status.code(),
+            Some(code),
+            "{args:?} with standard error on /dev/full"
+        );
+        assert_eq!(full.stdout, piped.stdout, "{args:?}");
+    }
+}

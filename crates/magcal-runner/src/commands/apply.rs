@@ -10,6 +10,7 @@ use crate::log::calibration::{RadiusMedian, columns_for, read_calibration};
 use crate::log::read as log_file;
 use crate::output::file::Output;
 use crate::output::log_rows::AppliedRow;
+use crate::output::stderr::to_stderr;
 use crate::output::{self, Real};
 
 /// `magcal apply`.
@@ -90,14 +91,14 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     })?;
     if let Some(s) = &streamed {
         for (line, reason) in &s.skipped {
-            eprintln!("magcal: skipped line {line}: {reason}");
+            to_stderr!("magcal: skipped line {line}: {reason}");
         }
     }
     if !cal.identifiable {
-        eprintln!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
+        to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
     }
     if let Some(why) = cal.radius_mismatch(radius.ratio()) {
-        eprintln!("magcal: warning: {}: {why}", args.log.display());
+        to_stderr!("magcal: warning: {}: {why}", args.log.display());
     }
     Ok(())
 }

@@ -20,6 +20,7 @@ use crate::output::file::to_stdout;
 use crate::output::log_rows::ResidualRow;
 use crate::output::manifest::{CalibrationManifest, Hashing, sha256_hex};
 use crate::output::staging::{ResultSet, Target};
+use crate::output::stderr::to_stderr;
 use crate::output::{self, Real};
 
 /// `--fit`.
@@ -191,7 +192,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             if let Some(radius) = log_fit::sphere_radius(&log.readings)
                 && !(1e-2..=1e2).contains(&(radius / r))
             {
-                eprintln!(
+                to_stderr!(
                     "magcal: warning: {shown}: the readings lie about {} from their centre, {:.1e} times the magnitude {} ({source}); are they in the same units?",
                     significant(radius, 4),
                     radius / r,

@@ -4,9 +4,10 @@
 //! Monte Carlo statistics are compared within statistical tolerances (4 combined standard errors);
 //! trial status counts within 4 sqrt(count); a design's `ln det M_F` within a relative 1e-6; the
 //! attitudes and condition numbers of designs that are not optimised within 1e-9 degree and 1e-3
-//! (see [`compare`]). The baseline is also checked against itself: every file must have the SHA-256
-//! its manifest recorded when it was written, so an edit of any of them shows, and its `trials.csv`
-//! must give its `summary.csv`. Identical values match, non-finite ones included; a statistic that is
+//! (see [`compare`]). The baseline is also checked against itself: its manifest must have the
+//! SHA-256 it records of itself (an edited seed or file hash is damage, exit 2, before any run), every
+//! file must have the SHA-256 its manifest recorded when it was written, so an edit of any of them
+//! shows, and its `trials.csv` must give its `summary.csv`. Identical values match, non-finite ones included; a statistic that is
 //! undefined (one successful trial has no standard error) is compared to 1e-9 relative; a
 //! non-finite standard error in the baseline is an error of the baseline (exit 2).
 
@@ -18,7 +19,8 @@ use anyhow::{Context, Result, bail};
 use magcal_core::{CalibrationStatus, Summary};
 
 use crate::cli::{CheckArgs, Failure};
-use crate::output::manifest::{Manifest, sha256_hex};
+use crate::output::manifest::{Manifest, Seal, sha256_hex};
+use crate::output::stderr::to_stderr;
 use crate::output::{self, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
 use crate::pipeline::{self, RunOptions, RunOutput};
 use crate::{limits, scenario};
@@ -37,7 +39,13 @@ pub fn run(args: &CheckArgs) -> Result<(), Failure> {
     if !dir.is_dir() {
         return Err(anyhow::anyhow!("{}: baseline directory not found", dir.display()).into());
     }
-    let manifest = Manifest::read(&dir)?;
+    let (manifest, seal) = Manifest::read(&dir)?;
+    if seal == Seal::Absent {
+        to_stderr!(
+            "magcal: note: {} records no manifest_sha256 (made by an older magcal): edits of the manifest itself cannot be detected",
+            dir.join("manifest.json").display()
+        );
+    }
     if manifest.name != loaded.name {
         return Err(anyhow::anyhow!(
             "{}: the baseline of scenario {:?}, not of {:?} ({}); give its own with --baseline",
@@ -52,7 +60,7 @@ pub fn run(args: &CheckArgs) -> Result<(), Failure> {
         limits::set_member(&dir, name)?;
     }
     if manifest.scenario_sha256 != loaded.hash {
-        eprintln!(
+        to_stderr!(
             "magcal: note: {} has changed since {} was made (SHA-256 differs)",
             common.scenario.display(),
             dir.display()
@@ -178,7 +186,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
 
     // --- every file as it was written
     if manifest.file_sha256.is_empty() {
-        eprintln!(
+        to_stderr!(
             "magcal: note: {} records no file hashes (made by an older magcal): edits of its files cannot be detected",
             baseline.join("manifest.json").display()
         );

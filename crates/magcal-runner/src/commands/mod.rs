@@ -16,6 +16,7 @@ use anyhow::{Context, Result};
 
 use crate::cli::Common;
 use crate::limits;
+use crate::output::stderr::to_stderr;
 use crate::scenario::{self, Scenario};
 
 /// A validated scenario with its overrides applied, and the workers to run it.
@@ -69,7 +70,7 @@ pub fn setup_with(
     })?;
     let context = || format!("{}", common.scenario.display());
     if let Some(words) = limits::check_time(&scenario, threads, common.allow_long).with_context(context)? {
-        eprintln!("magcal: note: {}: {words}", common.scenario.display());
+        to_stderr!("magcal: note: {}: {words}", common.scenario.display());
     }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)

@@ -13,6 +13,7 @@ use crate::log::read as log_file;
 use crate::log::site::{Date, Site, parse_model};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
 use crate::output::file::to_stdout;
+use crate::output::stderr::to_stderr;
 
 /// `magcal next`.
 #[derive(Debug, Args)]
@@ -127,7 +128,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         Some(recorded) => {
             let sha = sha256_file(&args.log)?;
             if &sha != recorded {
-                eprintln!(
+                to_stderr!(
                     "magcal: warning: {log_shown} is not the log {shown} was fitted to ({}; SHA-256 {} there, {} here): the suggestions add to the log given",
                     cal.log,
                     crate::log::calibration::excerpt(recorded, 12),
@@ -141,7 +142,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     let same_readings = same_file && read_columns == cal.columns && m == cal.samples && skipped.len() == cal.skipped;
     let (before_identifiable, before_source) = identifiable_before(&cal, same_readings, &log_readings);
     if !cal.identifiable {
-        eprintln!(
+        to_stderr!(
             "magcal: warning: {shown} is not identifiable ({}); the suggestions assume its fitted sensor",
             cal.verdict
         );
@@ -203,7 +204,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     // failed write is one error.
     let mut w = Vec::new();
     for (line, reason) in &skipped {
-        eprintln!("magcal: skipped line {line}: {reason}");
+        to_stderr!("magcal: skipped line {line}: {reason}");
     }
     writeln!(
         w,

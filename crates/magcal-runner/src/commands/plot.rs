@@ -14,7 +14,7 @@ use crate::plots;
 /// # Errors
 /// A directory that is not a result set, or a missing or malformed file of it.
 pub fn run(args: &PlotArgs) -> Result<(), Failure> {
-    let manifest = Manifest::read(&args.dir)?;
+    let (manifest, _) = Manifest::read(&args.dir)?;
     let target = args.dir.join("plots");
     let mut set = ResultSet::begin(&target, Target::Owned, &[])?;
     let drawn = plots::draw(&args.dir, &manifest, &mut set, "")?;

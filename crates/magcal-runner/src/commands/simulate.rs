@@ -8,6 +8,7 @@ use clap::Args;
 use crate::cli::Failure;
 use crate::output::file::Output;
 use crate::output::log_rows::SimulatedRow;
+use crate::output::stderr::to_stderr;
 use crate::output::{self, Real};
 
 /// `magcal simulate`.
@@ -91,7 +92,7 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
         }
     });
     target.write(&inputs, |w| output::write_csv(rows, w))?;
-    eprintln!(
+    to_stderr!(
         "magcal: {} readings of design {:?} at {sigma} nT; the field magnitude is {} nT (calibrate with --magnitude {})",
         readings.len(),
         args.design,

@@ -436,6 +436,19 @@ fn read_from<R: Read>(
         if line == 1 && buf.starts_with(b"\xef\xbb\xbf") {
             buf.drain(..3);
         }
+        // UTF-16 (a spreadsheet's "Unicode text") and binary files: named as such, not as a log
+        // without numeric columns quoting bytes a terminal cannot show.
+        if line == 1 && (buf.starts_with(b"\xff\xfe") || buf.starts_with(b"\xfe\xff")) {
+            bail!(
+                "{shown}: line 1: the log is UTF-16 text (it starts with a UTF-16 byte order mark); save it as UTF-8"
+            );
+        }
+        if let Some(at) = buf.iter().position(|&b| b == 0) {
+            bail!(
+                "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file?)",
+                at + 1
+            );
+        }
         let content = buf.trim_ascii_start();
         if content.is_empty() || content[0] == b'#' {
             continue;
@@ -461,7 +474,18 @@ fn read_from<R: Read>(
             if header {
                 names = (0..s.len())
                     .map(|i| {
-                        let name = String::from_utf8_lossy(s.get(i).unwrap_or_default()).into_owned();
+                        // Control characters escaped: a name is quoted in errors, and a header
+                        // must never move the terminal's cursor.
+                        let name: String = String::from_utf8_lossy(s.get(i).unwrap_or_default())
+                            .chars()
+                            .map(|c| {
+                                if c.is_control() {
+                                    c.escape_debug().to_string()
+                                } else {
+                                    c.to_string()
+                                }
+                            })
+                            .collect();
                         if name.is_empty() {
                             format!("column {}", i + 1)
                         } else {

@@ -99,9 +99,50 @@ pub fn check_stdout() -> Result<()> {
 pub fn to_stdout(write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
     check_stdout()?;
     let stdout = std::io::stdout();
-    let mut w = BufWriter::new(stdout.lock());
-    let written = write(&mut w).and_then(|()| Ok(w.flush()?));
-    written.context("standard output: cannot write")
+    let mut w = Tracking::new(BufWriter::new(stdout.lock()));
+    let written = write(&mut w);
+    w.blame(written, "standard output")?;
+    w.flush().context("standard output: cannot write")
+}
+
+/// A writer that remembers whether a write or flush failed, so that an error of the output (a
+/// full disk) is told from an error of what the rows are made from (a bad line of a log, which
+/// names its own file).
+struct Tracking<W> {
+    inner: W,
+    failed: bool,
+}
+
+impl<W: Write> Tracking<W> {
+    fn new(inner: W) -> Self {
+        Self { inner, failed: false }
+    }
+
+    /// `result`, with "`shown`: cannot write" in front of its error when a write failed.
+    fn blame(&self, result: Result<()>, shown: &str) -> Result<()> {
+        match result {
+            Err(e) if self.failed => Err(e.context(format!("{shown}: cannot write"))),
+            other => other,
+        }
+    }
+}
+
+impl<W: Write> Write for Tracking<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let written = self.inner.write(buf);
+        self.failed |= written
+            .as_ref()
+            .is_err_and(|e| e.kind() != std::io::ErrorKind::Interrupted);
+        written
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        let flushed = self.inner.flush();
+        self.failed |= flushed
+            .as_ref()
+            .is_err_and(|e| e.kind() != std::io::ErrorKind::Interrupted);
+        flushed
+    }
 }
 
 /// Writes `bytes` to `path` through [`replace_with`].
@@ -127,9 +168,7 @@ pub fn replace_with(path: &Path, inputs: &[&Path], write: impl FnOnce(&mut dyn W
         // The new file keeps the permissions of the one it replaces.
         let _ = std::fs::set_permissions(&temporary.path, old.permissions());
     }
-    temporary
-        .fill(write)
-        .with_context(|| format!("{}: cannot write", path.display()))?;
+    temporary.fill(write, &path.display().to_string())?;
     step();
     // The path may have changed while the output was computed.
     check_file(path, inputs)?;
@@ -170,12 +209,16 @@ impl Temporary {
         }
     }
 
-    fn fill(&mut self, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
-        let file = self.file.take().context("the temporary file was already written")?;
-        let mut w = BufWriter::new(file);
-        write(&mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
+    /// Lets `write` fill the file; an error of a write is "`shown`: cannot write", one of `write`'s
+    /// own (a bad line of its input) is returned as it is.
+    fn fill(&mut self, write: impl FnOnce(&mut dyn Write) -> Result<()>, shown: &str) -> Result<()> {
+        let cannot = || format!("{shown}: cannot write");
+        let file = self.file.take().with_context(cannot)?;
+        let mut w = Tracking::new(BufWriter::new(file));
+        let written = write(&mut w);
+        w.blame(written, shown)?;
+        let file = w.inner.into_inner().map_err(|e| e.into_error()).with_context(cannot)?;
+        file.sync_all().with_context(cannot)?;
         Ok(())
     }
 }
@@ -209,7 +252,7 @@ fn split(path: &Path) -> Result<(PathBuf, String)> {
 fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
     let shown = path.display();
     let (parent, _) = split(path)?;
-    let not_in_a_set = || match SetKind::of(&parent) {
+    let not_in_a_set = || match SetKind::of(&parent)? {
         Some(kind) => bail!(
             "{shown}: {} holds a magcal {} set, which is replaced whole: write the file elsewhere",
             parent.display(),
@@ -315,10 +358,8 @@ mod tests {
             bail!("the rows ran out")
         })
         .unwrap_err();
-        assert!(
-            format!("{e:#}").contains("out.csv: cannot write: the rows ran out"),
-            "{e:#}"
-        );
+        // An error of what the rows are made from is not one of the output.
+        assert_eq!(format!("{e:#}"), "the rows ran out");
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "old\n");
         let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()

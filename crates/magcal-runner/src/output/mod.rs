@@ -11,6 +11,7 @@ pub mod log_rows;
 pub mod manifest;
 pub mod print;
 pub mod staging;
+pub mod stderr;
 
 use std::io::Write;
 use std::path::Path;

@@ -90,7 +90,7 @@ impl ResultSet {
         if let Some(want) = kind.kind() {
             check_replaceable(target, want)?;
             // A set inside another would go with it when that one is replaced.
-            if let Some(outer) = SetKind::of(&parent) {
+            if let Some(outer) = SetKind::of(&parent)? {
                 bail!(
                     "{}: {} holds a magcal {} set, which is replaced whole: give another --out",
                     target.display(),
@@ -229,7 +229,7 @@ fn check_replaceable(target: &Path, want: SetKind) -> Result<()> {
     if entries.next().is_none() {
         return Ok(());
     }
-    match SetKind::of(target) {
+    match SetKind::of(target)? {
         None => bail!(
             "{}: exists and is not a magcal results directory (no magcal manifest.json); \
              give another --out, or remove it",
