@@ -230,6 +230,15 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         n.truncation_k = args.reject;
     }
     record_provenance(&mut json, args)?;
+    // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range
+    // of f64 on the way (readings at 1e150 fitted to a magnitude of 1, P^T P overflowing) is not.
+    if let Err(why) = json.check()
+        && json.usable
+    {
+        json.usable = false;
+        json.reasons
+            .push(format!("the calibration fails the checks of apply and next: {why}"));
+    }
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
     if let Some(vehicle) = &vehicle {
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)
