@@ -1127,3 +1127,78 @@ fn apply_finds_the_recorded_columns_in_logs_of_every_separator() {
         );
     }
 }
+
+#[test]
+fn rejection_with_no_spread_is_no_truncation() {
+    // Five readings fitted exactly by the offset model: the residuals' spread is zero, and
+    // `--reject` passed a truncation of zero width to the fit, which panicked.
+    let tmp = tempfile::TempDir::new().unwrap();
+    // The fuzzer's case: a time column read as the first of three, and a repeated row.
+    let x = FuzzLog {
+        header: (None, 1),
+        separator: Sep::Comma,
+        decimal_comma: false,
+        rows: vec![
+            Row::Reading(510),
+            Row::Reading(382),
+            Row::Reading(538),
+            Row::Reading(29),
+            Row::Repeat,
+        ],
+        scale: 1.0,
+        columns: None,
+        fit: "offset",
+        skip_bad: false,
+        reject: Some(3.0),
+        magnitude: None,
+        noise: None,
+        place: Some(Place {
+            site: "28.2,112.97",
+            date: "2013.0",
+            units: Some("nT"),
+            matched: false,
+        }),
+        edit: None,
+    };
+    let argv = x.calibrate_argv(Path::new("log.csv"), Path::new("cal"));
+    // `--fit offset` and what follows `--out`.
+    let args: Vec<&str> = argv[2..4].iter().chain(&argv[7..]).map(String::as_str).collect();
+    let (result, json) = calibrate_in(tmp.path(), &x.text(), &args);
+    let json = json.unwrap_or_else(|| panic!("{:?}", result.err().map(|e| format!("{e:?}"))));
+    assert_eq!(json["rejected"], 0);
+    assert_eq!(json["noise_estimate"]["truncation_k"], serde_json::Value::Null);
+}
+
+#[test]
+fn a_bad_row_met_by_apply_is_the_logs_fault_not_the_outputs() {
+    use magcal_runner::commands::apply::{self, ApplyArgs};
+    // apply streams the log into its output: a bad row part way was reported as
+    // "calibrated.csv: cannot write: log.csv: line 5: ...".
+    let tmp = tempfile::TempDir::new().unwrap();
+    let (result, _) = calibrate_in(tmp.path(), &ellipsoid_log(48_000.0, 60), &[]);
+    assert!(result.is_ok());
+    let log = tmp.path().join("log.csv");
+    let mut text = ellipsoid_log(48_000.0, 3);
+    text.push_str("1,2,zz\n");
+    std::fs::write(&log, text).unwrap();
+    let out = tmp.path().join("calibrated.csv");
+    let apply = ApplyArgs {
+        calibration: tmp.path().join("cal/calibration.json"),
+        log: log.clone(),
+        columns: None,
+        skip_bad: false,
+        out: Some(out.clone()),
+    };
+    let Err(Failure::Input(e)) = apply::run(&apply) else {
+        panic!("apply took a bad row")
+    };
+    let message = format!("{e:#}");
+    assert!(
+        message.starts_with(&format!(
+            "{}: line 5, column 3 (z): \"zz\" is not a number",
+            log.display()
+        )),
+        "{message}"
+    );
+    assert!(!message.contains("cannot write") && !out.exists(), "{message}");
+}

@@ -153,7 +153,9 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let rejected = match args.reject {
         Some(k) => {
             let r = reject(&mut log, k, args.fit, &settings).with_context(|| format!("{shown}: --reject {k}"))?;
-            settings.truncation = Some(r.half_width);
+            // A zero spread (readings on the fit to rounding, as an exact fit of a few readings
+            // gives) truncates nothing to correct for; the core takes only a positive width.
+            settings.truncation = Some(r.half_width).filter(|h| h.is_finite() && *h > 0.0);
             r.dropped
         }
         None => 0,
@@ -227,7 +229,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
-        n.truncation_k = args.reject;
+        n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
     }
     record_provenance(&mut json, args)?;
     // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range

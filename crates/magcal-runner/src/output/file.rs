@@ -127,9 +127,7 @@ pub fn replace_with(path: &Path, inputs: &[&Path], write: impl FnOnce(&mut dyn W
         // The new file keeps the permissions of the one it replaces.
         let _ = std::fs::set_permissions(&temporary.path, old.permissions());
     }
-    temporary
-        .fill(write)
-        .with_context(|| format!("{}: cannot write", path.display()))?;
+    temporary.fill(write, path)?;
     step();
     // The path may have changed while the output was computed.
     check_file(path, inputs)?;
@@ -170,13 +168,46 @@ impl Temporary {
         }
     }
 
-    fn fill(&mut self, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
-        let file = self.file.take().context("the temporary file was already written")?;
-        let mut w = BufWriter::new(file);
-        write(&mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
+    /// Lets `write` fill the file and syncs it. An error of the file is one of `path` ("cannot
+    /// write"); an error of `write`'s own (a bad row of the log it reads) is passed on as it is,
+    /// since it names its input and the output is not at fault.
+    fn fill(&mut self, write: impl FnOnce(&mut dyn Write) -> Result<()>, path: &Path) -> Result<()> {
+        let cannot = || format!("{}: cannot write", path.display());
+        let file = self
+            .file
+            .take()
+            .context("the temporary file was already written")
+            .with_context(cannot)?;
+        let mut w = Watched {
+            inner: BufWriter::new(file),
+            failed: false,
+        };
+        if let Err(e) = write(&mut w) {
+            return Err(if w.failed { e.context(cannot()) } else { e });
+        }
+        let file = w.inner.into_inner().map_err(|e| e.into_error()).with_context(cannot)?;
+        file.sync_all().with_context(cannot)?;
         Ok(())
+    }
+}
+
+/// A writer that notes whether a write to it failed.
+struct Watched<W> {
+    inner: W,
+    failed: bool,
+}
+
+impl<W: Write> Write for Watched<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let r = self.inner.write(buf);
+        self.failed |= r.is_err();
+        r
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        let r = self.inner.flush();
+        self.failed |= r.is_err();
+        r
     }
 }
 
@@ -315,10 +346,8 @@ mod tests {
             bail!("the rows ran out")
         })
         .unwrap_err();
-        assert!(
-            format!("{e:#}").contains("out.csv: cannot write: the rows ran out"),
-            "{e:#}"
-        );
+        // The producer's own error is passed on: the output is not at fault.
+        assert_eq!(format!("{e:#}"), "the rows ran out");
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "old\n");
         let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
