@@ -10,12 +10,24 @@
 //!   and then `check` against themselves, which must pass. No CSV cell may read `NaN`.
 //! - [`mutated_logs_calibrate_apply_and_next_or_say_why`]: logs of up to 60 rows, readings of an
 //!   ellipsoid at any scale mixed with extreme numbers, empty and text cells, short and long
-//!   rows, under every header and option (`--fit`, `--skip-bad`, `--reject`, `--magnitude`), go
-//!   through `calibrate --out`; when it succeeds, its calibration through `apply` and `next`.
-//!   Every outcome is `Ok` or an error naming the log or the option; never a panic.
+//!   rows; separated by commas, semicolons, tabs or spaces, with decimal commas; under headers
+//!   with prefixes, a time column, empty and repeated names, or none; with `--columns` by name,
+//!   index, repeated or out of range; `--fit`, `--skip-bad`, `--reject`, `--magnitude`, `--noise`
+//!   (absurd values too) and `--site --date --units` with the log in those units or others. They
+//!   go through `calibrate --out`; its calibration.json, edited or not (an entry of `p`, `k`,
+//!   `bias`, `magnitude`, `noise` set to null, negative, huge or a string; `columns` renamed or
+//!   pointing at missing columns; `format`; a field removed or added; cut short; a byte-order
+//!   mark), through `apply` and `next`. Every outcome is one of: exit 0, whose calibration is
+//!   usable with finite estimates and standard errors, and whose applied readings are finite;
+//!   exit 3, whose JSON says `usable: false` with reasons; or an input error, one short line
+//!   naming the log, the calibration or an option, with no output written. Never a panic. An
+//!   unedited usable calibration applies to its own log.
+//!
+//! Plain regression tests below the fuzzers keep what the fuzzer found, readably.
 //!
 //! Cases per test: `MAGCAL_FUZZ_CASES` (default 24, what CI runs). A long run, as reported in the
-//! README: `MAGCAL_FUZZ_CASES=20000 cargo test --release -p magcal-runner --test fuzz -- --nocapture`.
+//! README: `MAGCAL_FUZZ_CASES=30000 cargo test --release -p magcal-runner --test fuzz -- mutated_logs`
+//! (the commands print to standard output: redirect it).
 //! Inputs that once failed are kept in `proptest-regressions/fuzz.txt` (beside `tests/`) and are
 //! replayed first.
 
@@ -1201,4 +1213,40 @@ fn a_bad_row_met_by_apply_is_the_logs_fault_not_the_outputs() {
         "{message}"
     );
     assert!(!message.contains("cannot write") && !out.exists(), "{message}");
+}
+
+#[test]
+fn apply_gives_the_length_of_calibrated_readings_near_the_largest_number() {
+    use magcal_runner::commands::apply::{self, ApplyArgs};
+    // Readings at 1e308 on each axis fitted by the offset model calibrate to about 5e307 on each
+    // axis: finite, but the sum of their squares is not, and apply refused the log its usable
+    // calibration was made from.
+    let tmp = tempfile::TempDir::new().unwrap();
+    let small = "4.888663185627568e-1,-1e-1,-8.699999999999999e-1";
+    let log = format!(
+        "x,y,z\n4.888663185627568e-1,1e308,-8.699999999999999e-1\n4.888663185627568e-1,-1e-1,1e308\n1e308,-1e-1,-8.699999999999999e-1\n{small}\n{small}\n"
+    );
+    let (result, json) = calibrate_in(tmp.path(), &log, &["--fit=offset"]);
+    assert!(result.is_ok(), "{:?}", result.err().map(|e| format!("{e:?}")));
+    let magnitude = json.unwrap()["magnitude"].as_f64().unwrap();
+    let out = tmp.path().join("calibrated.csv");
+    let apply = ApplyArgs {
+        calibration: tmp.path().join("cal/calibration.json"),
+        log: tmp.path().join("log.csv"),
+        columns: None,
+        skip_bad: false,
+        out: Some(out.clone()),
+    };
+    if let Err(Failure::Input(e)) = apply::run(&apply) {
+        panic!("{e:#}");
+    }
+    check_applied(&out).unwrap();
+    // Each row's norm is the length of its x, y, z, to a few roundings.
+    for line in std::fs::read_to_string(&out).unwrap().lines().skip(1) {
+        let v: Vec<f64> = line.split(',').map(|c| c.parse().unwrap()).collect();
+        let s = v[1].abs().max(v[2].abs()).max(v[3].abs());
+        let length = s * ((v[1] / s).powi(2) + (v[2] / s).powi(2) + (v[3] / s).powi(2)).sqrt();
+        assert!((v[4] / length - 1.0).abs() <= 8.0 * f64::EPSILON, "{line}");
+        assert!(v[4] > 0.1 * magnitude, "{line}");
+    }
 }
