@@ -190,10 +190,13 @@ mod tests {
 
     #[test]
     fn scale_factors_whose_k_has_no_finite_inverse_are_refused() {
-        // Each positive and finite, but det K = 1e-450 underflows: P would not exist (found by
-        // the log fuzzer, a log of readings near 1e150 fitted to a magnitude of 1e300).
-        let e = ErrorModel::new([0.0; 3], [1e-150; 3], [0.0; 3]).unwrap_err();
+        // Each positive and finite, but 1 / 1e-310 overflows: P would not exist.
+        let e = ErrorModel::new([0.0; 3], [1e-310; 3], [0.0; 3]).unwrap_err();
         assert!(e.to_string().contains("finite inverse"), "{e}");
+        // Back substitution inverts K = 1e-150 I, whose determinant (1e-450) underflows (the
+        // log fuzzer's readings near 1e150 fitted to a magnitude of 1e300).
+        let m = ErrorModel::new([0.0; 3], [1e-150; 3], [0.0; 3]).unwrap();
+        assert!(m.P().iter().flatten().all(|v| v.is_finite()));
         // The smallest and largest scale factors a scenario accepts stay valid.
         for s in [1e-3, 1e3] {
             let m = ErrorModel::new([89.0, -89.0, 45.0], [s; 3], [0.0; 3]).unwrap();

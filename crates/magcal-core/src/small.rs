@@ -88,10 +88,14 @@ pub fn transpose(a: &Mat3) -> Mat3 {
 /// Returns `None` when a diagonal entry is zero or the result is not finite.
 pub fn upper_triangular_inverse(u: &Mat3) -> Option<Mat3> {
     let [[a, b, c], [_, d, e], [_, _, f]] = *u;
+    // Back substitution, one diagonal entry at a time: products of diagonal entries such as
+    // `a d f` underflow or overflow for entries near 1e-150 or 1e150 whose inverse is finite.
+    let (ia, id, i_f) = (1.0 / a, 1.0 / d, 1.0 / f);
+    let k12 = -e * id * i_f;
     let inv = [
-        [1.0 / a, -b / (a * d), (b * e - c * d) / (a * d * f)],
-        [0.0, 1.0 / d, -e / (d * f)],
-        [0.0, 0.0, 1.0 / f],
+        [ia, -b * id * ia, -(b * k12 + c * i_f) * ia],
+        [0.0, id, k12],
+        [0.0, 0.0, i_f],
     ];
     inv.iter().flatten().all(|x| x.is_finite()).then_some(inv)
 }
@@ -293,12 +297,17 @@ mod tests {
                     u[i][j] = rng.random_range(-0.5..0.5);
                 }
             }
-            let inv = upper_triangular_inverse(&u).expect("non-singular");
-            let id = mat_mul(&u, &inv);
-            for (i, row) in id.iter().enumerate() {
-                for (j, v) in row.iter().enumerate() {
-                    let want = if i == j { 1.0 } else { 0.0 };
-                    assert!((v - want).abs() <= 16.0 * f64::EPSILON * 8.0);
+            // At any scale whose inverse is finite: a d f underflows at 1e-150 and overflows
+            // at 1e150.
+            for scale in [1.0, 1e-150, 1e150] {
+                let u = u.map(|row| row.map(|v| v * scale));
+                let inv = upper_triangular_inverse(&u).expect("non-singular");
+                let id = mat_mul(&u, &inv);
+                for (i, row) in id.iter().enumerate() {
+                    for (j, v) in row.iter().enumerate() {
+                        let want = if i == j { 1.0 } else { 0.0 };
+                        assert!((v - want).abs() <= 16.0 * f64::EPSILON * 8.0, "{scale}: {id:?}");
+                    }
                 }
             }
             let a: Mat3 = std::array::from_fn(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)));

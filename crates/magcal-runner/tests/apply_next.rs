@@ -275,7 +275,8 @@ fn apply_refuses_a_reading_whose_calibrated_value_is_not_finite() {
     let tmp = TempDir::new().unwrap();
     let cal = calibrate(&ck, &[], &tmp.path().join("cal"));
     let mut text = fs::read_to_string(&ck).unwrap();
-    text.push_str("0,0,0,1e300,1e300,1e300\n");
+    // Calibrated, each component stays below f64::MAX but the length does not.
+    text.push_str("0,0,0,1.7e308,1.7e308,1.7e308\n");
     let log = tmp.path().join("huge.csv");
     fs::write(&log, text).unwrap();
     let out = tmp.path().join("calibrated.csv");
@@ -287,7 +288,10 @@ fn apply_refuses_a_reading_whose_calibrated_value_is_not_finite() {
             "--out".as_ref(),
             out.as_os_str(),
         ]),
-        &["huge.csv: line 12002: the reading [1e300, 1e300, 1e300]", "not finite"],
+        &[
+            "huge.csv: line 12002: the reading [1.7e308, 1.7e308, 1.7e308]",
+            "not finite",
+        ],
     );
     assert!(!out.exists());
 }

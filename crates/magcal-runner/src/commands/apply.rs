@@ -68,7 +68,9 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
             0,
             |line, raw| {
                 let b = cal.apply(raw);
-                let norm = magcal_core::small::norm(b);
+                // |b| through hypot: its squares overflow for components above 1e154, whose
+                // length is still finite.
+                let norm = b[0].hypot(b[1]).hypot(b[2]);
                 if !(b.iter().all(|v| v.is_finite()) && norm.is_finite()) {
                     bail!(
                         "{}: line {line}: the reading {raw:?} calibrated by {shown} is {b:?}, not finite (is the calibration for this sensor and units?)",

@@ -154,7 +154,9 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let rejected = match args.reject {
         Some(k) => {
             let r = reject(&mut log, k, args.fit, &settings).with_context(|| format!("{shown}: --reject {k}"))?;
-            settings.truncation = Some(r.half_width);
+            // A zero spread (readings on the fit to rounding, as an exact fit of a few readings
+            // gives) truncates nothing to correct for; the core takes only a positive width.
+            settings.truncation = Some(r.half_width).filter(|h| h.is_finite() && *h > 0.0);
             r.dropped
         }
         None => 0,
@@ -228,9 +230,18 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let mut json = to_json(&args.log, &log, &fit, why, source);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
-        n.truncation_k = args.reject;
+        n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
     }
     record_provenance(&mut json, args)?;
+    // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range
+    // of f64 on the way (readings at 1e150 fitted to a magnitude of 1, P^T P overflowing) is not.
+    if let Err(why) = json.check()
+        && json.usable
+    {
+        json.usable = false;
+        json.reasons
+            .push(format!("the calibration fails the checks of apply and next: {why}"));
+    }
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
     if let Some(vehicle) = &vehicle {
         json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)

@@ -413,9 +413,9 @@ pub fn sha256_file(path: &Path) -> Result<String> {
 }
 
 /// The columns to read `log` with: `asked` (`--columns`) when given, else the columns `cal` was
-/// made from, as 1-based indices of `log`'s header (or, for a log without a header, the
-/// `column N` it recorded). `None` when the log's first row cannot be read (the reader then says
-/// why).
+/// made from, as 1-based indices of `log`'s header (a name, or the `column N` recorded for a
+/// column without a name of its own: no header, an empty name, a name several columns carry).
+/// `None` when the log's first row cannot be read (the reader then says why).
 ///
 /// # Errors
 /// A log without the recorded columns: one line naming the log, the calibration and both sets
@@ -424,7 +424,9 @@ pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, asked: Op
     if let Some(asked) = asked {
         return Ok(Some(asked.to_string()));
     }
-    let Some((header, names)) = first_row(log) else {
+    // The first row as the log reader splits it (separator, quotes, empty names), so that the
+    // names calibrate recorded are found in a log that is not comma-separated.
+    let Some((header, names)) = crate::log::read::first_row(log) else {
         return Ok(None);
     };
     let recorded = cal.columns.join(", ");
@@ -432,7 +434,24 @@ pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, asked: Op
     let mut picks = Vec::with_capacity(3);
     for name in &cal.columns {
         let found = if header {
-            names.iter().position(|n| n.eq_ignore_ascii_case(name)).map(|i| i + 1)
+            // A name the log gives several columns does not say which; a column recorded by its
+            // number (its name was not unique in the log calibrate read) is found by it.
+            let by_name: Vec<usize> = (0..names.len())
+                .filter(|&i| names[i].eq_ignore_ascii_case(name))
+                .collect();
+            if let [a, b, ..] = by_name[..] {
+                bail!(
+                    "{shown}: columns {} and {} are both named {:?}, which {cal_shown} was made from; give --columns",
+                    a + 1,
+                    b + 1,
+                    excerpt(name, 40)
+                );
+            }
+            by_name.first().map(|i| i + 1).or_else(|| {
+                name.strip_prefix("column ")
+                    .and_then(|i| i.parse::<usize>().ok())
+                    .filter(|i| (1..=names.len()).contains(i))
+            })
         } else {
             name.strip_prefix("column ")
                 .and_then(|i| i.parse::<usize>().ok())
@@ -454,21 +473,6 @@ pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, asked: Op
         }
     }
     Ok(Some(picks.join(",")))
-}
-
-/// Whether the log's first row is a header (a cell that is not a number) and its cells, read as
-/// the log reader reads them; `None` when the file cannot be read or is empty.
-fn first_row(path: &Path) -> Option<(bool, Vec<String>)> {
-    let file = std::fs::File::open(path).ok()?;
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(std::io::BufReader::new(file));
-    let first = reader.records().next()?.ok()?;
-    let header = first.iter().any(|c| c.parse::<f64>().is_err());
-    Some((header, first.iter().map(str::to_string).collect()))
 }
 
 /// Bins of [`RadiusMedian`] per octave.

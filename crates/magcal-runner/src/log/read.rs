@@ -555,10 +555,65 @@ fn read_from<R: Read>(
     Ok(Streamed {
         readings,
         skipped,
-        columns: pick.map(|i| names[i].clone()),
+        columns: pick.map(|i| column_name(&names, i)),
         sha256: String::new(),
         bytes: 0,
     })
+}
+
+/// The name column `i` is recorded by: its header name, or `column N` (1-based) when other
+/// columns carry the same name, so that the record finds this column again.
+fn column_name(names: &[String], i: usize) -> String {
+    if names.iter().filter(|n| n.eq_ignore_ascii_case(&names[i])).count() > 1 {
+        format!("column {}", i + 1)
+    } else {
+        names[i].clone()
+    }
+}
+
+/// Whether the first row of the log at `path` is a header (a cell that is not a number) and its
+/// cells' names (`column N` for an empty one), read as [`stream`] reads them: the same separator,
+/// quotes, byte-order mark, comments and blank lines. `None` when the file cannot be read, holds
+/// no row, or its first row cannot be split ([`stream`] then says why).
+pub fn first_row(path: &Path) -> Option<(bool, Vec<String>)> {
+    let file = std::fs::File::open(path).ok()?;
+    let mut lines = Lines::new(BufReader::with_capacity(1 << 16, file));
+    let mut buf = Vec::new();
+    let mut splitter: Option<Splitter> = None;
+    while let Some(line) = lines.next(&mut buf, "").ok()? {
+        if line == 1 && buf.starts_with(b"\xef\xbb\xbf") {
+            buf.drain(..3);
+        }
+        // Not a text log: no first row here; the reader names the fault.
+        if (line == 1 && (buf.starts_with(b"\xff\xfe") || buf.starts_with(b"\xfe\xff"))) || buf.contains(&0) {
+            return None;
+        }
+        let content = buf.trim_ascii_start();
+        if content.is_empty() || content[0] == b'#' {
+            continue;
+        }
+        let s = splitter.get_or_insert_with(|| Splitter::new(Separator::sniff(content)));
+        buf.push(b'\n');
+        s.split(&buf).ok()?;
+        let cells: Vec<&[u8]> = (0..s.len()).map(|i| s.get(i).unwrap_or_default()).collect();
+        if cells.iter().all(|c| c.is_empty()) {
+            continue;
+        }
+        let header = cells.iter().any(|c| !c.is_empty() && number(c, s.separator).is_none());
+        let names = cells
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                if c.is_empty() {
+                    format!("column {}", i + 1)
+                } else {
+                    String::from_utf8_lossy(c).into_owned()
+                }
+            })
+            .collect();
+        return Some((header, names));
+    }
+    None
 }
 
 /// The three columns to read: asked for (names or 1-based indices), or `x, y, z` (optionally
