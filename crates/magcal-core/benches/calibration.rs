@@ -88,9 +88,8 @@ fn monte_carlo(c: &mut Criterion) {
                 .collect::<Vec<_>>()
         })
     });
-    // The same trials without the metrics issue 11 added (absolute and heading errors): the
-    // trial as it was before them, on today's calibration. The ratio of the two is the cost of
-    // those metrics (target: at most 1.25).
+    // The same trials without the absolute and heading errors: the ratio of the two is the cost
+    // of those metrics (target: at most 1.25).
     group.bench_function("1000_trials_one_design_without_added_metrics", |b| {
         b.iter(|| {
             (0..1000u64)
@@ -132,7 +131,7 @@ fn metrics(c: &mut Criterion) {
     });
 }
 
-/// Issue 13's target: calibrating a log of 12,000 readings (the size of the ck-explorer log) in at
+/// Target: calibrating a log of 12,000 readings (the size of the ck-explorer log) in at
 /// most 20 ms: a synthetic log of the [P1] sensor over every attitude, 30 nT noise, in Gauss.
 fn log_fit(c: &mut Criterion) {
     use magcal_core::log_fit::{FitModel, fit};

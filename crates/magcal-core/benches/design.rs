@@ -59,7 +59,7 @@ fn optimisers(c: &mut Criterion) {
     group.finish();
 }
 
-/// Issue 12's targets: the approximate design and its certificate for the AUV box (200 ms), the
+/// Targets: the approximate design and its certificate for the AUV box (200 ms), the
 /// optimum of 100 readings in the full attitude space (2 s).
 fn certified(c: &mut Criterion) {
     use magcal_core::AttitudeBox;

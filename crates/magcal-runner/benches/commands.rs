@@ -1,4 +1,4 @@
-//! Whole `magcal` processes on a log (issue 13's targets): `calibrate` on the ck-explorer log
+//! Whole `magcal` processes on a log, with their targets: `calibrate` on the ck-explorer log
 //! (0.3 s), `next` with K = 10 (1 s). The public log is read from `../shared/data/` when it is
 //! there; else a synthetic log of the same size.
 //!
