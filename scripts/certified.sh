@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs the scenarios of certified designs (issue 12), writing results/<scenario>/:
+# Runs the scenarios of certified designs, writing results/<scenario>/:
 #   criteria         D-, A- and E-optimal designs of the AUV by the optimiser and the PSO
 #   plan300          the certified approximate design rounded to 300 readings, against 300 uniform
 #   execution-error  the AUV designs flown with attitude errors of 0, 1 and 3 degrees
