@@ -5,7 +5,7 @@ A different method from magcal's (linear ellipsoid fit, then Levenberg-Marquardt
 normal equations): scipy.optimize.least_squares (trust-region reflective) on the norm residual
 |P (s - O)| - 1 directly, from a sphere fit, with P upper triangular. The quantities compared do
 not depend on the reference magnitude: the bias O (the log's units), the non-orthogonality psi
-(degrees, CONVENTIONS.md inverse map), the scale factors relative to their geometric mean, and the
+(degrees, docs/conventions.md inverse map), the scale factors relative to their geometric mean, and the
 residual rms in percent of R; and the two coverage heuristics of the calibrated directions
 (MotionCal's gaps over 100 equal-area regions, MicroStrain's occupied share of 18 x 32
 equal-angle bins), binned here with numpy from their definitions.

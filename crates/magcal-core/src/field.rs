@@ -8,7 +8,7 @@ use rand_distr::Distribution;
 /// The homogeneous reference field at the calibration site (\[P1\] II.A).
 ///
 /// Given as the World Magnetic Model reports it, North-East-Down components in nT, and stored as
-/// `B^n = (X, -Z, Y)` in the paper's North-Up-East n-frame (CONVENTIONS.md).
+/// `B^n = (X, -Z, Y)` in the paper's North-Up-East n-frame (docs/conventions.md).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ReferenceField {
     ned_nt: Vec3,
@@ -40,7 +40,7 @@ impl ReferenceField {
     }
 
     /// The same field with `yaw_offset_deg` (degrees) added to every yaw before \[P1\] eq. (2).
-    /// Default 0: yaw 0 puts the nose on north (CONVENTIONS.md explains when 90 matters).
+    /// Default 0: yaw 0 puts the nose on north (docs/conventions.md explains when 90 matters).
     ///
     /// # Errors
     /// A non-finite offset.
@@ -195,7 +195,7 @@ mod tests {
     #[test]
     #[allow(clippy::float_cmp)] // B^n is a permutation of the given numbers: exact
     fn changsha_magnitude_matches_check_value() {
-        // CONVENTIONS.md check value: R = 48277.79 nT.
+        // docs/conventions.md check value: R = 48277.79 nT.
         let f = paper::changsha_field();
         assert!((f.magnitude() - 48277.79).abs() < 0.005, "{}", f.magnitude());
         assert_eq!(f.b_n(), [35272.34, -32897.67, -2085.74]);

@@ -1,4 +1,4 @@
-//! The heading error of a calibration (CONVENTIONS.md "Heading error of a calibration"): what a
+//! The heading error of a calibration (docs/conventions.md "Heading error of a calibration"): what a
 //! navigator loses by flying with it.
 //!
 //! At roll = pitch = 0 and yaw 0, 1, ..., 359 degrees (with the field's yaw offset), the true body
@@ -244,7 +244,7 @@ mod tests {
 
     #[test]
     fn conventions_check_values() {
-        // CONVENTIONS.md "Heading error of a calibration", Changsha, [P1] truth (rms / max, deg).
+        // docs/conventions.md "Heading error of a calibration", Changsha, [P1] truth (rms / max, deg).
         let truth = paper::true_error_model();
         let probe = HeadingProbe::new(&paper::changsha_field(), &truth);
         let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];

@@ -1,5 +1,5 @@
 //! The Cramer-Rao floor of a calibration design and its identifiability verdict
-//! (CONVENTIONS.md "Identifiability and the Cramer-Rao floor").
+//! (docs/conventions.md "Identifiability and the Cramer-Rao floor").
 //!
 //! The calibration is attitude-independent: each reading has an unknown body direction, and only
 //! `r_i = |P (b_i - O)| - R` carries information. With the noise `n ~ N(0, sigma^2 I3)` of
@@ -12,8 +12,8 @@
 //! `P (b_i - O) = B_i`, the body field, and the chain rule through `K = diag(S) N(psi)` and
 //! `dP = -P dK P` gives `d r_i / d psi_a = -g_i^T (dK / d psi_a) B_i`, the same for `S_a`, and
 //! `d r_i / d O = -g_i`: the information is formed directly in the physical units (degrees, -, nT)
-//! and no Jacobian of the inverse map (CONVENTIONS.md) is needed. Treating the body directions as
-//! nuisance parameters of the full readings gives the same bound (CONVENTIONS.md).
+//! and no Jacobian of the inverse map (docs/conventions.md) is needed. Treating the body directions as
+//! nuisance parameters of the full readings gives the same bound (docs/conventions.md).
 //!
 //! # The verdict
 //! A design is **identifiable** at a noise level when its information is regular to working
@@ -411,7 +411,7 @@ mod tests {
 
     #[test]
     fn conventions_check_values() {
-        // CONVENTIONS.md "Identifiability and the Cramer-Rao floor", 30 nT, [P1] truth: yaw offset,
+        // docs/conventions.md "Identifiability and the Cramer-Rao floor", 30 nT, [P1] truth: yaw offset,
         // design, rms eta and its printed decimals, std and its printed decimals per group.
         type Row = (f64, Vec<Attitude>, [f64; 3], [i32; 3], [f64; 9], [i32; 3]);
         let cases: [Row; 3] = [

@@ -48,7 +48,7 @@
 //! ## References
 //! - \[P1\] Z. Wu, X. Hu, M. Wu, P. Liu, "D-Optimal Design Applied to Calibration of Strapdown
 //!   Three-axis Magnetometer". Readings of the paper that it leaves open follow the project's
-//!   CONVENTIONS.md.
+//!   docs/conventions.md.
 //! - D. Gebre-Egziabher, G. H. Elkaim, J. D. Powell, B. W. Parkinson, "Calibration of Strapdown
 //!   Magnetometers in Magnetic Field Domain", ASCE J. Aerospace Eng. 19, 2006 (the two-step method).
 //! - K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for Non-Linear Least Squares Problems", 2004

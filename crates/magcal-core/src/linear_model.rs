@@ -241,7 +241,7 @@ impl InformationMatrix {
         ln_det_spd(&self.M).unwrap_or(f64::NEG_INFINITY)
     }
 
-    /// `ln det M_F` with `H` in nT, the quantity of \[P1\] eq. (14)-(15) and of CONVENTIONS.md's
+    /// `ln det M_F` with `H` in nT, the quantity of \[P1\] eq. (14)-(15) and of docs/conventions.md's
     /// check values: `ln det M_F(scaled) + 30 ln(scale)`.
     ///
     /// # Deviation from \[P1\]
@@ -297,7 +297,7 @@ mod tests {
 
     #[test]
     fn ln_det_matches_conventions_check_values() {
-        // CONVENTIONS.md check values, to the 4 decimals printed there.
+        // docs/conventions.md check values, to the 4 decimals printed there.
         for (design, offset, want) in [
             (paper::uniformity_design(), 0.0, 303.4800),
             (paper::table2_d_optimal(), 0.0, 298.9240),

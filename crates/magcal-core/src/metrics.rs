@@ -56,7 +56,7 @@ impl AbsoluteErrors {
 }
 
 /// Summary statistics of one metric over the trials that succeeded, with the failed count beside
-/// them (CONVENTIONS.md "Metrics").
+/// them (docs/conventions.md "Metrics").
 ///
 /// Percentiles interpolate linearly between order statistics (Hyndman-Fan type 7, the default of
 /// numpy and R). With no values every statistic is NaN; with one value `std` and `se_mean` are NaN.

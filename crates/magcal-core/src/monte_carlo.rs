@@ -25,7 +25,7 @@ pub struct TrialOutcome {
     pub eta: Option<RelativeErrors>,
     /// Their absolute errors against the truth.
     pub abs: Option<AbsoluteErrors>,
-    /// The heading error the estimate leaves (CONVENTIONS.md "Heading error of a calibration").
+    /// The heading error the estimate leaves (docs/conventions.md "Heading error of a calibration").
     pub heading: Option<HeadingError>,
 }
 

@@ -1,7 +1,7 @@
 //! The numbers of \[P1\] section IV as values: site field, true sensor errors, the AUV attitude box,
 //! the two designs of Table II, and the PSO settings of Table I live with the optimiser.
 //!
-//! Readings of the paper that it leaves open are fixed by CONVENTIONS.md and noted at each item.
+//! Readings of the paper that it leaves open are fixed by docs/conventions.md and noted at each item.
 
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::field::ReferenceField;
@@ -13,11 +13,11 @@ pub const SIGMA_NT: f64 = 30.0;
 /// Number of Monte Carlo runs per design in \[P1\] section IV.C.
 pub const TRIALS: usize = 1000;
 
-/// The best `ln det M_F` known for the \[P1\] AUV box with m = 9 (CONVENTIONS.md).
+/// The best `ln det M_F` known for the \[P1\] AUV box with m = 9 (docs/conventions.md).
 pub const BEST_KNOWN_LN_DET: f64 = 314.54855;
 
 /// The reference field at Changsha: WMM2010 at 28.2 N, 112.97 E, sea level, epoch 2013.0,
-/// X = 35272.34, Y = -2085.74, Z = 32897.67 nT (CONVENTIONS.md; \[P1\] IV.A names the site only).
+/// X = 35272.34, Y = -2085.74, Z = 32897.67 nT (docs/conventions.md; \[P1\] IV.A names the site only).
 pub fn changsha_field() -> ReferenceField {
     ReferenceField::from_ned(35272.34, -2085.74, 32897.67).expect("constant field is valid")
 }
@@ -46,7 +46,7 @@ pub const UNIFORMITY_DESIGN_DEG: [[f64; 3]; 9] = [
     [5.0, 60.0, 20.0],
 ];
 
-/// \[P1\] Table II, D-optimal design as printed, `[roll yaw pitch]` in degrees. CONVENTIONS.md: it
+/// \[P1\] Table II, D-optimal design as printed, `[roll yaw pitch]` in degrees. docs/conventions.md: it
 /// scores below the Uniformity design, so it cannot be what produced the paper's figures.
 pub const TABLE2_D_OPTIMAL_DEG: [[f64; 3]; 9] = [
     [-5.0, -37.0, -20.0],
@@ -65,7 +65,7 @@ pub fn attitudes_from_degrees(rows: &[[f64; 3]]) -> Vec<Attitude> {
     rows.iter().map(|&[r, y, p]| Attitude::from_degrees(r, y, p)).collect()
 }
 
-/// The D-optimal design of the AUV box (m = 9, yaw offset 0) that CONVENTIONS.md "Identifiability
+/// The D-optimal design of the AUV box (m = 9, yaw offset 0) that docs/conventions.md "Identifiability
 /// and the Cramer-Rao floor" uses for its check values (angles to 3 decimals).
 pub fn conventions_optimum() -> Vec<Attitude> {
     attitudes_from_degrees(&[

@@ -10,7 +10,7 @@ use crate::small::{Mat3, Vec3, add, mat_mul, mat_vec, norm, transpose, upper_tri
 
 /// The total sensor errors of \[P1\] eq. (5): `B^s = K B^b + O + n`, `K = diag(S) N`.
 ///
-/// `N` is upper triangular with unit rows (CONVENTIONS.md):
+/// `N` is upper triangular with unit rows (docs/conventions.md):
 /// `N = [[cos psi2 cos psi3, cos psi2 sin psi3, sin psi2], [0, cos psi1, sin psi1], [0, 0, 1]]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ErrorModel {
@@ -65,7 +65,7 @@ impl ErrorModel {
         Ok(model)
     }
 
-    /// The model whose `K` and `O` are given: the inverse map of CONVENTIONS.md,
+    /// The model whose `K` and `O` are given: the inverse map of docs/conventions.md,
     /// `S_i = |row_i(K)|`, `N = diag(S)^-1 K`, `psi2 = asin N13`, `psi3 = atan2(N12, N11)`,
     /// `psi1 = atan2(N23, N22)`.
     ///

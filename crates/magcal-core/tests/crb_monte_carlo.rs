@@ -1,4 +1,4 @@
-//! The Monte Carlo against the Cramer-Rao bound (CONVENTIONS.md "Identifiability and the
+//! The Monte Carlo against the Cramer-Rao bound (docs/conventions.md "Identifiability and the
 //! Cramer-Rao floor"): with 9 readings the two-step estimate is the exact ellipsoid through them,
 //! whose first-order covariance is exactly the bound. Tolerances are standard errors of the Monte
 //! Carlo quantities at a fixed seed.

@@ -195,7 +195,7 @@ pub struct RunOutput {
 
 impl RunOutput {
     /// The certified lower bound of design `i`'s D-efficiency against every design of as many
-    /// readings in the box (CONVENTIONS.md "Certified D-efficiency"); `None` without a
+    /// readings in the box (docs/conventions.md "Certified D-efficiency"); `None` without a
     /// certificate.
     pub fn d_efficiency_bound(&self, i: usize) -> Option<f64> {
         let d = &self.designs[i];

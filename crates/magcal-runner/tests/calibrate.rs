@@ -544,7 +544,7 @@ fn simulate_writes_a_log_that_calibrate_recovers() {
 #[test]
 fn the_magnitude_can_come_from_the_wmm_at_a_site_and_date() {
     // The synthetic log is in Gauss at Changsha, 2013.0: WMM2010 there gives 48277.79 nT
-    // (CONVENTIONS.md), and the scale factors come back absolute.
+    // (docs/conventions.md), and the scale factors come back absolute.
     let tmp = TempDir::new().unwrap();
     let truth = paper::true_error_model();
     let log = synthetic(tmp.path(), &truth, &AttitudeBox::full(), 2000, 30.0);

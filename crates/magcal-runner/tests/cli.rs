@@ -114,7 +114,7 @@ fn run_writes_every_file_with_the_expected_rows() {
         [first.roll_deg.0, first.yaw_deg.0, first.pitch_deg.0],
         [-5.0, -60.0, -20.0]
     );
-    // CONVENTIONS.md check values through the whole pipeline.
+    // docs/conventions.md check values through the whole pipeline.
     let metrics = csv_rows(&tmp.path().join("design_metrics.csv"));
     let ln_det = |name: &str| {
         metrics.iter().find(|r| r[0] == name).unwrap()[2]
@@ -124,7 +124,7 @@ fn run_writes_every_file_with_the_expected_rows() {
     assert!((ln_det("uniform") - 303.4800).abs() < 5e-5);
     assert!((ln_det("table2_dopt") - 298.9240).abs() < 5e-5);
     assert!(ln_det("optimum") >= 314.5485);
-    // The certificate through the pipeline: CONVENTIONS.md, the best known 9-point design is
+    // The certificate through the pipeline: docs/conventions.md, the best known 9-point design is
     // 95.67 % to 95.79 % D-efficient against every 9-point design in the box.
     let typed: Vec<magcal_runner::output::DesignMetricsRow> = read_csv(&tmp.path().join("design_metrics.csv")).unwrap();
     let optimum = typed.iter().find(|r| r.design == "optimum").unwrap();
@@ -315,7 +315,7 @@ fn wmm_site_gives_the_conventions_field() {
         .iter()
         .map(|v| v.as_f64().unwrap())
         .collect();
-    // CONVENTIONS.md check value, to the 0.01 nT printed there.
+    // docs/conventions.md check value, to the 0.01 nT printed there.
     for (got, want) in ned.iter().zip([35272.34, -2085.74, 32897.67]) {
         assert!((got - want).abs() <= 0.005, "{ned:?}");
     }

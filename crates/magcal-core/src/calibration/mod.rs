@@ -32,7 +32,7 @@ pub struct Estimate {
     pub p: Mat3,
     /// `O`, nT (\[P1\] eq. (5)).
     pub bias_nt: Vec3,
-    /// `(psi, S, O)` from `K = P^-1` (CONVENTIONS.md inverse map).
+    /// `(psi, S, O)` from `K = P^-1` (docs/conventions.md inverse map).
     pub model: ErrorModel,
     /// RMS of `|P (b_i - O)| - R` over the readings, nT.
     pub rms_residual_nt: f64,

@@ -1,5 +1,5 @@
 //! Step 1: the linear least-squares ellipsoid fit of \[P1\] eq. (9)-(11), and the extraction of
-//! `O`, `G`, `P` from `theta` (CONVENTIONS.md).
+//! `O`, `G`, `P` from `theta` (docs/conventions.md).
 #![allow(non_snake_case)]
 
 use faer::Mat;
@@ -19,7 +19,7 @@ use crate::small::{Mat3, Vec3, cholesky_in_place, dot, mat_vec, scale, solve3};
 /// # Deviation from \[P1\]
 /// \[P1\] eq. (11) writes the normal equations `(H^T H)^-1 H^T W`; this solves the same least-squares
 /// problem by column-pivoted Householder QR (faer), which does not square the condition number
-/// and reveals a rank-deficient `H`. The readings are divided by `R` first (CONVENTIONS.md): the
+/// and reveals a rank-deficient `H`. The readings are divided by `R` first (docs/conventions.md): the
 /// fitted quadric is the same, the arithmetic better scaled.
 ///
 /// # Errors

@@ -167,7 +167,7 @@ pub(crate) fn locally_identifiable(jtj: &[[f64; PARAMETERS]; PARAMETERS], x: &[f
 }
 
 /// The variance of one scaled residual: from the known noise (`sigma / R` times the mean of
-/// `|grad_b r|^2`, CONVENTIONS.md), else from the residuals (`2 f / (m - 9)`), else (9 readings
+/// `|grad_b r|^2`, docs/conventions.md), else from the residuals (`2 f / (m - 9)`), else (9 readings
 /// and no known noise: an exact fit) none.
 fn residual_variance(settings: &TwoStep, x: &[f64; PARAMETERS], u: &[Vec3], f: f64, r: f64) -> Option<f64> {
     match settings.noise_nt {

@@ -70,7 +70,7 @@ fn noise_free_recovery_of_random_truths_on_random_designs() {
 
 #[test]
 fn step2_cannot_move_an_exact_nine_point_fit() {
-    // With m = 9 the quadric through the readings is exact (CONVENTIONS.md): step 2 must agree with
+    // With m = 9 the quadric through the readings is exact (docs/conventions.md): step 2 must agree with
     // step 1 to ~1e-9 even on noisy readings.
     let field = paper::changsha_field();
     let truth = paper::true_error_model();

@@ -1,5 +1,5 @@
 //! Approximate D-optimal designs over the continuous attitude box and their certificate
-//! (CONVENTIONS.md "Certified D-efficiency"; Kiefer-Wolfowitz equivalence theorem, Atwood's
+//! (docs/conventions.md "Certified D-efficiency"; Kiefer-Wolfowitz equivalence theorem, Atwood's
 //! bound).
 //!
 //! An approximate design `xi` is a set of attitudes with weights `w_i > 0`, `sum w_i = 1`; its
@@ -31,7 +31,7 @@
 //!    wants them). The last certificate is the one reported, whether or not it met the tolerance.
 //!
 //! The maximum found by multi-start local search is a lower estimate of the true `d_max`; the
-//! bound is as good as that search (CONVENTIONS.md's check values are reproduced; see the tests).
+//! bound is as good as that search (docs/conventions.md's check values are reproduced; see the tests).
 #![allow(non_snake_case)]
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
@@ -906,7 +906,7 @@ mod tests {
 
     #[test]
     fn auv_box_reproduces_the_conventions_check_values() {
-        // CONVENTIONS.md "Certified D-efficiency": 9 ln 9 + ln det M* lies between 314.936 and
+        // docs/conventions.md "Certified D-efficiency": 9 ln 9 + ln det M* lies between 314.936 and
         // 314.947; the best known 9-point design (314.54855) is 95.67 % to 95.79 % efficient.
         let problem = paper_problem();
         let design = Approximate::default()

@@ -1,5 +1,5 @@
 //! The paper's particle swarm optimiser, \[P1\] section III.B, eq. (15)-(20) and Table I, exactly as
-//! CONVENTIONS.md states it.
+//! docs/conventions.md states it.
 //!
 //! Written here, not taken from a crate: argmin's PSO has neither the linear inertia schedule of
 //! eq. (19) nor the per-dimension velocity clamp, and it is built on rand 0.9 (the project keeps one
@@ -391,7 +391,7 @@ mod tests {
         let problem = paper_problem();
         let result = small_swarm().optimise(&problem, &mut stream_rng(1, 0)).unwrap();
         let ln_det = -result.fitness;
-        // Uniformity design: 303.48 (CONVENTIONS.md). A factor e^9 in det M_F is a D-efficiency of e.
+        // Uniformity design: 303.48 (docs/conventions.md). A factor e^9 in det M_F is a D-efficiency of e.
         assert!(ln_det > 303.48 + 9.0, "ln det {ln_det}");
         assert!((problem.ln_det(&to_vector(&result.design)) - ln_det).abs() <= 1e-9 * ln_det);
         assert!(result.design.iter().all(|a| problem.bounds().contains(a)));

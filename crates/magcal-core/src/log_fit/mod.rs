@@ -1,4 +1,4 @@
-//! Calibration of a log of raw readings (CONVENTIONS.md "Real data"): a fit of one of three
+//! Calibration of a log of raw readings (docs/conventions.md "Real data"): a fit of one of three
 //! models, its standard errors from the residual scatter (or a noise the user gives) and the
 //! Fisher information of the log's own readings, whether the log determines it, and whether the
 //! result is a calibration to use.
@@ -259,7 +259,7 @@ impl LogFit {
 
     /// `A^-1`, the symmetric positive square root of `G = P^T P` (\[P1\] eq. (7)), by faer's
     /// eigendecomposition `V diag(sqrt lambda) V^T`: the calibration `b = A^-1 (raw - bias)` of
-    /// Magneto, MotionCal and ArduPilot, equal in `|b|` to \[P1\]'s `P (raw - bias)` (CONVENTIONS.md
+    /// Magneto, MotionCal and ArduPilot, equal in `|b|` to \[P1\]'s `P (raw - bias)` (docs/conventions.md
     /// "Real data"). NaN if the decomposition fails.
     pub fn soft_iron_inverse(&self) -> Mat3 {
         let g = crate::small::mat_mul(&crate::small::transpose(&self.p), &self.p);

@@ -210,7 +210,7 @@ fn agrees_with_an_independent_implementation() {
 
 #[test]
 fn conventions_check_value_for_changsha() {
-    // CONVENTIONS.md: WMM2010 at 28.2 N, 112.97 E, 0 m, 2013.0: X = 35272.34, Y = -2085.74,
+    // docs/conventions.md: WMM2010 at 28.2 N, 112.97 E, 0 m, 2013.0: X = 35272.34, Y = -2085.74,
     // Z = 32897.67 nT.
     let s = Site {
         lat_deg: 28.2,

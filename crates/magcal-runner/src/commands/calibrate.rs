@@ -1,4 +1,4 @@
-//! `magcal calibrate LOG`: fit a log (CONVENTIONS.md "Real data" and its calibration forms).
+//! `magcal calibrate LOG`: fit a log (docs/conventions.md "Real data" and its calibration forms).
 
 use std::collections::BTreeMap;
 use std::io::Write;

@@ -225,7 +225,7 @@ impl CalibrationJson {
     /// `p` upper triangular with a positive diagonal (\[P1\] eq. (6): the Cholesky factor of
     /// `G = P^T P`), finite, invertible and conditioned below [`MAX_CONDITION`]; `bias` finite;
     /// `magnitude` finite and positive; `noise` and `residual_rms` finite and not negative; and
-    /// what is derived from `p` agrees with it: `k = P^-1`, `scale` and `psi_deg` (CONVENTIONS.md's
+    /// what is derived from `p` agrees with it: `k = P^-1`, `scale` and `psi_deg` (docs/conventions.md's
     /// inverse map of `K`), `soft_iron_inverse` (the symmetric square root of `P^T P`).
     ///
     /// # Errors

@@ -74,7 +74,7 @@ impl<'de> Deserialize<'de> for Status {
 }
 
 /// The Monte Carlo metrics of `summary.csv`: the relative errors of \[P1\] eq. (21)-(23)
-/// (percent), the absolute errors, and the heading error (CONVENTIONS.md).
+/// (percent), the absolute errors, and the heading error (docs/conventions.md).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Metric {
@@ -246,7 +246,7 @@ impl TrialRow {
 }
 
 /// `designs.csv`: one row per attitude, degrees (to 1e-9 degree); the compass heading of the
-/// nose, `-(yaw + yaw_offset_deg)` mod 360 (CONVENTIONS.md "Sense of the angles"); and the
+/// nose, `-(yaw + yaw_offset_deg)` mod 360 (docs/conventions.md "Sense of the angles"); and the
 /// attitude as the unit quaternion `(qw, qx, qy, qz)` (Hamilton, `qw >= 0`) of `C_b^n`, the
 /// rotation from the body frame (nose, up, right) to North-Up-East, yaw offset included.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -306,7 +306,7 @@ pub struct DesignMetricsRow {
 }
 
 /// `approximate.csv`: the approximate D-optimal design of the box, support points by decreasing
-/// weight (CONVENTIONS.md "Certified D-efficiency").
+/// weight (docs/conventions.md "Certified D-efficiency").
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ApproximatePointRow {
     /// 1-based.
