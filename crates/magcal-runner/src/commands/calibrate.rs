@@ -232,7 +232,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     if let Some(n) = json.noise_estimate.as_mut() {
         n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
     }
-    record_provenance(&mut json, args)?;
+    record_provenance(&mut json, args, &log.sha256);
     // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range
     // of f64 on the way (readings at 1e150 fitted to a magnitude of 1, P^T P overflowing) is not.
     if let Err(why) = json.check()
@@ -282,16 +282,16 @@ fn reject(log: &mut log_file::Log, k: f64, model: Fit, settings: &FitSettings) -
 
 /// What the calibration was made from: the format, magcal's version, the log's SHA-256 and data
 /// rows (readings, skipped, rejected), and its units where given.
-fn record_provenance(json: &mut CalibrationJson, args: &CalibrateArgs) -> Result<()> {
+fn record_provenance(json: &mut CalibrationJson, args: &CalibrateArgs, log_sha256: &str) {
     json.format = Some(crate::log::calibration::FORMAT.to_string());
     json.magcal_version = Some(env!("CARGO_PKG_VERSION").to_string());
-    json.log_sha256 = Some(crate::log::calibration::sha256_file(&args.log)?);
+    // The reader hashed the bytes it parsed: the file is not read a second time.
+    json.log_sha256 = Some(log_sha256.to_string());
     json.log_rows = Some(json.samples + json.skipped + json.rejected);
     json.units = args
         .units
         .and_then(|u| u.to_possible_value())
         .map(|v| v.get_name().to_string());
-    Ok(())
 }
 
 fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {

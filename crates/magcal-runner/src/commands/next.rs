@@ -8,7 +8,7 @@ use clap::Args;
 use magcal_core::log_fit;
 
 use crate::cli::Failure;
-use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration, sha256_file};
+use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
 use crate::log::read as log_file;
 use crate::log::site::{Date, Site, parse_model};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
@@ -112,6 +112,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         readings: mut log_readings,
         skipped,
         columns: read_columns,
+        sha256: sha,
         ..
     } = log_file::read(&args.log, columns.as_deref(), args.skip_bad)?;
     // The readings alone are kept (24 bytes each), turned into nT and then into body fields in
@@ -125,8 +126,8 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         bail!("{log_shown}: {why}; next needs the log the calibration {shown} was fitted to");
     }
     let same_file = match &cal.log_sha256 {
+        // The reader hashed the bytes it parsed: the file is not read a second time.
         Some(recorded) => {
-            let sha = sha256_file(&args.log)?;
             if &sha != recorded {
                 to_stderr!(
                     "magcal: warning: {log_shown} is not the log {shown} was fitted to ({}; SHA-256 {} there, {} here): the suggestions add to the log given",

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use magcal_core::small::Mat3;
 use serde::{Deserialize, Serialize};
 
@@ -388,28 +388,6 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationJson> {
         .map_err(|e| anyhow::anyhow!("{shown}: not a magcal calibration: {}", excerpt(&e.to_string(), 160)))?;
     cal.check().map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     Ok(cal)
-}
-
-/// The SHA-256 of a file's bytes, lowercase hex, read in blocks.
-///
-/// # Errors
-/// A file that cannot be read.
-pub fn sha256_file(path: &Path) -> Result<String> {
-    use sha2::{Digest, Sha256};
-    use std::io::Read;
-    let mut file = std::fs::File::open(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    let mut hash = Sha256::new();
-    let mut block = vec![0_u8; 1 << 16];
-    loop {
-        let n = file
-            .read(&mut block)
-            .with_context(|| format!("{}: cannot read", path.display()))?;
-        if n == 0 {
-            break;
-        }
-        hash.update(&block[..n]);
-    }
-    Ok(hash.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// The columns to read `log` with: `asked` (`--columns`) when given, else the columns `cal` was
