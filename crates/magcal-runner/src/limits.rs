@@ -81,6 +81,14 @@ pub fn show(x: f64) -> String {
     }
 }
 
+/// `text`, cut to `max` characters (with "...") for an error message.
+pub fn excerpt(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        Some((i, _)) => format!("{}...", &text[..i]),
+        None => text.to_string(),
+    }
+}
+
 /// Bytes, for people.
 pub fn bytes(n: u64) -> String {
     const GIB: f64 = (1u64 << 30) as f64;

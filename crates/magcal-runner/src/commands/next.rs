@@ -132,7 +132,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
                 to_stderr!(
                     "magcal: warning: {log_shown} is not the log {shown} was fitted to ({}; SHA-256 {} there, {} here): the suggestions add to the log given",
                     cal.log,
-                    crate::log::calibration::excerpt(recorded, 12),
+                    crate::limits::excerpt(recorded, 12),
                     &sha[..12]
                 );
             }

@@ -6,6 +6,8 @@ use anyhow::{Result, bail};
 use magcal_core::small::Mat3;
 use serde::{Deserialize, Serialize};
 
+use crate::limits::excerpt;
+
 /// Standard errors of the fitted parameters; `null` where the information is singular.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StdError {
@@ -187,26 +189,9 @@ pub const MAX_CONDITION: f64 = 1e3;
 /// other units, another sensor or the wrong columns.
 pub const SITE_RATIO: f64 = 3.2;
 
-/// `text`, cut to `max` characters (with "...") for an error message.
-pub fn excerpt(text: &str, max: usize) -> String {
-    match text.char_indices().nth(max) {
-        Some((i, _)) => format!("{}...", &text[..i]),
-        None => text.to_string(),
-    }
-}
-
 /// `value <= tol`, false for NaN: a check that cannot be computed fails.
 fn within(value: f64, tol: f64) -> bool {
     value <= tol
-}
-
-/// A ratio for a message: fixed point near 1, scientific far from it.
-fn show_ratio(r: f64) -> String {
-    if (1e-3..1e3).contains(&r) {
-        format!("{r:.4}")
-    } else {
-        format!("{r:.4e}")
-    }
 }
 
 fn frobenius(m: &Mat3) -> f64 {
@@ -361,13 +346,13 @@ impl CalibrationJson {
         Some(if (1.0 / SITE_RATIO..=SITE_RATIO).contains(&ratio) {
             format!(
                 "its median radius under the calibration is {} times the magnitude {} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
-                show_ratio(ratio),
+                magcal_core::log_fit::significant(ratio, 5),
                 self.magnitude
             )
         } else {
             format!(
                 "its median radius under the calibration is {} times the magnitude {}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
-                show_ratio(ratio),
+                magcal_core::log_fit::significant(ratio, 5),
                 self.magnitude
             )
         })
@@ -520,7 +505,8 @@ impl RadiusMedian {
 
 #[cfg(test)]
 mod tests {
-    use super::{RadiusMedian, excerpt};
+    use super::RadiusMedian;
+    use crate::limits::excerpt;
 
     #[test]
     fn the_histogram_median_is_the_median_to_half_a_bin() {

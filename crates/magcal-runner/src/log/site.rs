@@ -3,6 +3,8 @@
 use anyhow::{Result, bail};
 use clap::ValueEnum;
 
+use crate::limits::show;
+
 /// `--units`: the log's units, for a magnitude from the WMM (nT).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Units {
@@ -161,10 +163,6 @@ pub fn wmm_field(site: &Site, date: Date, model: Option<magcal_core::wmm::Model>
         "--site {lat},{lon},{alt} --date {year:.3}: no model holds it ({})",
         last.map_or(String::new(), |e| e.to_string())
     )
-}
-
-fn show(x: f64) -> String {
-    crate::limits::show(x)
 }
 
 #[cfg(test)]
