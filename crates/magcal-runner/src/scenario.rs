@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use magcal_core::calibration::step2::Residual;
 use magcal_core::design::approximate::Approximate;
 use magcal_core::design::optimum::Optimum;
 use magcal_core::design::pso::Swarm;
@@ -150,6 +151,7 @@ mod raw {
     #[serde(deny_unknown_fields)]
     pub struct Calibration {
         pub max_iterations: Option<usize>,
+        pub residual: Option<String>,
     }
 
     #[derive(Debug, Deserialize)]
@@ -573,6 +575,15 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
     if let Some(n) = raw.calibration.max_iterations {
         calibration.max_iterations = count("calibration.max_iterations", n, 1, limits::MAX_STEP2_ITERATIONS)?;
     }
+    calibration.residual = match raw.calibration.residual.as_deref() {
+        None | Some("readings") => Residual::Readings,
+        Some("paper") => Residual::Paper,
+        Some(other) => bail!(
+            "calibration.residual = {:?}: expected \"readings\" (the default: distances in the readings' units) \
+             or \"paper\" ([P1]'s residual after the correction)",
+            limits::excerpt(other, 40)
+        ),
+    };
 
     if raw.design.is_empty() {
         bail!("no [[design]]: give at least one design");

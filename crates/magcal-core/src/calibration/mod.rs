@@ -87,6 +87,8 @@ pub struct TwoStep {
     /// identifiability check of step 2 uses it. `None` (the default): estimated from the residuals
     /// when there are more than 9 readings, and no check with exactly 9.
     pub noise_nt: Option<f64>,
+    /// The residual step 2 minimises. Default [`step2::Residual::Paper`], \[P1\]'s.
+    pub residual: step2::Residual,
 }
 
 impl Default for TwoStep {
@@ -97,6 +99,7 @@ impl Default for TwoStep {
             step_tolerance: 1e-12,
             cost_tolerance: 1e-12,
             noise_nt: None,
+            residual: step2::Residual::Paper,
         }
     }
 }
@@ -104,7 +107,8 @@ impl Default for TwoStep {
 /// The result of a successful two-step calibration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
-    /// Step 1, the linear fit of \[P1\] eq. (11).
+    /// Step 1, the linear fit of \[P1\] eq. (11); with [`step2::Residual::Readings`], where that
+    /// quadric is not an ellipsoid, the sphere of [`step1::sphere_fit`] instead.
     pub step1: Estimate,
     /// Step 2, refined from step 1; the estimate to use.
     pub step2: Estimate,
@@ -149,7 +153,12 @@ impl TwoStep {
     /// See [`CalibrationError`]; none of them panics, and step 2 reaching its iteration limit is not
     /// an error but [`CalibrationStatus::NotConverged`].
     pub fn calibrate(&self, readings: &[Vec3], field_magnitude_nt: f64) -> CalibrationOutcome {
-        let step1 = step1::linear_fit(readings, field_magnitude_nt)?;
+        let step1 = match step1::linear_fit(readings, field_magnitude_nt) {
+            Err(CalibrationError::NotPositiveDefinite { .. }) if self.residual == step2::Residual::Readings => {
+                step1::sphere_fit(readings, field_magnitude_nt)?
+            }
+            fit => fit?,
+        };
         let refined = step2::refine(self, &step1, readings, field_magnitude_nt)?;
         Ok(Calibration {
             step1,

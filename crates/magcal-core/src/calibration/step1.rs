@@ -117,6 +117,52 @@ pub fn linear_fit_chunked(
     Ok(Estimate::new(P, scale(R, O_u), readings, R))
 }
 
+/// The sphere nearest the readings in the algebraic sense, `|u - c|^2 = rho^2` (readings `u` in
+/// units of `R`, fitted as `|d|^2 = 2 d . c' + k` about their mean `m`, `c = m + c'`), as an
+/// estimate `P = I / rho`, `O = R c`: a start for step 2 where the readings cover too little of the
+/// ellipsoid for the nine-parameter quadric of [`linear_fit`] to be one (a vehicle that barely
+/// tilts; no error model of \[P1\]'s size fails to start from it).
+///
+/// # Errors
+/// Too few readings, non-finite input, or readings in a plane (`RankDeficient`).
+pub fn sphere_fit(readings: &[Vec3], field_magnitude_nt: f64) -> Result<Estimate, CalibrationError> {
+    validate(readings, field_magnitude_nt)?;
+    let R = field_magnitude_nt;
+    let n = readings.len() as f64;
+    let m = scale(
+        1.0 / n,
+        readings
+            .iter()
+            .fold([0.0; 3], |acc, &b| crate::small::add(acc, scale(1.0 / R, b))),
+    );
+    let mut ata = [[0.0; 4]; 4];
+    let mut atb = [0.0; 4];
+    for &b in readings {
+        let d = crate::small::sub(scale(1.0 / R, b), m);
+        let row = [2.0 * d[0], 2.0 * d[1], 2.0 * d[2], 1.0];
+        let rhs = dot(d, d);
+        for i in 0..4 {
+            atb[i] += row[i] * rhs;
+            for j in 0..4 {
+                ata[i][j] += row[i] * row[j];
+            }
+        }
+    }
+    if !cholesky_in_place(&mut ata) {
+        return Err(CalibrationError::RankDeficient { rank: 3, needed: 4 });
+    }
+    let y = crate::small::cholesky_solve(&ata, &atb);
+    let c = [y[0], y[1], y[2]];
+    let rho = (y[3] + dot(c, c)).sqrt();
+    if !(rho.is_finite() && rho > 0.0) {
+        return Err(CalibrationError::NotPositiveDefinite {
+            reason: "no sphere through the readings",
+        });
+    }
+    let P = [[1.0 / rho, 0.0, 0.0], [0.0, 1.0 / rho, 0.0], [0.0, 0.0, 1.0 / rho]];
+    Ok(Estimate::new(P, scale(R, crate::small::add(m, c)), readings, R))
+}
+
 /// From `theta` of \[P1\] eq. (9) (readings in units of `R`) to `P` (upper triangular, positive
 /// diagonal) and the centre `O / R`.
 ///

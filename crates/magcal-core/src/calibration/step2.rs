@@ -13,10 +13,44 @@
 
 use super::errors::CalibrationError;
 use super::{Estimate, TwoStep};
-use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_solve, mat_t_vec, mat_vec, norm, scale, sub};
+use crate::small::{
+    Mat3, Vec3, add, cholesky_in_place, cholesky_solve, dot, mat_t_vec, mat_vec, norm, scale, sub,
+    upper_triangular_inverse,
+};
 
 /// Number of parameters of step 2: `P11, P12, P13, P22, P23, P33, O1, O2, O3`.
 pub const PARAMETERS: usize = 9;
+
+/// The residual step 2 minimises the squares of, over the same nine unknowns `x = (P, o)`,
+/// `o = O / R`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[non_exhaustive]
+pub enum Residual {
+    /// `|P (u - o)| - 1` (\[P1\] IV.C, Gebre-Egziabher et al. 2006): the paper's estimator. Its
+    /// residual is measured after the correction `P`.
+    #[default]
+    Paper,
+    /// `(|P (u - o)| - 1) / |P^T w|`, `w = P (u - o) / |P (u - o)|`: the
+    /// distance of the reading from the fitted ellipsoid to first order, in the readings' own units
+    /// (Sampson's approximation). Noise on the readings of variance `sigma^2` per component gives
+    /// every such residual the variance `(sigma / R)^2`, so the least-squares fit is the
+    /// maximum-likelihood one to first order and `J^T J / (sigma / R)^2` is the information of
+    /// the Cramer-Rao floor ([`crate::identifiability`]). The paper's residual is measured after the
+    /// correction `P`: where the readings cover only a cap of the ellipsoid, a fit that inflates
+    /// the ellipsoid shrinks those residuals, and the least-squares minimum runs off to scale
+    /// factors of 10 and more.
+    Readings,
+}
+
+impl Residual {
+    /// A stable snake_case name: `paper`, `readings`.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Self::Paper => "paper",
+            Self::Readings => "readings",
+        }
+    }
+}
 
 /// Why step 2 stopped (the `TerminationReason` of the fit).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -189,6 +223,16 @@ fn residual_variance(settings: &TwoStep, x: &[f64; PARAMETERS], u: &[Vec3], f: f
     }
 }
 
+/// The variance of one [`Residual::Readings`] residual: `(sigma / R)^2` from the known noise, else
+/// `2 f / (m - 9)` from the cost `f` of `m` readings, else (9 readings, no known noise) none.
+fn reading_variance(settings: &TwoStep, m: usize, f: f64, r: f64) -> Option<f64> {
+    match settings.noise_nt {
+        Some(sigma) => Some((sigma / r).powi(2)),
+        None if m > PARAMETERS => Some(2.0 * f / (m - PARAMETERS) as f64),
+        None => None,
+    }
+}
+
 /// The outcome of step 2.
 pub(crate) struct Refined {
     pub estimate: Estimate,
@@ -199,9 +243,113 @@ pub(crate) struct Refined {
     pub identifiable: Option<bool>,
 }
 
-/// Levenberg-Marquardt from `start` (step 1), with Marquardt's diagonal scaling and Nielsen's
-/// damping update (Madsen, Nielsen, Tingleff, *Methods for non-linear least squares problems*,
-/// 2004, Algorithm 3.16).
+/// Residual `e = (|v| - 1) / |g|` of [`Residual::Readings`] for one reading `d` (scaled, about the
+/// mean reading `m`) at `y = (P, c)`, `c = P (m - o)`: `v = P d + c = P (u - o)`, `w = v / |v|`,
+/// `g = P^T w` (the gradient of `|v|` with respect to the reading); and its gradient with respect
+/// to `y`: `de = dr / |g| - e (g . dg) / |g|^2` with
+/// `dr / dP_jk = w_j d_k`, `dr / dc = w`,
+/// `g . dg / dP_jk = w_j g_k + d_k (g . P_j - |g|^2 w_j) / |v|` (`P_j` the j-th row of `P`),
+/// `g . dg / dc = (q - (q . w) w) / |v|`, `q = P g`.
+/// With `m = 0` and `c = -P o` it is the residual at `(P, o)`.
+#[inline]
+pub(crate) fn reading_residual_and_gradient(y: &[f64; PARAMETERS], d: Vec3) -> (f64, [f64; PARAMETERS]) {
+    let (P, c) = unpack(y);
+    let v = add(mat_vec(&P, d), c);
+    let nv = norm(v);
+    let w = scale(1.0 / nv, v);
+    let g = mat_t_vec(&P, w);
+    let g2 = dot(g, g);
+    let ng = g2.sqrt();
+    let e = (nv - 1.0) / ng;
+    let q = mat_vec(&P, g);
+    let qw = dot(q, w);
+    let mut grad = [0.0; PARAMETERS];
+    let entries = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+    for (i, &(j, k)) in entries.iter().enumerate() {
+        let dr = w[j] * d[k];
+        let gdg = w[j] * g[k] + d[k] * (dot(g, P[j]) - g2 * w[j]) / nv;
+        grad[i] = dr / ng - e * gdg / g2;
+    }
+    for a in 0..3 {
+        let gdg = (q[a] - qw * w[a]) / nv;
+        grad[6 + a] = w[a] / ng - e * gdg / g2;
+    }
+    (e, grad)
+}
+
+/// Half the sum of squared [`Residual::Readings`] residuals of the readings `d` about `m` at
+/// `y = (P, c)`.
+fn reading_cost(y: &[f64; PARAMETERS], d: &[Vec3]) -> f64 {
+    0.5 * d
+        .iter()
+        .map(|&di| reading_residual_and_gradient(y, di).0.powi(2))
+        .sum::<f64>()
+}
+
+/// `J^T J` (lower triangle filled) and `J^T r` of [`Residual::Readings`] at `y = (P, c)`.
+fn reading_normal_equations(y: &[f64; PARAMETERS], d: &[Vec3]) -> (Normal, [f64; PARAMETERS]) {
+    let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
+    let mut jtr = [0.0; PARAMETERS];
+    for &di in d {
+        let (r, g) = reading_residual_and_gradient(y, di);
+        for i in 0..PARAMETERS {
+            jtr[i] += g[i] * r;
+            for j in 0..=i {
+                jtj[i][j] += g[i] * g[j];
+            }
+        }
+    }
+    (jtj, jtr)
+}
+
+/// `J^T J` (lower triangle filled) of [`Residual::Readings`] with respect to `x = (P, o)`, by the
+/// chain rule through `c = -P o` (`m = 0`): `de/do = -P^T de/dc`, `de/dP_jk |o = de/dP_jk |c - o_k
+/// de/dc_j`.
+fn reading_information(x: &[f64; PARAMETERS], u: &[Vec3]) -> Normal {
+    let (P, o) = unpack(x);
+    let y = pack(&P, scale(-1.0, mat_vec(&P, o)));
+    let entries = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+    let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
+    for &ui in u {
+        let (_, gy) = reading_residual_and_gradient(&y, ui);
+        let dc = [gy[6], gy[7], gy[8]];
+        let mut g = gy;
+        for (i, &(j, k)) in entries.iter().enumerate() {
+            g[i] -= o[k] * dc[j];
+        }
+        let go = mat_t_vec(&P, dc);
+        for a in 0..3 {
+            g[6 + a] = -go[a];
+        }
+        for i in 0..PARAMETERS {
+            for j in 0..=i {
+                jtj[i][j] += g[i] * g[j];
+            }
+        }
+    }
+    jtj
+}
+
+/// `(P, c)` with `c = P (m - o)` from `(P, o)`: the unknowns of [`Residual::Readings`] about the
+/// mean reading `m`, in which the valley of a weakly turned axis is straight (`c` is the centre of
+/// the readings after correction, which they determine even where `P` and `o` trade along a
+/// hyperbola).
+fn to_centred(x: &[f64; PARAMETERS], m: Vec3) -> [f64; PARAMETERS] {
+    let (P, o) = unpack(x);
+    pack(&P, mat_vec(&P, sub(m, o)))
+}
+
+/// `(P, o)` from `(P, c)`: `o = m - P^-1 c`; `None` when `P` is singular.
+fn from_centred(y: &[f64; PARAMETERS], m: Vec3) -> Option<[f64; PARAMETERS]> {
+    let (P, c) = unpack(y);
+    let k = upper_triangular_inverse(&P)?;
+    Some(pack(&P, sub(m, mat_vec(&k, c))))
+}
+
+/// Levenberg-Marquardt from `start` (step 1) in the unknowns of `settings.residual`, with
+/// Marquardt's diagonal scaling and Nielsen's damping update (Madsen, Nielsen, Tingleff, *Methods
+/// for non-linear least squares problems*, 2004, Algorithm 3.16). The local identifiability
+/// check uses the covariance of the residual minimised.
 pub(crate) fn refine(
     settings: &TwoStep,
     start: &Estimate,
@@ -210,9 +358,85 @@ pub(crate) fn refine(
 ) -> Result<Refined, CalibrationError> {
     let R = field_magnitude_nt;
     let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
-    let mut x = pack(&start.p, scale(1.0 / R, start.bias_nt));
-    let mut f = cost(&x, &u);
-    let (mut jtj, mut g) = normal_equations(&x, &u);
+    let x0 = pack(&start.p, scale(1.0 / R, start.bias_nt));
+    let paper_ok = |jtj: &Normal, x: &[f64; PARAMETERS], f: f64| {
+        residual_variance(settings, x, &u, f, R).map(|var_r| locally_identifiable(jtj, x, var_r))
+    };
+    let fit = match settings.residual {
+        Residual::Paper => levenberg_marquardt(
+            settings,
+            x0,
+            |x| cost(x, &u),
+            |x| normal_equations(x, &u),
+            paper_ok,
+            true,
+        ),
+        Residual::Readings => {
+            // Iterated on about the mean reading, judged in (P, o) as the paper's form is.
+            let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
+            let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
+            let readings_ok = |_: &Normal, y: &[f64; PARAMETERS], f: f64| {
+                let x = from_centred(y, m)?;
+                let jtj = reading_information(&x, &u);
+                reading_variance(settings, u.len(), f, R).map(|var| locally_identifiable(&jtj, &x, var))
+            };
+            let fit = levenberg_marquardt(
+                settings,
+                to_centred(&x0, m),
+                |y| reading_cost(y, &d),
+                |y| reading_normal_equations(y, &d),
+                readings_ok,
+                false,
+            );
+            Fit {
+                x: from_centred(&fit.x, m).ok_or(CalibrationError::NotPositiveDefinite {
+                    reason: "estimated P is singular",
+                })?,
+                ..fit
+            }
+        }
+    };
+    let (x, iterations, termination, identifiable) = (fit.x, fit.iterations, fit.termination, fit.identifiable);
+    // |P d| is unchanged when a row of P changes sign; keep the positive-diagonal representative.
+    let (mut P, o) = unpack(&x);
+    for row in P.iter_mut() {
+        let diag_sign = row.iter().find(|v| **v != 0.0).copied().unwrap_or(1.0).signum();
+        *row = row.map(|v| v * diag_sign);
+    }
+    let estimate = Estimate::checked(P, scale(R, o), readings, R)?;
+    Ok(Refined {
+        estimate,
+        iterations,
+        termination,
+        identifiable,
+    })
+}
+
+/// `J^T J`, lower triangle filled.
+type Normal = [[f64; PARAMETERS]; PARAMETERS];
+
+/// Where [`levenberg_marquardt`] stopped.
+struct Fit {
+    x: [f64; PARAMETERS],
+    iterations: usize,
+    termination: Termination,
+    /// The local check at `x` (`None`: no noise to judge by).
+    identifiable: Option<bool>,
+}
+
+/// The damped Gauss-Newton loop on `cost`, whose `J^T J` and `J^T r` `normal` gives;
+/// `locally_identifiable` (`J^T J`, `x`, cost) is the check for a flat direction.
+fn levenberg_marquardt(
+    settings: &TwoStep,
+    start: [f64; PARAMETERS],
+    cost: impl Fn(&[f64; PARAMETERS]) -> f64,
+    normal: impl Fn(&[f64; PARAMETERS]) -> (Normal, [f64; PARAMETERS]),
+    locally_identifiable: impl Fn(&Normal, &[f64; PARAMETERS], f64) -> Option<bool>,
+    stop_on_flat: bool,
+) -> Fit {
+    let mut x = start;
+    let mut f = cost(&x);
+    let (mut jtj, mut g) = normal(&x);
     let max_diag = (0..PARAMETERS).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
     let mut mu = 1e-3 * max_diag;
     let mut nu = 2.0;
@@ -224,10 +448,10 @@ pub(crate) fn refine(
         if iterations >= settings.max_iterations {
             break Termination::MaxIterations;
         }
-        if iterations >= FLAT_CHECK_FROM
+        if stop_on_flat
+            && iterations >= FLAT_CHECK_FROM
             && (iterations - FLAT_CHECK_FROM).is_multiple_of(FLAT_CHECK_EVERY)
-            && let Some(var_r) = residual_variance(settings, &x, &u, f, R)
-            && !locally_identifiable(&jtj, &x, var_r)
+            && locally_identifiable(&jtj, &x, f) == Some(false)
         {
             break Termination::FlatDirection;
         }
@@ -252,7 +476,7 @@ pub(crate) fn refine(
             break Termination::StepSize;
         }
         let x_new: [f64; PARAMETERS] = std::array::from_fn(|i| x[i] + h[i]);
-        let f_new = cost(&x_new, &u);
+        let f_new = cost(&x_new);
         // Predicted reduction L(0) - L(h) = 0.5 h^T (mu D h - g).
         let predicted: f64 = 0.5
             * (0..PARAMETERS)
@@ -263,7 +487,7 @@ pub(crate) fn refine(
             let reduction = f - f_new;
             x = x_new;
             f = f_new;
-            (jtj, g) = normal_equations(&x, &u);
+            (jtj, g) = normal(&x);
             mu *= (1.0_f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
             nu = 2.0;
             if reduction <= settings.cost_tolerance * f {
@@ -274,19 +498,10 @@ pub(crate) fn refine(
             nu *= 2.0;
         }
     };
-
-    let identifiable = residual_variance(settings, &x, &u, f, R).map(|var_r| locally_identifiable(&jtj, &x, var_r));
-    // |P d| is unchanged when a row of P changes sign; keep the positive-diagonal representative.
-    let (mut P, o) = unpack(&x);
-    for row in P.iter_mut() {
-        let diag_sign = row.iter().find(|v| **v != 0.0).copied().unwrap_or(1.0).signum();
-        *row = row.map(|v| v * diag_sign);
-    }
-    let estimate = Estimate::checked(P, scale(R, o), readings, R)?;
-    Ok(Refined {
-        estimate,
+    Fit {
+        x,
         iterations,
         termination,
-        identifiable,
-    })
+        identifiable: locally_identifiable(&jtj, &x, f),
+    }
 }

@@ -1,4 +1,4 @@
-use super::step2::{PARAMETERS, pack, residual_and_gradient};
+use super::step2::{PARAMETERS, Residual, pack, reading_residual_and_gradient, residual_and_gradient};
 use super::*;
 use crate::attitude::{Attitude, AttitudeBox};
 use crate::design::sources;
@@ -167,6 +167,87 @@ proptest! {
             prop_assert!((fd - g[k]).abs() <= tol, "parameter {}: analytic {} vs fd {}", k, g[k], fd);
         }
     }
+
+    /// The analytic gradient of the residual in the readings' units against central differences.
+    #[test]
+    fn readings_residual_jacobian_matches_central_differences(
+        p_diag in prop::array::uniform3(0.3f64..3.0),
+        p_off in prop::array::uniform3(-0.5f64..0.5),
+        o in prop::array::uniform3(-0.5f64..0.5),
+        u in prop::array::uniform3(-2.0f64..2.0),
+    ) {
+        let P = [[p_diag[0], p_off[0], p_off[1]], [0.0, p_diag[1], p_off[2]], [0.0, 0.0, p_diag[2]]];
+        let x = pack(&P, o);
+        let (r0, _) = residual_and_gradient(&x, u);
+        prop_assume!(r0 + 1.0 > 1e-2);
+        let (_, g) = reading_residual_and_gradient(&x, u);
+        for k in 0..PARAMETERS {
+            let h = 1e-6 * x[k].abs().max(1.0);
+            let (mut xp, mut xm) = (x, x);
+            xp[k] += h;
+            xm[k] -= h;
+            let fd = (reading_residual_and_gradient(&xp, u).0 - reading_residual_and_gradient(&xm, u).0) / (2.0 * h);
+            // Truncation O(h^2 f'''), rounding O(eps |e| / h), with |e| up to about 100 here
+            // (|P^T w| is at least the smallest singular value of P).
+            let tol = 1e-6 * (1.0 + g[k].abs());
+            prop_assert!((fd - g[k]).abs() <= tol, "parameter {}: analytic {} vs fd {}", k, g[k], fd);
+        }
+    }
+}
+
+/// A vessel at Trondheim that rolls +-15 and pitches +-8 degrees (the field 75 degrees steep): the
+/// paper's residual runs off along the valley of the up axis's scale and bias, the readings'
+/// residual calibrates, with errors at the Cramer-Rao floor.
+#[test]
+fn the_readings_residual_calibrates_a_vessel_that_barely_tilts() {
+    // WMM2025 at 63.43 N, 10.40 E, sea level, 2026.42 (NED, nT).
+    let field = crate::ReferenceField::from_ned(13_517.64, 1_239.52, 50_486.16).unwrap();
+    let truth = ErrorModel::new([0.0; 3], [1.0; 3], [0.0; 3]).unwrap();
+    let mut design = Vec::new();
+    for roll in [-15.0, 0.0, 15.0] {
+        for pitch in [-8.0, 8.0] {
+            for k in 0..8 {
+                let a = Attitude::from_degrees(roll, -180.0 + 45.0 * f64::from(k), pitch);
+                design.extend(std::iter::repeat_n(a, 6));
+            }
+        }
+    }
+    let body = field.body_fields(&design);
+    let sigma = 50.0;
+    let bound = crate::CramerRao::new(&truth, &body, sigma, &crate::PhysicalScales::default());
+    let crb_s2 = bound.std.expect("regular information")[4];
+    let trials = 200;
+    let mut ok = [0usize; 2];
+    let mut sq_s2 = 0.0;
+    for (k, residual) in [Residual::Paper, Residual::Readings].into_iter().enumerate() {
+        let settings = TwoStep {
+            noise_nt: Some(sigma),
+            residual,
+            ..TwoStep::default()
+        };
+        for t in 0..trials {
+            let mut rng = stream_rng(41, t);
+            let readings = truth.noisy_readings(&body, sigma, &mut rng).unwrap();
+            if let Ok(fit) = settings.calibrate(&readings, field.magnitude())
+                && fit.status() == CalibrationStatus::Ok
+            {
+                ok[k] += 1;
+                if residual == Residual::Readings {
+                    sq_s2 += (fit.estimate().model.scale()[1] - 1.0).powi(2);
+                }
+            }
+        }
+    }
+    let n = trials as usize;
+    assert!(ok[0] <= n / 10, "paper's residual: {} of {n} ok", ok[0]);
+    assert!(ok[1] >= n * 95 / 100, "readings' residual: {} of {n} ok", ok[1]);
+    // The rms over n trials has a relative standard error of about 1 / sqrt(2 n) (5 % here):
+    // within four of them of the floor.
+    let ratio = (sq_s2 / ok[1] as f64).sqrt() / crb_s2;
+    assert!(
+        (ratio - 1.0).abs() <= 4.0 / (2.0 * ok[1] as f64).sqrt(),
+        "rms / CRB of s2: {ratio}"
+    );
 }
 
 #[test]
