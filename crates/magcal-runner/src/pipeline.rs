@@ -32,6 +32,8 @@ const DESIGN_STREAM: u64 = 0xFFFF;
 const PSO_RUNS_STREAM: u64 = 0xFFFE;
 /// Stream-id prefix of the approximate design that certifies the others.
 const CERTIFICATE_STREAM: u64 = 0xFFFD;
+/// Stream-id prefix of the short Monte Carlo behind each design's verdict ([`Check`]).
+const CHECK_STREAM: u64 = 0xFFFB;
 /// Stream-id prefix of the noise of `magcal simulate`.
 const SIMULATED_LOG_STREAM: u64 = 0xFFFC;
 
@@ -72,8 +74,80 @@ pub struct BuiltDesign {
     pub a_criterion: f64,
     /// `lambda_min(M_F)`, R-scaled readings.
     pub e_criterion: f64,
-    /// The identifiability verdict at the scenario's largest noise level.
+    /// The identifiability verdict of the Cramer-Rao bound at the scenario's largest noise level.
     pub verdict: Verdict,
+    /// The short Monte Carlo at that noise level that says whether the design works.
+    pub check: Check,
+}
+
+/// A design calibrated by the scenario's estimator in [`Check::trials`] noisy trials at the
+/// scenario's largest noise level, on their own random streams: what "works" rests on. The
+/// Cramer-Rao bound is a linear prediction; where a box barely turns an axis against the field the
+/// estimates of some trials leave the region where it holds, and only trials show how many.
+#[derive(Debug, Clone)]
+pub struct Check {
+    /// Noise per component, nT.
+    pub sigma_nt: f64,
+    /// Trials run.
+    pub trials: usize,
+    /// How they ended.
+    pub outcomes: Outcomes,
+    /// Median over the `ok` trials of the rms heading error over level headings, degrees.
+    pub heading_median_deg: Option<f64>,
+    /// Its 95th percentile, degrees.
+    pub heading_p95_deg: Option<f64>,
+}
+
+impl Check {
+    /// The share of trials a design must calibrate (`ok`) to work.
+    pub const OK_SHARE: f64 = 0.95;
+
+    /// Whether the design calibrates in at least [`Self::OK_SHARE`] of the trials.
+    pub fn works(&self) -> bool {
+        self.trials > 0 && self.outcomes.ok as f64 >= Self::OK_SHARE * self.trials as f64
+    }
+
+    /// Runs the check: `trials` trials of `body` (the design's body fields) at `sigma_nt` on the
+    /// streams `[CHECK_STREAM, design, t]`.
+    ///
+    /// # Errors
+    /// Only an invalid noise level (scenarios are validated).
+    pub fn run(scenario: &Scenario, design: usize, body: &[magcal_core::Vec3], sigma_nt: f64) -> Result<Self> {
+        let calibration = magcal_core::TwoStep {
+            noise_nt: Some(sigma_nt),
+            ..scenario.calibration.clone()
+        };
+        let probe = HeadingProbe::new(&scenario.field, &scenario.truth);
+        let trials: Vec<TrialOutcome> = (0..scenario.check_trials)
+            .into_par_iter()
+            .map(|t| {
+                let mut rng = stream_rng(scenario.seed, stream_id(&[CHECK_STREAM, design as u64, t as u64]));
+                monte_carlo::trial(
+                    &scenario.truth,
+                    body,
+                    scenario.field.magnitude(),
+                    sigma_nt,
+                    &calibration,
+                    &probe,
+                    &mut rng,
+                )
+            })
+            .collect::<Result<_, _>>()?;
+        let mut heading: Vec<f64> = trials
+            .iter()
+            .filter(|t| t.status == CalibrationStatus::Ok)
+            .filter_map(|t| t.heading.map(|h| h.rms_deg))
+            .collect();
+        heading.sort_by(f64::total_cmp);
+        let summary = (!heading.is_empty()).then(|| Summary::new(&heading, 0));
+        Ok(Self {
+            sigma_nt,
+            trials: trials.len(),
+            outcomes: Outcomes::of(&trials),
+            heading_median_deg: summary.map(|s| s.median),
+            heading_p95_deg: summary.map(|s| s.p95),
+        })
+    }
 }
 
 impl BuiltDesign {
@@ -127,16 +201,23 @@ pub struct Outcomes {
     pub failed: usize,
 }
 
-impl Cell {
-    /// The outcome counts.
-    pub fn outcomes(&self) -> Outcomes {
-        let count = |f: fn(&CalibrationStatus) -> bool| self.trials.iter().filter(|t| f(&t.status)).count();
-        Outcomes {
+impl Outcomes {
+    /// The counts of `trials`.
+    pub fn of(trials: &[TrialOutcome]) -> Self {
+        let count = |f: fn(&CalibrationStatus) -> bool| trials.iter().filter(|t| f(&t.status)).count();
+        Self {
             ok: count(|s| *s == CalibrationStatus::Ok),
             not_converged: count(|s| *s == CalibrationStatus::NotConverged),
             not_identifiable: count(|s| *s == CalibrationStatus::NotIdentifiable),
             failed: count(|s| !s.has_estimate()),
         }
+    }
+}
+
+impl Cell {
+    /// The outcome counts.
+    pub fn outcomes(&self) -> Outcomes {
+        Outcomes::of(&self.trials)
     }
 
     /// Statistics of every metric, in the order of [`Metric::ALL`], over the `ok` trials that
@@ -228,6 +309,22 @@ impl RunOutput {
     pub fn is_best(&self, i: usize) -> bool {
         let d = &self.designs[i];
         d.verdict.identifiable && d.ln_det_per_reading().to_bits() == self.best_ln_det_per_reading().to_bits()
+    }
+
+    /// The design to fly: among those that work ([`Check::works`]), the smallest median heading
+    /// error of its check, then the fewest readings, then scenario order. `None` when none works.
+    pub fn recommended(&self) -> Option<usize> {
+        (0..self.designs.len())
+            .filter(|&i| self.designs[i].check.works())
+            .min_by(|&a, &b| {
+                let key = |i: usize| {
+                    let d = &self.designs[i];
+                    (d.check.heading_median_deg.unwrap_or(f64::INFINITY), d.m())
+                };
+                let (ha, ma) = key(a);
+                let (hb, mb) = key(b);
+                ha.total_cmp(&hb).then(ma.cmp(&mb)).then(a.cmp(&b))
+            })
     }
 
     /// The Table III reference design, if the scenario has one named `uniform`.
@@ -353,6 +450,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
         let noise_free = scenario.truth.measure_all(&body);
         let loudest = scenario.sigmas_nt.iter().copied().fold(0.0, f64::max);
         let verdict = CramerRao::new(&scenario.truth, &body, loudest, &PhysicalScales::default()).verdict;
+        let check = Check::run(scenario, i, &body, loudest)?;
         designs.push(BuiltDesign {
             name: spec.name.clone(),
             kind: spec.source.kind(),
@@ -362,6 +460,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
             a_criterion: metrics.a,
             e_criterion: metrics.e,
             verdict,
+            check,
             order: tour::flight_order(&attitudes),
             attitudes,
             readings,

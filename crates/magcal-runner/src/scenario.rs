@@ -17,6 +17,12 @@ use crate::limits::{self, show};
 /// The schema version this build reads.
 pub const SCHEMA: u32 = 1;
 
+/// Default trials of each design's verdict: the share of `ok` trials then has a standard error of
+/// at most 3.5 percentage points, 1.5 at the 95 % threshold.
+pub const DEFAULT_CHECK_TRIALS: usize = 200;
+/// Fewest trials of a verdict: with fewer, one trial is more than 5 % of them.
+pub const MIN_CHECK_TRIALS: usize = 20;
+
 /// Default noisy trials per design and noise level (\[P1\] IV.C: one thousand).
 pub const DEFAULT_TRIALS: usize = 1000;
 
@@ -87,10 +93,18 @@ mod raw {
         pub attitude_box: AttitudeBox,
         #[serde(default)]
         pub calibration: Calibration,
+        #[serde(default)]
+        pub verdict: Verdict,
         pub design: Vec<Design>,
         pub pso_runs: Option<PsoRuns>,
         #[serde(default)]
         pub certificate: Certificate,
+    }
+
+    #[derive(Debug, Default, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct Verdict {
+        pub trials: Option<usize>,
     }
 
     #[derive(Debug, Default, Deserialize)]
@@ -398,6 +412,9 @@ pub struct Scenario {
     pub bounds: AttitudeBox,
     /// Two-step calibration settings.
     pub calibration: TwoStep,
+    /// Trials of the short Monte Carlo behind each design's verdict
+    /// ([`crate::pipeline::Check`]).
+    pub check_trials: usize,
     /// Designs, in file order.
     pub designs: Vec<DesignSpec>,
     /// Repeated PSO runs, if asked.
@@ -575,6 +592,10 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
     if let Some(n) = raw.calibration.max_iterations {
         calibration.max_iterations = count("calibration.max_iterations", n, 1, limits::MAX_STEP2_ITERATIONS)?;
     }
+    let check_trials = match raw.verdict.trials {
+        Some(n) => count("verdict.trials", n, MIN_CHECK_TRIALS, limits::MAX_TRIALS)?,
+        None => DEFAULT_CHECK_TRIALS,
+    };
     calibration.residual = match raw.calibration.residual.as_deref() {
         None | Some("readings") => Residual::Readings,
         Some("paper") => Residual::Paper,
@@ -648,6 +669,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         description: raw.description,
         seed: raw.seed,
         trials: raw.trials,
+        check_trials,
         sigmas_nt,
         attitude_sigmas_deg,
         field,

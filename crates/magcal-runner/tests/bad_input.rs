@@ -252,14 +252,19 @@ fn scenario_cases() -> Vec<Case> {
         ),
         // Calibration.
         case(
-            smoke_with("[attitude_box]", "[calibration]\nmax_iterations = 0\n\n[attitude_box]"),
+            smoke_with("[calibration]", "[calibration]\nmax_iterations = 0"),
             &["calibration.max_iterations = 0"],
         ),
         case(
-            smoke_with(
-                "[attitude_box]",
-                "[calibration]\nmax_iterations = 10000000\n\n[attitude_box]",
-            ),
+            smoke_with("residual = \"paper\"", "residual = \"papre\""),
+            &["calibration.residual = \"papre\"", "expected \"readings\""],
+        ),
+        case(
+            smoke_with("[calibration]", "[verdict]\ntrials = 5\n\n[calibration]"),
+            &["verdict.trials = 5", "at least 20"],
+        ),
+        case(
+            smoke_with("[calibration]", "[calibration]\nmax_iterations = 10000000"),
             &["calibration.max_iterations = 10000000", "at most 1000000"],
         ),
         // Execution error.

@@ -58,6 +58,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
                 print::flight_plans(w, &run, scenario.field.yaw_offset_deg())?;
             }
             print::summary(w, &run, &dir)?;
+            print::recommendation(w, &run)?;
             writeln!(
                 w,
                 "{} figures (SVG and PNG) in {}",

@@ -303,6 +303,18 @@ pub struct DesignMetricsRow {
     pub d_efficiency_bound: Option<Real>,
     /// The criterion the design's optimiser minimised (`d`, `a`, `e`; empty when not optimised).
     pub criterion: Option<String>,
+    /// The verdict's own Monte Carlo ([`crate::pipeline::Check`]): noise, trials, `ok` trials.
+    pub check_sigma_nt: Real,
+    pub check_trials: usize,
+    pub check_ok: usize,
+    /// At least 95 % of the check's trials ok.
+    pub works: bool,
+    /// Median and 95th percentile over the check's `ok` trials of the rms heading error over
+    /// level headings, degrees.
+    pub check_heading_median_deg: Option<Real>,
+    pub check_heading_p95_deg: Option<Real>,
+    /// The design `design` recommends flying.
+    pub recommended: bool,
 }
 
 /// `approximate.csv`: the approximate D-optimal design of the box, support points by decreasing
@@ -548,6 +560,7 @@ pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item =
 /// The rows of `design_metrics.csv`.
 pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetricsRow> + '_ {
     let reference = out.reference();
+    let recommended = out.recommended();
     out.designs.iter().enumerate().map(move |(i, d)| {
         let ratios = reference.map(|u| {
             (
@@ -574,6 +587,13 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             weakest: d.verdict.weakest.clone(),
             d_efficiency_bound: out.d_efficiency_bound(i).and_then(defined),
             criterion: d.criterion.map(|c| c.as_str().to_string()),
+            check_sigma_nt: Real(d.check.sigma_nt),
+            check_trials: d.check.trials,
+            check_ok: d.check.outcomes.ok,
+            works: d.check.works(),
+            check_heading_median_deg: d.check.heading_median_deg.map(Real),
+            check_heading_p95_deg: d.check.heading_p95_deg.map(Real),
+            recommended: recommended == Some(i),
         }
     })
 }

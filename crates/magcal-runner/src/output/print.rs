@@ -54,6 +54,47 @@ pub fn flight_plans(w: &mut dyn Write, out: &RunOutput, yaw_offset_deg: f64) -> 
     Ok(())
 }
 
+/// The trials of a check that did not calibrate, in words.
+fn outcome_words(o: &crate::pipeline::Outcomes) -> String {
+    format!(
+        "{} not converged, {} not identifiable, {} failed",
+        o.not_converged, o.not_identifiable, o.failed
+    )
+}
+
+/// What to fly: the design that works (calibrates in at least 95 % of its check's trials) with
+/// the smallest median heading error, the fewer readings on a tie; or, when none works, that none
+/// does and why.
+pub fn recommendation(w: &mut dyn Write, out: &RunOutput) -> std::io::Result<()> {
+    match out.recommended() {
+        Some(i) => {
+            let d = &out.designs[i];
+            let c = &d.check;
+            writeln!(
+                w,
+                "fly {}: {} readings at {} attitudes (its flight plan is in designs.csv). At {} nT it \
+                 calibrated in {} of {} trials; heading error (rms over level headings) median {} deg, \
+                 95th percentile {} deg{}.",
+                d.name,
+                d.m(),
+                d.attitudes.len(),
+                c.sigma_nt,
+                c.outcomes.ok,
+                c.trials,
+                c.heading_median_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                c.heading_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                out.d_efficiency_bound(i)
+                    .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
+            )
+        }
+        None => writeln!(
+            w,
+            "no design here calibrates the full model in {:.0} % of trials at this noise: none to fly as it stands.",
+            100.0 * crate::pipeline::Check::OK_SHARE
+        ),
+    }
+}
+
 /// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
 /// the outcome counts and the median of the main metrics beside their Cramer-Rao rms, with a
 /// warning line under a cell where fewer than 95 % of the trials are `ok`.
@@ -79,10 +120,12 @@ pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Resul
         "design", "m", "ln det M_F", "D-eff", "certified"
     )?;
     for (i, d) in out.designs.iter().enumerate() {
-        let verdict = if d.verdict.identifiable {
-            "identifiable".to_string()
-        } else {
-            format!("NOT IDENTIFIABLE: {}", d.verdict.weakest)
+        let c = &d.check;
+        let share = format!("{} of {} trials ok at {} nT", c.outcomes.ok, c.trials, c.sigma_nt);
+        let verdict = match (c.works(), d.verdict.identifiable) {
+            (true, _) => format!("works: {share}"),
+            (false, true) => format!("FAILS: only {share} ({})", outcome_words(&c.outcomes)),
+            (false, false) => format!("NOT IDENTIFIABLE: {}; {share}", d.verdict.weakest),
         };
         writeln!(
             w,
