@@ -3,7 +3,7 @@
 
 use rand::Rng;
 
-use crate::calibration::{CalibrationStatus, TwoStep};
+use crate::calibration::{CalibrationOutcome, CalibrationStatus, TwoStep};
 use crate::error::ParameterError;
 use crate::heading::{HeadingError, HeadingProbe};
 use crate::metrics::{AbsoluteErrors, RelativeErrors};
@@ -46,7 +46,17 @@ pub fn trial<R: Rng + ?Sized>(
     rng: &mut R,
 ) -> Result<TrialOutcome, ParameterError> {
     let readings = truth.noisy_readings(body_fields, sigma_nt, rng)?;
-    Ok(match calibration.calibrate(&readings, field_magnitude_nt) {
+    Ok(scored(
+        truth,
+        calibration.calibrate(&readings, field_magnitude_nt),
+        probe,
+    ))
+}
+
+/// A calibration's outcome scored against `truth`: relative and absolute errors and the heading
+/// error over the level yaws of `probe`; a calibration that failed is an outcome with its status.
+pub fn scored(truth: &ErrorModel, outcome: CalibrationOutcome, probe: &HeadingProbe) -> TrialOutcome {
+    match outcome {
         Ok(fit) => {
             let e = fit.estimate();
             TrialOutcome {
@@ -68,7 +78,7 @@ pub fn trial<R: Rng + ?Sized>(
             abs: None,
             heading: None,
         },
-    })
+    }
 }
 
 #[cfg(test)]

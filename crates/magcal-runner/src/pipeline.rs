@@ -107,30 +107,53 @@ impl Check {
         self.trials > 0 && self.outcomes.ok as f64 >= Self::OK_SHARE * self.trials as f64
     }
 
-    /// Runs the check: `trials` trials of `body` (the design's body fields) at `sigma_nt` on the
-    /// streams `[CHECK_STREAM, design, t]`.
+    /// Runs the check: [`Scenario::check_trials`] trials of `body` (the design's body fields) at
+    /// `sigma_nt` with the scenario's estimator, on the streams `[CHECK_STREAM, design, t]`.
     ///
     /// # Errors
     /// Only an invalid noise level (scenarios are validated).
     pub fn run(scenario: &Scenario, design: usize, body: &[magcal_core::Vec3], sigma_nt: f64) -> Result<Self> {
+        Self::run_on(scenario, &[CHECK_STREAM, design as u64], body, sigma_nt, None)
+    }
+
+    /// As [`Self::run`] on the streams `[stream.., t]`, calibrating each trial's readings with
+    /// `calibrate` (readings, field magnitude) instead of the scenario's estimator when given.
+    ///
+    /// # Errors
+    /// As [`Self::run`].
+    pub fn run_on(
+        scenario: &Scenario,
+        stream: &[u64],
+        body: &[magcal_core::Vec3],
+        sigma_nt: f64,
+        calibrate: Option<&(dyn Fn(&[magcal_core::Vec3], f64) -> magcal_core::CalibrationOutcome + Sync)>,
+    ) -> Result<Self> {
         let calibration = magcal_core::TwoStep {
             noise_nt: Some(sigma_nt),
             ..scenario.calibration.clone()
         };
         let probe = HeadingProbe::new(&scenario.field, &scenario.truth);
+        let magnitude = scenario.field.magnitude();
         let trials: Vec<TrialOutcome> = (0..scenario.check_trials)
             .into_par_iter()
             .map(|t| {
-                let mut rng = stream_rng(scenario.seed, stream_id(&[CHECK_STREAM, design as u64, t as u64]));
-                monte_carlo::trial(
-                    &scenario.truth,
-                    body,
-                    scenario.field.magnitude(),
-                    sigma_nt,
-                    &calibration,
-                    &probe,
-                    &mut rng,
-                )
+                let ids: Vec<u64> = stream.iter().copied().chain([t as u64]).collect();
+                let mut rng = stream_rng(scenario.seed, stream_id(&ids));
+                match calibrate {
+                    None => monte_carlo::trial(
+                        &scenario.truth,
+                        body,
+                        magnitude,
+                        sigma_nt,
+                        &calibration,
+                        &probe,
+                        &mut rng,
+                    ),
+                    Some(f) => {
+                        let readings = scenario.truth.noisy_readings(body, sigma_nt, &mut rng)?;
+                        Ok(monte_carlo::scored(&scenario.truth, f(&readings, magnitude), &probe))
+                    }
+                }
             })
             .collect::<Result<_, _>>()?;
         let mut heading: Vec<f64> = trials

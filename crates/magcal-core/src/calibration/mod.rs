@@ -170,6 +170,42 @@ impl TwoStep {
     }
 }
 
+impl TwoStep {
+    /// Calibrates a reduced model: the entries of `P = K^-1` (upper triangular, row by row:
+    /// `P11, P12, P13, P22, P23, P33`) that are not `free_p` are held at `nominal_p`'s, the others
+    /// and the bias are fitted by step 2 with [`step2::Residual::Readings`] (whatever
+    /// `self.residual`), started from `nominal_p` and the centre of [`step1::sphere_fit`]. Holding a
+    /// diagonal entry and the off-diagonal ones of its row holds that axis's scale at the nominal
+    /// one: what a vehicle that barely turns that axis against the field cannot estimate.
+    ///
+    /// # Errors
+    /// As [`Self::calibrate`]; a `nominal_p` that is not upper triangular with a positive diagonal
+    /// is [`CalibrationError::NotPositiveDefinite`].
+    pub fn calibrate_holding(
+        &self,
+        readings: &[Vec3],
+        field_magnitude_nt: f64,
+        nominal_p: Mat3,
+        free_p: [bool; 6],
+    ) -> CalibrationOutcome {
+        let sphere = step1::sphere_fit(readings, field_magnitude_nt)?;
+        let start = Estimate::checked(nominal_p, sphere.bias_nt, readings, field_magnitude_nt)?;
+        let settings = Self {
+            residual: step2::Residual::Readings,
+            ..self.clone()
+        };
+        let free = std::array::from_fn(|i| i >= 6 || free_p[i]);
+        let refined = step2::refine_holding(&settings, &start, readings, field_magnitude_nt, free)?;
+        Ok(Calibration {
+            step1: start,
+            step2: refined.estimate,
+            iterations: refined.iterations,
+            termination: refined.termination,
+            identifiable: refined.identifiable,
+        })
+    }
+}
+
 /// Checks the inputs common to both steps.
 fn validate(readings: &[Vec3], field_magnitude_nt: f64) -> Result<(), CalibrationError> {
     validate_readings(readings, field_magnitude_nt, UNKNOWNS)

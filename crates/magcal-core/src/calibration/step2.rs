@@ -356,6 +356,33 @@ pub(crate) fn refine(
     readings: &[Vec3],
     field_magnitude_nt: f64,
 ) -> Result<Refined, CalibrationError> {
+    refine_holding(settings, start, readings, field_magnitude_nt, [true; PARAMETERS])
+}
+
+/// Makes the normal equations leave the unknowns `x_i` with `!free[i]` where they are: their row
+/// and column of `J^T J` become those of the identity and their gradient 0, so every step has
+/// `h_i = 0` and their local variance is the residual's own, far below any physical scale.
+fn hold(jtj: &mut Normal, g: &mut [f64; PARAMETERS], free: [bool; PARAMETERS]) {
+    for i in (0..PARAMETERS).filter(|&i| !free[i]) {
+        g[i] = 0.0;
+        for j in 0..PARAMETERS {
+            jtj[i][j] = 0.0;
+            jtj[j][i] = 0.0;
+        }
+        jtj[i][i] = 1.0;
+    }
+}
+
+/// [`refine`] with the unknowns `x = (P11, P12, P13, P22, P23, P33, o)` that are not `free` held
+/// at the start's values. Holding applies to [`Residual::Readings`] only: the paper's residual is
+/// refined with all nine free.
+pub(crate) fn refine_holding(
+    settings: &TwoStep,
+    start: &Estimate,
+    readings: &[Vec3],
+    field_magnitude_nt: f64,
+    free: [bool; PARAMETERS],
+) -> Result<Refined, CalibrationError> {
     let R = field_magnitude_nt;
     let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
     let x0 = pack(&start.p, scale(1.0 / R, start.bias_nt));
@@ -377,14 +404,19 @@ pub(crate) fn refine(
             let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
             let readings_ok = |_: &Normal, y: &[f64; PARAMETERS], f: f64| {
                 let x = from_centred(y, m)?;
-                let jtj = reading_information(&x, &u);
+                let mut jtj = reading_information(&x, &u);
+                hold(&mut jtj, &mut [0.0; PARAMETERS], free);
                 reading_variance(settings, u.len(), f, R).map(|var| locally_identifiable(&jtj, &x, var))
             };
             let fit = levenberg_marquardt(
                 settings,
                 to_centred(&x0, m),
                 |y| reading_cost(y, &d),
-                |y| reading_normal_equations(y, &d),
+                |y| {
+                    let (mut jtj, mut g) = reading_normal_equations(y, &d);
+                    hold(&mut jtj, &mut g, free);
+                    (jtj, g)
+                },
                 readings_ok,
                 false,
             );

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 
+use crate::advice::{self, Advice};
 use crate::cli::{Common, Failure, RunArgs};
 use crate::output::file::to_stdout;
 use crate::output::manifest::{Hashing, Manifest, sha256_hex};
@@ -44,11 +45,27 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
         progress: setup.progress,
         designs_only,
     };
-    let mut run = setup
+    let (mut run, advice) = setup
         .pool
-        .install(|| pipeline::run(scenario, options))
+        .install(|| -> Result<_> {
+            let run = pipeline::run(scenario, options)?;
+            // Only when no design works: what does instead.
+            let advice = match run.recommended() {
+                Some(_) => None,
+                None => advice::advise(scenario, &run.designs)?,
+            };
+            Ok((run, advice))
+        })
         .with_context(|| format!("{}", scenario.path.display()))?;
-    let manifest = write_set(scenario, &mut run, &mut set, setup.threads, !designs_only, started)?;
+    let manifest = write_set(
+        scenario,
+        &mut run,
+        advice.as_ref(),
+        &mut set,
+        setup.threads,
+        !designs_only,
+        started,
+    )?;
     let staged = set.dir().to_path_buf();
     let drawn = plots::draw(&staged, &manifest, &mut set, "plots/").context("drawing the figures")?;
     set.commit()?;
@@ -58,7 +75,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
                 print::flight_plans(w, &run, scenario.field.yaw_offset_deg())?;
             }
             print::summary(w, &run, &dir)?;
-            print::recommendation(w, &run)?;
+            print::recommendation(w, &run, advice.as_ref())?;
             writeln!(
                 w,
                 "{} figures (SVG and PNG) in {}",
@@ -75,6 +92,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
 fn write_set(
     scenario: &Scenario,
     out: &mut RunOutput,
+    advice: Option<&Advice>,
     set: &mut ResultSet,
     threads: usize,
     with_trials: bool,
@@ -102,6 +120,12 @@ fn write_set(
         "certificate.csv",
         output::csv_bytes(output::certificate_rows(out, scenario.certificate.tolerance))?,
     )?;
+    if let Some(a) = advice {
+        put(
+            "advice.csv",
+            output::csv_bytes(output::advice_rows(out, a, &scenario.bounds))?,
+        )?;
+    }
     if with_trials {
         put("summary.csv", output::csv_bytes(output::summary_rows(out))?)?;
         put("crb.csv", output::csv_bytes(output::crb_rows(out))?)?;

@@ -598,6 +598,89 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
     })
 }
 
+/// `advice.csv`: when no design works, what does instead ([`crate::advice::Advice`]), one row
+/// per option tried.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct AdviceRow {
+    /// `reduced`, `quieter` or `wider`.
+    pub option: String,
+    /// `full`, or the reduced model: `diagonal`, `axisN_held`, `offsets_only`.
+    pub model: String,
+    /// The design the option starts from.
+    pub design: String,
+    /// Noise of the option's check, nT.
+    pub sigma_nt: Real,
+    /// Its box, degrees.
+    pub roll_min_deg: Real,
+    pub roll_max_deg: Real,
+    pub pitch_min_deg: Real,
+    pub pitch_max_deg: Real,
+    /// Attitudes and readings in all.
+    pub attitudes: usize,
+    pub readings: usize,
+    pub check_trials: usize,
+    pub check_ok: usize,
+    pub works: bool,
+    pub check_heading_median_deg: Option<Real>,
+    pub check_heading_p95_deg: Option<Real>,
+}
+
+/// The rows of `advice.csv`; a search that found nothing writes no row for it.
+pub fn advice_rows<'a>(
+    out: &'a RunOutput,
+    advice: &'a crate::advice::Advice,
+    bounds: &magcal_core::AttitudeBox,
+) -> impl Iterator<Item = AdviceRow> + 'a {
+    let base = &out.designs[advice.base];
+    let [roll, _, pitch] = bounds.ranges();
+    let box_of = |r: &magcal_core::AngleRange| [r.min().to_degrees(), r.max().to_degrees()];
+    let row = move |option: &str,
+                    model: &str,
+                    roll: [f64; 2],
+                    pitch: [f64; 2],
+                    attitudes: usize,
+                    readings: usize,
+                    c: &crate::pipeline::Check| AdviceRow {
+        option: option.into(),
+        model: model.into(),
+        design: base.name.clone(),
+        sigma_nt: Real(c.sigma_nt),
+        roll_min_deg: Real(roll[0]),
+        roll_max_deg: Real(roll[1]),
+        pitch_min_deg: Real(pitch[0]),
+        pitch_max_deg: Real(pitch[1]),
+        attitudes,
+        readings,
+        check_trials: c.trials,
+        check_ok: c.outcomes.ok,
+        works: c.works(),
+        check_heading_median_deg: c.heading_median_deg.map(Real),
+        check_heading_p95_deg: c.heading_p95_deg.map(Real),
+    };
+    let (r, p) = (box_of(&roll), box_of(&pitch));
+    let (k, m) = (base.attitudes.len(), base.m());
+    let reduced = advice
+        .reduced
+        .iter()
+        .map(move |(model, c)| row("reduced", &model.name(), r, p, k, m, c));
+    let quieter = advice
+        .quieter
+        .iter()
+        .map(move |c| row("quieter", "full", r, p, k, m, c));
+    let wider = advice.wider.iter().map(move |v| {
+        row(
+            "wider",
+            "full",
+            v.roll_deg,
+            v.pitch_deg,
+            v.attitudes.len(),
+            v.attitudes.len() * v.readings_per_attitude,
+            &v.check,
+        )
+    });
+    reduced.chain(quieter).chain(wider)
+}
+
 /// The rows of `approximate.csv` (none without a certificate).
 pub fn approximate_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item = ApproximatePointRow> + '_ {
     out.approximate.iter().flat_map(move |a| {

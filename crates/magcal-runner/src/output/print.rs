@@ -4,7 +4,8 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::pipeline::RunOutput;
+use crate::advice::Advice;
+use crate::pipeline::{Check, RunOutput};
 
 /// A statistic for the screen: `-` where undefined.
 fn cell(x: f64) -> String {
@@ -65,7 +66,7 @@ fn outcome_words(o: &crate::pipeline::Outcomes) -> String {
 /// What to fly: the design that works (calibrates in at least 95 % of its check's trials) with
 /// the smallest median heading error, the fewer readings on a tie; or, when none works, that none
 /// does and why.
-pub fn recommendation(w: &mut dyn Write, out: &RunOutput) -> std::io::Result<()> {
+pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice>) -> std::io::Result<()> {
     match out.recommended() {
         Some(i) => {
             let d = &out.designs[i];
@@ -87,12 +88,78 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput) -> std::io::Result<()>
                     .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
             )
         }
-        None => writeln!(
-            w,
-            "no design here calibrates the full model in {:.0} % of trials at this noise: none to fly as it stands.",
-            100.0 * crate::pipeline::Check::OK_SHARE
-        ),
+        None => {
+            writeln!(
+                w,
+                "no design here calibrates the full model in {:.0} % of trials at this noise.",
+                100.0 * Check::OK_SHARE
+            )?;
+            let Some(a) = advice else { return Ok(()) };
+            let base = &out.designs[a.base];
+            writeln!(
+                w,
+                "What works instead, by the same check, from {} ({} readings):",
+                base.name,
+                base.m()
+            )?;
+            let heading = |c: &Check| {
+                format!(
+                    "{} of {} trials ok at {} nT, heading error median {} deg, 95th percentile {} deg",
+                    c.outcomes.ok,
+                    c.trials,
+                    short(c.sigma_nt),
+                    c.heading_median_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                    c.heading_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                )
+            };
+            for (model, c) in &a.reduced {
+                let works = if c.works() { "works" } else { "does not work" };
+                writeln!(w, "  - {}: {works}: {}", model.words(), heading(c))?;
+            }
+            match &a.quieter {
+                Some(c) => writeln!(
+                    w,
+                    "  - the full model with a quieter sensor: works at {} nT ({}x less noise): {}",
+                    short(c.sigma_nt),
+                    short(base.check.sigma_nt / c.sigma_nt),
+                    heading(c)
+                )?,
+                None => writeln!(
+                    w,
+                    "  - the full model with a quieter sensor: not even at 1/1024 of the noise"
+                )?,
+            }
+            match &a.wider {
+                Some(v) => writeln!(
+                    w,
+                    "  - the full model in a wider box: tilting {} deg further (roll {} to {}, pitch {} to {} deg), \
+                     {} D-optimal attitudes x {} readings: {}",
+                    v.extra_deg,
+                    v.roll_deg[0],
+                    v.roll_deg[1],
+                    v.pitch_deg[0],
+                    v.pitch_deg[1],
+                    v.attitudes.len(),
+                    v.readings_per_attitude,
+                    heading(&v.check)
+                )?,
+                None => writeln!(
+                    w,
+                    "  - the full model in a wider box: not even with 90 degrees more tilt"
+                )?,
+            }
+            writeln!(
+                w,
+                "  (advice.csv has each; to fly the wider box, set its ranges in the scenario and run design again)"
+            )
+        }
     }
+}
+
+/// A number without trailing zeros, at most 4 significant decimals.
+fn short(x: f64) -> String {
+    let s = format!("{x:.4}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
