@@ -80,6 +80,9 @@ pub struct BuiltDesign {
     pub check: Check,
 }
 
+/// A calibration of readings (nT) to a field magnitude (nT), in place of the scenario's estimator.
+pub type Calibrate = dyn Fn(&[magcal_core::Vec3], f64) -> magcal_core::CalibrationOutcome + Sync;
+
 /// A design calibrated by the scenario's estimator in [`Check::trials`] noisy trials at the
 /// scenario's largest noise level, on their own random streams: what "works" rests on. The
 /// Cramer-Rao bound is a linear prediction; where a box barely turns an axis against the field the
@@ -126,7 +129,7 @@ impl Check {
         stream: &[u64],
         body: &[magcal_core::Vec3],
         sigma_nt: f64,
-        calibrate: Option<&(dyn Fn(&[magcal_core::Vec3], f64) -> magcal_core::CalibrationOutcome + Sync)>,
+        calibrate: Option<&Calibrate>,
     ) -> Result<Self> {
         let calibration = magcal_core::TwoStep {
             noise_nt: Some(sigma_nt),
@@ -238,6 +241,31 @@ impl Outcomes {
 }
 
 impl Cell {
+    /// The root mean square over the `ok` trials of each estimated parameter's error, in the
+    /// order and units of [`magcal_core::identifiability::PARAMETERS`]; `None` without `ok` trials.
+    pub fn estimate_rms(&self, truth: &magcal_core::ErrorModel) -> Option<[f64; 9]> {
+        let flat = |m: &magcal_core::ErrorModel| -> [f64; 9] {
+            let (p, s, o) = (m.psi_deg(), m.scale(), m.bias_nt());
+            [p[0], p[1], p[2], s[0], s[1], s[2], o[0], o[1], o[2]]
+        };
+        let t = flat(truth);
+        let mut sum = [0.0; 9];
+        let mut n = 0usize;
+        for e in self
+            .trials
+            .iter()
+            .filter(|t| t.status == CalibrationStatus::Ok)
+            .filter_map(|t| t.estimate.as_ref())
+        {
+            let v = flat(e);
+            for i in 0..9 {
+                sum[i] += (v[i] - t[i]).powi(2);
+            }
+            n += 1;
+        }
+        (n > 0).then(|| sum.map(|s| (s / n as f64).sqrt()))
+    }
+
     /// The outcome counts.
     pub fn outcomes(&self) -> Outcomes {
         Outcomes::of(&self.trials)

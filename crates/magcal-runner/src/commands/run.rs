@@ -128,7 +128,7 @@ fn write_set(
     }
     if with_trials {
         put("summary.csv", output::csv_bytes(output::summary_rows(out))?)?;
-        put("crb.csv", output::csv_bytes(output::crb_rows(out))?)?;
+        put("crb.csv", output::csv_bytes(output::crb_rows(out, &scenario.truth))?)?;
     }
     if out.pso_runs.is_some() {
         put("pso_runs.csv", output::csv_bytes(output::pso_run_rows(out))?)?;

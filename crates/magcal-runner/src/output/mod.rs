@@ -197,6 +197,10 @@ pub struct CrbRow {
     pub parameter: String,
     pub std: Option<Real>,
     pub unit: String,
+    /// The root mean square of the estimate's error over the cell's `ok` trials, and its ratio to
+    /// `std`: how near the estimator comes to the floor (1 at the floor; empty without `ok` trials).
+    pub mc_rms: Option<Real>,
+    pub mc_over_crb: Option<Real>,
 }
 
 /// `trials.csv`: one row per trial, its status, errors and estimates (empty when it has none).
@@ -473,7 +477,7 @@ pub fn summary_rows(out: &RunOutput) -> impl Iterator<Item = SummaryRow> + '_ {
 }
 
 /// The rows of `crb.csv`.
-pub fn crb_rows(out: &RunOutput) -> impl Iterator<Item = CrbRow> + '_ {
+pub fn crb_rows<'a>(out: &'a RunOutput, truth: &'a magcal_core::ErrorModel) -> impl Iterator<Item = CrbRow> + 'a {
     use magcal_core::identifiability::{PARAMETERS, UNITS};
     // One bound per design and noise level: the cells of the first execution-error level.
     let first = out.cells.first().map_or(0.0, |c| c.attitude_sigma_deg);
@@ -482,12 +486,19 @@ pub fn crb_rows(out: &RunOutput) -> impl Iterator<Item = CrbRow> + '_ {
         .filter(move |c| c.attitude_sigma_deg == first)
         .flat_map(move |cell| {
             let design = &out.designs[cell.design].name;
-            (0..9).map(move |i| CrbRow {
-                design: design.clone(),
-                sigma_nt: Real(cell.sigma_nt),
-                parameter: PARAMETERS[i].to_string(),
-                std: cell.bound.std.and_then(|s| defined(s[i])),
-                unit: UNITS[i].to_string(),
+            let rms = cell.estimate_rms(truth);
+            (0..9).map(move |i| {
+                let std = cell.bound.std.and_then(|s| defined(s[i]));
+                let mc = rms.map(|r| r[i]);
+                CrbRow {
+                    design: design.clone(),
+                    sigma_nt: Real(cell.sigma_nt),
+                    parameter: PARAMETERS[i].to_string(),
+                    std,
+                    unit: UNITS[i].to_string(),
+                    mc_rms: mc.and_then(defined),
+                    mc_over_crb: mc.zip(std).and_then(|(m, s)| defined(m / s.0)),
+                }
             })
         })
 }
