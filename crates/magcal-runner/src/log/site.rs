@@ -234,4 +234,40 @@ mod tests {
         assert_eq!(parse_model("WMM2010"), Ok(magcal_core::wmm::Model::Wmm2010));
         assert!(parse_model("WMM1999").unwrap_err().contains("unknown model"));
     }
+
+    #[test]
+    fn places_name_their_hemispheres_and_a_longitude_in_the_half_open_circle() {
+        use magcal_core::wmm::{Model, Site};
+        let at = |lat_deg, lon_deg, alt_m, year| Site {
+            lat_deg,
+            lon_deg,
+            alt_m,
+            year,
+        };
+        for (site, want) in [
+            (
+                at(-33.92, 18.42, 0.0, 2026.0),
+                "WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.00",
+            ),
+            (
+                at(63.43, 10.4, 50.0, 2026.5),
+                "WMM2025 at 63.43 N, 10.40 E, 50 m, 2026.50",
+            ),
+            (
+                at(-80.0, 240.0, 100000.0, 2027.5),
+                "WMM2025 at 80.00 S, 120.00 W, 100000 m, 2027.50",
+            ),
+            (
+                at(0.0, -180.0, 0.0, 2025.0),
+                "WMM2025 at 0.00 N, 180.00 E, 0 m, 2025.00",
+            ),
+            (
+                at(45.0, -70.0, -500.0, 2025.0),
+                "WMM2025 at 45.00 N, 70.00 W, -500 m, 2025.00",
+            ),
+            (at(10.0, 360.0, 0.0, 2025.0), "WMM2025 at 10.00 N, 0.00 E, 0 m, 2025.00"),
+        ] {
+            assert_eq!(wmm_place(Model::Wmm2025, &site), want);
+        }
+    }
 }

@@ -683,6 +683,43 @@ mod tests {
     use super::*;
 
     #[test]
+    fn headings_are_named_wrapped_and_empty_without_a_declination() {
+        use magcal_core::Attitude;
+        let h = Headings {
+            yaw_offset_deg: 90.0,
+            declination_deg: Some(-26.5),
+        };
+        // yaw 0 with offset 90: true heading 270, magnetic 270 + 26.5 - 360.
+        let a = Attitude::from_degrees(0.0, 0.0, 0.0);
+        assert_eq!(h.true_heading(&a), Real(270.0));
+        assert_eq!(h.magnetic_heading(&a), Some(Real(296.5)));
+        let b = Attitude::from_degrees(0.0, -63.5, 0.0);
+        assert_eq!(h.magnetic_heading(&b), Some(Real(0.0)));
+        // Just below 360 rounds to 360 at 1e-9 degree: written as 0.
+        let c = Attitude::from_degrees(0.0, -90.0 + 1e-12, 0.0);
+        assert_eq!(h.true_heading(&c), Real(0.0));
+        let none = Headings {
+            declination_deg: None,
+            ..h
+        };
+        assert_eq!(none.magnetic_heading(&a), None);
+        assert_eq!(
+            header::<DesignPointRow>().unwrap().iter().collect::<Vec<_>>()[5..8],
+            ["pitch_deg", "true_heading_deg", "magnetic_heading_deg"]
+        );
+        // A designs.csv with the one heading column of earlier versions is refused by name.
+        let old = b"design,visit,point,roll_deg,yaw_deg,pitch_deg,heading_deg,qw,qx,qy,qz,readings,turn_deg\n\
+                    u,1,1,0,0,0,0,1,0,0,0,1,\n";
+        let e = parse_csv::<DesignPointRow>(old, "base/designs.csv")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "base/designs.csv: line 2: missing field `true_heading_deg`: the header has no such column (a file of another magcal version?)"
+        );
+    }
+
+    #[test]
     fn headers_come_from_the_row_types() {
         let h = header::<SummaryRow>().unwrap();
         assert_eq!(
