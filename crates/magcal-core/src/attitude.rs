@@ -61,12 +61,21 @@ impl Attitude {
         ]
     }
 
-    /// The compass heading of the nose, degrees clockwise from **true** north in `[0, 360)`, when
+    /// The true heading of the nose: degrees clockwise from **true** north in `[0, 360)`, when
     /// yaw 0 puts the nose `yaw_offset_deg` counter-clockwise from north: positive yaw turns the
-    /// nose west (\[P1\] eq. (2) with the n-frame North-Up-East, docs/conventions "Sense of the
-    /// angles"), so the heading is `-(yaw + yaw_offset)` wrapped.
-    pub fn heading_deg(&self, yaw_offset_deg: f64) -> f64 {
-        (-(self.yaw.to_degrees() + yaw_offset_deg)).rem_euclid(360.0)
+    /// nose west (\[P1\] eq. (2) with the n-frame North-Up-East, docs/conventions.md "Sense of the
+    /// angles"), so the heading is `-(yaw + yaw_offset)` wrapped. Not what a compass reads: see
+    /// [`Self::magnetic_heading_deg`].
+    pub fn true_heading_deg(&self, yaw_offset_deg: f64) -> f64 {
+        wrap_360(-(self.yaw.to_degrees() + yaw_offset_deg))
+    }
+
+    /// The magnetic heading of the nose, what a compass reads: degrees clockwise from
+    /// **magnetic** north in `[0, 360)`, the true heading ([`Self::true_heading_deg`]) minus the
+    /// declination `declination_deg` (degrees east of true north, as
+    /// [`crate::ReferenceField::declination_deg`] gives it), wrapped.
+    pub fn magnetic_heading_deg(&self, yaw_offset_deg: f64, declination_deg: f64) -> f64 {
+        wrap_360(-(self.yaw.to_degrees() + yaw_offset_deg) - declination_deg)
     }
 
     /// The Hamilton unit quaternion `(w, x, y, z)`, `w >= 0`, of `C_b^n`: the rotation that takes
@@ -78,6 +87,12 @@ impl Attitude {
         };
         quaternion_of_transpose(&flown.dcm())
     }
+}
+
+/// `degrees` wrapped to `[0, 360)`: `rem_euclid` alone gives 360 for a tiny negative angle.
+fn wrap_360(degrees: f64) -> f64 {
+    let wrapped = degrees.rem_euclid(360.0);
+    if wrapped >= 360.0 { 0.0 } else { wrapped }
 }
 
 /// The unit quaternion `(w, x, y, z)` (Hamilton, `w >= 0`) of `C_b^n = (C_n^b)^T`, from the
@@ -271,6 +286,49 @@ mod tests {
     }
 
     #[test]
+    fn magnetic_heading_is_what_a_level_compass_reads() {
+        // A level compass reads the field in the body's horizontal plane: with the nose x and the
+        // right z, a field at bearing D seen from a nose at true heading h has body components
+        // (cos(D - h), sin(D - h)), so the compass heading is -atan2(b_z, b_x). Checked against
+        // the body field of [P1] eq. (1)-(2) at Cape-Town-like (D = -27) and polar (D = 150)
+        // fields, every 7 degrees of yaw, with and without a yaw offset.
+        use crate::ReferenceField;
+        for (x, y, z) in [
+            (9000.0, -4600.0, -22000.0),
+            (-3000.0, 1732.05, 55000.0),
+            (35272.34, -2085.74, 32897.67),
+        ] {
+            for offset in [0.0, 90.0, -33.0] {
+                let f = ReferenceField::from_ned(x, y, z)
+                    .unwrap()
+                    .with_yaw_offset_deg(offset)
+                    .unwrap();
+                let d = f.declination_deg().unwrap();
+                for k in -26..=26 {
+                    let a = Attitude::from_degrees(0.0, 7.0 * k as f64, 0.0);
+                    let b = f.body_field(&a);
+                    let compass = (-b[2].atan2(b[0]).to_degrees()).rem_euclid(360.0);
+                    let got = a.magnetic_heading_deg(offset, d);
+                    let diff = (got - compass).rem_euclid(360.0);
+                    assert!(
+                        diff.min(360.0 - diff) < 1e-9,
+                        "D {d} offset {offset} yaw {}: {got} vs {compass}",
+                        7 * k
+                    );
+                    assert!((0.0..360.0).contains(&got));
+                    // And the identity the outputs promise: magnetic = true - D (mod 360).
+                    let t = a.true_heading_deg(offset);
+                    let back = (t - d - got).rem_euclid(360.0);
+                    assert!(back.min(360.0 - back) < 1e-9);
+                }
+            }
+        }
+        // A tiny negative angle wraps to 0, not to 360.
+        assert!(Attitude::from_degrees(0.0, 1e-300, 0.0).true_heading_deg(0.0) < 360.0);
+        assert!(Attitude::from_degrees(0.0, 0.0, 0.0).magnetic_heading_deg(0.0, 1e-300) < 360.0);
+    }
+
+    #[test]
     fn dcm_is_the_product_of_eq_2_and_orthonormal() {
         for (r, y, p) in [(0.1, -2.0, 0.3), (-3.0, 1.0, 1.5), (0.0, 0.0, 0.0), (2.5, 3.1, -1.2)] {
             let a = Attitude {
@@ -339,9 +397,9 @@ mod tests {
         }
         // Level, yaw -60 (heading 60): the nose points north-east-ish, 60 degrees east of north.
         let q = Attitude::from_degrees(0.0, -60.0, 0.0).body_to_nav_quaternion(0.0);
-        assert!((Attitude::from_degrees(0.0, -60.0, 0.0).heading_deg(0.0) - 60.0).abs() < 1e-12);
+        assert!((Attitude::from_degrees(0.0, -60.0, 0.0).true_heading_deg(0.0) - 60.0).abs() < 1e-12);
         // yaw 0 with the nose put on west (offset 90): heading 270.
-        assert!((Attitude::from_degrees(0.0, 0.0, 0.0).heading_deg(90.0) - 270.0).abs() < 1e-12);
+        assert!((Attitude::from_degrees(0.0, 0.0, 0.0).true_heading_deg(90.0) - 270.0).abs() < 1e-12);
         assert!((q[0] - 30f64.to_radians().cos()).abs() < 1e-15 && (q[2] + 30f64.to_radians().sin()).abs() < 1e-15);
     }
 

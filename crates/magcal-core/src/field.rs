@@ -5,6 +5,24 @@ use crate::error::{ParameterError, finite};
 use crate::small::{Vec3, norm};
 use rand_distr::Distribution;
 
+/// The declination of a field given by its North, East, Down components (any unit): the direction
+/// of its horizontal component, `D = atan2(east, north)`, in degrees east of true north, in
+/// (-180, 180] (the definition of the NOAA WMM report). `None` when the horizontal component is
+/// zero: a vertical field has no direction a compass could point along.
+pub fn declination_deg(ned: Vec3) -> Option<f64> {
+    let [north, east, _] = ned;
+    let horizontal = north.hypot(east);
+    (horizontal > 0.0 && horizontal.is_finite()).then(|| east.atan2(north).to_degrees())
+}
+
+/// The inclination (dip) of a field given by its North, East, Down components: the angle of the
+/// field below the horizontal, `I = atan2(down, sqrt(north^2 + east^2))`, degrees in [-90, 90],
+/// positive down (the definition of the NOAA WMM report).
+pub fn inclination_deg(ned: Vec3) -> f64 {
+    let [north, east, down] = ned;
+    down.atan2(north.hypot(east)).to_degrees()
+}
+
 /// The homogeneous reference field at the calibration site (\[P1\] II.A).
 ///
 /// Given as the World Magnetic Model reports it, North-East-Down components in nT, and stored as
@@ -52,6 +70,19 @@ impl ReferenceField {
     /// `(X north, Y east, Z down)` in nT, as given.
     pub fn ned_nt(&self) -> Vec3 {
         self.ned_nt
+    }
+
+    /// The declination of the field, degrees east of true north ([`declination_deg`] of
+    /// [`Self::ned_nt`]); `None` for a vertical field. A magnetic heading is the true heading
+    /// minus it ([`Attitude::magnetic_heading_deg`]).
+    pub fn declination_deg(&self) -> Option<f64> {
+        declination_deg(self.ned_nt)
+    }
+
+    /// The inclination of the field, degrees below the horizontal ([`inclination_deg`] of
+    /// [`Self::ned_nt`]).
+    pub fn inclination_deg(&self) -> f64 {
+        inclination_deg(self.ned_nt)
     }
 
     /// `B^n` in (North, Up, East), nT.
@@ -248,6 +279,42 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn declination_and_inclination_of_ned_components() {
+        // Quadrants of the horizontal component: D is the angle from north toward east.
+        let d = |x: f64, y: f64| {
+            ReferenceField::from_ned(x, y, 1000.0)
+                .unwrap()
+                .declination_deg()
+                .unwrap()
+        };
+        let tol = 64.0 * f64::EPSILON * 180.0;
+        for (x, y, want) in [
+            (1.0, 0.0, 0.0),
+            (1.0, 1.0, 45.0),
+            (0.0, 1.0, 90.0),
+            (-1.0, 0.0, 180.0),
+            (-1.0, -1.0, -135.0),
+            (3.0f64.sqrt(), -1.0, -30.0),
+        ] {
+            assert!((d(x, y) - want).abs() <= tol, "({x}, {y}): {}", d(x, y));
+        }
+        // Changsha (docs/conventions.md): atan2(-2085.74, 35272.34) west of north, and
+        // I = atan2(32897.67, |(X, Y)|) below the horizontal.
+        let f = paper::changsha_field();
+        let (x, y, z): (f64, f64, f64) = (35272.34, -2085.74, 32897.67);
+        assert!((f.declination_deg().unwrap() - y.atan2(x).to_degrees()).abs() <= tol);
+        assert!((f.inclination_deg() - z.atan2(x.hypot(y)).to_degrees()).abs() <= tol);
+        assert!(f.declination_deg().unwrap() < -3.38 && f.declination_deg().unwrap() > -3.39);
+        // A vertical field has no declination; its inclination is +-90.
+        let vertical = ReferenceField::from_ned(0.0, 0.0, -50_000.0).unwrap();
+        assert_eq!(vertical.declination_deg(), None);
+        assert!((vertical.inclination_deg() + 90.0).abs() <= tol);
+        // The yaw offset turns the body, not the field.
+        let turned = f.with_yaw_offset_deg(90.0).unwrap();
+        assert_eq!(turned.declination_deg(), f.declination_deg());
     }
 
     #[test]

@@ -406,6 +406,9 @@ pub struct Scenario {
     pub attitude_sigmas_deg: Vec<f64>,
     /// Reference field.
     pub field: ReferenceField,
+    /// Where the field comes from, in words: the WMM at a site and date
+    /// (`WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.42`), or the components given in `[field]`.
+    pub field_source: String,
     /// True sensor errors.
     pub truth: ErrorModel,
     /// The vehicle's attitude box.
@@ -561,7 +564,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         .map(|&a| if a == 0.0 { 0.0 } else { a })
         .collect();
 
-    let field = reference_field(&raw.field)?;
+    let (field, field_source) = reference_field(&raw.field)?;
 
     let s = &raw.sensor;
     for (key, values, min, max) in [
@@ -673,6 +676,7 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
         sigmas_nt,
         attitude_sigmas_deg,
         field,
+        field_source,
         truth,
         bounds,
         calibration,
@@ -683,12 +687,13 @@ fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<Scenario> {
 }
 
 /// The reference field from `[field]`: NED numbers (nT), or `model, lat_deg, lon_deg, alt_m, year`
-/// evaluated with the World Magnetic Model; then the yaw offset.
-fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
+/// evaluated with the World Magnetic Model; then the yaw offset. With where it comes from, in
+/// words.
+fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
     within("field.yaw_offset_deg", f.yaw_offset_deg, -360.0, 360.0, " degrees")?;
     let ned = [f.north_nt, f.east_nt, f.down_nt];
     let site = [f.lat_deg, f.lon_deg, f.alt_m, f.year];
-    let field = match (&f.model, ned.iter().any(Option::is_some)) {
+    let (field, source) = match (&f.model, ned.iter().any(Option::is_some)) {
         (Some(_), true) => bail!("[field]: give either north_nt, east_nt, down_nt or a model and site, not both"),
         (None, _) => {
             let keys = ["field.north_nt", "field.east_nt", "field.down_nt"];
@@ -712,7 +717,9 @@ fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
                     show(limits::MIN_FIELD_NT)
                 );
             }
-            ReferenceField::from_ned(v[0], v[1], v[2]).map_err(|e| keyed("field.", &e, "the values given"))?
+            let field =
+                ReferenceField::from_ned(v[0], v[1], v[2]).map_err(|e| keyed("field.", &e, "the values given"))?;
+            (field, "field.north_nt, east_nt, down_nt".to_string())
         }
         (Some(name), false) => {
             let Some(model) = wmm::Model::from_name(name) else {
@@ -733,7 +740,7 @@ fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
                 alt_m: v[2],
                 year: v[3],
             };
-            wmm::reference_field(model, &site).map_err(|e| {
+            let field = wmm::reference_field(model, &site).map_err(|e| {
                 // The core names its parameter; the key is the same under [field], and its value
                 // is the one given.
                 let given = keys
@@ -746,12 +753,14 @@ fn reference_field(f: &raw::Field) -> Result<ReferenceField> {
                     ),
                     other => keyed("field.", &other, &given),
                 }
-            })?
+            })?;
+            (field, crate::log::site::wmm_place(model, &site))
         }
     };
-    field
+    let field = field
         .with_yaw_offset_deg(f.yaw_offset_deg)
-        .map_err(|e| keyed("field.", &e, &show(f.yaw_offset_deg)))
+        .map_err(|e| keyed("field.", &e, &show(f.yaw_offset_deg)))?;
+    Ok((field, source))
 }
 
 /// The rules of an attitude range `[min, max]` in degrees, for the scenario's `[attitude_box]` and

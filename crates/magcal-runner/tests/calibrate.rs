@@ -358,20 +358,34 @@ fn next_suggests_attitudes_in_the_box_that_raise_the_information() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8(out.stdout).unwrap();
+    // The declination of the scenario's field (NED components): atan2(east, north).
+    let declination = (-2085.74f64).atan2(35272.34).to_degrees();
+    let said = text.lines().nth(1).unwrap().trim();
+    assert!(
+        said.starts_with(&format!(
+            "declination {declination:+.2} deg (field.north_nt, east_nt, down_nt, from {}); magnetic heading = true heading - declination",
+            scenario.display()
+        )),
+        "{text}"
+    );
     let rows: Vec<Vec<f64>> = text
         .lines()
-        .skip(2)
+        .skip(3)
         .take_while(|l| !l.trim().is_empty())
         .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
         .collect();
-    // k, roll, pitch, heading, readings, d: six readings inside the AUV box, each adding
-    // information.
-    assert_eq!(rows.iter().map(|r| r[4]).sum::<f64>(), 6.0, "{text}");
+    // k, roll, pitch, true heading, magnetic heading, readings, d: six readings inside the AUV
+    // box, each adding information.
+    assert_eq!(rows.iter().map(|r| r[5]).sum::<f64>(), 6.0, "{text}");
     for r in &rows {
         assert!(
-            r[1].abs() <= 5.0 + 1e-9 && r[2].abs() <= 20.0 + 1e-9 && r[5] > 0.0,
+            r[1].abs() <= 5.0 + 1e-9 && r[2].abs() <= 20.0 + 1e-9 && r[6] > 0.0,
             "{r:?}"
         );
+        // Both headings printed to 0.01 degree: magnetic = true - declination within their
+        // rounding.
+        let apart = (r[4] - (r[3] - declination)).rem_euclid(360.0);
+        assert!(apart.min(360.0 - apart) <= 0.01 + 1e-9, "{r:?}");
     }
     // Coverage by MotionCal's gaps, before and after: the new attitudes do not open gaps.
     let gaps = text
@@ -621,6 +635,19 @@ fn next_takes_the_box_and_site_as_flags_too() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8(out.stdout).unwrap();
     assert!(text.contains("WMM2010 at 28.2, 112.97"), "{text}");
+    // The declination of the site, from the model's north and east components.
+    let site = magcal_core::wmm::Site {
+        lat_deg: 28.2,
+        lon_deg: 112.97,
+        alt_m: 0.0,
+        year: 2013.0,
+    };
+    let [x, y, _] = magcal_core::wmm::field_ned(magcal_core::wmm::Model::Wmm2010, &site).unwrap();
+    let line = format!(
+        "declination {:+.2} deg (WMM2010 at 28.20 N, 112.97 E, 0 m, 2013.00); magnetic heading = true heading - declination",
+        y.atan2(x).to_degrees()
+    );
+    assert!(text.lines().any(|l| l.trim() == line), "{line}\n{text}");
     // Neither a scenario nor a site: refused by the command line.
     let out = magcal()
         .arg("next")

@@ -270,6 +270,121 @@ fn design_command_writes_designs_only() {
     assert!(!tmp.path().join("summary.csv").exists() && !tmp.path().join("trials.csv").exists());
 }
 
+/// The `[field]` components of the smoke scenario, replaced to move it.
+const SMOKE_FIELD: &str = "north_nt = 35272.34\neast_nt = -2085.74\ndown_nt = 32897.67\nyaw_offset_deg = 0.0";
+
+/// Runs `magcal design` on `scenario` into `dir`; its stdout.
+fn design_stdout(scenario: &Path, dir: &Path) -> String {
+    let out = magcal()
+        .args(["design", "--out"])
+        .arg(dir)
+        .arg(scenario)
+        .assert()
+        .success();
+    String::from_utf8(out.get_output().stdout.clone()).unwrap()
+}
+
+/// `a - b` as an angle, degrees, in [0, 180].
+fn angle_apart(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(360.0);
+    d.min(360.0 - d)
+}
+
+#[test]
+fn design_gives_magnetic_headings_at_cape_town() {
+    use magcal_core::wmm;
+    let tmp = TempDir::new().unwrap();
+    // Cape Town, WMM2025: a declination of about -26 degrees, so true and magnetic headings are
+    // far apart; a yaw offset of 30 so that the true heading is not minus the yaw.
+    let scenario = edited_from(
+        &smoke(),
+        tmp.path(),
+        SMOKE_FIELD,
+        "model = \"WMM2025\"\nlat_deg = -33.92\nlon_deg = 18.42\nalt_m = 0.0\nyear = 2026.0\nyaw_offset_deg = 30.0",
+    );
+    let site = wmm::Site {
+        lat_deg: -33.92,
+        lon_deg: 18.42,
+        alt_m: 0.0,
+        year: 2026.0,
+    };
+    // The declination from the model's own X (north) and Y (east): the angle of the horizontal
+    // field east of north.
+    let [x, y, _] = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap();
+    let declination = y.atan2(x).to_degrees();
+    assert!((-28.0..-24.0).contains(&declination), "{declination}");
+
+    let out = tmp.path().join("set");
+    let stdout = design_stdout(&scenario, &out);
+    let line = format!(
+        "declination {declination:+.2} deg (WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.00); magnetic heading = true heading - declination"
+    );
+    assert!(stdout.lines().next() == Some(line.as_str()), "{stdout}");
+    assert!(stdout.contains("true_hdg   mag_hdg"), "{stdout}");
+
+    let rows: Vec<DesignPointRow> = read_csv(&out.join("designs.csv")).unwrap();
+    assert_eq!(rows.len(), 4 * 9);
+    for r in &rows {
+        // True heading from the yaw ([P1] eq. (2): positive yaw turns the nose west), magnetic
+        // heading from it; each written to 1e-9 degree.
+        let true_heading = -(r.yaw_deg.0 + 30.0);
+        assert!(angle_apart(r.true_heading_deg.0, true_heading) <= 2e-9, "{r:?}");
+        let magnetic = r.magnetic_heading_deg.expect("a magnetic heading").0;
+        assert!(
+            angle_apart(magnetic, r.true_heading_deg.0 - declination) <= 2e-9,
+            "{r:?}"
+        );
+        assert!((0.0..360.0).contains(&magnetic) && (0.0..360.0).contains(&r.true_heading_deg.0));
+    }
+    // The screen shows the same numbers as the file, to 0.01 degree: the first attitude of the
+    // first plan.
+    let first = &rows[0];
+    let shown = stdout
+        .lines()
+        .find(|l| l.trim_start().starts_with("1 "))
+        .unwrap()
+        .split_whitespace()
+        .map(|v| v.parse::<f64>().unwrap_or(f64::NAN))
+        .collect::<Vec<_>>();
+    assert!(
+        (shown[3] - first.true_heading_deg.0).abs() <= 0.005 + 1e-9,
+        "{shown:?} {first:?}"
+    );
+    assert!(
+        (shown[4] - first.magnetic_heading_deg.unwrap().0).abs() <= 0.005 + 1e-9,
+        "{shown:?} {first:?}"
+    );
+}
+
+#[test]
+fn design_says_where_the_declination_comes_from_or_why_there_is_none() {
+    let tmp = TempDir::new().unwrap();
+    // The paper's field as NED components: the declination is that of the components,
+    // atan2(-2085.74, 35272.34) = -3.38 degrees.
+    let stdout = design_stdout(&smoke(), &tmp.path().join("ned"));
+    let declination = (-2085.74f64).atan2(35272.34).to_degrees();
+    assert!(
+        stdout.starts_with(&format!(
+            "declination {declination:+.2} deg (field.north_nt, east_nt, down_nt)"
+        )),
+        "{stdout}"
+    );
+    // A vertical field has no declination: no magnetic heading is written or shown.
+    let vertical = edited_from(
+        &smoke(),
+        tmp.path(),
+        SMOKE_FIELD,
+        "north_nt = 0.0\neast_nt = 0.0\ndown_nt = 50000.0\nyaw_offset_deg = 0.0",
+    );
+    let out = tmp.path().join("vertical");
+    let stdout = design_stdout(&vertical, &out);
+    assert!(stdout.starts_with("declination undefined"), "{stdout}");
+    let rows: Vec<DesignPointRow> = read_csv(&out.join("designs.csv")).unwrap();
+    assert!(!rows.is_empty() && rows.iter().all(|r| r.magnetic_heading_deg.is_none()));
+    let raw = csv_rows(&out.join("designs.csv"));
+    assert!(raw.iter().all(|r| r[7].is_empty()), "{:?}", raw[0]);
+}
+
 #[test]
 fn help_and_usage() {
     for sub in ["run", "design", "check"] {

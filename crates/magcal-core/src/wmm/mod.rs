@@ -144,6 +144,17 @@ pub fn reference_field(model: Model, site: &Site) -> Result<ReferenceField, Para
     ReferenceField::from_ned(x, y, z)
 }
 
+/// The declination and inclination of `model` at `site`, degrees: `D` east of true north
+/// ([`crate::field::declination_deg`]; `None` where the horizontal field vanishes) and `I` below
+/// the horizontal ([`crate::field::inclination_deg`]), as the WMM report defines them from X, Y, Z.
+///
+/// # Errors
+/// As [`field_ned`].
+pub fn declination_inclination_deg(model: Model, site: &Site) -> Result<(Option<f64>, f64), ParameterError> {
+    let ned = field_ned(model, site)?;
+    Ok((crate::field::declination_deg(ned), crate::field::inclination_deg(ned)))
+}
+
 /// Earliest year [`decimal_year`] takes: the shipped models start in 2010, and a bound this wide
 /// only catches a mistyped year (`20130`) before it reaches the model's window check.
 pub const MIN_YEAR: i64 = 1900;

@@ -6,8 +6,9 @@ use super::*;
 type Row = (Model, f64, f64, f64, f64, [f64; 3]);
 
 /// NOAA's official test values published with each release (WMM2010testvalues.pdf,
-/// WMM2015testvalues.pdf, WMM2020testvalues.pdf): model, decimal year, height (m), latitude,
-/// longitude (degrees), and X, Y, Z (nT) as printed, to 0.1 nT.
+/// WMM2015testvalues.pdf, WMM2020testvalues.pdf, and the WMM2025 table WMM2025_TEST_VALUES.txt of
+/// WMM2025COF.zip): model, decimal year, height (m), latitude, longitude (degrees), and X, Y, Z
+/// (nT) as printed, to 0.1 nT. The angles of the same points are in [`OFFICIAL_ANGLES`].
 const OFFICIAL: &[Row] = &[
     (Model::Wmm2010, 2010.0, 0.0, 80.0, 0.0, [6649.5, -714.6, 54346.2]),
     (Model::Wmm2010, 2010.0, 0.0, 0.0, 120.0, [39428.8, 664.9, -11683.8]),
@@ -87,10 +88,37 @@ const OFFICIAL: &[Row] = &[
         240.0,
         [5815.0, 14803.0, -49755.3],
     ),
+    (Model::Wmm2025, 2025.0, 0.0, 80.0, 0.0, [6521.6, 145.9, 54791.5]),
+    (Model::Wmm2025, 2025.0, 0.0, 0.0, 120.0, [39677.8, -109.6, -10580.2]),
+    (Model::Wmm2025, 2025.0, 0.0, -80.0, 240.0, [6117.5, 15751.9, -52022.5]),
+    (Model::Wmm2025, 2025.0, 100000.0, 80.0, 0.0, [6216.0, 92.4, 52598.8]),
+    (Model::Wmm2025, 2025.0, 100000.0, 0.0, 120.0, [37688.6, -96.2, -10152.1]),
+    (
+        Model::Wmm2025,
+        2025.0,
+        100000.0,
+        -80.0,
+        240.0,
+        [5907.6, 14780.3, -49540.7],
+    ),
+    (Model::Wmm2025, 2027.5, 0.0, 80.0, 0.0, [6500.8, 294.5, 54869.4]),
+    (Model::Wmm2025, 2027.5, 0.0, 0.0, 120.0, [39701.6, -167.4, -10381.8]),
+    (Model::Wmm2025, 2027.5, 0.0, -80.0, 240.0, [6200.7, 15730.3, -51783.7]),
+    (Model::Wmm2025, 2027.5, 100000.0, 80.0, 0.0, [6196.7, 233.8, 52670.5]),
+    (Model::Wmm2025, 2027.5, 100000.0, 0.0, 120.0, [37711.5, -148.7, -9969.8]),
+    (
+        Model::Wmm2025,
+        2027.5,
+        100000.0,
+        -80.0,
+        240.0,
+        [5984.0, 14760.1, -49317.7],
+    ),
 ];
 
-/// An independent implementation, pygeomag 1.1.0 (PyPI), for the releases whose official tables
-/// are not at hand here (WMM2025, WMM2015v2), printed to 1e-4 nT.
+/// An independent implementation, pygeomag 1.1.0 (PyPI), printed to 1e-4 nT: for WMM2015v2, whose
+/// official table is not at hand here, and for sites and heights of WMM2025 that its official
+/// table does not have.
 const PYGEOMAG: &[Row] = &[
     (
         Model::Wmm2025,
@@ -174,6 +202,70 @@ const PYGEOMAG: &[Row] = &[
     ),
 ];
 
+type AngleRow = (Model, f64, f64, f64, f64, [f64; 2]);
+
+/// Declination D and inclination I (degrees, to the 0.01 printed) from NOAA's official tables:
+/// model, decimal year, height (m), latitude, longitude (degrees), and [D, I].
+/// - WMM2010: WMM2010testvalues.pdf (the points of [`OFFICIAL`]), as copied into the tests of
+///   TSAGeoMag (`TSAGeoMagTest.java`, "Click on the WMM2010testvalues.pdf link").
+/// - WMM2015: WMM2015testvalues.pdf (the points of [`OFFICIAL`]), as the table
+///   `ahrs/utils/WMM2015/WMM2015_test_values.csv` of github.com/Mayitzin/ahrs holds it.
+/// - WMM2020: twelve of the hundred points of WMM2020_TEST_VALUES.txt in NOAA's WMM2020COF.zip
+///   (as `ahrs/utils/WMM2020/WMM2020_TEST_VALUES.txt` of the same repository holds it; heights
+///   there in km), chosen for declinations in every quadrant, near both poles and on the equator.
+/// - WMM2025: WMM2025_TEST_VALUES.txt of WMM2025COF.zip (as
+///   `ahrs/utils/WMM2025/WMM2025_TEST_VALUES.txt` holds it), every row.
+const OFFICIAL_ANGLES: &[AngleRow] = &[
+    (Model::Wmm2010, 2010.0, 0.0, 80.0, 0.0, [-6.13, 82.98]),
+    (Model::Wmm2010, 2010.0, 0.0, 0.0, 120.0, [0.97, -16.50]),
+    (Model::Wmm2010, 2010.0, 0.0, -80.0, 240.0, [70.21, -72.62]),
+    (Model::Wmm2010, 2010.0, 100000.0, 80.0, 0.0, [-6.57, 83.04]),
+    (Model::Wmm2010, 2010.0, 100000.0, 0.0, 120.0, [0.94, -16.62]),
+    (Model::Wmm2010, 2010.0, 100000.0, -80.0, 240.0, [69.62, -72.79]),
+    (Model::Wmm2010, 2012.5, 0.0, 80.0, 0.0, [-5.21, 83.00]),
+    (Model::Wmm2010, 2012.5, 0.0, 0.0, 120.0, [0.88, -16.31]),
+    (Model::Wmm2010, 2012.5, 0.0, -80.0, 240.0, [70.04, -72.53]),
+    (Model::Wmm2010, 2012.5, 100000.0, 80.0, 0.0, [-5.63, 83.05]),
+    (Model::Wmm2010, 2012.5, 100000.0, 0.0, 120.0, [0.86, -16.43]),
+    (Model::Wmm2010, 2012.5, 100000.0, -80.0, 240.0, [69.45, -72.70]),
+    (Model::Wmm2015, 2015.0, 0.0, 80.0, 0.0, [-3.85, 83.04]),
+    (Model::Wmm2015, 2015.0, 0.0, 0.0, 120.0, [0.57, -15.89]),
+    (Model::Wmm2015, 2015.0, 0.0, -80.0, 240.0, [69.81, -72.39]),
+    (Model::Wmm2015, 2015.0, 100000.0, 80.0, 0.0, [-4.27, 83.09]),
+    (Model::Wmm2015, 2015.0, 100000.0, 0.0, 120.0, [0.56, -16.01]),
+    (Model::Wmm2015, 2015.0, 100000.0, -80.0, 240.0, [69.22, -72.57]),
+    (Model::Wmm2015, 2017.5, 0.0, 80.0, 0.0, [-2.75, 83.08]),
+    (Model::Wmm2015, 2017.5, 0.0, 0.0, 120.0, [0.32, -15.57]),
+    (Model::Wmm2015, 2017.5, 0.0, -80.0, 240.0, [69.58, -72.28]),
+    (Model::Wmm2015, 2017.5, 100000.0, 80.0, 0.0, [-3.17, 83.13]),
+    (Model::Wmm2015, 2017.5, 100000.0, 0.0, 120.0, [0.32, -15.70]),
+    (Model::Wmm2015, 2017.5, 100000.0, -80.0, 240.0, [69.00, -72.45]),
+    (Model::Wmm2020, 2020.0, 28000.0, 89.0, -121.0, [-112.41, 88.46]),
+    (Model::Wmm2020, 2020.0, 48000.0, 80.0, -96.0, [-37.40, 88.03]),
+    (Model::Wmm2020, 2020.0, 54000.0, 82.0, 87.0, [51.30, 87.48]),
+    (Model::Wmm2020, 2020.0, 65000.0, 43.0, 93.0, [0.71, 63.87]),
+    (Model::Wmm2020, 2020.0, 51000.0, -33.0, 109.0, [-5.78, -67.64]),
+    (Model::Wmm2020, 2020.5, 50000.0, -70.0, -133.0, [57.40, -72.18]),
+    (Model::Wmm2020, 2021.0, 82000.0, -64.0, 87.0, [-80.81, -75.25]),
+    (Model::Wmm2020, 2021.5, 12000.0, -79.0, 115.0, [-136.34, -77.43]),
+    (Model::Wmm2020, 2022.5, 73000.0, -72.0, 95.0, [-101.49, -76.44]),
+    (Model::Wmm2020, 2023.0, 75000.0, 79.0, 125.0, [-14.54, 87.30]),
+    (Model::Wmm2020, 2024.0, 50000.0, 87.0, -154.0, [-82.22, 89.39]),
+    (Model::Wmm2020, 2024.5, 18000.0, 9.0, -172.0, [9.39, 15.78]),
+    (Model::Wmm2025, 2025.0, 0.0, 80.0, 0.0, [1.28, 83.21]),
+    (Model::Wmm2025, 2025.0, 0.0, 0.0, 120.0, [-0.16, -14.93]),
+    (Model::Wmm2025, 2025.0, 0.0, -80.0, 240.0, [68.78, -72.00]),
+    (Model::Wmm2025, 2025.0, 100000.0, 80.0, 0.0, [0.85, 83.26]),
+    (Model::Wmm2025, 2025.0, 100000.0, 0.0, 120.0, [-0.15, -15.08]),
+    (Model::Wmm2025, 2025.0, 100000.0, -80.0, 240.0, [68.21, -72.19]),
+    (Model::Wmm2025, 2027.5, 0.0, 80.0, 0.0, [2.59, 83.24]),
+    (Model::Wmm2025, 2027.5, 0.0, 0.0, 120.0, [-0.24, -14.65]),
+    (Model::Wmm2025, 2027.5, 0.0, -80.0, 240.0, [68.49, -71.92]),
+    (Model::Wmm2025, 2027.5, 100000.0, 80.0, 0.0, [2.16, 83.29]),
+    (Model::Wmm2025, 2027.5, 100000.0, 0.0, 120.0, [-0.23, -14.81]),
+    (Model::Wmm2025, 2027.5, 100000.0, -80.0, 240.0, [67.93, -72.10]),
+];
+
 fn site(row: &Row) -> Site {
     Site {
         year: row.1,
@@ -195,6 +287,34 @@ fn official_test_values_to_the_printed_precision() {
                 got[i]
             );
         }
+    }
+}
+
+#[test]
+fn official_declination_and_inclination_to_the_printed_precision() {
+    for &(model, year, alt_m, lat_deg, lon_deg, [d, i]) in OFFICIAL_ANGLES {
+        let at = Site {
+            lat_deg,
+            lon_deg,
+            alt_m,
+            year,
+        };
+        let (got_d, got_i) = declination_inclination_deg(model, &at).unwrap();
+        let got_d = got_d.unwrap();
+        // Printed to 0.01 degree: a correct value rounds to it (the 1e-6 allows for the last
+        // digits of two evaluations of the same model at a value that ends in 5).
+        assert!(
+            (got_d - d).abs() <= 0.005 + 1e-6,
+            "{model:?} {year} {alt_m} m {lat_deg} {lon_deg}: D = {got_d}, printed {d}"
+        );
+        assert!(
+            (got_i - i).abs() <= 0.005 + 1e-6,
+            "{model:?} {year} {alt_m} m {lat_deg} {lon_deg}: I = {got_i}, printed {i}"
+        );
+        // The reference field built from the same site gives the same angles.
+        let f = reference_field(model, &at).unwrap();
+        assert!((f.declination_deg().unwrap() - got_d).abs() <= 1e-12);
+        assert!((f.inclination_deg() - got_i).abs() <= 1e-12);
     }
 }
 

@@ -265,7 +265,12 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
     let base_metrics: Vec<DesignMetricsRow> = read_csv(&file("design_metrics.csv")?)?;
     let now_metrics: Vec<DesignMetricsRow> = output::design_metrics_rows(out).collect();
     let base_points = group_points(read_csv::<DesignPointRow>(&file("designs.csv")?)?);
-    let now_points = group_points(output::design_rows(out, manifest.yaw_offset_deg).collect());
+    // Only the attitudes are compared: the headings follow from them.
+    let headings = output::Headings {
+        yaw_offset_deg: manifest.yaw_offset_deg,
+        declination_deg: None,
+    };
+    let now_points = group_points(output::design_rows(out, headings).collect());
     let by = |rows: &[DesignMetricsRow]| -> BTreeMap<String, DesignMetricsRow> {
         rows.iter()
             .map(|r| (format!("design_metrics.csv {}", r.design), r.clone()))

@@ -220,20 +220,30 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             _ => rows.push((*a, 1, *d)),
         }
     }
+    // The headings a pilot reads: true, and magnetic from the declination of the vehicle's field.
+    let headings = crate::output::Headings::of(&field);
     writeln!(
         w,
-        "  {:>4} {:>9} {:>9} {:>11} {:>8} {:>12}",
-        "k", "roll_deg", "pitch_deg", "heading_deg", "readings", "variance d"
+        "  {}",
+        crate::output::print::declination_line(headings.declination_deg, &vehicle.field_source)
+    )?;
+    writeln!(
+        w,
+        "  {:>4} {:>9} {:>9} {:>9} {:>9} {:>8} {:>12}",
+        "k", "roll_deg", "pitch_deg", "true_hdg", "mag_hdg", "readings", "variance d"
     )?;
     for (k, (a, n, d)) in rows.iter().enumerate() {
         let [roll, _, pitch] = a.to_degrees();
         writeln!(
             w,
-            "  {:>4} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>12.4}",
+            "  {:>4} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>8} {:>12.4}",
             k + 1,
             roll,
             pitch,
-            a.heading_deg(field.yaw_offset_deg()),
+            headings.true_heading(a).0,
+            headings
+                .magnetic_heading(a)
+                .map_or("-".to_string(), |h| format!("{:.2}", h.0)),
             n,
             d
         )?;

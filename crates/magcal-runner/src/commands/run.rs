@@ -72,7 +72,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     if !common.quiet {
         to_stdout(|w| {
             if designs_only {
-                print::flight_plans(w, &run, scenario.field.yaw_offset_deg())?;
+                print::flight_plans(w, &run, output::Headings::of(&scenario.field), &scenario.field_source)?;
             }
             print::summary(w, &run, &dir)?;
             print::recommendation(w, &run, advice.as_ref())?;
@@ -106,7 +106,7 @@ fn write_set(
     };
     put(
         "designs.csv",
-        output::csv_bytes(output::design_rows(out, scenario.field.yaw_offset_deg()))?,
+        output::csv_bytes(output::design_rows(out, output::Headings::of(&scenario.field)))?,
     )?;
     put(
         "design_metrics.csv",
@@ -114,7 +114,7 @@ fn write_set(
     )?;
     put(
         "approximate.csv",
-        output::csv_bytes(output::approximate_rows(out, scenario.field.yaw_offset_deg()))?,
+        output::csv_bytes(output::approximate_rows(out, output::Headings::of(&scenario.field)))?,
     )?;
     put(
         "certificate.csv",

@@ -113,6 +113,23 @@ pub fn parse_model(name: &str) -> Result<magcal_core::wmm::Model, String> {
     })
 }
 
+/// Where a WMM field comes from, for a person: `WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.42`
+/// (latitude and longitude to 0.01 degree with their hemisphere, the longitude taken into
+/// (-180, 180]; height in metres; decimal year to 0.01).
+pub fn wmm_place(model: magcal_core::wmm::Model, at: &magcal_core::wmm::Site) -> String {
+    let lon = -(-at.lon_deg + 180.0).rem_euclid(360.0) + 180.0;
+    format!(
+        "{} at {:.2} {}, {:.2} {}, {} m, {:.2}",
+        model.name(),
+        at.lat_deg.abs(),
+        if at.lat_deg < 0.0 { 'S' } else { 'N' },
+        lon.abs(),
+        if lon < 0.0 { 'W' } else { 'E' },
+        show(at.alt_m),
+        at.year
+    )
+}
+
 /// The WMM magnitude at `site` on `date` in `units`, and its source in words.
 ///
 /// # Errors
@@ -132,8 +149,36 @@ pub fn wmm_magnitude(
 /// window holds the date, and its source in words.
 ///
 /// # Errors
-/// A date that no model (or not the model asked for) holds.
+/// As [`wmm_pick`].
 pub fn wmm_field(site: &Site, date: Date, model: Option<magcal_core::wmm::Model>) -> Result<([f64; 3], String)> {
+    let (v, m, at) = wmm_pick(site, date, model)?;
+    Ok((v, wmm_label(v, m, &at)))
+}
+
+/// A WMM field `ned` (nT) of `model` at `at` in words, as the log commands name their source:
+/// `WMM2025 at 63.43, 10.4, 0 m, 2026.420: 51234.5 nT`.
+pub fn wmm_label(ned: [f64; 3], model: magcal_core::wmm::Model, at: &magcal_core::wmm::Site) -> String {
+    let nt = (ned[0] * ned[0] + ned[1] * ned[1] + ned[2] * ned[2]).sqrt();
+    format!(
+        "{} at {}, {}, {} m, {:.3}: {nt:.1} nT",
+        model.name(),
+        at.lat_deg,
+        at.lon_deg,
+        at.alt_m,
+        at.year
+    )
+}
+
+/// The WMM field (North, East, Down, nT) at `site` on `date`, by `model` or the newest whose
+/// window holds the date; with the model used and the site and date as the model took them.
+///
+/// # Errors
+/// A date that no model (or not the model asked for) holds.
+pub fn wmm_pick(
+    site: &Site,
+    date: Date,
+    model: Option<magcal_core::wmm::Model>,
+) -> Result<([f64; 3], magcal_core::wmm::Model, magcal_core::wmm::Site)> {
     use magcal_core::wmm;
     let (lat, lon, alt, year) = (site.lat_deg, site.lon_deg, site.alt_m, date.year);
     let at = wmm::Site {
@@ -149,13 +194,7 @@ pub fn wmm_field(site: &Site, date: Date, model: Option<magcal_core::wmm::Model>
     let mut last = None;
     for m in candidates {
         match wmm::field_ned(m, &at) {
-            Ok(v) => {
-                let nt = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                return Ok((
-                    v,
-                    format!("{} at {lat}, {lon}, {alt} m, {year:.3}: {nt:.1} nT", m.name()),
-                ));
-            }
+            Ok(v) => return Ok((v, m, at)),
             Err(e) => last = Some(e),
         }
     }
@@ -194,5 +233,41 @@ mod tests {
         assert!("2013-02-30".parse::<Date>().unwrap_err().contains("not a date"));
         assert_eq!(parse_model("WMM2010"), Ok(magcal_core::wmm::Model::Wmm2010));
         assert!(parse_model("WMM1999").unwrap_err().contains("unknown model"));
+    }
+
+    #[test]
+    fn places_name_their_hemispheres_and_a_longitude_in_the_half_open_circle() {
+        use magcal_core::wmm::{Model, Site};
+        let at = |lat_deg, lon_deg, alt_m, year| Site {
+            lat_deg,
+            lon_deg,
+            alt_m,
+            year,
+        };
+        for (site, want) in [
+            (
+                at(-33.92, 18.42, 0.0, 2026.0),
+                "WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.00",
+            ),
+            (
+                at(63.43, 10.4, 50.0, 2026.5),
+                "WMM2025 at 63.43 N, 10.40 E, 50 m, 2026.50",
+            ),
+            (
+                at(-80.0, 240.0, 100000.0, 2027.5),
+                "WMM2025 at 80.00 S, 120.00 W, 100000 m, 2027.50",
+            ),
+            (
+                at(0.0, -180.0, 0.0, 2025.0),
+                "WMM2025 at 0.00 N, 180.00 E, 0 m, 2025.00",
+            ),
+            (
+                at(45.0, -70.0, -500.0, 2025.0),
+                "WMM2025 at 45.00 N, 70.00 W, -500 m, 2025.00",
+            ),
+            (at(10.0, 360.0, 0.0, 2025.0), "WMM2025 at 10.00 N, 0.00 E, 0 m, 2025.00"),
+        ] {
+            assert_eq!(wmm_place(Model::Wmm2025, &site), want);
+        }
     }
 }

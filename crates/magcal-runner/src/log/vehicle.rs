@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::calibration::CalibrationJson;
-use super::site::{Date, Site, wmm_field};
+use super::site::{Date, Site, wmm_label, wmm_pick, wmm_place};
 
 /// `--roll`, `--pitch`, `--yaw MIN,MAX`: an attitude range in degrees, under the rules the
 /// scenario's `[attitude_box]` follows ([`crate::scenario::check_range`]).
@@ -67,6 +67,8 @@ impl BoxFlags {
 /// certificate's search and a seed; from a scenario file or from flags.
 pub struct Vehicle {
     pub field: magcal_core::ReferenceField,
+    /// Where the field comes from, in words (the scenario's `[field]`, or the WMM at the site).
+    pub field_source: String,
     pub bounds: magcal_core::AttitudeBox,
     pub certificate: magcal_core::design::approximate::Approximate,
     pub seed: u64,
@@ -90,6 +92,7 @@ impl Vehicle {
         let s = crate::scenario::load(path)?;
         Ok(Self {
             field: s.field,
+            field_source: format!("{}, from {}", s.field_source, path.display()),
             bounds: s.bounds,
             certificate: s.certificate,
             seed: s.seed,
@@ -121,10 +124,12 @@ impl Vehicle {
         let (roll, pitch) = (roll.0, pitch.0);
         let yaw = yaw.map_or([-180.0, 180.0], |y| y.0);
         let bounds = magcal_core::AttitudeBox::from_degrees(roll, yaw, pitch).context("the attitude box")?;
-        let (ned, source) = wmm_field(&place.site, place.date, place.model)?;
+        let (ned, model, at) = wmm_pick(&place.site, place.date, place.model)?;
+        let source = wmm_label(ned, model, &at);
         let field = magcal_core::ReferenceField::from_ned(ned[0], ned[1], ned[2]).context("the WMM field")?;
         Ok(Self {
             field,
+            field_source: wmm_place(model, &at),
             bounds,
             certificate: Default::default(),
             seed: 0,

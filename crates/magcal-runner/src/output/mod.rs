@@ -249,9 +249,10 @@ impl TrialRow {
     }
 }
 
-/// `designs.csv`: one row per attitude, degrees (to 1e-9 degree); the compass heading of the
-/// nose, `-(yaw + yaw_offset_deg)` mod 360 (docs/conventions.md "Sense of the angles"); and the
-/// attitude as the unit quaternion `(qw, qx, qy, qz)` (Hamilton, `qw >= 0`) of `C_b^n`, the
+/// `designs.csv`: one row per attitude, degrees (to 1e-9 degree); the true heading of the nose,
+/// `-(yaw + yaw_offset_deg)` mod 360, and its magnetic heading, the true heading minus the
+/// field's declination mod 360, what a compass reads (docs/conventions.md "Sense of the angles");
+/// and the attitude as the unit quaternion `(qw, qx, qy, qz)` (Hamilton, `qw >= 0`) of `C_b^n`, the
 /// rotation from the body frame (nose, up, right) to North-Up-East, yaw offset included.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct DesignPointRow {
@@ -264,7 +265,10 @@ pub struct DesignPointRow {
     pub roll_deg: Real,
     pub yaw_deg: Real,
     pub pitch_deg: Real,
-    pub heading_deg: Real,
+    /// Degrees clockwise from true north.
+    pub true_heading_deg: Real,
+    /// Degrees clockwise from magnetic north; empty when the field has no horizontal component.
+    pub magnetic_heading_deg: Option<Real>,
     pub qw: Real,
     pub qx: Real,
     pub qy: Real,
@@ -330,7 +334,10 @@ pub struct ApproximatePointRow {
     pub roll_deg: Real,
     pub yaw_deg: Real,
     pub pitch_deg: Real,
-    pub heading_deg: Real,
+    /// As in `designs.csv`.
+    pub true_heading_deg: Real,
+    /// As in `designs.csv`.
+    pub magnetic_heading_deg: Option<Real>,
     pub weight: Real,
 }
 
@@ -420,6 +427,10 @@ pub fn parse_csv<T: DeserializeOwned>(bytes: &[u8], what: &str) -> Result<Vec<T>
                         format!("{name} = {value:?}: ")
                     });
                     let message = match err.kind() {
+                        // With a header, a missing field is a column the header does not have.
+                        csv::DeserializeErrorKind::Message(m) if m.starts_with("missing field") => {
+                            format!("{m}: the header has no such column (a file of another magcal version?)")
+                        }
                         csv::DeserializeErrorKind::Message(m) => m.clone(),
                         csv::DeserializeErrorKind::ParseFloat(_) => "not a number".into(),
                         other => other.to_string(),
@@ -541,8 +552,46 @@ pub fn trial_rows(out: &RunOutput) -> impl Iterator<Item = TrialRow> + '_ {
     })
 }
 
+/// What turns a yaw into the headings a pilot reads: the field's yaw offset and declination.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Headings {
+    /// Degrees added to every yaw (docs/conventions.md "Reference field").
+    pub yaw_offset_deg: f64,
+    /// Degrees east of true north; `None` for a field without a horizontal component (or where
+    /// the headings are not wanted), which leaves the magnetic heading empty.
+    pub declination_deg: Option<f64>,
+}
+
+impl Headings {
+    /// The headings in `field`.
+    pub fn of(field: &magcal_core::ReferenceField) -> Self {
+        Self {
+            yaw_offset_deg: field.yaw_offset_deg(),
+            declination_deg: field.declination_deg(),
+        }
+    }
+
+    /// The true heading of `a`, degrees, as written (to 1e-9 degree, in [0, 360)).
+    pub fn true_heading(&self, a: &magcal_core::Attitude) -> Real {
+        heading(a.true_heading_deg(self.yaw_offset_deg))
+    }
+
+    /// The magnetic heading of `a`, degrees, as written; `None` without a declination.
+    pub fn magnetic_heading(&self, a: &magcal_core::Attitude) -> Option<Real> {
+        self.declination_deg
+            .map(|d| heading(a.magnetic_heading_deg(self.yaw_offset_deg, d)))
+    }
+}
+
+/// A heading in [0, 360) to 1e-9 degree: one that rounds up to 360 is 0.
+fn heading(x: f64) -> Real {
+    let r = degrees(x);
+    if r.0 >= 360.0 { Real(0.0) } else { r }
+}
+
 /// The rows of `designs.csv`, design by design in visiting order.
-pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item = DesignPointRow> + '_ {
+pub fn design_rows(out: &RunOutput, headings: Headings) -> impl Iterator<Item = DesignPointRow> + '_ {
+    let yaw_offset_deg = headings.yaw_offset_deg;
     out.designs.iter().flat_map(move |d| {
         d.order.iter().enumerate().map(move |(v, &i)| {
             let a = &d.attitudes[i];
@@ -556,7 +605,8 @@ pub fn design_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item =
                 roll_deg: degrees(r),
                 yaw_deg: degrees(y),
                 pitch_deg: degrees(p),
-                heading_deg: degrees(a.heading_deg(yaw_offset_deg)),
+                true_heading_deg: headings.true_heading(a),
+                magnetic_heading_deg: headings.magnetic_heading(a),
                 qw: Real(qw),
                 qx: Real(qx),
                 qy: Real(qy),
@@ -693,7 +743,7 @@ pub fn advice_rows<'a>(
 }
 
 /// The rows of `approximate.csv` (none without a certificate).
-pub fn approximate_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<Item = ApproximatePointRow> + '_ {
+pub fn approximate_rows(out: &RunOutput, headings: Headings) -> impl Iterator<Item = ApproximatePointRow> + '_ {
     out.approximate.iter().flat_map(move |a| {
         a.support.iter().zip(&a.weights).enumerate().map(move |(i, (at, w))| {
             let [r, y, p] = at.to_degrees();
@@ -702,7 +752,8 @@ pub fn approximate_rows(out: &RunOutput, yaw_offset_deg: f64) -> impl Iterator<I
                 roll_deg: degrees(r),
                 yaw_deg: degrees(y),
                 pitch_deg: degrees(p),
-                heading_deg: degrees(at.heading_deg(yaw_offset_deg)),
+                true_heading_deg: headings.true_heading(at),
+                magnetic_heading_deg: headings.magnetic_heading(at),
                 weight: Real(*w),
             }
         })
@@ -744,6 +795,43 @@ pub fn pso_run_rows(out: &RunOutput) -> impl Iterator<Item = PsoRunRow> + '_ {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn headings_are_named_wrapped_and_empty_without_a_declination() {
+        use magcal_core::Attitude;
+        let h = Headings {
+            yaw_offset_deg: 90.0,
+            declination_deg: Some(-26.5),
+        };
+        // yaw 0 with offset 90: true heading 270, magnetic 270 + 26.5 - 360.
+        let a = Attitude::from_degrees(0.0, 0.0, 0.0);
+        assert_eq!(h.true_heading(&a), Real(270.0));
+        assert_eq!(h.magnetic_heading(&a), Some(Real(296.5)));
+        let b = Attitude::from_degrees(0.0, -63.5, 0.0);
+        assert_eq!(h.magnetic_heading(&b), Some(Real(0.0)));
+        // Just below 360 rounds to 360 at 1e-9 degree: written as 0.
+        let c = Attitude::from_degrees(0.0, -90.0 + 1e-12, 0.0);
+        assert_eq!(h.true_heading(&c), Real(0.0));
+        let none = Headings {
+            declination_deg: None,
+            ..h
+        };
+        assert_eq!(none.magnetic_heading(&a), None);
+        assert_eq!(
+            header::<DesignPointRow>().unwrap().iter().collect::<Vec<_>>()[5..8],
+            ["pitch_deg", "true_heading_deg", "magnetic_heading_deg"]
+        );
+        // A designs.csv with the one heading column of earlier versions is refused by name.
+        let old = b"design,visit,point,roll_deg,yaw_deg,pitch_deg,heading_deg,qw,qx,qy,qz,readings,turn_deg\n\
+                    u,1,1,0,0,0,0,1,0,0,0,1,\n";
+        let e = parse_csv::<DesignPointRow>(old, "base/designs.csv")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "base/designs.csv: line 2: missing field `true_heading_deg`: the header has no such column (a file of another magcal version?)"
+        );
+    }
 
     #[test]
     fn headers_come_from_the_row_types() {

@@ -15,10 +15,28 @@ fn cell(x: f64) -> String {
 /// Rows of a flight plan shown on the screen per design; the rest are in `designs.csv`.
 const FLIGHT_PLAN_ROWS: usize = 40;
 
-/// Each design as a pilot flies it: the attitudes in visiting order with roll, pitch, the compass
-/// heading of the nose, the readings to log there and the turn from the previous attitude.
-pub fn flight_plans(w: &mut dyn Write, out: &RunOutput, yaw_offset_deg: f64) -> std::io::Result<()> {
-    let rows: Vec<_> = crate::output::design_rows(out, yaw_offset_deg).collect();
+/// The line above a table of headings: the declination used and where it comes from, or why
+/// there is no magnetic heading.
+pub fn declination_line(declination_deg: Option<f64>, source: &str) -> String {
+    match declination_deg {
+        Some(d) => format!("declination {d:+.2} deg ({source}); magnetic heading = true heading - declination"),
+        None => format!(
+            "declination undefined: the field ({source}) has no horizontal component, so a compass has no heading; true headings only"
+        ),
+    }
+}
+
+/// Each design as a pilot flies it: the attitudes in visiting order with roll, pitch, the true
+/// and the magnetic heading of the nose, the readings to log there and the turn from the previous
+/// attitude; under one line naming the declination and its source.
+pub fn flight_plans(
+    w: &mut dyn Write,
+    out: &RunOutput,
+    headings: crate::output::Headings,
+    field_source: &str,
+) -> std::io::Result<()> {
+    let rows: Vec<_> = crate::output::design_rows(out, headings).collect();
+    writeln!(w, "{}", declination_line(headings.declination_deg, field_source))?;
     for d in &out.designs {
         let plan: Vec<_> = rows.iter().filter(|r| r.design == d.name).collect();
         let total: f64 = plan.iter().filter_map(|r| r.turn_deg.map(|t| t.0)).sum();
@@ -32,17 +50,19 @@ pub fn flight_plans(w: &mut dyn Write, out: &RunOutput, yaw_offset_deg: f64) -> 
         )?;
         writeln!(
             w,
-            "  {:>5} {:>9} {:>9} {:>11} {:>8} {:>9}",
-            "visit", "roll_deg", "pitch_deg", "heading_deg", "readings", "turn_deg"
+            "  {:>5} {:>9} {:>9} {:>9} {:>9} {:>8} {:>9}",
+            "visit", "roll_deg", "pitch_deg", "true_hdg", "mag_hdg", "readings", "turn_deg"
         )?;
         for r in plan.iter().take(FLIGHT_PLAN_ROWS) {
             writeln!(
                 w,
-                "  {:>5} {:>9.2} {:>9.2} {:>11.2} {:>8} {:>9}",
+                "  {:>5} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>8} {:>9}",
                 r.visit,
                 r.roll_deg.0,
                 r.pitch_deg.0,
-                r.heading_deg.0,
+                r.true_heading_deg.0,
+                r.magnetic_heading_deg
+                    .map_or("-".to_string(), |h| format!("{:.2}", h.0)),
                 r.readings,
                 r.turn_deg.map_or("-".to_string(), |t| format!("{:.1}", t.0))
             )?;
