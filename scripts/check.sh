@@ -5,9 +5,14 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --locked -p magcal-runner
 status=0
-for scenario in "${@:-smoke wu2014 wu2014-yaw90 noise-sweep ship ground-vehicle drone criteria plan300 execution-error}"; do
+for scenario in "${@:-smoke wu2014 wu2014-yaw90 noise-sweep ship ground-vehicle drone usv usv-paper criteria plan300 execution-error}"; do
   for s in $scenario; do
-    ./target/release/magcal check "scenarios/$s.toml" --quiet || status=$?
+    if ./target/release/magcal check "scenarios/$s.toml" --quiet; then
+      echo "ok      $s: every file of results/$s within its tolerance"
+    else
+      status=$?
+      echo "MOVED   $s (exit $status)"
+    fi
   done
 done
 exit $status
