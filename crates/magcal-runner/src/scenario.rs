@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use magcal_core::design::approximate::Approximate;
 use magcal_core::design::optimum::Optimum;
+use magcal_core::design::plan::PlanLimits;
 use magcal_core::design::pso::Swarm;
 use magcal_core::{Attitude, AttitudeBox, ErrorModel, ParameterError, ReferenceField, TwoStep, wmm};
 use serde::{Deserialize, Serialize};
@@ -15,6 +16,12 @@ use crate::limits::{self, show};
 
 /// The schema version this build reads.
 pub const SCHEMA: u32 = 1;
+
+/// Default `max_attitudes` of a plan: 12. A crew holds a dozen attitudes, each for `N / 12`
+/// readings; the approximate D-optimum of the \[P1\] AUV box has 12 support points, so its plans
+/// lose nothing, and on boxes with wider supports the dozen best costs little (a box of every
+/// attitude, 37 support points: see the README's "Certified designs"). `"all"` lifts the limit.
+pub const DEFAULT_MAX_ATTITUDES: usize = 12;
 
 /// Default noisy trials per design and noise level (\[P1\] IV.C: one thousand).
 pub const DEFAULT_TRIALS: usize = 1000;
@@ -199,6 +206,9 @@ mod raw {
         Plan {
             name: String,
             readings: usize,
+            #[serde(default, deserialize_with = "max_attitudes")]
+            max_attitudes: Option<MaxAttitudes>,
+            min_readings_per_attitude: Option<usize>,
         },
         Optimum {
             name: String,
@@ -208,6 +218,42 @@ mod raw {
             gradient_tolerance: Option<f64>,
             criterion: Option<Criterion>,
         },
+    }
+
+    /// `max_attitudes = K` (a whole number) or `"all"`.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum MaxAttitudes {
+        /// At most this many.
+        Count(u64),
+        /// No limit.
+        All,
+    }
+
+    fn max_attitudes<'de, D: Deserializer<'de>>(d: D) -> Result<Option<MaxAttitudes>, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = MaxAttitudes;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a whole number of attitudes (at least 9) or \"all\"")
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {
+                Ok(MaxAttitudes::Count(v))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Self::Value, E> {
+                u64::try_from(v)
+                    .map(MaxAttitudes::Count)
+                    .map_err(|_| de::Error::invalid_value(de::Unexpected::Signed(v), &self))
+            }
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<Self::Value, E> {
+                if v == "all" {
+                    Ok(MaxAttitudes::All)
+                } else {
+                    let shown = super::limits::excerpt(v, 40);
+                    Err(de::Error::invalid_value(de::Unexpected::Str(&shown), &self))
+                }
+            }
+        }
+        d.deserialize_any(V).map(Some)
     }
 
     /// `criterion = "d" | "a" | "e"`.
@@ -303,10 +349,15 @@ pub enum DesignSource {
         settings: Optimum,
     },
     /// The run's approximate D-optimal design ([`Scenario::certificate`]) rounded to `readings`
-    /// readings by efficient rounding: several readings per attitude.
+    /// readings by efficient rounding: several readings per attitude; within `limits`, the exact
+    /// design of at most `K` attitudes with at least `R` readings each
+    /// ([`magcal_core::design::plan`]).
     Plan {
         /// Readings in all.
         readings: usize,
+        /// At most `max_attitudes` attitudes (default [`DEFAULT_MAX_ATTITUDES`]), at least
+        /// `min_readings_per_attitude` readings each (default 1).
+        limits: PlanLimits,
     },
 }
 
@@ -341,7 +392,7 @@ impl DesignSource {
             Self::Explicit(list) => list.len(),
             Self::Grid(l) => l.iter().product(),
             Self::Random { m } | Self::Pso { m, .. } | Self::Optimum { m, .. } => *m,
-            Self::Plan { readings } => *readings,
+            Self::Plan { readings, .. } => *readings,
         }
     }
 }
@@ -917,9 +968,50 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
             settings.validate().map_err(|e| keyed(&prefix, &e, "the value given"))?;
             DesignSource::Optimum { m: m_of(m)?, settings }
         }
-        raw::Design::Plan { readings, .. } => DesignSource::Plan {
-            readings: count(&key("readings"), readings, 9, limits::MAX_M)?,
-        },
+        raw::Design::Plan {
+            readings,
+            max_attitudes,
+            min_readings_per_attitude,
+            ..
+        } => {
+            let readings = count(&key("readings"), readings, 9, limits::MAX_M)?;
+            let max_attitudes = match max_attitudes {
+                None => Some(DEFAULT_MAX_ATTITUDES),
+                Some(raw::MaxAttitudes::All) => None,
+                Some(raw::MaxAttitudes::Count(k)) => {
+                    // Beyond MAX_M it cannot bind (a plan has at most `readings` attitudes).
+                    let k = usize::try_from(k).unwrap_or(usize::MAX).min(limits::MAX_M + 1);
+                    if k < 9 {
+                        bail!(
+                            "{} = {k}: must be at least 9 (each attitude gives one equation, whatever its readings, \
+                             and the linear model has 9 unknowns), or \"all\"",
+                            key("max_attitudes")
+                        );
+                    }
+                    Some(k)
+                }
+            };
+            let min_readings = min_readings_per_attitude.unwrap_or(1);
+            if min_readings == 0 {
+                bail!("{} = 0: must be at least 1", key("min_readings_per_attitude"));
+            }
+            if min_readings > readings / 9 {
+                bail!(
+                    "{} = {min_readings}: must be at most {} (readings = {readings} over the 9 attitudes a plan needs \
+                     at least)",
+                    key("min_readings_per_attitude"),
+                    readings / 9
+                );
+            }
+            let limits = PlanLimits {
+                max_attitudes,
+                min_readings,
+            };
+            limits
+                .validate(readings)
+                .map_err(|e| keyed(&prefix, &e, "the value given"))?;
+            DesignSource::Plan { readings, limits }
+        }
     };
     Ok(DesignSpec { name, source })
 }
