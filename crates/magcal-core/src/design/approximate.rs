@@ -888,7 +888,7 @@ fn grid(problem: &DesignProblem, budget: usize) -> Vec<Attitude> {
 }
 
 /// The largest difference of the three angles (yaw and roll periodic).
-fn distance(a: &Attitude, b: &Attitude) -> f64 {
+pub(super) fn distance(a: &Attitude, b: &Attitude) -> f64 {
     let wrap = |d: f64| {
         let d = d.rem_euclid(std::f64::consts::TAU);
         d.min(std::f64::consts::TAU - d)
