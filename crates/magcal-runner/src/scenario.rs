@@ -206,9 +206,10 @@ mod raw {
         Plan {
             name: String,
             readings: usize,
-            #[serde(default, deserialize_with = "max_attitudes")]
-            max_attitudes: Option<MaxAttitudes>,
-            min_readings_per_attitude: Option<usize>,
+            // Read as any TOML value and checked in `design`: a design table is buffered for its
+            // `kind` tag, and serde's errors from inside it name neither the key nor the value.
+            max_attitudes: Option<toml::Value>,
+            min_readings_per_attitude: Option<toml::Value>,
         },
         Optimum {
             name: String,
@@ -218,42 +219,6 @@ mod raw {
             gradient_tolerance: Option<f64>,
             criterion: Option<Criterion>,
         },
-    }
-
-    /// `max_attitudes = K` (a whole number) or `"all"`.
-    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-    pub enum MaxAttitudes {
-        /// At most this many.
-        Count(u64),
-        /// No limit.
-        All,
-    }
-
-    fn max_attitudes<'de, D: Deserializer<'de>>(d: D) -> Result<Option<MaxAttitudes>, D::Error> {
-        struct V;
-        impl<'de> Visitor<'de> for V {
-            type Value = MaxAttitudes;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("a whole number of attitudes (at least 9) or \"all\"")
-            }
-            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Self::Value, E> {
-                Ok(MaxAttitudes::Count(v))
-            }
-            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Self::Value, E> {
-                u64::try_from(v)
-                    .map(MaxAttitudes::Count)
-                    .map_err(|_| de::Error::invalid_value(de::Unexpected::Signed(v), &self))
-            }
-            fn visit_str<E: de::Error>(self, v: &str) -> Result<Self::Value, E> {
-                if v == "all" {
-                    Ok(MaxAttitudes::All)
-                } else {
-                    let shown = super::limits::excerpt(v, 40);
-                    Err(de::Error::invalid_value(de::Unexpected::Str(&shown), &self))
-                }
-            }
-        }
-        d.deserialize_any(V).map(Some)
     }
 
     /// `criterion = "d" | "a" | "e"`.
@@ -794,6 +759,16 @@ pub fn check_range(range: [f64; 2]) -> Result<(), &'static str> {
     Ok(())
 }
 
+/// A whole number given as any TOML value; `what` says what was expected.
+fn whole(key: &str, value: &toml::Value, what: &str) -> Result<i64> {
+    match value {
+        toml::Value::Integer(i) => Ok(*i),
+        toml::Value::Float(x) => bail!("{key} = {}: must be {what}", show(*x)),
+        toml::Value::String(text) => bail!("{key} = {:?}: must be {what}", limits::excerpt(text, 40)),
+        other => bail!("{key}: a {}, must be {what}", other.type_str()),
+    }
+}
+
 fn check_name(key: &str, name: &str) -> Result<()> {
     let shown: String = name.chars().take(80).collect();
     let shown = if shown.len() < name.len() {
@@ -975,34 +950,41 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
             ..
         } => {
             let readings = count(&key("readings"), readings, 9, limits::MAX_M)?;
+            let why_nine =
+                "each attitude gives one equation, whatever its readings, and the linear model has 9 unknowns";
             let max_attitudes = match max_attitudes {
                 None => Some(DEFAULT_MAX_ATTITUDES),
-                Some(raw::MaxAttitudes::All) => None,
-                Some(raw::MaxAttitudes::Count(k)) => {
-                    // Beyond MAX_M it cannot bind (a plan has at most `readings` attitudes).
-                    let k = usize::try_from(k).unwrap_or(usize::MAX).min(limits::MAX_M + 1);
+                Some(toml::Value::String(word)) if word == "all" => None,
+                Some(value) => {
+                    let k = whole(&key("max_attitudes"), &value, "a whole number of attitudes or \"all\"")?;
                     if k < 9 {
                         bail!(
-                            "{} = {k}: must be at least 9 (each attitude gives one equation, whatever its readings, \
-                             and the linear model has 9 unknowns), or \"all\"",
+                            "{} = {k}: must be at least 9 ({why_nine}), or \"all\"",
                             key("max_attitudes")
                         );
                     }
-                    Some(k)
+                    // Beyond MAX_M it cannot bind (a plan has at most `readings` attitudes).
+                    Some(usize::try_from(k).unwrap_or(usize::MAX).min(limits::MAX_M + 1))
                 }
             };
-            let min_readings = min_readings_per_attitude.unwrap_or(1);
-            if min_readings == 0 {
-                bail!("{} = 0: must be at least 1", key("min_readings_per_attitude"));
-            }
-            if min_readings > readings / 9 {
-                bail!(
-                    "{} = {min_readings}: must be at most {} (readings = {readings} over the 9 attitudes a plan needs \
-                     at least)",
-                    key("min_readings_per_attitude"),
-                    readings / 9
-                );
-            }
+            let min_readings = match min_readings_per_attitude {
+                None => 1,
+                Some(value) => {
+                    let r = whole(&key("min_readings_per_attitude"), &value, "a whole number of readings")?;
+                    if r < 1 {
+                        bail!("{} = {r}: must be at least 1", key("min_readings_per_attitude"));
+                    }
+                    if r > (readings / 9) as i64 {
+                        bail!(
+                            "{} = {r}: must be at most {} (readings = {readings} over the 9 attitudes a plan needs \
+                             at least: {why_nine})",
+                            key("min_readings_per_attitude"),
+                            readings / 9
+                        );
+                    }
+                    r as usize
+                }
+            };
             let limits = PlanLimits {
                 max_attitudes,
                 min_readings,
