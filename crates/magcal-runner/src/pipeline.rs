@@ -8,7 +8,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use magcal_core::design::approximate::{ApproximateDesign, efficient_rounding};
+use magcal_core::design::approximate::ApproximateDesign;
+use magcal_core::design::plan::PlanSearch;
 use magcal_core::design::pso::RunSummary;
 use magcal_core::design::tour;
 use magcal_core::design::{DesignProblem, d_efficiency, sources};
@@ -474,7 +475,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                 single(design)
             }
             DesignSource::Optimum { m, settings } => single(settings.optimise(&problem(*m)?, &mut rng)?.design),
-            DesignSource::Plan { readings } => {
+            DesignSource::Plan { readings, limits } => {
                 let Some(a) = &approximate else {
                     anyhow::bail!(
                         "design {:?} (plan): no design in this attitude box identifies the linear model, so there is \
@@ -482,13 +483,10 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                         spec.name
                     );
                 };
-                let counts = efficient_rounding(&a.weights, *readings);
-                a.support
-                    .iter()
-                    .zip(counts)
-                    .filter(|(_, n)| *n > 0)
-                    .map(|(a, n)| (*a, n))
-                    .unzip()
+                let plan = PlanSearch::default()
+                    .plan(&problem(*readings)?, a, *readings, *limits, &mut rng)
+                    .with_context(|| format!("design {:?} (plan)", spec.name))?;
+                (plan.attitudes, plan.readings)
             }
         };
         let every: Vec<Attitude> = attitudes

@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use magcal_core::calibration::step2::Residual;
 use magcal_core::design::approximate::Approximate;
 use magcal_core::design::optimum::Optimum;
+use magcal_core::design::plan::PlanLimits;
 use magcal_core::design::pso::Swarm;
 use magcal_core::{Attitude, AttitudeBox, ErrorModel, ParameterError, ReferenceField, TwoStep, wmm};
 use serde::{Deserialize, Serialize};
@@ -22,6 +23,12 @@ pub const SCHEMA: u32 = 1;
 pub const DEFAULT_CHECK_TRIALS: usize = 200;
 /// Fewest trials of a verdict: with fewer, one trial is more than 5 % of them.
 pub const MIN_CHECK_TRIALS: usize = 20;
+
+/// Default `max_attitudes` of a plan: 12. A crew holds a dozen attitudes, each for `N / 12`
+/// readings; the approximate D-optimum of the \[P1\] AUV box has 12 support points, so its plans
+/// lose nothing, and on boxes with wider supports the dozen best costs little (a box of every
+/// attitude, 37 support points: see the README's "Certified designs"). `"all"` lifts the limit.
+pub const DEFAULT_MAX_ATTITUDES: usize = 12;
 
 /// Default noisy trials per design and noise level (\[P1\] IV.C: one thousand).
 pub const DEFAULT_TRIALS: usize = 1000;
@@ -215,6 +222,10 @@ mod raw {
         Plan {
             name: String,
             readings: usize,
+            // Read as any TOML value and checked in `design`: a design table is buffered for its
+            // `kind` tag, and serde's errors from inside it name neither the key nor the value.
+            max_attitudes: Option<toml::Value>,
+            min_readings_per_attitude: Option<toml::Value>,
         },
         Optimum {
             name: String,
@@ -319,10 +330,15 @@ pub enum DesignSource {
         settings: Optimum,
     },
     /// The run's approximate D-optimal design ([`Scenario::certificate`]) rounded to `readings`
-    /// readings by efficient rounding: several readings per attitude.
+    /// readings by efficient rounding: several readings per attitude; within `limits`, the exact
+    /// design of at most `K` attitudes with at least `R` readings each
+    /// ([`magcal_core::design::plan`]).
     Plan {
         /// Readings in all.
         readings: usize,
+        /// At most `max_attitudes` attitudes (default [`DEFAULT_MAX_ATTITUDES`]), at least
+        /// `min_readings_per_attitude` readings each (default 1).
+        limits: PlanLimits,
     },
 }
 
@@ -357,7 +373,7 @@ impl DesignSource {
             Self::Explicit(list) => list.len(),
             Self::Grid(l) => l.iter().product(),
             Self::Random { m } | Self::Pso { m, .. } | Self::Optimum { m, .. } => *m,
-            Self::Plan { readings } => *readings,
+            Self::Plan { readings, .. } => *readings,
         }
     }
 }
@@ -785,6 +801,16 @@ pub fn check_range(range: [f64; 2]) -> Result<(), &'static str> {
     Ok(())
 }
 
+/// A whole number given as any TOML value; `what` says what was expected.
+fn whole(key: &str, value: &toml::Value, what: &str) -> Result<i64> {
+    match value {
+        toml::Value::Integer(i) => Ok(*i),
+        toml::Value::Float(x) => bail!("{key} = {}: must be {what}", show(*x)),
+        toml::Value::String(text) => bail!("{key} = {:?}: must be {what}", limits::excerpt(text, 40)),
+        other => bail!("{key}: a {}, must be {what}", other.type_str()),
+    }
+}
+
 fn check_name(key: &str, name: &str) -> Result<()> {
     let shown: String = name.chars().take(80).collect();
     let shown = if shown.len() < name.len() {
@@ -959,9 +985,57 @@ fn design(i: usize, d: raw::Design, raw_box: &raw::AttitudeBox) -> Result<Design
             settings.validate().map_err(|e| keyed(&prefix, &e, "the value given"))?;
             DesignSource::Optimum { m: m_of(m)?, settings }
         }
-        raw::Design::Plan { readings, .. } => DesignSource::Plan {
-            readings: count(&key("readings"), readings, 9, limits::MAX_M)?,
-        },
+        raw::Design::Plan {
+            readings,
+            max_attitudes,
+            min_readings_per_attitude,
+            ..
+        } => {
+            let readings = count(&key("readings"), readings, 9, limits::MAX_M)?;
+            let why_nine =
+                "each attitude gives one equation, whatever its readings, and the linear model has 9 unknowns";
+            let max_attitudes = match max_attitudes {
+                None => Some(DEFAULT_MAX_ATTITUDES),
+                Some(toml::Value::String(word)) if word == "all" => None,
+                Some(value) => {
+                    let k = whole(&key("max_attitudes"), &value, "a whole number of attitudes or \"all\"")?;
+                    if k < 9 {
+                        bail!(
+                            "{} = {k}: must be at least 9 ({why_nine}), or \"all\"",
+                            key("max_attitudes")
+                        );
+                    }
+                    // Beyond MAX_M it cannot bind (a plan has at most `readings` attitudes).
+                    Some(usize::try_from(k).unwrap_or(usize::MAX).min(limits::MAX_M + 1))
+                }
+            };
+            let min_readings = match min_readings_per_attitude {
+                None => 1,
+                Some(value) => {
+                    let r = whole(&key("min_readings_per_attitude"), &value, "a whole number of readings")?;
+                    if r < 1 {
+                        bail!("{} = {r}: must be at least 1", key("min_readings_per_attitude"));
+                    }
+                    if r > (readings / 9) as i64 {
+                        bail!(
+                            "{} = {r}: must be at most {} (readings = {readings} over the 9 attitudes a plan needs \
+                             at least: {why_nine})",
+                            key("min_readings_per_attitude"),
+                            readings / 9
+                        );
+                    }
+                    r as usize
+                }
+            };
+            let limits = PlanLimits {
+                max_attitudes,
+                min_readings,
+            };
+            limits
+                .validate(readings)
+                .map_err(|e| keyed(&prefix, &e, "the value given"))?;
+            DesignSource::Plan { readings, limits }
+        }
     };
     Ok(DesignSpec { name, source })
 }

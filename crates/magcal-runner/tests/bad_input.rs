@@ -374,6 +374,72 @@ fn scenario_cases() -> Vec<Case> {
             &["design[0] (\"p\").readings = 1000000000", "at most 100000"],
         ),
         case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitudes = 0\n"),
+            &["design[0] (\"p\").max_attitudes = 0", "at least 9", "\"all\""],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitudes = 8\n"),
+            &["design[0] (\"p\").max_attitudes = 8", "at least 9", "9 unknowns"],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitudes = -12\n"),
+            &["design[0] (\"p\").max_attitudes = -12", "at least 9"],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitudes = 12.5\n"),
+            &[
+                "design[0] (\"p\").max_attitudes = 12.5",
+                "a whole number of attitudes or \"all\"",
+            ],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitudes = \"many\"\n"),
+            &[
+                "design[0] (\"p\").max_attitudes = \"many\"",
+                "a whole number of attitudes",
+            ],
+        ),
+        case(
+            with_designs(&format!(
+                "[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitudes = \"{}\"\n",
+                "x".repeat(5000)
+            )),
+            &[
+                "design[0] (\"p\").max_attitudes = \"xxx",
+                "xxx...\":",
+                "a whole number of attitudes",
+            ],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmin_readings_per_attitude = 0\n"),
+            &["design[0] (\"p\").min_readings_per_attitude = 0", "at least 1"],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmin_readings_per_attitude = 34\n"),
+            &[
+                "design[0] (\"p\").min_readings_per_attitude = 34",
+                "at most 33",
+                "readings = 300",
+            ],
+        ),
+        case(
+            with_designs(
+                "[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmin_readings_per_attitude = 2.5\n",
+            ),
+            &[
+                "design[0] (\"p\").min_readings_per_attitude = 2.5",
+                "a whole number of readings",
+            ],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmin_readings_per_attitude = -1\n"),
+            &["design[0] (\"p\").min_readings_per_attitude = -1", "at least 1"],
+        ),
+        case(
+            with_designs("[[design]]\nname = \"p\"\nkind = \"plan\"\nreadings = 300\nmax_attitude = 12\n"),
+            &["unknown field `max_attitude`"],
+        ),
+        case(
             with_designs("[[design]]\nname = \"r\"\nkind = \"random\"\nm = 1000000000\n"),
             &["design[0] (\"r\").m = 1000000000", "at most 100000"],
         ),

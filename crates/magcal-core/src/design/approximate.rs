@@ -47,8 +47,8 @@ use crate::error::ParameterError;
 use crate::linear_model::{UNKNOWNS, regression_row};
 use crate::small::{Mat9, spd_inverse};
 
-const P: usize = UNKNOWNS;
-type Row = [f64; P];
+pub(super) const P: usize = UNKNOWNS;
+pub(super) type Row = [f64; P];
 
 /// Settings of the approximate design and its certificate.
 #[derive(Debug, Clone, PartialEq)]
@@ -510,7 +510,7 @@ fn certificate_is_for(certificate: &Certificate, problem: &DesignProblem, rows: 
 }
 
 /// The local optimiser of the certificate and of the refinement.
-fn certificate_search() -> Optimum {
+pub(super) fn certificate_search() -> Optimum {
     Optimum {
         max_iterations: 200,
         gradient_tolerance: 1e-10,
@@ -525,7 +525,7 @@ const MAX_REFINED: usize = 20 * P;
 /// Support points closer than this (radians, 0.057 degrees: one attitude to any vehicle) are
 /// merged into the heavier one. A point of small weight has a small gradient and stops short of
 /// the heavier point it is converging to (0.007 degrees apart on the AUV box, measured).
-const MERGE_RAD: f64 = 1e-3;
+pub(super) const MERGE_RAD: f64 = 1e-3;
 
 /// Support points closer than this (radians, 0.25 degrees) are one attitude in the design to
 /// fly (see [`Approximate::compute`]).
@@ -537,7 +537,7 @@ const FLY_WEIGHT: f64 = 1e-3;
 
 /// Points with their weights by decreasing weight, each merged into an earlier (heavier) one
 /// within `radius`.
-fn merge(mut points: Vec<(Attitude, f64)>, radius: f64) -> Vec<(Attitude, f64)> {
+pub(super) fn merge(mut points: Vec<(Attitude, f64)>, radius: f64) -> Vec<(Attitude, f64)> {
     points.sort_by(|a, b| b.1.total_cmp(&a.1));
     let mut merged: Vec<(Attitude, f64)> = Vec::with_capacity(points.len());
     for (a, w) in points {
@@ -564,7 +564,13 @@ const NEGLIGIBLE_WEIGHT: f64 = 1e-6;
 /// Refines the support in place: drops negligible weights, moves the support points to a local
 /// maximum of `ln det M(xi)` over the continuous box with the weights held (projected L-BFGS),
 /// and merges points that meet (within [`MERGE_RAD`]), adding their weights.
-fn refine(problem: &DesignProblem, optimum: &Optimum, points: &mut [Attitude], rows: &mut [Row], weights: &mut [f64]) {
+pub(super) fn refine(
+    problem: &DesignProblem,
+    optimum: &Optimum,
+    points: &mut [Attitude],
+    rows: &mut [Row],
+    weights: &mut [f64],
+) {
     for w in weights.iter_mut() {
         if *w < NEGLIGIBLE_WEIGHT {
             *w = 0.0;
@@ -652,7 +658,7 @@ fn weighted_ln_det_and_gradient(problem: &DesignProblem, x: &[f64], weights: &[f
 }
 
 /// The regression row of the R-scaled reading of attitude `a`.
-fn row(problem: &DesignProblem, a: &Attitude) -> Row {
+pub(super) fn row(problem: &DesignProblem, a: &Attitude) -> Row {
     regression_row(problem.scaled_reading(a.roll, a.yaw, a.pitch))
 }
 
@@ -664,7 +670,7 @@ pub(crate) fn variance_and_gradient(problem: &DesignProblem, minv: &Mat9, a: &At
 }
 
 /// `ln det M(xi)` (normalised, `H` in nT) of `weights` on `rows` (R-scaled).
-fn ln_det_nt(problem: &DesignProblem, rows: &[Row], weights: &[f64]) -> f64 {
+pub(super) fn ln_det_nt(problem: &DesignProblem, rows: &[Row], weights: &[f64]) -> f64 {
     let M = information(rows, weights);
     match crate::small::ln_det_spd(&M) {
         Some(v) => v + problem.ln_det_shift(),
@@ -694,25 +700,25 @@ fn information(rows: &[Row], weights: &[f64]) -> Mat9 {
 }
 
 /// `M^-1` of the design, or `None` when it is singular to working precision.
-fn information_inverse(rows: &[Row], weights: &[f64]) -> Option<Mat9> {
+pub(super) fn information_inverse(rows: &[Row], weights: &[f64]) -> Option<Mat9> {
     spd_inverse(&information(rows, weights))
 }
 
 /// `minv h`.
 #[inline]
-fn apply(minv: &Mat9, h: &Row) -> Row {
+pub(super) fn apply(minv: &Mat9, h: &Row) -> Row {
     std::array::from_fn(|i| (0..P).map(|j| minv[i][j] * h[j]).sum())
 }
 
 #[inline]
-fn dot9(a: &Row, b: &Row) -> f64 {
+pub(super) fn dot9(a: &Row, b: &Row) -> f64 {
     (0..P).map(|i| a[i] * b[i]).sum()
 }
 
 /// REX on fixed candidates from `weights`, until the largest variance is within
 /// `p (1 + tolerance)` or `max_iterations`. Returns the variances of the final weights, or `None`
 /// if the information became singular.
-fn rex<R: Rng + ?Sized>(
+pub(super) fn rex<R: Rng + ?Sized>(
     rows: &[Row],
     weights: &mut [f64],
     tolerance: f64,
@@ -882,7 +888,7 @@ fn grid(problem: &DesignProblem, budget: usize) -> Vec<Attitude> {
 }
 
 /// The largest difference of the three angles (yaw and roll periodic).
-fn distance(a: &Attitude, b: &Attitude) -> f64 {
+pub(super) fn distance(a: &Attitude, b: &Attitude) -> f64 {
     let wrap = |d: f64| {
         let d = d.rem_euclid(std::f64::consts::TAU);
         d.min(std::f64::consts::TAU - d)

@@ -11,6 +11,7 @@
 pub mod approximate;
 pub mod lanes;
 pub mod optimum;
+pub mod plan;
 pub mod pso;
 pub mod sources;
 pub mod tour;
