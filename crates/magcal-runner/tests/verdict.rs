@@ -52,9 +52,17 @@ fn the_vessel_at_trondheim_gets_a_plan_that_works_in_the_trials_of_a_run() {
         let share = row.ok as f64 / row.trials as f64;
         let se = share_se(row.trials) + share_se(m.check_trials);
         if m.works {
-            assert!(share >= 0.95 - 3.0 * se, "{}: works, yet {share} of the run ok", m.design);
+            assert!(
+                share >= 0.95 - 3.0 * se,
+                "{}: works, yet {share} of the run ok",
+                m.design
+            );
         } else {
-            assert!(share < 0.95 + 3.0 * se, "{}: fails, yet {share} of the run ok", m.design);
+            assert!(
+                share < 0.95 + 3.0 * se,
+                "{}: fails, yet {share} of the run ok",
+                m.design
+            );
         }
     }
     // The recommended plan calibrates the heading best of those that work.

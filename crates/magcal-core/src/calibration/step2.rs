@@ -142,10 +142,21 @@ fn cost(x: &[f64; PARAMETERS], u: &[Vec3]) -> f64 {
 
 /// `J^T J` (lower triangle filled) and `J^T r` at `x`.
 fn normal_equations(x: &[f64; PARAMETERS], u: &[Vec3]) -> ([[f64; PARAMETERS]; PARAMETERS], [f64; PARAMETERS]) {
+    accumulate(x, u, residual_and_gradient)
+}
+
+/// `J^T J` (lower triangle filled) and `J^T r` of the residuals `residual` gives for each reading
+/// of `u` at `x`.
+#[inline]
+fn accumulate(
+    x: &[f64; PARAMETERS],
+    u: &[Vec3],
+    residual: impl Fn(&[f64; PARAMETERS], Vec3) -> (f64, [f64; PARAMETERS]),
+) -> ([[f64; PARAMETERS]; PARAMETERS], [f64; PARAMETERS]) {
     let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
     let mut jtr = [0.0; PARAMETERS];
     for &ui in u {
-        let (r, g) = residual_and_gradient(x, ui);
+        let (r, g) = residual(x, ui);
         for i in 0..PARAMETERS {
             jtr[i] += g[i] * r;
             for j in 0..=i {
@@ -288,18 +299,7 @@ fn reading_cost(y: &[f64; PARAMETERS], d: &[Vec3]) -> f64 {
 
 /// `J^T J` (lower triangle filled) and `J^T r` of [`Residual::Readings`] at `y = (P, c)`.
 fn reading_normal_equations(y: &[f64; PARAMETERS], d: &[Vec3]) -> (Normal, [f64; PARAMETERS]) {
-    let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
-    let mut jtr = [0.0; PARAMETERS];
-    for &di in d {
-        let (r, g) = reading_residual_and_gradient(y, di);
-        for i in 0..PARAMETERS {
-            jtr[i] += g[i] * r;
-            for j in 0..=i {
-                jtj[i][j] += g[i] * g[j];
-            }
-        }
-    }
-    (jtj, jtr)
+    accumulate(y, d, reading_residual_and_gradient)
 }
 
 /// `J^T J` (lower triangle filled) of [`Residual::Readings`] with respect to `x = (P, o)`, by the

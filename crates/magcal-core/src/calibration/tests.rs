@@ -141,6 +141,25 @@ fn step2_reports_not_converged_at_its_iteration_limit() {
     assert!(fit.iterations >= 1 && fit.iterations < 100, "{}", fit.iterations);
 }
 
+/// The first parameter whose analytic derivative of `residual` at `x` differs from central
+/// differences by more than `tol (1 + |analytic|)`, described; `None` when all agree.
+fn gradient_mismatch(
+    residual: fn(&[f64; PARAMETERS], Vec3) -> (f64, [f64; PARAMETERS]),
+    x: &[f64; PARAMETERS],
+    u: Vec3,
+    tol: f64,
+) -> Option<String> {
+    let (_, g) = residual(x, u);
+    (0..PARAMETERS).find_map(|k| {
+        let h = 1e-6 * x[k].abs().max(1.0);
+        let (mut xp, mut xm) = (*x, *x);
+        xp[k] += h;
+        xm[k] -= h;
+        let fd = (residual(&xp, u).0 - residual(&xm, u).0) / (2.0 * h);
+        ((fd - g[k]).abs() > tol * (1.0 + g[k].abs())).then(|| format!("parameter {k}: analytic {} vs fd {fd}", g[k]))
+    })
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 256, .. ProptestConfig::default() })]
 
@@ -154,18 +173,11 @@ proptest! {
     ) {
         let P = [[p_diag[0], p_off[0], p_off[1]], [0.0, p_diag[1], p_off[2]], [0.0, 0.0, p_diag[2]]];
         let x = pack(&P, o);
-        let (r0, g) = residual_and_gradient(&x, u);
+        let (r0, _) = residual_and_gradient(&x, u);
         prop_assume!(r0 + 1.0 > 1e-2); // |P(u - o)| away from 0, where the residual is smooth
-        for k in 0..PARAMETERS {
-            let h = 1e-6 * x[k].abs().max(1.0);
-            let (mut xp, mut xm) = (x, x);
-            xp[k] += h;
-            xm[k] -= h;
-            let fd = (residual_and_gradient(&xp, u).0 - residual_and_gradient(&xm, u).0) / (2.0 * h);
-            // Central differences: truncation O(h^2 f'''), rounding O(eps |r| / h).
-            let tol = 1e-7 * (1.0 + g[k].abs());
-            prop_assert!((fd - g[k]).abs() <= tol, "parameter {}: analytic {} vs fd {}", k, g[k], fd);
-        }
+        // Central differences: truncation O(h^2) of the third derivative, rounding O(eps |r| / h).
+        let mismatch = gradient_mismatch(residual_and_gradient, &x, u, 1e-7);
+        prop_assert!(mismatch.is_none(), "{:?}", mismatch);
     }
 
     /// The analytic gradient of the residual in the readings' units against central differences.
@@ -180,18 +192,11 @@ proptest! {
         let x = pack(&P, o);
         let (r0, _) = residual_and_gradient(&x, u);
         prop_assume!(r0 + 1.0 > 1e-2);
-        let (_, g) = reading_residual_and_gradient(&x, u);
-        for k in 0..PARAMETERS {
-            let h = 1e-6 * x[k].abs().max(1.0);
-            let (mut xp, mut xm) = (x, x);
-            xp[k] += h;
-            xm[k] -= h;
-            let fd = (reading_residual_and_gradient(&xp, u).0 - reading_residual_and_gradient(&xm, u).0) / (2.0 * h);
-            // Truncation O(h^2 f'''), rounding O(eps |e| / h), with |e| up to about 100 here
-            // (|P^T w| is at least the smallest singular value of P).
-            let tol = 1e-6 * (1.0 + g[k].abs());
-            prop_assert!((fd - g[k]).abs() <= tol, "parameter {}: analytic {} vs fd {}", k, g[k], fd);
-        }
+        // As above, with |e| up to about 100 here (|P^T w| is at least the smallest singular
+        // value of P). At m = 0, (P, c) with c = -P o is the point (P, o).
+        let y = pack(&P, scale(-1.0, crate::small::mat_vec(&P, o)));
+        let mismatch = gradient_mismatch(reading_residual_and_gradient, &y, u, 1e-6);
+        prop_assert!(mismatch.is_none(), "{:?}", mismatch);
     }
 }
 
