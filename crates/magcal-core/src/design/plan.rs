@@ -50,6 +50,10 @@ use crate::attitude::Attitude;
 use crate::error::ParameterError;
 use crate::rng::MagcalRng;
 
+/// The most readings of a plan: one reading then weighs at least `2e-6` of the plan, above the
+/// `1e-6` below which the refinement of the attitudes drops a point.
+pub const MAX_READINGS: usize = 500_000;
+
 /// The limits a crew puts on a plan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PlanLimits {
@@ -75,13 +79,21 @@ impl PlanLimits {
     ///
     /// # Errors
     /// [`ParameterError::TooSmall`] for fewer than 9 readings, `max_attitudes < 9` or
-    /// `min_readings = 0`; [`ParameterError::TooLarge`] for `min_readings > readings / 9` (nine
-    /// attitudes, the fewest that identify the model, could not each get `R` readings).
+    /// `min_readings = 0`; [`ParameterError::TooLarge`] for more than [`MAX_READINGS`] readings
+    /// or `min_readings > readings / 9` (nine attitudes, the fewest that identify the model,
+    /// could not each get `R` readings).
     pub fn validate(&self, readings: usize) -> Result<(), ParameterError> {
         if readings < P {
             return Err(ParameterError::TooSmall {
                 name: "readings",
                 min: P,
+                value: readings,
+            });
+        }
+        if readings > MAX_READINGS {
+            return Err(ParameterError::TooLarge {
+                name: "readings",
+                max: MAX_READINGS,
                 value: readings,
             });
         }
@@ -310,7 +322,7 @@ impl PlanSearch {
         let points: Vec<Attitude> = kept.iter().map(|p| p.0).collect();
         let weights: Vec<f64> = kept.iter().map(|p| p.1).collect();
         let counts = efficient_rounding(&weights, readings);
-        let mut variants = Vec::with_capacity(2);
+        let mut variants = Vec::with_capacity(3);
         let positive = |points: &[Attitude], counts: &[usize]| -> (Vec<Attitude>, Vec<usize>) {
             points
                 .iter()
@@ -332,7 +344,7 @@ impl PlanSearch {
         if c.iter().all(|&n| n >= limits.min_readings) {
             variants.push((p, c));
         } else {
-            variants.push(raise(problem, &p, &c, readings, limits.min_readings)?);
+            variants.extend(raise(problem, &p, &c, readings, limits.min_readings));
             if let Some(dropped) = drop_smallest(&points, &weights, readings, limits.min_readings) {
                 variants.push(dropped);
             }
@@ -382,9 +394,13 @@ impl PlanSearch {
                 .map(|(a, w)| (*a, (*w * readings as f64).round()))
                 .collect();
             let merged = merge(moved, MERGE_RAD);
+            if merged.iter().map(|p| p.1 as usize).sum::<usize>() != readings {
+                // Refinement dropped a point (a weight below its 1e-6, which `MAX_READINGS`
+                // keeps out of reach): the plan before it stands.
+                break;
+            }
             points = merged.iter().map(|p| p.0).collect();
             counts = merged.iter().map(|p| p.1 as usize).collect();
-            debug_assert_eq!(counts.iter().sum::<usize>(), readings);
             if refine_first {
                 let rows: Vec<Row> = points.iter().map(|a| row(problem, a)).collect();
                 move_readings(&rows, &mut counts, min_readings);
@@ -828,6 +844,14 @@ mod tests {
                 name: "min_readings_per_attitude",
                 max: 33,
                 value: 34
+            }
+        );
+        assert_eq!(
+            refused(MAX_READINGS + 1, None, 1),
+            ParameterError::TooLarge {
+                name: "readings",
+                max: MAX_READINGS,
+                value: MAX_READINGS + 1
             }
         );
         assert_eq!(
