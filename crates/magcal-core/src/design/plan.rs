@@ -21,14 +21,15 @@
 //! support points drawn with probability by weight):
 //! 1. weights on the `L` points by REX and the points moved over the continuous box with the
 //!    weights held (projected L-BFGS), alternately: the approximate D-optimum on `L` points;
-//! 2. counts by efficient rounding; a point below `R` readings is either raised to `R` (the
-//!    readings taken one at a time where the determinant loses least) or dropped (and the rest
-//!    rounded again); both are polished and the better kept;
-//! 3. polish, until `ln det M_F` gains less than `1e-9`: moves of one reading from one attitude to
-//!    another (never below `R`) while the determinant grows,
-//!    `det(M + h_k h_k^T - h_l h_l^T) / det M = (1 + d_k)(1 - d_l) + d_kl^2` with
-//!    `d_kl = h_k^T M^-1 h_l`; the attitudes moved over the box with the counts held; attitudes
-//!    that meet (within 0.057 degrees) merged into one, their counts added.
+//! 2. counts: equal counts (the D-optimal weights of 9 points), and efficient rounding of the
+//!    weights, where a point below `R` readings is either raised to `R` (the readings taken one
+//!    at a time where the determinant loses least) or dropped (and the rest rounded again);
+//! 3. each polished in both orders of the alternation until `ln det M_F` gains less than `1e-9`:
+//!    moves of readings from one attitude to another (never below `R`) while the determinant
+//!    grows, `t` readings from `l` to `k` multiplying it by
+//!    `(1 + t d_k)(1 - t d_l) + t^2 d_kl^2` with `d_kl = h_k^T M_F^-1 h_l`; the attitudes moved
+//!    over the box with the counts held; attitudes that meet (within 0.057 degrees) merged into
+//!    one, their counts added.
 //!
 //! The plan of largest `ln det M_F` is kept (ties: the earlier start; the rounding, when it
 //! meets the limits, is one more candidate). Its certified D-efficiency
