@@ -186,6 +186,17 @@ impl Moments {
         }
     }
 
+    /// Adds `count` readings of one value: one product per moment instead of `count` sums, so
+    /// the rounding does not grow with the count (`count = 1` adds exactly as [`Self::add`]).
+    #[inline]
+    pub fn add_repeated(&mut self, u: Vec3, count: usize) {
+        let n = count as f64;
+        let terms = monomials(u);
+        for (m, t) in self.0.iter_mut().zip(terms) {
+            *m += n * t;
+        }
+    }
+
     /// The index of the moment that is entry `(i, j)` of `M_F`.
     #[inline]
     pub(crate) fn index_of(i: usize, j: usize) -> usize {

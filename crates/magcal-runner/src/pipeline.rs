@@ -494,7 +494,7 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
             .zip(&readings)
             .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
             .collect();
-        let metrics = problem(every.len())?.evaluate(&every);
+        let metrics = problem(every.len())?.evaluate_replicated(&attitudes, &readings);
         let body = scenario.field.body_fields(&every);
         let noise_free = scenario.truth.measure_all(&body);
         let loudest = scenario.sigmas_nt.iter().copied().fold(0.0, f64::max);
