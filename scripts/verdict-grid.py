@@ -24,6 +24,7 @@ here.
 import argparse
 import csv
 import io
+import json
 import math
 import os
 import pathlib
@@ -152,9 +153,10 @@ def run_point(p, work):
         raise RuntimeError(f"{scen}: magcal exited {r.returncode}: {r.stderr.strip()[:500]}")
     seconds = time.monotonic() - started
     rows = read_point(p, out)
+    revision = json.loads((out / "manifest.json").read_text()).get("git_revision", "unknown")
     shutil.rmtree(out)
     scen.unlink()
-    return dict(point=p, rows=rows, with_plan=with_plan, seconds=seconds)
+    return dict(point=p, rows=rows, with_plan=with_plan, seconds=seconds, revision=revision)
 
 
 def read_point(p, out):
@@ -418,7 +420,7 @@ def readme(rows, results, seconds, jobs, revision, probe):
         f"python3 scripts/verdict-grid.py --jobs {jobs}",
         "```",
         "",
-        f"magcal at git revision `{revision}`; {len(results)} scenarios in {seconds / 60:.1f} min with {jobs} "
+        f"magcal of git revision `{revision}` (its manifests); {len(results)} scenarios in {seconds / 60:.1f} min with {jobs} "
         "processes of one thread each.",
         "",
         "## Grid",
@@ -551,9 +553,8 @@ def main():
         sys.exit("verdict-grid.py: --jobs must be at least 1")
     if not MAGCAL.is_file():
         sys.exit(f"verdict-grid.py: {MAGCAL} missing: run `cargo build --release --locked -p magcal-runner`")
-    revision = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short=12", "HEAD"],
-                              capture_output=True, text=True).stdout.strip() or "unknown"
     results, seconds = study(args.jobs)
+    revision = ", ".join(sorted({x["revision"] for x in results}))
     probe = seed_probe(results, args.jobs)
     rows = publish(results, seconds, args.jobs, revision, probe)
     n = len(rows)
