@@ -25,9 +25,9 @@
 //! inside [-pi, pi]). Against one `atan2` per yaw the result agrees within 1e-12 rad (tested on
 //! calibrations from exact to absurd, and on ones that mirror or flatten the plane). The loop is
 //! compiled a second time for AVX2 and chosen at run time, as the PSO kernel is (bit-identical,
-//! tested). Medians of `heading_error/one_trial` on the 2-core machine: one `atan2` per yaw
-//! 4.6-5.6 us; increments between consecutive yaws in four chains, AVX2 clone 1.45-1.64 us; this
-//! code 0.44-0.45 us. Of 2000 trials at 30 nT of the Uniformity design 6 take the definition.
+//! tested): about ten times faster than one `atan2` per yaw (`benches/calibration.rs`,
+//! `heading_error/one_trial`; the README's benchmark table has the numbers). Of 2000 trials at
+//! 30 nT of the Uniformity design 6 take the definition.
 
 use std::f64::consts::PI;
 

@@ -1,8 +1,10 @@
 //! scenario -> designs -> noisy trials (parallel, collected in trial order) -> statistics.
 //!
 //! Every random stream is `stream_rng(seed, id)` with a fixed id per purpose, so the numbers do not
-//! depend on the thread count: designs `[DESIGN_STREAM, design]`, trials `[design, sigma, trial]`,
-//! repeated PSO runs from a seed drawn on `[PSO_RUNS_STREAM, 0]`.
+//! depend on the thread count: designs `[DESIGN_STREAM, design]`, trials `[design, level, trial]`
+//! (`level` the noise level's index plus `MAX_SIGMAS` times the execution error's), each design's
+//! check `[CHECK_STREAM, design, trial]`, repeated PSO runs from a seed drawn on
+//! `[PSO_RUNS_STREAM, 0]`.
 
 use std::time::Instant;
 
@@ -565,7 +567,8 @@ pub fn run(scenario: &Scenario, options: RunOptions) -> Result<RunOutput> {
                 };
                 let bound = CramerRao::new(&scenario.truth, &body, sigma, &PhysicalScales::default());
                 for (a, &attitude_sigma) in scenario.attitude_sigmas_deg.iter().enumerate() {
-                    // Without execution error the stream is [d, s, t], as before the setting existed.
+                    // Without execution error the stream is [d, s, t]: those cells draw the same trials
+                    // whatever execution errors the scenario also lists.
                     let level = (s + a * limits::MAX_SIGMAS) as u64;
                     let trials: Vec<TrialOutcome> = (0..scenario.trials)
                         .into_par_iter()

@@ -67,8 +67,8 @@ pub enum CalibrationStatus {
 }
 
 impl CalibrationStatus {
-    /// A stable snake_case name for files: `ok`, `not_converged`, `too_few_readings`,
-    /// `non_finite_input`, `rank_deficient`, `not_positive_definite`.
+    /// A stable snake_case name for files: `ok`, `not_converged`, `not_identifiable`,
+    /// `too_few_readings`, `non_finite_input`, `rank_deficient`, `not_positive_definite`.
     pub fn as_str(&self) -> &'static str {
         match self {
             Self::Ok => "ok",
@@ -97,7 +97,7 @@ impl CalibrationStatus {
         Self::ALL.into_iter().find(|s| s.as_str() == name)
     }
 
-    /// `true` when the calibration produced estimates (`Ok` or `NotConverged`).
+    /// `true` when the calibration produced estimates (`Ok`, `NotConverged` or `NotIdentifiable`).
     pub fn has_estimate(&self) -> bool {
         matches!(self, Self::Ok | Self::NotConverged | Self::NotIdentifiable)
     }

@@ -230,11 +230,10 @@ impl Swarm {
             let w = self.w_max - (self.w_max - self.w_min) / self.iterations as f64 * k as f64;
             let g = &g_x;
             let (c1, c2) = (self.c1, self.c2);
-            // One chunk per task (rayon's default split) measured fastest on 2 threads: 0.30-0.33 s for
-            // the Table I swarm against 0.40 s with 2 chunks and 0.43 s with 8 chunks per task (before
-            // the AVX2 kernel). The particle's fields are borrowed apart so that the generator's
-            // buffer index stays in a register across the loop (one thread, AVX2 kernel in both:
-            // 0.365 s -> 0.343 s; a bulk `fill` of the 27 words per particle measured slower).
+            // One chunk per task (rayon's default split): more chunks per task are slower on two
+            // threads (`benches/design.rs`). The particle's fields are borrowed apart so that the
+            // generator's buffer index stays in a register across the loop; a bulk `fill` of the 27
+            // words per particle is slower.
             swarm.par_chunks_mut(LANES).for_each(|chunk| {
                 for p in chunk.iter_mut() {
                     let Particle { x, v, best_x, rng, .. } = p;
