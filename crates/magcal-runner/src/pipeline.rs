@@ -37,6 +37,8 @@ const PSO_RUNS_STREAM: u64 = 0xFFFE;
 const CERTIFICATE_STREAM: u64 = 0xFFFD;
 /// Stream-id prefix of the short Monte Carlo behind each design's verdict ([`Check`]).
 const CHECK_STREAM: u64 = 0xFFFB;
+/// Longest stream-id prefix of a check ([`Check::run_on`]).
+pub const CHECK_STREAM_DEPTH: usize = 3;
 /// Stream-id prefix of the noise of `magcal simulate`.
 const SIMULATED_LOG_STREAM: u64 = 0xFFFC;
 
@@ -122,7 +124,8 @@ impl Check {
         Self::run_on(scenario, &[CHECK_STREAM, design as u64], body, sigma_nt, None)
     }
 
-    /// As [`Self::run`] on the streams `[stream.., t]`, calibrating each trial's readings with
+    /// As [`Self::run`] on the streams `[stream.., t]` (`stream` at most [`CHECK_STREAM_DEPTH`]
+    /// long), calibrating each trial's readings with
     /// `calibrate` (readings, field magnitude) instead of the scenario's estimator when given.
     ///
     /// # Errors
@@ -143,8 +146,10 @@ impl Check {
         let trials: Vec<TrialOutcome> = (0..scenario.check_trials)
             .into_par_iter()
             .map(|t| {
-                let ids: Vec<u64> = stream.iter().copied().chain([t as u64]).collect();
-                let mut rng = stream_rng(scenario.seed, stream_id(&ids));
+                let mut ids = [0; CHECK_STREAM_DEPTH + 1];
+                ids[..stream.len()].copy_from_slice(stream);
+                ids[stream.len()] = t as u64;
+                let mut rng = stream_rng(scenario.seed, stream_id(&ids[..=stream.len()]));
                 match calibrate {
                     None => monte_carlo::trial(
                         &scenario.truth,
@@ -162,12 +167,11 @@ impl Check {
                 }
             })
             .collect::<Result<_, _>>()?;
-        let mut heading: Vec<f64> = trials
+        let heading: Vec<f64> = trials
             .iter()
             .filter(|t| t.status == CalibrationStatus::Ok)
             .filter_map(|t| t.heading.map(|h| h.rms_deg))
             .collect();
-        heading.sort_by(f64::total_cmp);
         let summary = (!heading.is_empty()).then(|| Summary::new(&heading, 0));
         Ok(Self {
             sigma_nt,

@@ -309,11 +309,9 @@ fn reading_information(x: &[f64; PARAMETERS], u: &[Vec3]) -> Normal {
     let (P, o) = unpack(x);
     let y = pack(&P, scale(-1.0, mat_vec(&P, o)));
     let entries = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
-    let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
-    for &ui in u {
-        let (_, gy) = reading_residual_and_gradient(&y, ui);
-        let dc = [gy[6], gy[7], gy[8]];
-        let mut g = gy;
+    let in_p_and_o = |y: &[f64; PARAMETERS], ui: Vec3| {
+        let (e, mut g) = reading_residual_and_gradient(y, ui);
+        let dc = [g[6], g[7], g[8]];
         for (i, &(j, k)) in entries.iter().enumerate() {
             g[i] -= o[k] * dc[j];
         }
@@ -321,13 +319,9 @@ fn reading_information(x: &[f64; PARAMETERS], u: &[Vec3]) -> Normal {
         for a in 0..3 {
             g[6 + a] = -go[a];
         }
-        for i in 0..PARAMETERS {
-            for j in 0..=i {
-                jtj[i][j] += g[i] * g[j];
-            }
-        }
-    }
-    jtj
+        (e, g)
+    };
+    accumulate(&y, u, in_p_and_o).0
 }
 
 /// `(P, c)` with `c = P (m - o)` from `(P, o)`: the unknowns of [`Residual::Readings`] about the

@@ -4,6 +4,8 @@
 use std::io::Write;
 use std::path::Path;
 
+use magcal_core::log_fit::significant;
+
 use crate::advice::Advice;
 use crate::pipeline::{Check, RunOutput};
 
@@ -127,7 +129,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                     "{} of {} trials ok at {} nT, heading error median {} deg, 95th percentile {} deg",
                     c.outcomes.ok,
                     c.trials,
-                    short(c.sigma_nt),
+                    significant(c.sigma_nt, 3),
                     c.heading_median_deg.map_or("-".into(), |v| format!("{v:.3}")),
                     c.heading_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
                 )
@@ -140,8 +142,8 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                 Some(c) => writeln!(
                     w,
                     "  - the full model with a quieter sensor: works at {} nT ({}x less noise): {}",
-                    short(c.sigma_nt),
-                    short(base.check.sigma_nt / c.sigma_nt),
+                    significant(c.sigma_nt, 3),
+                    significant(base.check.sigma_nt / c.sigma_nt, 3),
                     heading(c)
                 )?,
                 None => writeln!(
@@ -174,12 +176,6 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
             )
         }
     }
-}
-
-/// A number without trailing zeros, at most 4 significant decimals.
-fn short(x: f64) -> String {
-    let s = format!("{x:.4}");
-    s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
