@@ -4,10 +4,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Parser, Subcommand};
 
-use crate::commands;
-use crate::limits;
+use crate::commands::{self, Failure};
 use crate::output::file::Output;
 use crate::output::stderr::to_stderr;
 
@@ -23,13 +22,13 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Build the designs, run the noisy trials, write statistics, designs, figures and a manifest.
-    Run(RunArgs),
+    Run(commands::run::RunArgs),
     /// Build the designs and write only their attitudes, metrics and figures.
-    Design(DesignArgs),
+    Design(commands::design::DesignArgs),
     /// Run again with the baseline's seed and trials and compare; exit 1 when something moved.
-    Check(CheckArgs),
+    Check(commands::check::CheckArgs),
     /// Redraw the figures of a results directory from its CSV files (into DIR/plots/).
-    Plot(PlotArgs),
+    Plot(commands::plot::PlotArgs),
     /// Fit a log of raw readings: bias, non-orthogonality, scale factors, their standard errors,
     /// and whether the log determines them; exit 3 when it does not, or when the log rejects the
     /// model (the outputs are written all the same).
@@ -40,66 +39,6 @@ enum Command {
     Next(commands::next::NextArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
     Simulate(commands::simulate::SimulateArgs),
-}
-
-/// `magcal plot`.
-#[derive(Debug, Args)]
-pub struct PlotArgs {
-    /// A results directory written by `magcal run` or `magcal design`.
-    pub dir: PathBuf,
-}
-
-/// Flags every scenario command takes.
-#[derive(Debug, Args)]
-pub struct Common {
-    /// The scenario file (TOML; see README "Scenario files").
-    pub scenario: PathBuf,
-    /// Override the scenario's seed.
-    #[arg(long)]
-    pub seed: Option<u64>,
-    /// Worker threads, 1 to 256 (default: all cores). Results do not depend on it.
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=limits::MAX_THREADS as u64))]
-    pub threads: Option<u64>,
-    /// No progress bars and no summary table.
-    #[arg(long)]
-    pub quiet: bool,
-    /// Run even when the PSO work is estimated above one day (the estimate is printed first).
-    #[arg(long)]
-    pub allow_long: bool,
-}
-
-/// `magcal run`.
-#[derive(Debug, Args)]
-pub struct RunArgs {
-    #[command(flatten)]
-    pub common: Common,
-    /// Output directory (default: results/SCENARIO_NAME/). Replaced whole, and only if it is
-    /// missing, empty or an earlier magcal result set.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// Override the scenario's trials per design and noise level (1 to 10,000,000).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=limits::MAX_TRIALS as u64))]
-    pub trials: Option<u64>,
-}
-
-/// `magcal design`.
-#[derive(Debug, Args)]
-pub struct DesignArgs {
-    #[command(flatten)]
-    pub common: Common,
-    /// Output directory (default: results/SCENARIO_NAME/), replaced as for `run`.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-}
-
-/// `magcal check`.
-#[derive(Debug, Args)]
-pub struct CheckArgs {
-    #[command(flatten)]
-    pub common: Common,
-    /// The committed results to compare with (default: results/SCENARIO_NAME/).
-    #[arg(long)]
-    pub baseline: Option<PathBuf>,
 }
 
 impl Command {
@@ -114,24 +53,6 @@ impl Command {
             Self::Apply(a) => to_stdout(&a.out),
             Self::Simulate(a) => to_stdout(&a.out),
         }
-    }
-}
-
-/// A failure with its exit code.
-#[derive(Debug)]
-pub enum Failure {
-    /// Bad input or usage, or an output that cannot be written: exit 2.
-    Input(anyhow::Error),
-    /// `check` found a regression: exit 1 (the table of what moved).
-    Regression(String),
-    /// The command ran and wrote its outputs, but the result is not a calibration to use: the log
-    /// does not determine it, or rejects its model. Exit 3, with the reason.
-    Unusable(String),
-}
-
-impl From<anyhow::Error> for Failure {
-    fn from(e: anyhow::Error) -> Self {
-        Self::Input(e)
     }
 }
 

@@ -33,8 +33,10 @@
 
 use std::path::Path;
 
-use magcal_runner::cli::{CheckArgs, Common, Failure, RunArgs};
 use magcal_runner::commands;
+use magcal_runner::commands::check::CheckArgs;
+use magcal_runner::commands::run::RunArgs;
+use magcal_runner::commands::{Common, Failure};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, FileFailurePersistence};
 

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::Args;
 
-use crate::cli::Failure;
+use super::Failure;
 use crate::log::calibration::{RadiusMedian, columns_for, read_calibration};
 use crate::log::read as log_file;
 use crate::output::file::Output;

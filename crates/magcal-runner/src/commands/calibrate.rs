@@ -9,7 +9,7 @@ use clap::{Args, ValueEnum};
 use magcal_core::log_fit::{self, FitModel, FitSettings, LogFit, Noise, significant};
 use magcal_core::small::upper_triangular_inverse;
 
-use crate::cli::Failure;
+use super::Failure;
 use crate::log::calibration::{
     CalibrationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
 };

@@ -11,6 +11,8 @@
 //! undefined (one successful trial has no standard error) is compared to 1e-9 relative; a
 //! non-finite standard error in the baseline is an error of the baseline (exit 2).
 
+use clap::Args;
+
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -18,12 +20,22 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use magcal_core::{CalibrationStatus, Summary};
 
-use crate::cli::{CheckArgs, Failure};
+use super::{Common, Failure};
 use crate::output::manifest::{Manifest, Seal, sha256_hex};
 use crate::output::stderr::to_stderr;
 use crate::output::{self, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
 use crate::pipeline::{self, RunOptions, RunOutput};
 use crate::{limits, scenario};
+
+/// `magcal check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    pub common: Common,
+    /// The committed results to compare with (default: results/SCENARIO_NAME/).
+    #[arg(long)]
+    pub baseline: Option<PathBuf>,
+}
 
 /// Runs the command.
 ///

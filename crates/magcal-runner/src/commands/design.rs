@@ -1,6 +1,20 @@
 //! `magcal design`: the designs and their metrics and figures, without trials.
 
-use crate::cli::{DesignArgs, Failure};
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::{Common, Failure};
+
+/// `magcal design`.
+#[derive(Debug, Args)]
+pub struct DesignArgs {
+    #[command(flatten)]
+    pub common: Common,
+    /// Output directory (default: results/SCENARIO_NAME/), replaced as for `run`.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
 
 /// Runs the command.
 ///

@@ -11,13 +11,51 @@ pub mod run;
 pub mod simulate;
 
 use std::io::IsTerminal;
+use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use clap::Args;
 
-use crate::cli::Common;
 use crate::limits;
 use crate::output::stderr::to_stderr;
 use crate::scenario::{self, Scenario};
+
+/// Flags every scenario command takes.
+#[derive(Debug, Args)]
+pub struct Common {
+    /// The scenario file (TOML; see README "Scenario files").
+    pub scenario: PathBuf,
+    /// Override the scenario's seed.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Worker threads, 1 to 256 (default: all cores). Results do not depend on it.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=limits::MAX_THREADS as u64))]
+    pub threads: Option<u64>,
+    /// No progress bars and no summary table.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Run even when the PSO work is estimated above one day (the estimate is printed first).
+    #[arg(long)]
+    pub allow_long: bool,
+}
+
+/// A failure with its exit code.
+#[derive(Debug)]
+pub enum Failure {
+    /// Bad input or usage, or an output that cannot be written: exit 2.
+    Input(anyhow::Error),
+    /// `check` found a regression: exit 1 (the table of what moved).
+    Regression(String),
+    /// The command ran and wrote its outputs, but the result is not a calibration to use: the log
+    /// does not determine it, or rejects its model. Exit 3, with the reason.
+    Unusable(String),
+}
+
+impl From<anyhow::Error> for Failure {
+    fn from(e: anyhow::Error) -> Self {
+        Self::Input(e)
+    }
+}
 
 /// A validated scenario with its overrides applied, and the workers to run it.
 pub struct Setup {

@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use magcal_core::log_fit;
 
-use crate::cli::Failure;
+use super::Failure;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
 use crate::log::read as log_file;
 use crate::log::site::{Date, Site, parse_model};

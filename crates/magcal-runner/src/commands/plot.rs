@@ -1,13 +1,24 @@
 //! `magcal plot DIR`: redraws the figures of a result set from its files into `DIR/plots/`, which
 //! is replaced whole.
 
+use std::path::PathBuf;
+
+use clap::Args;
+
 use anyhow::Result;
 
-use crate::cli::{Failure, PlotArgs};
+use super::Failure;
 use crate::output::file::to_stdout;
 use crate::output::manifest::Manifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::plots;
+
+/// `magcal plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// A results directory written by `magcal run` or `magcal design`.
+    pub dir: PathBuf,
+}
 
 /// Runs the command.
 ///

@@ -1,13 +1,15 @@
 //! `magcal run`: designs, trials, statistics, figures and a manifest, written as one result set.
 
+use clap::Args;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 
+use super::{Common, Failure};
 use crate::advice::{self, Advice};
-use crate::cli::{Common, Failure, RunArgs};
 use crate::output::file::to_stdout;
 use crate::output::manifest::{Hashing, Manifest, sha256_hex};
 use crate::output::staging::{ResultSet, Target};
@@ -15,6 +17,20 @@ use crate::output::{self, print};
 use crate::pipeline::{self, RunOptions, RunOutput};
 use crate::plots;
 use crate::scenario::Scenario;
+
+/// `magcal run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub common: Common,
+    /// Output directory (default: results/SCENARIO_NAME/). Replaced whole, and only if it is
+    /// missing, empty or an earlier magcal result set.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Override the scenario's trials per design and noise level (1 to 10,000,000).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=crate::limits::MAX_TRIALS as u64))]
+    pub trials: Option<u64>,
+}
 
 /// Runs the command.
 ///

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::Args;
 
-use crate::cli::Failure;
+use super::Failure;
 use crate::output::file::Output;
 use crate::output::log_rows::SimulatedRow;
 use crate::output::stderr::to_stderr;
