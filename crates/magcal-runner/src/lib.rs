@@ -14,7 +14,6 @@
 //! cannot be written, 3 `calibrate` ran and wrote its outputs but the result is not a calibration
 //! to use (the log does not determine it, or rejects its model).
 
-pub mod advice;
 pub mod cli;
 pub mod commands;
 pub mod limits;

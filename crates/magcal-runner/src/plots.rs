@@ -20,7 +20,8 @@ use plotters::style::{FontStyle, register_font};
 use crate::limits::set_member;
 use crate::output::manifest::Manifest;
 use crate::output::staging::ResultSet;
-use crate::output::{DesignMetricsRow, DesignPointRow, Metric, PsoRunRow, SummaryRow, read_csv};
+use crate::output::{DesignMetricsRow, DesignPointRow, PsoRunRow, SummaryRow, read_csv};
+use crate::pipeline::Metric;
 
 /// Figure size, pixels: readable at 800 px wide.
 const SIZE: (u32, u32) = (960, 600);

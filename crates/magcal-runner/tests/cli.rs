@@ -7,7 +7,8 @@ use assert_cmd::Command;
 use magcal_core::Attitude;
 use magcal_core::CalibrationStatus;
 use magcal_core::design::tour::rotation_angle;
-use magcal_runner::output::{DesignPointRow, Metric, SummaryRow, TrialRow, read_csv};
+use magcal_runner::output::{DesignPointRow, SummaryRow, TrialRow, read_csv};
+use magcal_runner::pipeline::Metric;
 use tempfile::TempDir;
 
 fn magcal() -> Command {

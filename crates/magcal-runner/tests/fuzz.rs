@@ -176,7 +176,7 @@ proptest! {
         match magcal_runner::scenario::parse(&bytes, Path::new("fuzz.toml")) {
             Ok(s) => {
                 // A scenario that validates has bounded sizes: its estimate is a finite sum.
-                let total: u64 = magcal_runner::limits::estimate(&s, true, 2).iter().map(|(_, b)| b).sum();
+                let total: u64 = magcal_runner::pipeline::budget::estimate(&s, true, 2).iter().map(|(_, b)| b).sum();
                 prop_assert!(total < u64::MAX / 2);
             }
             Err(e) => {

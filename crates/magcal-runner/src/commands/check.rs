@@ -87,7 +87,7 @@ pub fn run(args: &CheckArgs) -> Result<(), Failure> {
         with_trials,
     )?;
     let options = RunOptions {
-        progress: setup.progress,
+        progress: &crate::output::progress::Bars { show: setup.progress },
         designs_only: !with_trials,
     };
     let out = setup

@@ -99,7 +99,7 @@ pub fn setup_with(
         Some(n) => n as usize,
         None => std::thread::available_parallelism().map_or(1, |n| n.get().min(limits::MAX_THREADS)),
     };
-    limits::check_memory(&scenario, with_trials, threads).with_context(|| {
+    crate::pipeline::budget::check_memory(&scenario, with_trials, threads).with_context(|| {
         format!(
             "{}: trials = {}, threads {threads}",
             common.scenario.display(),
@@ -107,7 +107,9 @@ pub fn setup_with(
         )
     })?;
     let context = || format!("{}", common.scenario.display());
-    if let Some(words) = limits::check_time(&scenario, threads, common.allow_long).with_context(context)? {
+    if let Some(words) =
+        crate::pipeline::budget::check_time(&scenario, threads, common.allow_long).with_context(context)?
+    {
         to_stderr!("magcal: note: {}: {words}", common.scenario.display());
     }
     let pool = rayon::ThreadPoolBuilder::new()

@@ -9,11 +9,11 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 
 use super::{Common, Failure};
-use crate::advice::{self, Advice};
 use crate::output::file::to_stdout;
 use crate::output::manifest::{Hashing, Manifest, sha256_hex};
 use crate::output::staging::{ResultSet, Target};
 use crate::output::{self, print};
+use crate::pipeline::advice::{self, Advice};
 use crate::pipeline::{self, RunOptions, RunOutput};
 use crate::plots;
 use crate::scenario::Scenario;
@@ -58,7 +58,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     let dir = out.map_or_else(|| PathBuf::from("results").join(&scenario.name), Path::to_path_buf);
     let mut set = ResultSet::begin(&dir, Target::Results, &[&common.scenario])?;
     let options = RunOptions {
-        progress: setup.progress,
+        progress: &crate::output::progress::Bars { show: setup.progress },
         designs_only,
     };
     let (mut run, advice) = setup

@@ -71,7 +71,7 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
     let out = crate::pipeline::run(
         &designs_only,
         crate::pipeline::RunOptions {
-            progress: false,
+            progress: &crate::pipeline::Quiet,
             designs_only: true,
         },
     )?;

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use magcal_core::log_fit::significant;
 
-use crate::advice::Advice;
+use crate::pipeline::advice::Advice;
 use crate::pipeline::{Check, RunOutput};
 
 /// A statistic for the screen: `-` where undefined.

@@ -1,0 +1,112 @@
+//! The verdict of a design: does it calibrate, at the scenario's noise, in a short Monte Carlo of
+//! its own? The Cramer-Rao bound predicts; these trials show (docs/conventions.md "The verdict of a
+//! design").
+
+use anyhow::Result;
+use magcal_core::heading::HeadingProbe;
+use magcal_core::monte_carlo::{self, TrialOutcome};
+use magcal_core::rng::{stream_id, stream_rng};
+use magcal_core::{CalibrationStatus, Summary};
+use rayon::prelude::*;
+
+use super::trials::Outcomes;
+use super::{CHECK_STREAM, CHECK_STREAM_DEPTH};
+use crate::scenario::Scenario;
+
+/// A calibration of readings (nT) to a field magnitude (nT), in place of the scenario's estimator.
+pub type Calibrate = dyn Fn(&[magcal_core::Vec3], f64) -> magcal_core::CalibrationOutcome + Sync;
+
+/// A design calibrated by the scenario's estimator in [`Check::trials`] noisy trials at the
+/// scenario's largest noise level, on their own random streams: what "works" rests on. The
+/// Cramer-Rao bound is a linear prediction; where a box barely turns an axis against the field the
+/// estimates of some trials leave the region where it holds, and only trials show how many.
+#[derive(Debug, Clone)]
+pub struct Check {
+    /// Noise per component, nT.
+    pub sigma_nt: f64,
+    /// Trials run.
+    pub trials: usize,
+    /// How they ended.
+    pub outcomes: Outcomes,
+    /// Median over the `ok` trials of the rms heading error over level headings, degrees.
+    pub heading_median_deg: Option<f64>,
+    /// Its 95th percentile, degrees.
+    pub heading_p95_deg: Option<f64>,
+}
+
+impl Check {
+    /// The share of trials a design must calibrate (`ok`) to work.
+    pub const OK_SHARE: f64 = 0.95;
+
+    /// Whether the design calibrates in at least [`Self::OK_SHARE`] of the trials.
+    pub fn works(&self) -> bool {
+        self.trials > 0 && self.outcomes.ok as f64 >= Self::OK_SHARE * self.trials as f64
+    }
+
+    /// Runs the check: [`Scenario::check_trials`] trials of `body` (the design's body fields) at
+    /// `sigma_nt` with the scenario's estimator, on the streams `[CHECK_STREAM, design, t]`.
+    ///
+    /// # Errors
+    /// Only an invalid noise level (scenarios are validated).
+    pub fn run(scenario: &Scenario, design: usize, body: &[magcal_core::Vec3], sigma_nt: f64) -> Result<Self> {
+        Self::run_on(scenario, &[CHECK_STREAM, design as u64], body, sigma_nt, None)
+    }
+
+    /// As [`Self::run`] on the streams `[stream.., t]` (`stream` at most [`CHECK_STREAM_DEPTH`]
+    /// long), calibrating each trial's readings with
+    /// `calibrate` (readings, field magnitude) instead of the scenario's estimator when given.
+    ///
+    /// # Errors
+    /// As [`Self::run`].
+    pub fn run_on(
+        scenario: &Scenario,
+        stream: &[u64],
+        body: &[magcal_core::Vec3],
+        sigma_nt: f64,
+        calibrate: Option<&Calibrate>,
+    ) -> Result<Self> {
+        let calibration = magcal_core::TwoStep {
+            noise_nt: Some(sigma_nt),
+            ..scenario.calibration.clone()
+        };
+        let probe = HeadingProbe::new(&scenario.field, &scenario.truth);
+        let magnitude = scenario.field.magnitude();
+        let trials: Vec<TrialOutcome> = (0..scenario.check_trials)
+            .into_par_iter()
+            .map(|t| {
+                let mut ids = [0; CHECK_STREAM_DEPTH + 1];
+                ids[..stream.len()].copy_from_slice(stream);
+                ids[stream.len()] = t as u64;
+                let mut rng = stream_rng(scenario.seed, stream_id(&ids[..=stream.len()]));
+                match calibrate {
+                    None => monte_carlo::trial(
+                        &scenario.truth,
+                        body,
+                        magnitude,
+                        sigma_nt,
+                        &calibration,
+                        &probe,
+                        &mut rng,
+                    ),
+                    Some(f) => {
+                        let readings = scenario.truth.noisy_readings(body, sigma_nt, &mut rng)?;
+                        Ok(monte_carlo::scored(&scenario.truth, f(&readings, magnitude), &probe))
+                    }
+                }
+            })
+            .collect::<Result<_, _>>()?;
+        let heading: Vec<f64> = trials
+            .iter()
+            .filter(|t| t.status == CalibrationStatus::Ok)
+            .filter_map(|t| t.heading.map(|h| h.rms_deg))
+            .collect();
+        let summary = (!heading.is_empty()).then(|| Summary::new(&heading, 0));
+        Ok(Self {
+            sigma_nt,
+            trials: trials.len(),
+            outcomes: Outcomes::of(&trials),
+            heading_median_deg: summary.map(|s| s.median),
+            heading_p95_deg: summary.map(|s| s.p95),
+        })
+    }
+}
