@@ -16,6 +16,7 @@
 
 pub mod cli;
 pub mod commands;
+pub mod digest;
 pub mod limits;
 pub mod log;
 pub mod output;

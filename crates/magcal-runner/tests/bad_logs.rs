@@ -10,7 +10,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use common::{magcal, magcal_with_limits, run_into, scenarios};
-use magcal_runner::output::manifest::sha256_hex;
+use magcal_runner::digest::sha256_hex;
 use tempfile::TempDir;
 
 /// The public ck-explorer log, in `../shared/data/` beside the repository.

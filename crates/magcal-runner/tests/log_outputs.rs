@@ -14,9 +14,10 @@ use common::{leftovers, magcal, magcal_process, magcal_with_file_size, restore, 
 use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, paper};
+use magcal_runner::digest::sha256_hex;
 use magcal_runner::log::calibration::CalibrationJson;
 use magcal_runner::output::log_rows::{AppliedRow, ResidualRow, SimulatedRow};
-use magcal_runner::output::manifest::{CalibrationManifest, SetKind, sha256_hex};
+use magcal_runner::output::manifest::{CalibrationManifest, SetKind};
 use magcal_runner::output::parse_csv;
 use tempfile::TempDir;
 

@@ -10,18 +10,19 @@ use magcal_core::log_fit::{self, FitModel, FitSettings, LogFit, Noise, significa
 use magcal_core::small::upper_triangular_inverse;
 
 use super::Failure;
+use crate::digest::{Hashing, sha256_hex};
 use crate::log::calibration::{
     CalibrationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
 };
 use crate::log::read as log_file;
-use crate::log::site::{Date, Site, Units, parse_model, wmm_magnitude};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
 use crate::output::file::to_stdout;
 use crate::output::log_rows::ResidualRow;
-use crate::output::manifest::{CalibrationManifest, Hashing, sha256_hex};
+use crate::output::manifest::CalibrationManifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::output::stderr::to_stderr;
 use crate::output::{self, Real};
+use crate::scenario::site::{Date, Site, Units, parse_model, wmm_magnitude};
 
 /// `--fit`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

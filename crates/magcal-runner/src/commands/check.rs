@@ -21,7 +21,8 @@ use anyhow::{Context, Result, bail};
 use magcal_core::{CalibrationStatus, Summary};
 
 use super::{Common, Failure};
-use crate::output::manifest::{Manifest, Seal, sha256_hex};
+use crate::digest::sha256_hex;
+use crate::output::manifest::{Manifest, Seal};
 use crate::output::stderr::to_stderr;
 use crate::output::{self, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
 use crate::pipeline::{self, RunOptions, RunOutput};

@@ -10,10 +10,10 @@ use magcal_core::log_fit;
 use super::Failure;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
 use crate::log::read as log_file;
-use crate::log::site::{Date, Site, parse_model};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
 use crate::output::file::to_stdout;
 use crate::output::stderr::to_stderr;
+use crate::scenario::site::{Date, Site, parse_model};
 
 /// `magcal next`.
 #[derive(Debug, Args)]

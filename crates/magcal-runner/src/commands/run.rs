@@ -9,8 +9,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 
 use super::{Common, Failure};
+use crate::digest::{Hashing, sha256_hex};
 use crate::output::file::to_stdout;
-use crate::output::manifest::{Hashing, Manifest, sha256_hex};
+use crate::output::manifest::Manifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::output::{self, print};
 use crate::pipeline::advice::{self, Advice};

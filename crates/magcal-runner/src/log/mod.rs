@@ -1,8 +1,7 @@
 //! Logs of real readings and what the log commands share: reading a CSV log ([`read`]), the
-//! site and units ([`site`]), the calibration file ([`calibration`]) and the vehicle's box
-//! ([`vehicle`]).
+//! calibration file ([`calibration`]) and the vehicle's box ([`vehicle`]). The site, date and units
+//! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
 pub mod calibration;
 pub mod read;
-pub mod site;
 pub mod vehicle;

@@ -28,8 +28,8 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use magcal_core::Vec3;
 
+use crate::digest::Hashing;
 use crate::limits;
-use crate::output::manifest::Hashing;
 
 /// Longest line read, bytes: a row of a hundred columns of 20 characters is 2 KiB.
 pub const MAX_LINE_BYTES: usize = 1 << 20;

@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::calibration::CalibrationJson;
-use super::site::{Date, Site, wmm_label, wmm_pick, wmm_place};
+use crate::scenario::site::{Date, Site, wmm_label, wmm_pick, wmm_place};
 
 /// `--roll`, `--pitch`, `--yaw MIN,MAX`: an attitude range in degrees, under the rules the
 /// scenario's `[attitude_box]` follows ([`crate::scenario::check_range`]).

@@ -21,7 +21,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use anyhow::{Context, Result, bail};
 
 use super::manifest::SetKind;
-use super::staging::{alive, step};
+use super::staging::{alive, same_inode, step};
 
 const TEMPORARY: &str = "magcal-tmp";
 
@@ -301,17 +301,6 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
         (Ok(a), Ok(b)) => same_inode(&a, &b),
         _ => false,
     }
-}
-
-#[cfg(unix)]
-pub(super) fn same_inode(a: &std::fs::Metadata, b: &std::fs::Metadata) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    a.dev() == b.dev() && a.ino() == b.ino()
-}
-
-#[cfg(not(unix))]
-pub(super) fn same_inode(_: &std::fs::Metadata, _: &std::fs::Metadata) -> bool {
-    false
 }
 
 /// Removes the temporaries of `name` that processes no longer running left in `parent`.

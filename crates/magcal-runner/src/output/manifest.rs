@@ -14,9 +14,9 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use crate::digest::{sha256_hex, sha256_hex_of_parts};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use crate::pipeline::RunOutput;
 use crate::scenario::Scenario;
@@ -201,66 +201,6 @@ pub struct Manifest {
     pub manifest_sha256: Option<String>,
 }
 
-/// SHA-256 of `bytes`, lower-case hex.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
-
-/// A writer or reader that hashes and counts the bytes that pass through it.
-pub struct Hashing<W> {
-    inner: W,
-    hash: Sha256,
-    bytes: u64,
-}
-
-impl<W> Hashing<W> {
-    /// Wraps `inner`.
-    pub fn new(inner: W) -> Self {
-        Self {
-            inner,
-            hash: Sha256::new(),
-            bytes: 0,
-        }
-    }
-
-    /// How many bytes passed.
-    pub fn bytes(&self) -> u64 {
-        self.bytes
-    }
-
-    /// The SHA-256 of everything written, lower-case hex.
-    pub fn hex(&self) -> String {
-        self.hash
-            .clone()
-            .finalize()
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect()
-    }
-}
-
-impl<W: std::io::Write> std::io::Write for Hashing<W> {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.hash.update(&buf[..n]);
-        self.bytes += n as u64;
-        Ok(n)
-    }
-
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
-    }
-}
-
-impl<R: std::io::Read> std::io::Read for Hashing<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        self.hash.update(&buf[..n]);
-        self.bytes += n as u64;
-        Ok(n)
-    }
-}
-
 impl Manifest {
     /// The manifest of a run.
     pub fn new(scenario: &Scenario, out: &RunOutput, threads: usize, file_sha256: BTreeMap<String, String>) -> Self {
@@ -399,10 +339,7 @@ pub fn verify(path: &Path, bytes: &[u8]) -> Result<Seal> {
     else {
         return damaged("manifest_sha256 is not its last field, where magcal writes it");
     };
-    let mut hasher = Sha256::new();
-    hasher.update(&bytes[..at.start]);
-    hasher.update(&bytes[at.end..]);
-    let actual: String = hasher.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    let actual = sha256_hex_of_parts(&[&bytes[..at.start], &bytes[at.end..]]);
     if actual != digits {
         return damaged("its SHA-256 differs from the manifest_sha256 it records");
     }

@@ -257,7 +257,7 @@ fn check_inputs(target: &Path, inputs: &[&Path]) -> Result<()> {
             continue;
         };
         for ancestor in real.ancestors() {
-            if std::fs::metadata(ancestor).is_ok_and(|m| super::file::same_inode(&m, &dir)) {
+            if std::fs::metadata(ancestor).is_ok_and(|m| same_inode(&m, &dir)) {
                 bail!(
                     "{}: holds the input {}; replacing the directory would destroy it: give another --out",
                     target.display(),
@@ -347,4 +347,16 @@ pub(super) fn step() {
     if *limit == Some(n) {
         std::process::abort();
     }
+}
+
+/// Whether two files' metadata name the same file (device and inode).
+#[cfg(unix)]
+pub(super) fn same_inode(a: &std::fs::Metadata, b: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    a.dev() == b.dev() && a.ino() == b.ino()
+}
+
+#[cfg(not(unix))]
+pub(super) fn same_inode(_: &std::fs::Metadata, _: &std::fs::Metadata) -> bool {
+    false
 }

@@ -2,6 +2,8 @@
 //! value is usable and every size bounded ([`crate::limits`]). Errors name the file, the key and the
 //! value as written.
 
+pub mod site;
+
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -459,7 +461,7 @@ pub fn load(path: &Path) -> Result<Scenario> {
 pub fn parse(bytes: &[u8], path: &Path) -> Result<Scenario> {
     let text = std::str::from_utf8(bytes).with_context(|| format!("{}: not UTF-8 text", path.display()))?;
     let raw: raw::Scenario = toml::from_str(text).map_err(|e| toml_error(path, text, &e))?;
-    let hash = crate::output::manifest::sha256_hex(bytes);
+    let hash = crate::digest::sha256_hex(bytes);
     validate(raw, path, hash).with_context(|| format!("{}: invalid scenario", path.display()))
 }
 
@@ -770,7 +772,7 @@ fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
                     other => keyed("field.", &other, &given),
                 }
             })?;
-            (field, crate::log::site::wmm_place(model, &site))
+            (field, crate::scenario::site::wmm_place(model, &site))
         }
     };
     let field = field
