@@ -194,10 +194,26 @@ fn cell_key(design: &str, sigma: f64, attitude_sigma: f64) -> String {
 /// A missing or malformed baseline file, or a baseline whose tolerance is not finite.
 pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<Vec<Moved>> {
     let mut f = Findings::default();
-    // Only plain names of regular files inside the baseline are read.
-    let file = |name: &str| limits::set_member(baseline, name);
+    file_hashes(&mut f, baseline, manifest)?;
+    if manifest.lists("summary.csv") {
+        let shown = baseline.join("summary.csv").display().to_string();
+        let base: Vec<SummaryRow> = read_csv(&limits::set_member(baseline, "summary.csv")?)?;
+        let now: Vec<SummaryRow> = output::summary_rows(out).collect();
+        compare_summaries(&mut f, &base, &now, &shown)?;
+        if manifest.lists("trials.csv") {
+            let trials: Vec<TrialRow> = read_csv(&limits::set_member(baseline, "trials.csv")?)?;
+            compare_statuses(&mut f, &trials, out);
+            baseline_consistency(&mut f, &base, &trials);
+        }
+    }
+    compare_designs(&mut f, out, baseline, manifest)?;
+    compare_pso_runs(&mut f, out, baseline, manifest)?;
+    Ok(f.0)
+}
 
-    // --- every file as it was written
+/// Every file as it was written: the SHA-256 its manifest recorded. Only plain names of regular
+/// files inside the baseline are read.
+fn file_hashes(f: &mut Findings, baseline: &Path, manifest: &Manifest) -> Result<()> {
     if manifest.file_sha256.is_empty() {
         to_stderr!(
             "magcal: note: {} records no file hashes (made by an older magcal): edits of its files cannot be detected",
@@ -205,76 +221,79 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         );
     }
     for (name, want) in &manifest.file_sha256 {
-        let bytes = limits::read_bounded(&file(name)?, limits::max_result_file_bytes())?;
+        let bytes = limits::read_bounded(&limits::set_member(baseline, name)?, limits::max_result_file_bytes())?;
         if &sha256_hex(&bytes) != want {
             f.missing(name, "edited since it was written (SHA-256 differs from manifest.json)");
         }
     }
 
-    // --- summary.csv and trials.csv
-    if manifest.lists("summary.csv") {
-        let shown = baseline.join("summary.csv").display().to_string();
-        let base: Vec<SummaryRow> = read_csv(&file("summary.csv")?)?;
-        let now: Vec<SummaryRow> = output::summary_rows(out).collect();
-        let key = |r: &SummaryRow| {
-            format!(
-                "summary.csv {} / {}",
-                cell_key(&r.design, r.sigma_nt.0, r.attitude_sigma_deg.0),
-                r.metric.as_str()
-            )
-        };
-        let now_by: BTreeMap<String, &SummaryRow> = now.iter().map(|r| (key(r), r)).collect();
-        let base_by: BTreeMap<String, &SummaryRow> = base.iter().map(|r| (key(r), r)).collect();
-        keys_match(&mut f, &base_by, &now_by);
-        for (k, b) in &base_by {
-            let Some(n) = now_by.get(k) else { continue };
-            let se_b = standard_error(b.se_mean, &shown, k)?;
-            let se_n = standard_error(n.se_mean, "this run", k)?;
-            // An undefined standard error (fewer than two values): no statistical tolerance.
-            let se = se_b.zip(se_n).map(|(a, c)| (a * a + c * c).sqrt());
-            let exact = |v: Option<Real>| 1e-9 * real(v).map_or(0.0, f64::abs);
-            f.value(k, "trials", Some(b.trials as f64), Some(n.trials as f64), 0.0);
-            // Binomial counts: 4 standard deviations.
-            for (quantity, bc, nc) in [
-                ("ok", b.ok, n.ok),
-                ("not_converged", b.not_converged, n.not_converged),
-                ("not_identifiable", b.not_identifiable, n.not_identifiable),
-                ("failed", b.failed, n.failed),
-            ] {
-                f.value(
-                    k,
-                    quantity,
-                    Some(bc as f64),
-                    Some(nc as f64),
-                    4.0 * (bc.max(1) as f64).sqrt(),
-                );
-            }
+    Ok(())
+}
+
+/// `summary.csv`: the statistics of each cell within 4 combined standard errors, the outcome
+/// counts within 4 binomial standard deviations. `shown` names the baseline's file in errors.
+///
+/// # Errors
+/// A baseline standard error that is not a finite non-negative number.
+fn compare_summaries(f: &mut Findings, base: &[SummaryRow], now: &[SummaryRow], shown: &str) -> Result<()> {
+    let key = |r: &SummaryRow| {
+        format!(
+            "summary.csv {} / {}",
+            cell_key(&r.design, r.sigma_nt.0, r.attitude_sigma_deg.0),
+            r.metric.as_str()
+        )
+    };
+    let now_by: BTreeMap<String, &SummaryRow> = now.iter().map(|r| (key(r), r)).collect();
+    let base_by: BTreeMap<String, &SummaryRow> = base.iter().map(|r| (key(r), r)).collect();
+    keys_match(f, &base_by, &now_by);
+    for (k, b) in &base_by {
+        let Some(n) = now_by.get(k) else { continue };
+        let se_b = standard_error(b.se_mean, shown, k)?;
+        let se_n = standard_error(n.se_mean, "this run", k)?;
+        // An undefined standard error (fewer than two values): no statistical tolerance.
+        let se = se_b.zip(se_n).map(|(a, c)| (a * a + c * c).sqrt());
+        let exact = |v: Option<Real>| 1e-9 * real(v).map_or(0.0, f64::abs);
+        f.value(k, "trials", Some(b.trials as f64), Some(n.trials as f64), 0.0);
+        // Binomial counts: 4 standard deviations.
+        for (quantity, bc, nc) in [
+            ("ok", b.ok, n.ok),
+            ("not_converged", b.not_converged, n.not_converged),
+            ("not_identifiable", b.not_identifiable, n.not_identifiable),
+            ("failed", b.failed, n.failed),
+        ] {
             f.value(
                 k,
-                "mean",
-                real(b.mean),
-                real(n.mean),
-                se.map_or(exact(b.mean), |se| 4.0 * se),
+                quantity,
+                Some(bc as f64),
+                Some(nc as f64),
+                4.0 * (bc.max(1) as f64).sqrt(),
             );
-            // The median's standard error is about sqrt(pi/2) times the mean's for a smooth density.
-            let median_tol = se.map_or(exact(b.median), |se| 4.0 * 1.2533 * se);
-            f.value(k, "median", real(b.median), real(n.median), median_tol);
-            // Std of a sample std: about std / sqrt(2 (n - 1)).
-            let succeeded = b.ok as f64;
-            let std_tol = match (real(b.std), se) {
-                (Some(s), Some(_)) if s.is_finite() => 4.0 * s / (2.0 * (succeeded - 1.0).max(1.0)).sqrt(),
-                _ => exact(b.std),
-            };
-            f.value(k, "std", real(b.std), real(n.std), std_tol);
         }
-        if manifest.lists("trials.csv") {
-            let trials: Vec<TrialRow> = read_csv(&file("trials.csv")?)?;
-            compare_statuses(&mut f, &trials, out);
-            baseline_consistency(&mut f, &base, &trials);
-        }
+        f.value(
+            k,
+            "mean",
+            real(b.mean),
+            real(n.mean),
+            se.map_or(exact(b.mean), |se| 4.0 * se),
+        );
+        // The median's standard error is about sqrt(pi/2) times the mean's for a smooth density.
+        let median_tol = se.map_or(exact(b.median), |se| 4.0 * 1.2533 * se);
+        f.value(k, "median", real(b.median), real(n.median), median_tol);
+        // Std of a sample std: about std / sqrt(2 (n - 1)).
+        let succeeded = b.ok as f64;
+        let std_tol = match (real(b.std), se) {
+            (Some(s), Some(_)) if s.is_finite() => 4.0 * s / (2.0 * (succeeded - 1.0).max(1.0)).sqrt(),
+            _ => exact(b.std),
+        };
+        f.value(k, "std", real(b.std), real(n.std), std_tol);
     }
+    Ok(())
+}
 
-    // --- designs.csv and design_metrics.csv
+/// `designs.csv` and `design_metrics.csv`: sizes and `ln det M_F` of every design, condition numbers
+/// and attitudes of those that are not optimised.
+fn compare_designs(f: &mut Findings, out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<()> {
+    let file = |name: &str| limits::set_member(baseline, name);
     let base_metrics: Vec<DesignMetricsRow> = read_csv(&file("design_metrics.csv")?)?;
     let now_metrics: Vec<DesignMetricsRow> = output::design_metrics_rows(out).collect();
     let base_points = group_points(read_csv::<DesignPointRow>(&file("designs.csv")?)?);
@@ -290,7 +309,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
             .collect()
     };
     let (base_by, now_by) = (by(&base_metrics), by(&now_metrics));
-    keys_match(&mut f, &base_by, &now_by);
+    keys_match(f, &base_by, &now_by);
     for (k, b) in &base_by {
         let Some(n) = now_by.get(k) else { continue };
         f.value(k, "m", Some(b.m as f64), Some(n.m as f64), 0.0);
@@ -346,10 +365,14 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         }
     }
 
-    // --- pso_runs.csv: the runs are chaotic, so compare their mean final ln det M_F.
+    Ok(())
+}
+
+/// `pso_runs.csv`: the runs are chaotic, so their mean final `ln det M_F` is compared.
+fn compare_pso_runs(f: &mut Findings, out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<()> {
     match (manifest.lists("pso_runs.csv"), out.pso_runs.is_some()) {
         (true, true) => {
-            let base: Vec<f64> = read_csv::<PsoRunRow>(&file("pso_runs.csv")?)?
+            let base: Vec<f64> = read_csv::<PsoRunRow>(&limits::set_member(baseline, "pso_runs.csv")?)?
                 .iter()
                 .map(|r| r.final_ln_det.0)
                 .collect();
@@ -388,7 +411,7 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         (true, false) => f.missing("pso_runs.csv", "not made by this run"),
         (false, false) => {}
     }
-    Ok(f.0)
+    Ok(())
 }
 
 fn keys_match<V, W>(f: &mut Findings, base: &BTreeMap<String, V>, now: &BTreeMap<String, W>) {
@@ -526,4 +549,90 @@ pub fn report(moved: &[Moved]) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::parse_csv;
+
+    const HEADER: &str = "design,sigma_nt,attitude_sigma_deg,trials,ok,not_converged,not_identifiable,failed,metric,\
+                          mean,std,median,p05,p95,se_mean,rms,crb_rms\n";
+
+    /// One summary row of design `a` at 30 nT: `ok` of 1000 trials, `mean` with standard error
+    /// `se`.
+    fn rows(ok: usize, mean: f64, se: &str) -> Vec<SummaryRow> {
+        let failed = 1000 - ok;
+        let text = format!("{HEADER}a,30,0,1000,{ok},0,0,{failed},eta_psi,{mean},3.0,{mean},1,9,{se},5,5\n");
+        parse_csv(text.as_bytes(), "summary.csv").unwrap()
+    }
+
+    fn moved(base: &[SummaryRow], now: &[SummaryRow]) -> Vec<(String, String)> {
+        let mut f = Findings::default();
+        compare_summaries(&mut f, base, now, "baseline/summary.csv").unwrap();
+        f.0.into_iter().map(|m| (m.key, m.quantity)).collect()
+    }
+
+    #[test]
+    fn identical_summaries_have_moved_nothing() {
+        assert_eq!(moved(&rows(990, 4.0, "0.1"), &rows(990, 4.0, "0.1")), vec![]);
+    }
+
+    #[test]
+    fn a_mean_moves_beyond_four_combined_standard_errors_only() {
+        // Combined standard error sqrt(2) * 0.1 = 0.1414: the tolerance is 0.566.
+        assert_eq!(moved(&rows(990, 4.0, "0.1"), &rows(990, 4.5, "0.1")), vec![]);
+        let m = moved(&rows(990, 4.0, "0.1"), &rows(990, 4.6, "0.1"));
+        let key = "summary.csv a / 30 / eta_psi".to_string();
+        // The median moved as much, and its tolerance is 1.2533 times wider: 0.709.
+        assert_eq!(m, vec![(key, "mean".to_string())]);
+    }
+
+    #[test]
+    fn outcome_counts_move_beyond_four_binomial_deviations_only() {
+        // 4 sqrt(10) = 12.6 failed trials.
+        assert_eq!(moved(&rows(990, 4.0, "0.1"), &rows(978, 4.0, "0.1")), vec![]);
+        let m = moved(&rows(990, 4.0, "0.1"), &rows(977, 4.0, "0.1"));
+        let quantities: Vec<&str> = m.iter().map(|(_, q)| q.as_str()).collect();
+        // `ok` has the wider tolerance, 4 sqrt(990) = 125.9.
+        assert_eq!(quantities, ["failed"]);
+    }
+
+    #[test]
+    fn a_row_on_one_side_only_is_named() {
+        let mut other = rows(990, 4.0, "0.1");
+        other[0].design = "b".to_string();
+        let m = moved(&rows(990, 4.0, "0.1"), &other);
+        assert_eq!(
+            m,
+            vec![
+                (
+                    "summary.csv a / 30 / eta_psi".to_string(),
+                    "row missing in this run".to_string()
+                ),
+                (
+                    "summary.csv b / 30 / eta_psi".to_string(),
+                    "row not in the baseline".to_string()
+                ),
+            ]
+        );
+    }
+
+    #[test]
+    fn a_baseline_standard_error_that_is_not_one_is_damage() {
+        let mut f = Findings::default();
+        let e = compare_summaries(
+            &mut f,
+            &rows(990, 4.0, "-0.1"),
+            &rows(990, 4.0, "0.1"),
+            "base/summary.csv",
+        )
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            "base/summary.csv: summary.csv a / 30 / eta_psi: se_mean = -0.1 is not a standard error; the baseline is \
+             damaged"
+        );
+    }
 }
