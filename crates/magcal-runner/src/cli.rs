@@ -79,17 +79,10 @@ fn one_line(e: &clap::Error) -> String {
 
 /// Parses the command line, runs the command, prints an error as one line; the exit code.
 pub fn main() -> ExitCode {
-    // Rust ignores SIGPIPE, so that printing into a closed pipe (`magcal calibrate LOG | head`)
-    // panics; the default action ends the process quietly, as every command-line tool does.
-    #[cfg(unix)]
-    // SAFETY: called first, before any thread starts; SIG_DFL is a valid disposition.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
-    // A write past the file-size limit (`ulimit -f`) then fails with EFBIG, an error like a full
+    // A write past the file-size limit (`ulimit -f`) fails with EFBIG, an error like a full
     // disk, instead of killing the process by SIGXFSZ with its temporary files left behind.
     #[cfg(unix)]
-    // SAFETY: as above.
+    // SAFETY: called first, before any thread starts; SIG_IGN is a valid disposition.
     unsafe {
         libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }

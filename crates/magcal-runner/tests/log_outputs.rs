@@ -770,3 +770,35 @@ fn a_full_standard_error_loses_the_message_not_the_exit_code() {
         assert_eq!(full.stdout, piped.stdout, "{args:?}");
     }
 }
+
+/// `magcal` with standard output on a pipe whose reader has gone (`magcal ... | head` after head
+/// ended).
+fn reader_gone(args: &[&str], dir: &Path) -> Output {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    magcal_process()
+        .current_dir(dir)
+        .args(args)
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_reader_that_left_ends_the_output_quietly_and_the_exit_code_is_the_commands() {
+    let tmp = TempDir::new().unwrap();
+    let dir = tmp.path();
+    log(&dir.join("x.csv"), 1, 400);
+    assert!(calibrate(&dir.join("x.csv"), &dir.join("d")).status.success());
+    let apply = reader_gone(&["apply", "d/calibration.json", "x.csv"], dir);
+    assert_eq!((apply.status.code(), stderr(&apply)), (Some(0), String::new()));
+    // A log that does not determine the calibration: its outputs are written and the exit code
+    // says so, whether or not anyone reads the table.
+    let cap = AttitudeBox::from_degrees([-0.1, 0.1], [-0.1, 0.1], [-0.1, 0.1]).unwrap();
+    log_in(&cap, &dir.join("cap.csv"), 2, 400);
+    let cap = reader_gone(&["calibrate", "cap.csv", "--out", "c"], dir);
+    assert_eq!(cap.status.code(), Some(3), "{}", stderr(&cap));
+    assert!(stderr(&cap).contains("not a calibration to use"), "{}", stderr(&cap));
+    assert!(dir.join("c/calibration.json").is_file());
+}

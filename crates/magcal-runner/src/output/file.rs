@@ -11,7 +11,10 @@
 //! killed process is removed by the next write beside it.
 //!
 //! [`Output::Stdout`] writes to standard output and reports every failure (a full device, a closed
-//! descriptor) as an error instead of a panic or a silent loss.
+//! descriptor) as an error instead of a panic or a silent loss, but one: a reader that closed the
+//! pipe (`magcal apply CAL LOG | head`) wants no more, so writing stops there without an error and
+//! the command ends as it would have, with its own exit code. (Rust ignores `SIGPIPE`, so the write
+//! fails with `EPIPE` where a C tool would be killed by the signal.)
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufWriter, Write};
@@ -92,7 +95,8 @@ pub fn check_stdout() -> Result<()> {
     Ok(())
 }
 
-/// Lets `write` fill standard output through a buffer and flushes it.
+/// Lets `write` fill standard output through a buffer and flushes it. A reader that closed the
+/// pipe ends the writing without an error (see the module documentation).
 ///
 /// # Errors
 /// A closed standard output, a write that fails (`> /dev/full`), or what `write` returns.
@@ -101,47 +105,58 @@ pub fn to_stdout(write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()>
     let stdout = std::io::stdout();
     let mut w = Tracking::new(BufWriter::new(stdout.lock()));
     let written = write(&mut w);
-    w.blame(written, "standard output")?;
-    w.flush().context("standard output: cannot write")
+    let written = w
+        .blame(written, "standard output")
+        .and_then(|()| w.flush().context("standard output: cannot write"));
+    match written {
+        // The error may reach here wrapped in a type that hides its cause (a CSV writer's): the
+        // writer itself saw what failed.
+        Err(_) if w.failure == Some(std::io::ErrorKind::BrokenPipe) => Ok(()),
+        other => other,
+    }
 }
 
-/// A writer that remembers whether a write or flush failed, so that an error of the output (a
-/// full disk) is told from an error of what the rows are made from (a bad line of a log, which
-/// names its own file).
+/// A writer that remembers how its first failed write or flush failed, so that an error of the
+/// output (a full disk) is told from an error of what the rows are made from (a bad line of a
+/// log, which names its own file).
 struct Tracking<W> {
     inner: W,
-    failed: bool,
+    failure: Option<std::io::ErrorKind>,
 }
 
 impl<W: Write> Tracking<W> {
     fn new(inner: W) -> Self {
-        Self { inner, failed: false }
+        Self { inner, failure: None }
     }
 
     /// `result`, with "`shown`: cannot write" in front of its error when a write failed.
     fn blame(&self, result: Result<()>, shown: &str) -> Result<()> {
         match result {
-            Err(e) if self.failed => Err(e.context(format!("{shown}: cannot write"))),
+            Err(e) if self.failure.is_some() => Err(e.context(format!("{shown}: cannot write"))),
             other => other,
         }
+    }
+
+    /// Notes the kind of a failure of `result`.
+    fn note<T>(&mut self, result: std::io::Result<T>) -> std::io::Result<T> {
+        if let Err(e) = &result
+            && e.kind() != std::io::ErrorKind::Interrupted
+        {
+            self.failure.get_or_insert(e.kind());
+        }
+        result
     }
 }
 
 impl<W: Write> Write for Tracking<W> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         let written = self.inner.write(buf);
-        self.failed |= written
-            .as_ref()
-            .is_err_and(|e| e.kind() != std::io::ErrorKind::Interrupted);
-        written
+        self.note(written)
     }
 
     fn flush(&mut self) -> std::io::Result<()> {
         let flushed = self.inner.flush();
-        self.failed |= flushed
-            .as_ref()
-            .is_err_and(|e| e.kind() != std::io::ErrorKind::Interrupted);
-        flushed
+        self.note(flushed)
     }
 }
 
