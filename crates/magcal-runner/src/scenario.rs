@@ -756,19 +756,15 @@ fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
                 alt_m: v[2],
                 year: v[3],
             };
-            let field = wmm::reference_field(model, &site).map_err(|e| {
+            let field = wmm::reference_field(model, &site).map_err(|e| match e {
+                ParameterError::OutsideValidityWindow { model, year } => anyhow::anyhow!(
+                    "field.year = {}: outside the validity window of {} (its epoch to 5 years after)",
+                    show(year),
+                    model.name()
+                ),
                 // The core names its parameter; the key is the same under [field], and its value
                 // is the one given.
-                let given = keys
-                    .iter()
-                    .position(|k| *k == e.name())
-                    .map_or(String::new(), |i| show(v[i]));
-                match e {
-                    ParameterError::OutOfRange { name: "year", .. } => anyhow::anyhow!(
-                        "field.year = {given}: outside the validity window of {name} (its epoch to 5 years after)"
-                    ),
-                    other => keyed("field.", &other, &given),
-                }
+                other => keyed("field.", &other, &other.value().map_or(String::new(), show)),
             })?;
             (field, crate::log::site::wmm_place(model, &site))
         }

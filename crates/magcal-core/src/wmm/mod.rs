@@ -122,11 +122,7 @@ pub fn field_ned(model: Model, site: &Site) -> Result<[f64; 3], ParameterError> 
     let m = model.load();
     let t = site.year - m.epoch;
     if !(0.0..=VALIDITY_YEARS).contains(&t) {
-        return Err(ParameterError::OutOfRange {
-            name: "year",
-            allowed: "the model's validity window (epoch to epoch + 5 years)",
-            value: site.year,
-        });
+        return Err(ParameterError::OutsideValidityWindow { model, year: site.year });
     }
     // At a pole the east component is a limit (it divides by the cosine of the latitude): evaluate
     // a nano-degree away, which changes the field by less than 1e-6 nT.
