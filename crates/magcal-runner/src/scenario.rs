@@ -738,10 +738,9 @@ fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
             (field, "field.north_nt, east_nt, down_nt".to_string())
         }
         (Some(name), false) => {
-            let Some(model) = wmm::Model::from_name(name) else {
-                let known: Vec<&str> = wmm::Model::ALL.iter().map(|m| m.name()).collect();
-                bail!("field.model = {name:?}: unknown model; known: {}", known.join(", "));
-            };
+            let model: wmm::Model = name
+                .parse()
+                .map_err(|e| anyhow::anyhow!("field.model = {name:?}: {e}"))?;
             let keys = ["lat_deg", "lon_deg", "alt_m", "year"];
             let mut v = [0.0; 4];
             for ((key, value), slot) in keys.iter().zip(site).zip(&mut v) {

@@ -55,6 +55,11 @@ impl Model {
         Self::ALL.into_iter().find(|m| m.name() == name)
     }
 
+    /// The names of [`Self::ALL`], comma-separated: `WMM2010, WMM2015, ...`.
+    pub fn known_names() -> String {
+        Self::ALL.map(|m| m.name()).join(", ")
+    }
+
     fn cof(&self) -> &'static str {
         match self {
             Self::Wmm2010 => include_str!("../../data/wmm/WMM_2010.COF"),
@@ -68,6 +73,20 @@ impl Model {
     /// The model, read from its shipped coefficient file.
     fn load(&self) -> magnetics::main_field::Model {
         magnetics::main_field::read_cof(self.cof()).expect("shipped COF files are valid")
+    }
+}
+
+/// A model name that none of [`Model::ALL`] has; says which names are known.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("unknown model; known: {}", Model::known_names())]
+pub struct UnknownModel;
+
+impl std::str::FromStr for Model {
+    type Err = UnknownModel;
+
+    /// [`Model::from_name`], with the known names on failure.
+    fn from_str(name: &str) -> Result<Self, UnknownModel> {
+        Self::from_name(name).ok_or(UnknownModel)
     }
 }
 

@@ -405,6 +405,11 @@ fn invalid_sites_and_dates_are_errors() {
     }
     assert_eq!(Model::from_name("WMM2015v2"), Some(Model::Wmm2015v2));
     assert_eq!(Model::from_name("IGRF13"), None);
+    assert_eq!("WMM2020".parse::<Model>(), Ok(Model::Wmm2020));
+    assert_eq!(
+        "IGRF13".parse::<Model>().unwrap_err().to_string(),
+        "unknown model; known: WMM2010, WMM2015, WMM2015v2, WMM2020, WMM2025"
+    );
 }
 
 #[test]
