@@ -62,7 +62,7 @@ pub use coverage::{microstrain_coverage_percent, motioncal_gaps};
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 
-use crate::calibration::{CalibrationError, CalibrationStatus, TwoStep};
+use crate::calibration::{CalibrationError, CalibrationStatus, Termination, TwoStep};
 use crate::identifiability::{AxisNames, CramerRao, PhysicalScales, residual_jacobian};
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_inverse, cholesky_solve, mat_t_vec, mat_vec, norm, sub};
@@ -1094,7 +1094,7 @@ fn reduced(
                             -w[2] * x[2],
                         ],
                     )
-                })?;
+                });
             (x.to_vec(), it, ok)
         }
         _ => {
@@ -1111,7 +1111,7 @@ fn reduced(
                         -x[0].abs() * w[2],
                     ],
                 )
-            })?;
+            });
             (vec![x[0].abs(), x[0].abs(), x[0].abs(), x[1], x[2], x[3]], it, ok)
         }
     };
@@ -1170,76 +1170,47 @@ fn sphere(readings: &[Vec3]) -> Result<(Vec3, f64), CalibrationError> {
     Ok(([0, 1, 2].map(|i| mean[i] + spread * c[i]), spread * r2.sqrt()))
 }
 
-/// Levenberg-Marquardt (Marquardt scaling, Nielsen damping, as step 2) on
-/// `sum (rho(x, u_i) - target)^2 / 2` with `rho` and its gradient from `model`. Returns the
-/// parameters, the iterations and whether a convergence test passed. Step 2 keeps its own
-/// 9-parameter loop: it interleaves the flat-direction check, and its arithmetic fixes the committed
-/// Monte Carlo results bit for bit; a shared generic loop is the next refactor (with a regeneration).
+/// Levenberg-Marquardt ([`crate::calibration::step2::levenberg_marquardt`], the loop of step 2) on
+/// `sum ((rho(x, u_i) - target) / target)^2 / 2` with `rho` and its gradient from `model`.
+/// Returns the parameters, the iterations that took or refused a step (one that stops on a
+/// negligible step is not counted, as step 2 counts it) and whether a convergence test passed.
 fn levenberg_marquardt<const N: usize>(
-    mut x: [f64; N],
+    x: [f64; N],
     u: &[Vec3],
     target: f64,
     settings: &TwoStep,
     model: impl Fn(&[f64; N], Vec3) -> (f64, [f64; N]),
-) -> Result<([f64; N], usize, bool), CalibrationError> {
+) -> ([f64; N], usize, bool) {
+    let cost = |x: &[f64; N]| {
+        let mut f = 0.0;
+        for &ui in u {
+            let r = (model(x, ui).0 - target) / target;
+            f += 0.5 * r * r;
+        }
+        f
+    };
     let normal = |x: &[f64; N]| {
         let mut jtj = [[0.0; N]; N];
         let mut g = [0.0; N];
-        let mut f = 0.0;
         for &ui in u {
             let (rho, grad) = model(x, ui);
             let r = (rho - target) / target;
-            f += 0.5 * r * r;
             for i in 0..N {
                 g[i] += grad[i] / target * r;
-                for j in 0..N {
+                // The lower triangle: the loop reads no more.
+                for j in 0..=i {
                     jtj[i][j] += grad[i] * grad[j] / (target * target);
                 }
             }
         }
-        (jtj, g, f)
+        (jtj, g)
     };
-    let (mut jtj, mut g, mut f) = normal(&x);
-    let mut mu = 1e-3 * (0..N).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
-    let mut nu = 2.0;
-    for iteration in 0..settings.max_iterations {
-        if g.iter().all(|v| v.abs() <= settings.gradient_tolerance) {
-            return Ok((x, iteration, true));
-        }
-        let mut damped = jtj;
-        let diag: [f64; N] = std::array::from_fn(|i| jtj[i][i].max(f64::MIN_POSITIVE));
-        for i in 0..N {
-            damped[i][i] += mu * diag[i];
-        }
-        if !cholesky_in_place(&mut damped) {
-            mu *= nu;
-            nu *= 2.0;
-            continue;
-        }
-        let h = cholesky_solve(&damped, &g.map(|v| -v));
-        let h_norm = h.iter().map(|v| v * v).sum::<f64>().sqrt();
-        let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if h_norm <= settings.step_tolerance * (x_norm + settings.step_tolerance) {
-            return Ok((x, iteration, true));
-        }
-        let x_new: [f64; N] = std::array::from_fn(|i| x[i] + h[i]);
-        let (jtj_new, g_new, f_new) = normal(&x_new);
-        let predicted: f64 = 0.5 * (0..N).map(|i| h[i] * (mu * diag[i] * h[i] - g[i])).sum::<f64>();
-        let rho = (f - f_new) / predicted;
-        if f_new.is_finite() && rho > 0.0 {
-            let reduction = f - f_new;
-            (x, jtj, g, f) = (x_new, jtj_new, g_new, f_new);
-            mu *= (1.0_f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
-            nu = 2.0;
-            if reduction <= settings.cost_tolerance * f {
-                return Ok((x, iteration + 1, true));
-            }
-        } else {
-            mu *= nu;
-            nu *= 2.0;
-        }
-    }
-    Ok((x, settings.max_iterations, false))
+    let fit = crate::calibration::step2::levenberg_marquardt(settings, x, cost, normal, |_, _, _| None, false);
+    let iterations = match fit.termination {
+        Termination::StepSize => fit.iterations - 1,
+        _ => fit.iterations,
+    };
+    (fit.x, iterations, fit.termination.converged())
 }
 
 #[cfg(test)]
