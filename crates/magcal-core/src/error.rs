@@ -74,6 +74,15 @@ pub enum ParameterError {
         /// The value given.
         value: f64,
     },
+    /// A date outside the five-year validity window of a World Magnetic Model release
+    /// ([`crate::wmm::field_ned`]); the parameter is `year`.
+    #[error("year must lie in the model's validity window (epoch to epoch + 5 years), got {year}")]
+    OutsideValidityWindow {
+        /// The model asked for.
+        model: crate::wmm::Model,
+        /// The decimal year given.
+        year: f64,
+    },
     /// Inputs under which no design identifies the linear model (\[P1\] eq. (9)): every
     /// information matrix is singular (for example an attitude box too small to turn the field).
     #[error("{name}: no design in it identifies the 9 unknowns of the linear model")]
@@ -95,6 +104,20 @@ impl ParameterError {
             | Self::TooLarge { name, .. }
             | Self::OutOfRange { name, .. }
             | Self::Singular { name } => name,
+            Self::OutsideValidityWindow { .. } => "year",
+        }
+    }
+
+    /// The value given, where it is a real number (a count, a range and a singular input have
+    /// none).
+    pub fn value(&self) -> Option<f64> {
+        match *self {
+            Self::NonFinite { value, .. }
+            | Self::NotPositive { value, .. }
+            | Self::Negative { value, .. }
+            | Self::OutOfRange { value, .. } => Some(value),
+            Self::OutsideValidityWindow { year, .. } => Some(year),
+            Self::EmptyRange { .. } | Self::TooSmall { .. } | Self::TooLarge { .. } | Self::Singular { .. } => None,
         }
     }
 
@@ -109,6 +132,9 @@ impl ParameterError {
             Self::TooLarge { max, .. } => format!("must be at most {max}"),
             Self::OutOfRange { allowed, .. } => format!("must lie in {allowed}"),
             Self::Singular { .. } => "must let some design identify the linear model".into(),
+            Self::OutsideValidityWindow { .. } => {
+                "must lie in the model's validity window (epoch to epoch + 5 years)".into()
+            }
         }
     }
 }

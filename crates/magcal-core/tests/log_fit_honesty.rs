@@ -434,7 +434,7 @@ fn a_yaw_only_log_gets_no_confident_bias() {
             }
         }
         let (f, why) = log_fit::fit_auto(&readings, r, &FitSettings::default()).unwrap();
-        assert!(!f.usable, "tilt {tilt}: {why}");
+        assert!(!f.usable, "tilt {tilt}: {why:?}");
     }
     // A sensor with one common scale on the same tilted circles: the offset model is true, and
     // where the log determines it, its interval holds the true bias of the vertical axis (y,

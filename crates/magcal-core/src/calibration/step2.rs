@@ -5,7 +5,8 @@
 //! Written here rather than taken from a crate: the Levenberg-Marquardt crates on crates.io are
 //! built on nalgebra (a second linear-algebra family, which the project excludes), and argmin's
 //! Gauss-Newton needs an argmin-math backend that faer is not. The problem has exactly 9
-//! parameters, so the damped normal equations are a fixed 9x9 system solved by
+//! parameters (4 and 6 for the reduced models of [`crate::log_fit`], which share the loop), so the
+//! damped normal equations are a fixed small system solved by
 //! [`crate::small::cholesky_in_place`] without allocation.
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
@@ -442,28 +443,31 @@ pub(crate) fn refine_holding(
 type Normal = [[f64; PARAMETERS]; PARAMETERS];
 
 /// Where [`levenberg_marquardt`] stopped.
-struct Fit {
-    x: [f64; PARAMETERS],
-    iterations: usize,
-    termination: Termination,
+pub(crate) struct Fit<const N: usize> {
+    pub x: [f64; N],
+    pub iterations: usize,
+    pub termination: Termination,
     /// The local check at `x` (`None`: no noise to judge by).
-    identifiable: Option<bool>,
+    pub identifiable: Option<bool>,
 }
 
-/// The damped Gauss-Newton loop on `cost`, whose `J^T J` and `J^T r` `normal` gives;
-/// `locally_identifiable` (`J^T J`, `x`, cost) is the check for a flat direction.
-fn levenberg_marquardt(
+/// The damped Gauss-Newton loop on `cost` in `N` unknowns from `start`, whose `J^T J` (the lower
+/// triangle is read) and `J^T r` `normal` gives; `locally_identifiable` (`J^T J`, `x`, cost) is the
+/// check for a flat direction, made every [`FLAT_CHECK_EVERY`] iterations from the
+/// [`FLAT_CHECK_FROM`]-th when `stop_on_flat`, and at the end. Step 2 (9 unknowns) and the
+/// reduced models of [`crate::log_fit`] (4 and 6) share it.
+pub(crate) fn levenberg_marquardt<const N: usize>(
     settings: &TwoStep,
-    start: [f64; PARAMETERS],
-    cost: impl Fn(&[f64; PARAMETERS]) -> f64,
-    normal: impl Fn(&[f64; PARAMETERS]) -> (Normal, [f64; PARAMETERS]),
-    locally_identifiable: impl Fn(&Normal, &[f64; PARAMETERS], f64) -> Option<bool>,
+    start: [f64; N],
+    cost: impl Fn(&[f64; N]) -> f64,
+    normal: impl Fn(&[f64; N]) -> ([[f64; N]; N], [f64; N]),
+    locally_identifiable: impl Fn(&[[f64; N]; N], &[f64; N], f64) -> Option<bool>,
     stop_on_flat: bool,
-) -> Fit {
+) -> Fit<N> {
     let mut x = start;
     let mut f = cost(&x);
     let (mut jtj, mut g) = normal(&x);
-    let max_diag = (0..PARAMETERS).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
+    let max_diag = (0..N).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
     let mut mu = 1e-3 * max_diag;
     let mut nu = 2.0;
     let mut iterations = 0;
@@ -484,8 +488,8 @@ fn levenberg_marquardt(
         iterations += 1;
         // (J^T J + mu diag(J^T J)) h = -J^T r
         let mut damped = jtj;
-        let mut diag = [0.0; PARAMETERS];
-        for i in 0..PARAMETERS {
+        let mut diag = [0.0; N];
+        for i in 0..N {
             diag[i] = jtj[i][i].max(f64::MIN_POSITIVE);
             damped[i][i] += mu * diag[i];
         }
@@ -501,13 +505,10 @@ fn levenberg_marquardt(
         if h_norm <= settings.step_tolerance * (x_norm + settings.step_tolerance) {
             break Termination::StepSize;
         }
-        let x_new: [f64; PARAMETERS] = std::array::from_fn(|i| x[i] + h[i]);
+        let x_new: [f64; N] = std::array::from_fn(|i| x[i] + h[i]);
         let f_new = cost(&x_new);
         // Predicted reduction L(0) - L(h) = 0.5 h^T (mu D h - g).
-        let predicted: f64 = 0.5
-            * (0..PARAMETERS)
-                .map(|i| h[i] * (mu * diag[i] * h[i] - g[i]))
-                .sum::<f64>();
+        let predicted: f64 = 0.5 * (0..N).map(|i| h[i] * (mu * diag[i] * h[i] - g[i])).sum::<f64>();
         let rho = (f - f_new) / predicted;
         if f_new.is_finite() && rho > 0.0 {
             let reduction = f - f_new;

@@ -97,7 +97,7 @@ impl Certificate {
     /// Upper bound on `ln det M_F` (nT) of any design of `m` readings in the box:
     /// `9 ln m + ln_det_bound`.
     pub fn ln_det_mf_bound(&self, m: usize) -> f64 {
-        P as f64 * (m as f64).ln() + self.ln_det_bound
+        super::ln_det_of_count(m) + self.ln_det_bound
     }
 
     /// Certified lower bound of the D-efficiency of a design of `m` readings with `ln det M_F`

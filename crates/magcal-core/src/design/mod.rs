@@ -369,6 +369,18 @@ pub struct DesignMetrics {
     pub e: f64,
 }
 
+/// `ln det (m I) = 9 ln m`: the part of `ln det M_F` that the count `m` of readings gives,
+/// `ln det M_F = ln det (M_F / m) + 9 ln m`.
+pub fn ln_det_of_count(m: usize) -> f64 {
+    UNKNOWNS as f64 * (m as f64).ln()
+}
+
+/// `ln det (M_F / m) = ln det M_F - 9 ln m` of a design of `m` readings: its information per
+/// reading, which designs of different sizes share (nT, as `ln_det_mf`).
+pub fn ln_det_per_reading(ln_det_mf: f64, m: usize) -> f64 {
+    ln_det_mf - ln_det_of_count(m)
+}
+
 /// D-efficiency of a design against a reference: `(det M_F / det M_F*)^(1/9)`, from the natural
 /// logs of the determinants.
 pub fn d_efficiency(ln_det_mf: f64, reference_ln_det_mf: f64) -> f64 {

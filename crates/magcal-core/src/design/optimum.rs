@@ -55,6 +55,36 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
     ln_det
 }
 
+/// The criteria of [`ln_criterion_and_gradient`]: those of [`DesignCriterion`] other than D, whose
+/// logarithm has [`ln_det_and_gradient`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum InverseCriterion {
+    /// [`DesignCriterion::A`]: `trace(M_F^-1)`.
+    A,
+    /// [`DesignCriterion::E`]: `1 / lambda_min(M_F)`.
+    E,
+}
+
+impl InverseCriterion {
+    /// `criterion` as [`ln_criterion_and_gradient`] takes it; `None` for D.
+    pub fn of(criterion: DesignCriterion) -> Option<Self> {
+        match criterion {
+            DesignCriterion::D => None,
+            DesignCriterion::A => Some(Self::A),
+            DesignCriterion::E => Some(Self::E),
+        }
+    }
+}
+
+impl From<InverseCriterion> for DesignCriterion {
+    fn from(c: InverseCriterion) -> Self {
+        match c {
+            InverseCriterion::A => Self::A,
+            InverseCriterion::E => Self::E,
+        }
+    }
+}
+
 /// `ln` of the A- or E-criterion of design `x` and its gradient, written to `grad`: with
 /// `phi = trace(M^-1)` (A) or `phi = 1 / lambda_min(M)` (E) of the R-scaled information,
 /// `d phi / d theta = -2 sum_i w_i^T dh_i/d theta` with `w_i = M^-2 h_i` (A) or
@@ -63,11 +93,11 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
 /// one gradient tolerance serves every box. `+inf` (gradient zero) for a singular design.
 ///
 /// # Panics
-/// If `x` or `grad` is not of length `3m`, or `criterion` is D (see [`ln_det_and_gradient`]).
+/// If `x` or `grad` is not of length `3m`.
 #[track_caller]
 pub fn ln_criterion_and_gradient(
     problem: &DesignProblem,
-    criterion: DesignCriterion,
+    criterion: InverseCriterion,
     x: &[f64],
     grad: &mut [f64],
 ) -> f64 {
@@ -81,7 +111,7 @@ pub fn ln_criterion_and_gradient(
     }
     // phi and the matrix W with w_i = W h_i.
     let (phi, W): (f64, [[f64; UNKNOWNS]; UNKNOWNS]) = match criterion {
-        DesignCriterion::A => {
+        InverseCriterion::A => {
             let inv = crate::small::cholesky_inverse(&L);
             let phi: f64 = (0..UNKNOWNS).map(|i| inv[i][i]).sum();
             let W = std::array::from_fn(|i| {
@@ -89,7 +119,7 @@ pub fn ln_criterion_and_gradient(
             });
             (phi, W)
         }
-        DesignCriterion::E => {
+        InverseCriterion::E => {
             let fm = faer::MatRef::from_row_major_slice(M.as_flattened(), UNKNOWNS, UNKNOWNS);
             let Ok(evd) = fm.self_adjoint_eigen(faer::Side::Lower) else {
                 return f64::INFINITY;
@@ -102,7 +132,6 @@ pub fn ln_criterion_and_gradient(
             let W = std::array::from_fn(|i| std::array::from_fn(|j| v[i] * v[j] / (lambda * lambda)));
             (1.0 / lambda, W)
         }
-        DesignCriterion::D => panic!("ln_criterion_and_gradient: D has ln_det_and_gradient"),
     };
     for (a, g) in x.chunks_exact(3).zip(grad.chunks_exact_mut(3)) {
         let jet = problem.row_jet(&Attitude {
@@ -208,12 +237,12 @@ impl Optimum {
             .map(|seed| {
                 let mut rng = MagcalRng::seed_from_u64(seed);
                 let start = super::to_vector(&sources::random(problem.bounds(), problem.m(), &mut rng));
-                match self.criterion {
-                    DesignCriterion::D => {
+                match InverseCriterion::of(self.criterion) {
+                    None => {
                         let (x, ln_det, evaluations) = self.local(problem, start);
                         (x, ln_det, -ln_det, evaluations)
                     }
-                    criterion => {
+                    Some(criterion) => {
                         let (lo, hi) = bounds_of(problem.bounds(), start.len());
                         let (x, _, evaluations) = self.minimise(&lo, &hi, start, |x, g| {
                             ln_criterion_and_gradient(problem, criterion, x, g)
@@ -221,7 +250,7 @@ impl Optimum {
                         (
                             x.clone(),
                             problem.ln_det(&x),
-                            problem.fitness(criterion, &x),
+                            problem.fitness(criterion.into(), &x),
                             evaluations,
                         )
                     }
@@ -404,14 +433,14 @@ mod tests {
         )
         .unwrap();
         let mut rng = stream_rng(41, 0);
-        for criterion in [DesignCriterion::A, DesignCriterion::E] {
+        for criterion in [InverseCriterion::A, InverseCriterion::E] {
             for _ in 0..20 {
                 let x = crate::design::to_vector(&sources::random(problem.bounds(), 12, &mut rng));
                 let mut g = vec![0.0; 36];
                 let f = ln_criterion_and_gradient(&problem, criterion, &x, &mut g);
                 // The value is ln of the criterion as fitness() gives it.
-                let fitness = problem.fitness(criterion, &x);
-                let want = if criterion == DesignCriterion::A {
+                let fitness = problem.fitness(criterion.into(), &x);
+                let want = if criterion == InverseCriterion::A {
                     fitness.ln()
                 } else {
                     (-1.0 / fitness).ln()

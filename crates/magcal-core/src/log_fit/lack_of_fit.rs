@@ -96,8 +96,7 @@ fn distance_lm<const N: usize>(T: &[[f64; N]; 9], theta0: [f64; 9], readings: &[
             1.0 + r / G,
             std::array::from_fn(|j| (0..9).map(|i| T[i][j] * dn[i]).sum::<f64>() / G),
         )
-    })
-    .ok()?;
+    });
     let (p, o) = crate::calibration::step2::unpack(&theta(&x));
     let q = raw_sum_of_squares(&p, o.map(|v| v * magnitude), readings, magnitude);
     q.is_finite().then_some(q)

@@ -62,7 +62,7 @@ pub use coverage::{microstrain_coverage_percent, motioncal_gaps};
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 
-use crate::calibration::{CalibrationError, CalibrationStatus, TwoStep};
+use crate::calibration::{CalibrationError, CalibrationStatus, Termination, TwoStep};
 use crate::identifiability::{AxisNames, CramerRao, PhysicalScales, residual_jacobian};
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_inverse, cholesky_solve, mat_t_vec, mat_vec, norm, sub};
@@ -730,9 +730,82 @@ fn with_test(mut f: LogFit, richer: &[&LogFit], readings: &[Vec3]) -> LogFit {
     f
 }
 
+/// One step of [`fit_auto`]'s choice of model; its `Display` is the step in words
+/// (`full: not identifiable (...)`, `offset but rejected by the log (lack-of-fit p ... against
+/// full)`).
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum AutoReason {
+    /// The log has fewer readings than `model` has parameters.
+    TooFewReadings {
+        /// The model not fitted.
+        model: FitModel,
+        /// The readings of the log.
+        readings: usize,
+    },
+    /// `model`'s fit is identifiable: the choice.
+    Identifiable(FitModel),
+    /// `model`'s fit is not identifiable, for the reason of its verdict ([`LogFit::verdict`]).
+    NotIdentifiable {
+        /// The model fitted.
+        model: FitModel,
+        /// The fit's verdict.
+        verdict: String,
+    },
+    /// The last model, returned although its fit is not identifiable either.
+    NoneIdentifiable(FitModel),
+    /// `model` has no fit.
+    Failed {
+        /// The model tried.
+        model: FitModel,
+        /// Why it has no fit.
+        error: CalibrationError,
+    },
+    /// The chosen reduced model's lack-of-fit test tests nothing: no richer fit comes closer to
+    /// the readings (`F = 0`).
+    Untested(FitModel),
+    /// The chosen reduced model's lack-of-fit test ([`LogFit::lack_of_fit`]).
+    Tested {
+        /// The model chosen.
+        model: FitModel,
+        /// Its test against the richer models.
+        test: LackOfFit,
+    },
+}
+
+impl std::fmt::Display for AutoReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::TooFewReadings { model, readings } => write!(
+                f,
+                "{}: {readings} readings, at least {} are needed",
+                model.as_str(),
+                model.parameters()
+            ),
+            Self::Identifiable(model) => write!(f, "{}: identifiable", model.as_str()),
+            Self::NotIdentifiable { model, verdict } => write!(f, "{}: not identifiable ({verdict})", model.as_str()),
+            Self::NoneIdentifiable(model) => write!(f, "{}: not identifiable either", model.as_str()),
+            Self::Failed { model, error } => write!(f, "{}: {error}", model.as_str()),
+            Self::Untested(model) => write!(
+                f,
+                "{}: untested, no richer fit comes closer to the readings",
+                model.as_str()
+            ),
+            Self::Tested { model, test } => write!(
+                f,
+                "{} {} by the log (lack-of-fit p {} against {})",
+                model.as_str(),
+                if test.rejected { "but rejected" } else { "not rejected" },
+                lack_of_fit::show_p(test.p_value),
+                test.against.as_str()
+            ),
+        }
+    }
+}
+
 /// The richest model this log identifies: full, else diagonal, else offset (the offset fit is
-/// returned, not identifiable, when none is), with the reason in words, and the chosen reduced
-/// model's lack-of-fit test against the richer fits ([`fit_tested`]).
+/// returned, not identifiable, when none is), with the reasons, one per model tried, and the
+/// chosen reduced model's lack-of-fit test against the richer fits ([`fit_tested`]).
 ///
 /// # Errors
 /// As [`fit`], for the offset model (the others failing only moves on to the next).
@@ -744,65 +817,59 @@ pub fn fit_auto(
     readings: &[Vec3],
     magnitude: f64,
     settings: &FitSettings,
-) -> Result<(LogFit, String), CalibrationError> {
+) -> Result<(LogFit, Vec<AutoReason>), CalibrationError> {
     let (frame, u) = prepare(readings, magnitude, FitModel::Offset, settings)?;
     let unit = unit_settings(&frame, settings);
     let mut reasons = Vec::new();
     let mut richer: Vec<LogFit> = Vec::new();
     for model in [FitModel::Full, FitModel::Diagonal] {
         if u.len() < model.parameters() {
-            reasons.push(format!(
-                "{}: {} readings, at least {} are needed",
-                model.as_str(),
-                u.len(),
-                model.parameters()
-            ));
+            reasons.push(AutoReason::TooFewReadings {
+                model,
+                readings: u.len(),
+            });
             continue;
         }
         match fit_unit(&u, model, &unit) {
             Ok(f) if f.identifiable => {
-                reasons.push(format!("{}: identifiable", model.as_str()));
+                reasons.push(AutoReason::Identifiable(model));
                 let f = with_test(f, &richer.iter().collect::<Vec<_>>(), &u);
-                let why = auto_reason(reasons, &f);
-                return Ok((f.out_of_frame(&frame, magnitude)?, why));
+                push_test(&mut reasons, &f);
+                return Ok((f.out_of_frame(&frame, magnitude)?, reasons));
             }
             Ok(f) => {
-                reasons.push(format!("{}: not identifiable ({})", model.as_str(), f.verdict));
+                reasons.push(AutoReason::NotIdentifiable {
+                    model,
+                    verdict: f.verdict.clone(),
+                });
                 richer.push(f);
             }
-            Err(e) => reasons.push(format!("{}: {e}", model.as_str())),
+            Err(error) => reasons.push(AutoReason::Failed { model, error }),
         }
     }
     let f = fit_unit(&u, FitModel::Offset, &unit)?;
-    reasons.push(format!(
-        "offset: {}",
-        if f.identifiable {
-            "identifiable"
-        } else {
-            "not identifiable either"
-        }
-    ));
+    reasons.push(if f.identifiable {
+        AutoReason::Identifiable(FitModel::Offset)
+    } else {
+        AutoReason::NoneIdentifiable(FitModel::Offset)
+    });
     let f = with_test(f, &richer.iter().collect::<Vec<_>>(), &u);
-    let why = auto_reason(reasons, &f);
-    Ok((f.out_of_frame(&frame, magnitude)?, why))
+    push_test(&mut reasons, &f);
+    Ok((f.out_of_frame(&frame, magnitude)?, reasons))
 }
 
-/// The reasons of [`fit_auto`], ending with the chosen model's lack-of-fit test.
-fn auto_reason(mut reasons: Vec<String>, chosen: &LogFit) -> String {
+/// Ends the reasons of [`fit_auto`] with the chosen model's lack-of-fit test, where it has one.
+fn push_test(reasons: &mut Vec<AutoReason>, chosen: &LogFit) {
     if let Some(t) = &chosen.lack_of_fit {
-        let model = chosen.model.as_str();
         reasons.push(if t.f == 0.0 {
-            format!("{model}: untested, no richer fit comes closer to the readings")
+            AutoReason::Untested(chosen.model)
         } else {
-            format!(
-                "{model} {} by the log (lack-of-fit p {} against {})",
-                if t.rejected { "but rejected" } else { "not rejected" },
-                lack_of_fit::show_p(t.p_value),
-                t.against.as_str()
-            )
+            AutoReason::Tested {
+                model: chosen.model,
+                test: t.clone(),
+            }
         });
     }
-    reasons.join("; ")
 }
 
 /// Standard errors and verdict of a fit.
@@ -1027,7 +1094,7 @@ fn reduced(
                             -w[2] * x[2],
                         ],
                     )
-                })?;
+                });
             (x.to_vec(), it, ok)
         }
         _ => {
@@ -1044,7 +1111,7 @@ fn reduced(
                         -x[0].abs() * w[2],
                     ],
                 )
-            })?;
+            });
             (vec![x[0].abs(), x[0].abs(), x[0].abs(), x[1], x[2], x[3]], it, ok)
         }
     };
@@ -1103,76 +1170,47 @@ fn sphere(readings: &[Vec3]) -> Result<(Vec3, f64), CalibrationError> {
     Ok(([0, 1, 2].map(|i| mean[i] + spread * c[i]), spread * r2.sqrt()))
 }
 
-/// Levenberg-Marquardt (Marquardt scaling, Nielsen damping, as step 2) on
-/// `sum (rho(x, u_i) - target)^2 / 2` with `rho` and its gradient from `model`. Returns the
-/// parameters, the iterations and whether a convergence test passed. Step 2 keeps its own
-/// 9-parameter loop: it interleaves the flat-direction check, and its arithmetic fixes the committed
-/// Monte Carlo results bit for bit; a shared generic loop is the next refactor (with a regeneration).
+/// Levenberg-Marquardt ([`crate::calibration::step2::levenberg_marquardt`], the loop of step 2) on
+/// `sum ((rho(x, u_i) - target) / target)^2 / 2` with `rho` and its gradient from `model`.
+/// Returns the parameters, the iterations that took or refused a step (one that stops on a
+/// negligible step is not counted, as step 2 counts it) and whether a convergence test passed.
 fn levenberg_marquardt<const N: usize>(
-    mut x: [f64; N],
+    x: [f64; N],
     u: &[Vec3],
     target: f64,
     settings: &TwoStep,
     model: impl Fn(&[f64; N], Vec3) -> (f64, [f64; N]),
-) -> Result<([f64; N], usize, bool), CalibrationError> {
+) -> ([f64; N], usize, bool) {
+    let cost = |x: &[f64; N]| {
+        let mut f = 0.0;
+        for &ui in u {
+            let r = (model(x, ui).0 - target) / target;
+            f += 0.5 * r * r;
+        }
+        f
+    };
     let normal = |x: &[f64; N]| {
         let mut jtj = [[0.0; N]; N];
         let mut g = [0.0; N];
-        let mut f = 0.0;
         for &ui in u {
             let (rho, grad) = model(x, ui);
             let r = (rho - target) / target;
-            f += 0.5 * r * r;
             for i in 0..N {
                 g[i] += grad[i] / target * r;
-                for j in 0..N {
+                // The lower triangle: the loop reads no more.
+                for j in 0..=i {
                     jtj[i][j] += grad[i] * grad[j] / (target * target);
                 }
             }
         }
-        (jtj, g, f)
+        (jtj, g)
     };
-    let (mut jtj, mut g, mut f) = normal(&x);
-    let mut mu = 1e-3 * (0..N).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
-    let mut nu = 2.0;
-    for iteration in 0..settings.max_iterations {
-        if g.iter().all(|v| v.abs() <= settings.gradient_tolerance) {
-            return Ok((x, iteration, true));
-        }
-        let mut damped = jtj;
-        let diag: [f64; N] = std::array::from_fn(|i| jtj[i][i].max(f64::MIN_POSITIVE));
-        for i in 0..N {
-            damped[i][i] += mu * diag[i];
-        }
-        if !cholesky_in_place(&mut damped) {
-            mu *= nu;
-            nu *= 2.0;
-            continue;
-        }
-        let h = cholesky_solve(&damped, &g.map(|v| -v));
-        let h_norm = h.iter().map(|v| v * v).sum::<f64>().sqrt();
-        let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if h_norm <= settings.step_tolerance * (x_norm + settings.step_tolerance) {
-            return Ok((x, iteration, true));
-        }
-        let x_new: [f64; N] = std::array::from_fn(|i| x[i] + h[i]);
-        let (jtj_new, g_new, f_new) = normal(&x_new);
-        let predicted: f64 = 0.5 * (0..N).map(|i| h[i] * (mu * diag[i] * h[i] - g[i])).sum::<f64>();
-        let rho = (f - f_new) / predicted;
-        if f_new.is_finite() && rho > 0.0 {
-            let reduction = f - f_new;
-            (x, jtj, g, f) = (x_new, jtj_new, g_new, f_new);
-            mu *= (1.0_f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3));
-            nu = 2.0;
-            if reduction <= settings.cost_tolerance * f {
-                return Ok((x, iteration + 1, true));
-            }
-        } else {
-            mu *= nu;
-            nu *= 2.0;
-        }
-    }
-    Ok((x, settings.max_iterations, false))
+    let fit = crate::calibration::step2::levenberg_marquardt(settings, x, cost, normal, |_, _, _| None, false);
+    let iterations = match fit.termination {
+        Termination::StepSize => fit.iterations - 1,
+        _ => fit.iterations,
+    };
+    (fit.x, iterations, fit.termination.converged())
 }
 
 #[cfg(test)]
@@ -1286,7 +1324,8 @@ mod tests {
         assert!(f.verdict.contains("the log rejects this model"), "{}", f.verdict);
         // ... and auto, which takes the full model here, tests nothing.
         let (auto, why) = fit_auto(&readings, field, &FitSettings::default()).unwrap();
-        assert!(auto.model == FitModel::Full && auto.lack_of_fit.is_none(), "{why}");
+        assert!(auto.model == FitModel::Full && auto.lack_of_fit.is_none(), "{why:?}");
+        assert_eq!(why, [AutoReason::Identifiable(FitModel::Full)]);
         // Unequal scale factors fitted with one common scale in the AUV's box: rejected.
         let diagonal = ErrorModel::new([0.0; 3], [1.3, 0.7, 1.2], [3000.0, -6000.0, 5000.0]).unwrap();
         let readings = log(&diagonal, &paper::auv_box(), 300, 30.0, 6);
@@ -1307,6 +1346,73 @@ mod tests {
     }
 
     #[test]
+    fn the_reasons_of_auto_read_as_the_json_and_the_table_print_them() {
+        let test = |p_value, rejected| LackOfFit {
+            against: FitModel::Full,
+            f: 12.5,
+            dof: (5, 291),
+            p_value,
+            rejected,
+        };
+        let cases = [
+            (
+                AutoReason::TooFewReadings {
+                    model: FitModel::Full,
+                    readings: 7,
+                },
+                "full: 7 readings, at least 9 are needed",
+            ),
+            (AutoReason::Identifiable(FitModel::Diagonal), "diagonal: identifiable"),
+            (
+                AutoReason::NotIdentifiable {
+                    model: FitModel::Full,
+                    verdict: "not determined: x (correlation 0.9)".into(),
+                },
+                "full: not identifiable (not determined: x (correlation 0.9))",
+            ),
+            (
+                AutoReason::NoneIdentifiable(FitModel::Offset),
+                "offset: not identifiable either",
+            ),
+            (
+                AutoReason::Failed {
+                    model: FitModel::Diagonal,
+                    error: CalibrationError::RankDeficient { rank: 3, needed: 4 },
+                },
+                "diagonal: the regression matrix H has rank 3, 4 are needed (readings too alike)",
+            ),
+            (
+                AutoReason::Untested(FitModel::Offset),
+                "offset: untested, no richer fit comes closer to the readings",
+            ),
+            (
+                AutoReason::Tested {
+                    model: FitModel::Offset,
+                    test: test(9.28e-261, true),
+                },
+                "offset but rejected by the log (lack-of-fit p = 9.28e-261 against full)",
+            ),
+            (
+                AutoReason::Tested {
+                    model: FitModel::Diagonal,
+                    test: test(0.0, true),
+                },
+                "diagonal but rejected by the log (lack-of-fit p < 1e-300 against full)",
+            ),
+            (
+                AutoReason::Tested {
+                    model: FitModel::Diagonal,
+                    test: test(0.25, false),
+                },
+                "diagonal not rejected by the log (lack-of-fit p = 2.50e-1 against full)",
+            ),
+        ];
+        for (reason, words) in cases {
+            assert_eq!(reason.to_string(), words);
+        }
+    }
+
+    #[test]
     fn a_small_cap_is_not_identifiable_under_the_full_model_but_auto_finds_one_that_is() {
         // Yaw only and +-3 degrees of tilt: the up axis barely turns.
         let truth = paper::true_error_model();
@@ -1318,7 +1424,19 @@ mod tests {
             assert!(!f.identifiable, "{}", f.verdict);
         }
         let (f, reason) = fit_auto(&readings, field, &FitSettings::default()).unwrap();
-        assert!(reason.contains("full: "), "{reason}");
-        assert_ne!(f.model, FitModel::Full, "{reason}");
+        assert!(
+            matches!(
+                reason[0],
+                AutoReason::NotIdentifiable {
+                    model: FitModel::Full,
+                    ..
+                } | AutoReason::Failed {
+                    model: FitModel::Full,
+                    ..
+                }
+            ),
+            "{reason:?}"
+        );
+        assert_ne!(f.model, FitModel::Full, "{reason:?}");
     }
 }

@@ -55,6 +55,11 @@ impl Model {
         Self::ALL.into_iter().find(|m| m.name() == name)
     }
 
+    /// The names of [`Self::ALL`], comma-separated: `WMM2010, WMM2015, ...`.
+    pub fn known_names() -> String {
+        Self::ALL.map(|m| m.name()).join(", ")
+    }
+
     fn cof(&self) -> &'static str {
         match self {
             Self::Wmm2010 => include_str!("../../data/wmm/WMM_2010.COF"),
@@ -68,6 +73,20 @@ impl Model {
     /// The model, read from its shipped coefficient file.
     fn load(&self) -> magnetics::main_field::Model {
         magnetics::main_field::read_cof(self.cof()).expect("shipped COF files are valid")
+    }
+}
+
+/// A model name that none of [`Model::ALL`] has; says which names are known.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("unknown model; known: {}", Model::known_names())]
+pub struct UnknownModel;
+
+impl std::str::FromStr for Model {
+    type Err = UnknownModel;
+
+    /// [`Model::from_name`], with the known names on failure.
+    fn from_str(name: &str) -> Result<Self, UnknownModel> {
+        Self::from_name(name).ok_or(UnknownModel)
     }
 }
 
@@ -122,11 +141,7 @@ pub fn field_ned(model: Model, site: &Site) -> Result<[f64; 3], ParameterError> 
     let m = model.load();
     let t = site.year - m.epoch;
     if !(0.0..=VALIDITY_YEARS).contains(&t) {
-        return Err(ParameterError::OutOfRange {
-            name: "year",
-            allowed: "the model's validity window (epoch to epoch + 5 years)",
-            value: site.year,
-        });
+        return Err(ParameterError::OutsideValidityWindow { model, year: site.year });
     }
     // At a pole the east component is a limit (it divides by the cosine of the latitude): evaluate
     // a nano-degree away, which changes the field by less than 1e-6 nT.

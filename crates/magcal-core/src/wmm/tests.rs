@@ -387,14 +387,29 @@ fn invalid_sites_and_dates_are_errors() {
         ),
     ] {
         let e = field_ned(model, &s).unwrap_err();
-        let named = match e {
-            ParameterError::OutOfRange { name, .. } | ParameterError::NonFinite { name, .. } => name,
+        match e {
+            ParameterError::OutOfRange { .. } | ParameterError::NonFinite { .. } => assert_ne!(name, "year", "{e:?}"),
+            ParameterError::OutsideValidityWindow { model: m, year } => {
+                assert_eq!(name, "year");
+                assert_eq!((m, year.to_bits()), (model, s.year.to_bits()));
+            }
             other => panic!("{other:?}"),
+        }
+        assert_eq!(e.name(), name);
+        let given = match name {
+            "lat_deg" => s.lat_deg,
+            "alt_m" => s.alt_m,
+            _ => s.year,
         };
-        assert_eq!(named, name);
+        assert_eq!(e.value().map(f64::to_bits), Some(given.to_bits()));
     }
     assert_eq!(Model::from_name("WMM2015v2"), Some(Model::Wmm2015v2));
     assert_eq!(Model::from_name("IGRF13"), None);
+    assert_eq!("WMM2020".parse::<Model>(), Ok(Model::Wmm2020));
+    assert_eq!(
+        "IGRF13".parse::<Model>().unwrap_err().to_string(),
+        "unknown model; known: WMM2010, WMM2015, WMM2015v2, WMM2020, WMM2025"
+    );
 }
 
 #[test]

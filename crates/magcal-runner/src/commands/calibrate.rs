@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use magcal_core::log_fit::{self, FitModel, FitSettings, LogFit, Noise, significant};
+use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, significant};
 use magcal_core::small::upper_triangular_inverse;
 
 use super::Failure;
@@ -38,22 +38,20 @@ pub enum Fit {
 }
 
 impl Fit {
-    /// The fit of `readings` to `magnitude` under this choice, with the reason for `auto`.
+    /// The fit of `readings` to `magnitude` under this choice, with the reasons for `auto`.
     fn fit(
         self,
         readings: &[magcal_core::Vec3],
         magnitude: f64,
         settings: &FitSettings,
-    ) -> Result<(LogFit, Option<String>), magcal_core::CalibrationError> {
+    ) -> Result<(LogFit, Vec<AutoReason>), magcal_core::CalibrationError> {
         let model = match self {
-            Fit::Auto => {
-                return log_fit::fit_auto(readings, magnitude, settings).map(|(f, why)| (f, Some(why)));
-            }
+            Fit::Auto => return log_fit::fit_auto(readings, magnitude, settings),
             Fit::Full => FitModel::Full,
             Fit::Diagonal => FitModel::Diagonal,
             Fit::Offset => FitModel::Offset,
         };
-        log_fit::fit_tested(readings, magnitude, model, settings).map(|f| (f, None))
+        log_fit::fit_tested(readings, magnitude, model, settings).map(|f| (f, Vec::new()))
     }
 }
 
@@ -162,7 +160,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         }
         None => 0,
     };
-    let fit_with = |magnitude: f64| -> Result<(LogFit, Option<String>)> {
+    let fit_with = |magnitude: f64| -> Result<(LogFit, Vec<AutoReason>)> {
         args.fit
             .fit(&log.readings, magnitude, &settings)
             .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
@@ -228,7 +226,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             (f, why, source.to_string())
         }
     };
-    let mut json = to_json(&args.log, &log, &fit, why, source);
+    let mut json = to_json(&args.log, &log, &fit, &why, source);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
         n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
@@ -257,7 +255,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             serde_json::to_writer_pretty(&mut *w, &json).context("JSON")?;
             writeln!(w)?;
         } else {
-            print_table(w, &json)?;
+            print_table(w, &json, &why)?;
         }
         Ok(())
     })?;
@@ -295,7 +293,7 @@ fn record_provenance(json: &mut CalibrationJson, args: &CalibrateArgs, log_sha25
         .map(|v| v.get_name().to_string());
 }
 
-fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, source: String) -> CalibrationJson {
+fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: &[AutoReason], source: String) -> CalibrationJson {
     let fields: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
@@ -310,7 +308,7 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
         skipped: log.skipped.len(),
         rejected: 0,
         fit: fit.model.as_str().to_string(),
-        fit_reason: why,
+        fit_reason: (!why.is_empty()).then(|| why.iter().map(ToString::to_string).collect::<Vec<_>>().join("; ")),
         magnitude: fit.magnitude,
         magnitude_source: source,
         bias: fit.bias,
@@ -381,31 +379,13 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: Option<String>, 
     }
 }
 
-/// `text` split at every "; " outside parentheses.
-fn top_level_parts(text: &str) -> Vec<&str> {
-    let mut parts = Vec::new();
-    let (mut depth, mut start) = (0_i32, 0);
-    for (i, c) in text.char_indices() {
-        match c {
-            '(' => depth += 1,
-            ')' => depth -= 1,
-            ';' if depth == 0 && text[i..].starts_with("; ") => {
-                parts.push(&text[start..i]);
-                start = i + 2;
-            }
-            _ => {}
-        }
-    }
-    parts.push(&text[start..]);
-    parts
-}
-
 /// Three numbers of 7 significant digits in columns of 15.
 fn row(x: [f64; 3]) -> String {
     x.map(|v| format!("{:>15}", significant(v, 7))).join("")
 }
 
-fn print_table(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
+/// The table of `j`, with `auto`'s reasons `why` one model per line.
+fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> std::io::Result<()> {
     writeln!(
         w,
         "{}: {} readings (columns {}), {} skipped, {} rejected",
@@ -416,8 +396,7 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
         j.rejected
     )?;
     writeln!(w, "fit {}", j.fit)?;
-    // `auto`'s reasons, one model per line (they are joined by "; " outside parentheses).
-    for reason in j.fit_reason.as_deref().map(top_level_parts).unwrap_or_default() {
+    for reason in why {
         writeln!(w, "  {reason}")?;
     }
     writeln!(w, "magnitude {} ({})", significant(j.magnitude, 7), j.magnitude_source)?;
@@ -579,22 +558,4 @@ fn write_out(
     let manifest = CalibrationManifest::new(path, log.sha256.clone(), log.bytes, rows, files);
     set.put("manifest.json", &manifest.to_bytes()?)?;
     set.commit()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::top_level_parts;
-
-    #[test]
-    fn reasons_split_outside_parentheses_only() {
-        assert_eq!(
-            top_level_parts("full: not identifiable (a; b (c; d)); diagonal: x; offset: identifiable"),
-            [
-                "full: not identifiable (a; b (c; d))",
-                "diagonal: x",
-                "offset: identifiable"
-            ]
-        );
-        assert_eq!(top_level_parts("full: identifiable"), ["full: identifiable"]);
-    }
 }

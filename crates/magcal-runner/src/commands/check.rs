@@ -423,11 +423,11 @@ fn keys_match<V, W>(f: &mut Findings, base: &BTreeMap<String, V>, now: &BTreeMap
     }
 }
 
+/// The mean of finite `v` and its standard error ([`Summary`]), 0 where undefined (a
+/// single value: no statistical tolerance).
 fn mean_se(v: &[f64]) -> (f64, f64) {
-    let n = v.len().max(1) as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0);
-    (mean, (var / n).sqrt())
+    let s = Summary::new(v, 0);
+    (s.mean, if s.se_mean.is_finite() { s.se_mean } else { 0.0 })
 }
 
 /// Attitudes per design, degrees, in file order.

@@ -100,7 +100,7 @@ impl BuiltDesign {
 
     /// `ln det (M_F / m)`: the information per reading, which designs of different sizes share.
     pub fn ln_det_per_reading(&self) -> f64 {
-        self.ln_det_mf - 9.0 * (self.m() as f64).ln()
+        magcal_core::design::ln_det_per_reading(self.ln_det_mf, self.m())
     }
 }
 

@@ -106,11 +106,7 @@ impl std::str::FromStr for Date {
 /// # Errors
 /// An unknown name, with the known ones.
 pub fn parse_model(name: &str) -> Result<magcal_core::wmm::Model, String> {
-    use magcal_core::wmm::Model;
-    Model::from_name(name).ok_or_else(|| {
-        let known: Vec<&str> = Model::ALL.iter().map(|m| m.name()).collect();
-        format!("unknown model; known: {}", known.join(", "))
-    })
+    name.parse().map_err(|e: magcal_core::wmm::UnknownModel| e.to_string())
 }
 
 /// Where a WMM field comes from, for a person: `WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.42`

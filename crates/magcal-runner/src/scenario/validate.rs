@@ -251,10 +251,9 @@ fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
             (field, "field.north_nt, east_nt, down_nt".to_string())
         }
         (Some(name), false) => {
-            let Some(model) = wmm::Model::from_name(name) else {
-                let known: Vec<&str> = wmm::Model::ALL.iter().map(|m| m.name()).collect();
-                bail!("field.model = {name:?}: unknown model; known: {}", known.join(", "));
-            };
+            let model: wmm::Model = name
+                .parse()
+                .map_err(|e| anyhow::anyhow!("field.model = {name:?}: {e}"))?;
             let keys = ["lat_deg", "lon_deg", "alt_m", "year"];
             let mut v = [0.0; 4];
             for ((key, value), slot) in keys.iter().zip(site).zip(&mut v) {
@@ -269,19 +268,15 @@ fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
                 alt_m: v[2],
                 year: v[3],
             };
-            let field = wmm::reference_field(model, &site).map_err(|e| {
+            let field = wmm::reference_field(model, &site).map_err(|e| match e {
+                ParameterError::OutsideValidityWindow { model, year } => anyhow::anyhow!(
+                    "field.year = {}: outside the validity window of {} (its epoch to 5 years after)",
+                    show(year),
+                    model.name()
+                ),
                 // The core names its parameter; the key is the same under [field], and its value
                 // is the one given.
-                let given = keys
-                    .iter()
-                    .position(|k| *k == e.name())
-                    .map_or(String::new(), |i| show(v[i]));
-                match e {
-                    ParameterError::OutOfRange { name: "year", .. } => anyhow::anyhow!(
-                        "field.year = {given}: outside the validity window of {name} (its epoch to 5 years after)"
-                    ),
-                    other => keyed("field.", &other, &given),
-                }
+                other => keyed("field.", &other, &other.value().map_or(String::new(), show)),
             })?;
             (field, crate::scenario::site::wmm_place(model, &site))
         }
