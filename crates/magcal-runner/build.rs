@@ -32,9 +32,14 @@ fn main() {
         None => "unknown".into(),
     };
     println!("cargo:rustc-env=MAGCAL_GIT_REVISION={revision}");
-    // Rebuild when the checked-out commit or the index changes.
-    for path in ["../../.git/HEAD", "../../.git/index"] {
-        if std::path::Path::new(path).exists() {
+    // Rebuild when the checked-out commit or the index changes. Git names the files: `.git` is a
+    // file in a worktree, and a commit moves the branch's ref, not `HEAD`.
+    let mut watched = vec!["HEAD".to_string(), "index".to_string(), "packed-refs".to_string()];
+    watched.extend(git(&["symbolic-ref", "-q", "HEAD"]));
+    for name in watched {
+        if let Some(path) = git(&["rev-parse", "--path-format=absolute", "--git-path", &name])
+            && std::path::Path::new(&path).exists()
+        {
             println!("cargo:rerun-if-changed={path}");
         }
     }
