@@ -158,7 +158,7 @@ def run_point(p, work):
         raise RuntimeError(f"{scen}: magcal exited {r.returncode}: {r.stderr.strip()[:500]}")
     seconds = time.monotonic() - started
     rows = read_point(p, out)
-    revision = json.loads((out / "manifest.json").read_text()).get("git_revision", "unknown")
+    revision = json.loads((out / "run.json").read_text()).get("git_revision", "unknown")
     shutil.rmtree(out)
     scen.unlink()
     return dict(point=p, rows=rows, with_plan=with_plan, seconds=seconds, revision=revision)
@@ -425,7 +425,7 @@ def readme(rows, results, seconds, jobs, revision, probe):
         f"python3 scripts/verdict-grid.py --jobs {jobs}",
         "```",
         "",
-        f"magcal of git revision `{revision}` (its manifests); {len(results)} scenarios in {seconds / 60:.1f} min with {jobs} "
+        f"magcal of git revision `{revision}` (its run.json); {len(results)} scenarios in {seconds / 60:.1f} min with {jobs} "
         "processes of one thread each.",
         "",
         "## Grid",

@@ -1,4 +1,5 @@
-//! Records what the manifest needs to say how a result was built: rustc version, target, git revision.
+//! Records how the binary was built, for `run.json` and the calibration manifest: rustc version,
+//! target, git revision.
 use std::process::Command;
 
 fn main() {
@@ -32,11 +33,21 @@ fn main() {
         None => "unknown".into(),
     };
     println!("cargo:rustc-env=MAGCAL_GIT_REVISION={revision}");
-    // Rebuild when the checked-out commit or the index changes.
-    for path in ["../../.git/HEAD", "../../.git/index"] {
-        if std::path::Path::new(path).exists() {
+    // Run again when the checked-out commit changes, and when the sources do (so that `-dirty`
+    // is as of the build). Git names its files: `.git` is a file in a worktree, and a commit
+    // moves the branch's ref, not `HEAD`. Not the index, which `git status` rewrites: that would
+    // rebuild the binary after every look at the tree.
+    let mut watched = vec!["HEAD".to_string(), "packed-refs".to_string()];
+    watched.extend(git(&["symbolic-ref", "-q", "HEAD"]));
+    for name in watched {
+        if let Some(path) = git(&["rev-parse", "--path-format=absolute", "--git-path", &name])
+            && std::path::Path::new(&path).exists()
+        {
             println!("cargo:rerun-if-changed={path}");
         }
+    }
+    for sources in ["src", "../magcal-core/src"] {
+        println!("cargo:rerun-if-changed={sources}");
     }
     println!("cargo:rerun-if-changed=build.rs");
 }

@@ -90,7 +90,7 @@ fn monte_carlo(c: &mut Criterion) {
     });
     // The same trials without the absolute and heading errors: the ratio of the two is the cost
     // of those metrics (target: at most 1.25).
-    group.bench_function("1000_trials_one_design_without_added_metrics", |b| {
+    group.bench_function("1000_trials_one_design_relative_errors_only", |b| {
         b.iter(|| {
             (0..1000u64)
                 .into_par_iter()

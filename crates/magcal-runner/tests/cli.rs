@@ -140,8 +140,15 @@ fn run_writes_every_file_with_the_expected_rows() {
     let manifest: serde_json::Value =
         serde_json::from_slice(&fs::read(tmp.path().join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["seed"], 7);
-    assert_eq!(manifest["threads"], 2);
     assert_eq!(manifest["scenario_sha256"].as_str().unwrap().len(), 64);
+    // What varies between runs is in run.json, not in the manifest.
+    for varies in ["threads", "command", "git_revision", "rustc", "target", "stages"] {
+        assert!(manifest.get(varies).is_none(), "manifest.json records {varies}");
+    }
+    let record: serde_json::Value = serde_json::from_slice(&fs::read(tmp.path().join("run.json")).unwrap()).unwrap();
+    assert_eq!(record["threads"], 2);
+    assert_eq!(record["manifest_sha256"], manifest["manifest_sha256"]);
+    assert_eq!(record["stages"].as_array().unwrap().last().unwrap()[0], "total");
 }
 
 #[test]
@@ -158,11 +165,17 @@ fn same_seed_gives_byte_identical_csv_on_one_and_several_threads() {
         "pso_runs.csv",
         "approximate.csv",
         "certificate.csv",
+        "manifest.json",
     ] {
         let one = fs::read(dirs[0].path().join(f)).unwrap();
         for d in &dirs[1..] {
             assert_eq!(one, fs::read(d.path().join(f)).unwrap(), "{f} differs");
         }
+    }
+    for (threads, dir) in [1, 2, 3].into_iter().zip(&dirs) {
+        let record: serde_json::Value =
+            serde_json::from_slice(&fs::read(dir.path().join("run.json")).unwrap()).unwrap();
+        assert_eq!(record["threads"], threads);
     }
 }
 

@@ -17,8 +17,9 @@ fn a_kill_at_any_step_of_the_write_phase_leaves_one_complete_set() {
     let reference = tmp.path().join("reference");
     run_into(&reference, 8);
     let new = without_manifest(snapshot(&reference));
-    // Each file of the set is a step, and so is each rename of the swap (two on Linux).
-    let steps = new.len() + 1 + 2;
+    // Each file of the set is a step (the manifest and run.json too), and so is each rename of
+    // the swap (two on Linux).
+    let steps = new.len() + 2 + 2;
     let (mut old_seen, mut new_seen) = (0, 0);
     for k in 1..=steps {
         restore(&out, &old);
@@ -42,7 +43,7 @@ fn a_kill_at_any_step_of_the_write_phase_leaves_one_complete_set() {
         }
     }
     // Killed before the swap: the old set; after it: the new one.
-    assert_eq!(old_seen, new.len() + 1, "kills before the swap");
+    assert_eq!(old_seen, new.len() + 2, "kills before the swap");
     assert_eq!(new_seen, 2, "kills after the swap");
     // A kill between the swap and the removal leaves the old set beside the target; the next
     // run removes it.

@@ -1,18 +1,19 @@
 //! `ln det M_F` of several designs at once, laid out so that the compiler vectorises across designs.
 //!
 //! The paper's PSO evaluates 900,000 designs of 27 angles. Evaluated one at a time, a design costs
-//! about 9,000 instructions, a third of them in libm's `sincos` (a scalar routine with branches), and
-//! the full PSO took 0.48 s on the 2-core machine against a 0.3 s target. Here [`LANES`] designs
-//! are evaluated together with every loop over the lanes innermost: the branch-free `sin_cos`
-//! polynomial below, the moments and the Cholesky factorisation then run as SIMD instructions on
-//! baseline x86-64 (SSE2) without any `unsafe` or hand-written intrinsics.
+//! about 9,000 instructions, a third of them in libm's `sincos` (a scalar routine with branches),
+//! too many for the full PSO's target of 0.3 s on two cores (the README's benchmark table). Here
+//! [`LANES`] designs are evaluated together with every loop over the lanes innermost: the
+//! branch-free `sin_cos` polynomial below, the moments and the Cholesky factorisation then run as
+//! SIMD instructions on baseline x86-64 (SSE2) without any `unsafe` or hand-written intrinsics.
 //!
 //! Eight lanes: fewer do not fill the vector units, more leave too few chunks of the 300 particles
 //! to balance two threads (`benches/design.rs`; the numbers are in the README's benchmark table).
 //!
 //! The kernel is compiled a second time for AVX2 and chosen at run time when the CPU has it (the
 //! `multiversion` crate; baseline x86-64 elsewhere): 4 lanes per instruction instead of SSE2's 2.
-//! An AVX-512 clone is no faster in `benches/design.rs`, so none is built.
+//! No AVX-512 clone is built: wider vectors do not make this kernel faster (`benches/design.rs`,
+//! `fitness/d_m9_lanes_x8`), and every clone is one more code path to keep bit-identical.
 //!
 //! Each lane's arithmetic is the same sequence of operations whatever the other lanes hold, so a
 //! design's value does not depend on the lane or the batch it is evaluated in (the PSO stays

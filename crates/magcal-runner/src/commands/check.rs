@@ -1,15 +1,21 @@
-//! `magcal check`: run a scenario again, with the seed and trial count its baseline's manifest
-//! records, and compare with the baseline.
+//! `magcal check`: runs a scenario again with the seed and trial count its baseline's manifest
+//! records, and compares the result with the baseline (`results/<name>/` unless `--baseline`).
 //!
-//! Monte Carlo statistics are compared within statistical tolerances (4 combined standard errors);
-//! trial status counts within 4 sqrt(count); a design's `ln det M_F` within a relative 1e-6; the
-//! attitudes and condition numbers of designs that are not optimised within 1e-9 degree and 1e-3
-//! (see [`compare`]). The baseline is also checked against itself: its manifest must have the
-//! SHA-256 it records of itself (an edited seed or file hash is damage, exit 2, before any run), every
-//! file must have the SHA-256 its manifest recorded when it was written, so an edit of any of them
-//! shows, and its `trials.csv` must give its `summary.csv`. Identical values match, non-finite ones included; a statistic that is
-//! undefined (one successful trial has no standard error) is compared to 1e-9 relative; a
-//! non-finite standard error in the baseline is an error of the baseline (exit 2).
+//! The baseline is also checked against itself: its `manifest.json` must have the SHA-256 it
+//! records of itself (an edited seed or file hash is damage, exit 2, before any run); every file
+//! it lists must still have the SHA-256 recorded when it was written, so an edit of any of them
+//! shows; and its `trials.csv` must give its `summary.csv` (to 1e-9). `run.json` (the earlier run's command,
+//! threads, toolchain and timings) is neither listed nor read.
+//!
+//! The new run is compared with it (see [`compare`]): Monte Carlo means within 4 combined standard
+//! errors, medians within 4 x 1.2533 of them, standard deviations within 4 of their own standard
+//! errors; trial status counts within 4 sqrt(count); a design's `ln det M_F` within 1e-6 relative
+//! and its certified bound within 1e-6; the attitudes (1.5e-9 degree) and `cond_2(H)`,
+//! `cond_2(M_F)` (1e-3, 2e-3 relative) only of designs that are not optimised; the PSO runs by
+//! the mean of their final `ln det M_F` within 4 combined standard errors. Identical values
+//! match, non-finite ones included; a statistic that is undefined (one successful trial has no
+//! standard error) is compared to 1e-9 relative; a non-finite standard error in the baseline is an
+//! error of the baseline (exit 2).
 
 use clap::Args;
 
@@ -430,8 +436,7 @@ fn mean_se(v: &[f64]) -> (f64, f64) {
     (s.mean, if s.se_mean.is_finite() { s.se_mean } else { 0.0 })
 }
 
-/// Attitudes per design, degrees, in file order.
-/// Attitudes per design in the order built (`point`), with their readings.
+/// Attitudes per design (degrees) in the order built (`point`), with their readings.
 fn group_points(rows: Vec<DesignPointRow>) -> BTreeMap<String, Vec<([f64; 3], usize)>> {
     let mut by: BTreeMap<String, Vec<(usize, [f64; 3], usize)>> = BTreeMap::new();
     for r in rows {

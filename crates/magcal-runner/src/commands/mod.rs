@@ -1,5 +1,9 @@
-//! One module per command. `run` and `design` share [`run::produce`]; every command that reads a
-//! scenario starts from [`setup`].
+//! One module per command. The scenario commands: [`run`] and [`design`] (which share
+//! [`run::produce`]), [`check`] and [`plot`]. The log commands: [`calibrate`] fits a log,
+//! [`apply`] calibrates a log's readings with a calibration file, [`next`] picks the attitudes
+//! that add most to a log, [`simulate`] writes a log of a known sensor; what they share (reading
+//! a log, the site and units, the calibration file, the vehicle's box) is in [`crate::log`].
+//! Every command that reads a scenario starts from [`setup`].
 
 pub mod apply;
 pub mod calibrate;

@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use super::{Common, Failure};
 use crate::digest::{Hashing, sha256_hex};
 use crate::output::file::to_stdout;
-use crate::output::manifest::Manifest;
+use crate::output::manifest::{Manifest, RunRecord};
 use crate::output::staging::{ResultSet, Target};
 use crate::output::{self, print};
 use crate::pipeline::advice::{self, Advice};
@@ -105,7 +105,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     Ok(())
 }
 
-/// Writes every file of the set but the figures; returns the manifest.
+/// Writes every file of the set but the figures (`run.json` last); returns the manifest.
 fn write_set(
     scenario: &Scenario,
     out: &mut RunOutput,
@@ -162,7 +162,10 @@ fn write_set(
         files.insert("trials.csv".into(), hex);
     }
     out.stages.push(("total".into(), started.elapsed().as_secs_f64()));
-    let manifest = Manifest::new(scenario, out, threads, files);
-    set.put("manifest.json", &manifest.to_bytes()?)?;
+    let manifest = Manifest::new(scenario, files);
+    let (bytes, seal) = manifest.to_bytes()?;
+    set.put("manifest.json", &bytes)?;
+    // What varies from run to run, apart from the manifest, so that the manifest reproduces.
+    set.put("run.json", &RunRecord::new(seal, threads, out).to_bytes()?)?;
     Ok(manifest)
 }

@@ -1,5 +1,18 @@
 //! `manifest.json`: what is needed to rebuild a result set, written beside it and read back by
-//! `check` (seed, trials) and `plot` (field, box, the files of the set).
+//! `check` (seed, trials) and `plot` (field, box, the files of the set); and `run.json`: how that
+//! run went (command, threads, toolchain, git revision, wall time per stage).
+//!
+//! # What stays the same and what varies
+//!
+//! The manifest of a run holds only what a run of the same scenario with the same seed and trial
+//! count reproduces byte for byte, on any number of threads: the scenario and its SHA-256, seed,
+//! sizes, field, box, crate versions, the files of the set and their SHA-256. So a committed
+//! result set stays as it is when it is made again. What differs from one run to the next (the
+//! command line, the threads, the build's git revision and toolchain, the timings) goes to
+//! [`RunRecord`], `run.json`, a file of the same set (written to the staging directory and swapped
+//! in with the rest, so it is never left from an earlier run). `run.json` names the manifest it
+//! was written with (`manifest_sha256`); the manifest does not list it, and `check` never reads
+//! it. The repository ignores `results/*/run.json`.
 //!
 //! # The manifest's own hash
 //!
@@ -149,10 +162,13 @@ impl CalibrationManifest {
                 Ok(bytes)
             },
         )
+        .map(|(bytes, _)| bytes)
     }
 }
 
-/// What `manifest.json` records.
+/// What `manifest.json` of a run records: what a run of the same scenario, seed and trial count
+/// reproduces (see [the module documentation](self)). Manifests of older runs, which also hold
+/// the fields of [`RunRecord`], are read as well: fields this struct does not know are ignored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
     /// The scenario file, as given on the command line.
@@ -176,21 +192,9 @@ pub struct Manifest {
     /// The attitude box, roll, yaw, pitch `[min, max]` in degrees.
     #[serde(default)]
     pub attitude_box_deg: Option<[[f64; 2]; 3]>,
-    /// Rayon threads.
-    pub threads: usize,
-    /// The command line.
-    pub command: Vec<String>,
-    /// Git revision the binary was built from (`-dirty` with uncommitted changes).
-    pub git_revision: String,
-    /// `rustc --version` of the build.
-    pub rustc: String,
-    /// Target triple.
-    pub target: String,
     /// Crate versions.
     pub crates: Vec<(String, String)>,
-    /// Wall time per stage, seconds.
-    pub stages: Vec<(String, f64)>,
-    /// The files of the result set beside this one (figures excepted).
+    /// The files of the result set beside this one (figures and `run.json` excepted).
     pub files: Vec<String>,
     /// SHA-256 of each of those files as written (absent in manifests of older runs).
     #[serde(default)]
@@ -202,8 +206,8 @@ pub struct Manifest {
 }
 
 impl Manifest {
-    /// The manifest of a run.
-    pub fn new(scenario: &Scenario, out: &RunOutput, threads: usize, file_sha256: BTreeMap<String, String>) -> Self {
+    /// The manifest of a run of `scenario` that wrote the files of `file_sha256`.
+    pub fn new(scenario: &Scenario, file_sha256: BTreeMap<String, String>) -> Self {
         let version = env!("CARGO_PKG_VERSION").to_string();
         Self {
             scenario: scenario.path.display().to_string(),
@@ -221,17 +225,11 @@ impl Manifest {
                     .ranges()
                     .map(|r| [r.min().to_degrees(), r.max().to_degrees()]),
             ),
-            threads,
-            command: std::env::args().collect(),
-            git_revision: env!("MAGCAL_GIT_REVISION").into(),
-            rustc: env!("MAGCAL_RUSTC_VERSION").into(),
-            target: env!("MAGCAL_TARGET").into(),
             // Both crates share the workspace version.
             crates: vec![
                 ("magcal-core".into(), version.clone()),
                 ("magcal-runner".into(), version),
             ],
-            stages: out.stages.clone(),
             files: file_sha256.keys().cloned().collect(),
             file_sha256,
             manifest_sha256: None,
@@ -239,11 +237,11 @@ impl Manifest {
     }
 
     /// Pretty JSON (no final newline, as the committed baselines), sealed with its own hash
-    /// (`manifest_sha256`).
+    /// (`manifest_sha256`); the bytes and that hash.
     ///
     /// # Errors
     /// Only a failure of serde_json.
-    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+    pub fn to_bytes(&self) -> Result<(Vec<u8>, String)> {
         sealed(
             self.clone(),
             |m, seal| m.manifest_sha256 = seal,
@@ -271,6 +269,53 @@ impl Manifest {
     }
 }
 
+/// What `run.json` records: how one run went, which a run of the same scenario and seed need
+/// not repeat (see [the module documentation](self)). Nothing in magcal reads it back.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunRecord {
+    /// The own hash of the `manifest.json` this run wrote beside it.
+    pub manifest_sha256: String,
+    /// The command line.
+    pub command: Vec<String>,
+    /// Rayon threads.
+    pub threads: usize,
+    /// Git revision the binary was built from (`-dirty` with uncommitted changes).
+    pub git_revision: String,
+    /// `rustc --version` of the build.
+    pub rustc: String,
+    /// Target triple.
+    pub target: String,
+    /// Wall time per stage, seconds (the last, `total`, from the start to the manifest).
+    pub stages: Vec<(String, f64)>,
+}
+
+impl RunRecord {
+    /// The record of this process's run on `threads` threads, which wrote the manifest whose own
+    /// hash is `manifest_sha256`, with the stage times of `out`.
+    pub fn new(manifest_sha256: String, threads: usize, out: &RunOutput) -> Self {
+        Self {
+            manifest_sha256,
+            command: std::env::args().collect(),
+            threads,
+            git_revision: env!("MAGCAL_GIT_REVISION").into(),
+            rustc: env!("MAGCAL_RUSTC_VERSION").into(),
+            target: env!("MAGCAL_TARGET").into(),
+            stages: out.stages.clone(),
+        }
+    }
+
+    /// Pretty JSON with a final newline.
+    ///
+    /// # Errors
+    /// Only a failure of serde_json.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        let mut bytes = serde_json::to_vec_pretty(self)?;
+        bytes.push(b'\n');
+        Ok(bytes)
+    }
+}
+
 /// Whether a manifest's own hash was there to check.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Seal {
@@ -285,16 +330,16 @@ const SELF_HASH: &str = "manifest_sha256";
 
 /// Serialises `manifest` (through `set` and `to_bytes`) with its own hash: once with an empty
 /// hash, whose bytes are hashed, then with that hash. Serialisation is deterministic, so the two
-/// differ only in the 64 digits, which [`verify`] takes out again.
+/// differ only in the 64 digits, which [`verify`] takes out again. The bytes and the hash.
 fn sealed<M>(
     mut manifest: M,
     set: impl Fn(&mut M, Option<String>),
     to_bytes: impl Fn(&M) -> Result<Vec<u8>>,
-) -> Result<Vec<u8>> {
+) -> Result<(Vec<u8>, String)> {
     set(&mut manifest, Some(String::new()));
     let hash = sha256_hex(&to_bytes(&manifest)?);
-    set(&mut manifest, Some(hash));
-    to_bytes(&manifest)
+    set(&mut manifest, Some(hash.clone()));
+    Ok((to_bytes(&manifest)?, hash))
 }
 
 /// Checks the own hash of the manifest `bytes` read from `path`: its last member must be

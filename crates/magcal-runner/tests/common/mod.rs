@@ -110,9 +110,11 @@ pub fn run_into(out: &Path, seed: u64) {
         .success();
 }
 
-/// `s` less its `manifest.json` (which records timings and the command line).
+/// `s` less its `manifest.json` (a calibration set's records the command line) and `run.json`
+/// (a run's timings, threads and command line).
 pub fn without_manifest(mut s: BTreeMap<String, Vec<u8>>) -> BTreeMap<String, Vec<u8>> {
     s.remove("manifest.json");
+    s.remove("run.json");
     s
 }
 
