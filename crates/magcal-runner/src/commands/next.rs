@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use magcal_core::log_fit;
+use magcal_core::{CramerRao, InformationMatrix, PhysicalScales, Vec3, log_fit};
 
 use super::Failure;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
@@ -94,7 +94,6 @@ fn identifiable_before(cal: &CalibrationJson, same_readings: bool, readings: &[m
 }
 
 fn next_inner(args: &NextArgs) -> Result<()> {
-    use magcal_core::{CramerRao, InformationMatrix, PhysicalScales};
     let shown = args.calibration.display().to_string();
     let log_shown = args.log.display().to_string();
     let cal = read_calibration(&args.calibration)?;
@@ -107,41 +106,12 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         .context("next needs --scenario, or the box as flags with --site and --date")?;
     check_box(&vehicle)?;
     let (problem, factor) = fitted_problem(&cal, &vehicle).with_context(|| shown.clone())?;
-    let columns = columns_for(&cal, &shown, &args.log, args.columns.as_deref())?;
-    let log_file::Log {
+    let LogRead {
         readings: mut log_readings,
         skipped,
-        columns: read_columns,
-        sha256: sha,
-        ..
-    } = log_file::read(&args.log, columns.as_deref(), args.skip_bad)?;
-    // The readings alone are kept (24 bytes each), turned into nT and then into body fields in
-    // place.
+        before: (before_identifiable, before_source),
+    } = read_log(args, &cal)?;
     let m = log_readings.len();
-    let mut radius = RadiusMedian::new(cal.magnitude);
-    for s in &log_readings {
-        radius.push(cal.apply(*s));
-    }
-    if let Some(why) = cal.radius_mismatch(radius.ratio()) {
-        bail!("{log_shown}: {why}; next needs the log the calibration {shown} was fitted to");
-    }
-    let same_file = match &cal.log_sha256 {
-        // The reader hashed the bytes it parsed: the file is not read a second time.
-        Some(recorded) => {
-            if &sha != recorded {
-                to_stderr!(
-                    "magcal: warning: {log_shown} is not the log {shown} was fitted to ({}; SHA-256 {} there, {} here): the suggestions add to the log given",
-                    cal.log,
-                    crate::limits::excerpt(recorded, 12),
-                    &sha[..12]
-                );
-            }
-            &sha == recorded
-        }
-        None => false,
-    };
-    let same_readings = same_file && read_columns == cal.columns && m == cal.samples && skipped.len() == cal.skipped;
-    let (before_identifiable, before_source) = identifiable_before(&cal, same_readings, &log_readings);
     if !cal.identifiable {
         to_stderr!(
             "magcal: warning: {shown} is not identifiable ({}); the suggestions assume its fitted sensor",
@@ -212,20 +182,99 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         "{m} readings of {log_shown}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
         args.count, vehicle.label
     )?;
+    write_attitudes(&mut w, &chosen, &field, &vehicle.field_source)?;
+    let (e_before, e_after) = (efficiency(&before, m), efficiency(&after, m + attitudes.len()));
+    write_information(&mut w, [&crb_before, &crb_after], factor, [e_before, e_after])?;
+    write_coverage_and_verdict(
+        &mut w,
+        [body_log, body_all],
+        (before_identifiable, &before_source),
+        &after_fit,
+    )?;
+    to_stdout(|out| Ok(out.write_all(&w)?))
+}
+
+/// The log's readings (in its units), the rows skipped, and whether the log was identifiable
+/// before (and on what that rests); the log must be the one the calibration was fitted to, by its
+/// calibrated radius.
+fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
+    let shown = args.calibration.display().to_string();
+    let log_shown = args.log.display().to_string();
+    let columns = columns_for(cal, &shown, &args.log, args.columns.as_deref())?;
+    let log_file::Log {
+        readings: log_readings,
+        skipped,
+        columns: read_columns,
+        sha256: sha,
+        ..
+    } = log_file::read(&args.log, columns.as_deref(), args.skip_bad)?;
+    // The readings alone are kept (24 bytes each), turned into nT and then into body fields in
+    // place.
+    let m = log_readings.len();
+    let mut radius = RadiusMedian::new(cal.magnitude);
+    for s in &log_readings {
+        radius.push(cal.apply(*s));
+    }
+    if let Some(why) = cal.radius_mismatch(radius.ratio()) {
+        bail!("{log_shown}: {why}; next needs the log the calibration {shown} was fitted to");
+    }
+    let same_file = match &cal.log_sha256 {
+        // The reader hashed the bytes it parsed: the file is not read a second time.
+        Some(recorded) => {
+            if &sha != recorded {
+                to_stderr!(
+                    "magcal: warning: {log_shown} is not the log {shown} was fitted to ({}; SHA-256 {} there, {} here): the suggestions add to the log given",
+                    cal.log,
+                    crate::limits::excerpt(recorded, 12),
+                    &sha[..12]
+                );
+            }
+            &sha == recorded
+        }
+        None => false,
+    };
+    let same_readings = same_file && read_columns == cal.columns && m == cal.samples && skipped.len() == cal.skipped;
+    let before = identifiable_before(cal, same_readings, &log_readings);
+    Ok(LogRead {
+        readings: log_readings,
+        skipped,
+        before,
+    })
+}
+
+/// What [`read_log`] returns.
+struct LogRead {
+    /// The readings, in the log's units.
+    readings: Vec<Vec3>,
+    /// The rows skipped: line and reason.
+    skipped: Vec<(usize, String)>,
+    /// Whether the log was identifiable before, and on what that rests.
+    before: (bool, String),
+}
+
+/// The attitudes to add as a pilot reads them: roll, pitch, true and magnetic heading, readings,
+/// and the variance of the linear model's prediction there; the same attitude chosen again is one
+/// row with its readings.
+fn write_attitudes(
+    w: &mut Vec<u8>,
+    chosen: &[(magcal_core::Attitude, f64)],
+    field: &magcal_core::ReferenceField,
+    field_source: &str,
+) -> Result<()> {
     // The same attitude chosen again is one row with its readings.
     let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
-    for (a, d) in &chosen {
+    for (a, d) in chosen {
         match rows.last_mut() {
             Some(last) if magcal_core::design::tour::rotation_angle(&last.0, a) < 1e-6 => last.1 += 1,
             _ => rows.push((*a, 1, *d)),
         }
     }
     // The headings a pilot reads: true, and magnetic from the declination of the vehicle's field.
-    let headings = crate::output::Headings::of(&field);
+    let headings = crate::output::Headings::of(field);
     writeln!(
         w,
         "  {}",
-        crate::output::print::declination_line(headings.declination_deg, &vehicle.field_source)
+        crate::output::print::declination_line(headings.declination_deg, field_source)
     )?;
     writeln!(
         w,
@@ -248,6 +297,14 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             d
         )?;
     }
+    Ok(())
+}
+
+/// The standard error of each parameter before and after the added readings, and the certified
+/// D-efficiency of the log before and after.
+fn write_information(w: &mut Vec<u8>, crb: [&CramerRao; 2], factor: f64, efficiency: [Option<f64>; 2]) -> Result<()> {
+    let [crb_before, crb_after] = crb;
+    let [e_before, e_after] = efficiency;
     let names = magcal_core::identifiability::PARAMETERS;
     writeln!(
         w,
@@ -258,9 +315,8 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
         let show = |c: &CramerRao| c.std.map_or("singular".to_string(), |s| format!("{:.4e}", s[i] * unit));
         let name = names[i].trim_end_matches("_nt");
-        writeln!(w, "  {name:<10} {:>14} {:>14}", show(&crb_before), show(&crb_after))?;
+        writeln!(w, "  {name:<10} {:>14} {:>14}", show(crb_before), show(crb_after))?;
     }
-    let (e_before, e_after) = (efficiency(&before, m), efficiency(&after, m + attitudes.len()));
     writeln!(
         w,
         "\ncertified D-efficiency per reading in this box: before {}, after {} (against every design of as many readings)",
@@ -278,6 +334,19 @@ fn next_inner(args: &NextArgs) -> Result<()> {
             "  above 1 is no efficiency: the certificate bounds designs inside the box, and these readings hold more information per reading than any of them, so they come from attitudes outside it"
         )?;
     }
+    Ok(())
+}
+
+/// The coverage of field directions before and after, and whether the full model is identifiable
+/// before (and on what that rests) and after (the full fit of the log with the added readings).
+fn write_coverage_and_verdict(
+    w: &mut Vec<u8>,
+    body: [&[Vec3]; 2],
+    before: (bool, &str),
+    after_fit: &Result<log_fit::LogFit, magcal_core::CalibrationError>,
+) -> Result<()> {
+    let [body_log, body_all] = body;
+    let (before_identifiable, before_source) = before;
     writeln!(
         w,
         "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
@@ -290,11 +359,11 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     writeln!(
         w,
         "identifiable: before {before_identifiable}, after {after_identifiable} (full model; before: {before_source}; after: the full fit of the log with the suggested readings simulated from the fitted sensor{})",
-        match &after_fit {
+        match after_fit {
             Ok(f) if !f.identifiable => format!(": {}", f.verdict),
             Ok(_) => String::new(),
             Err(e) => format!(": {e}"),
         }
     )?;
-    to_stdout(|out| Ok(out.write_all(&w)?))
+    Ok(())
 }
