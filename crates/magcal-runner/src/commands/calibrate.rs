@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, significant};
 use magcal_core::small::upper_triangular_inverse;
@@ -160,72 +160,12 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         }
         None => 0,
     };
-    let fit_with = |magnitude: f64| -> Result<(LogFit, Vec<AutoReason>)> {
-        args.fit
-            .fit(&log.readings, magnitude, &settings)
-            .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
-    };
     let place = args.site.zip(args.date).map(|(site, date)| Place {
         site,
         date,
         model: args.wmm,
     });
-    let wmm = match (&place, args.units) {
-        (Some(p), Some(units)) => Some(wmm_magnitude(&p.site, p.date, units, p.model)?),
-        (Some(_), None) if args.magnitude.is_none() => {
-            return Err(
-                anyhow::anyhow!("--site: give --units (the log's) for the WMM magnitude, or --magnitude").into(),
-            );
-        }
-        (Some(_), None) if !args.attitude.any() => {
-            return Err(anyhow::anyhow!(
-                "--site with --magnitude: the site would give only the box flags' field direction; add --roll and --pitch, or drop --site"
-            )
-            .into());
-        }
-        _ => None,
-    };
-    let given = args.magnitude.map(|r| (r, "given".to_string())).or(wmm);
-    let (fit, why, source) = match given {
-        Some((r, source)) => {
-            // A magnitude in other units than the log's (0.49 for a log in nT) still fits, with
-            // scale factors 1e5 away from 1: say so before they are read as a calibration.
-            if let Some(radius) = log_fit::sphere_radius(&log.readings)
-                && !(1e-2..=1e2).contains(&(radius / r))
-            {
-                to_stderr!(
-                    "magcal: warning: {shown}: the readings lie about {} from their centre, {:.1e} times the magnitude {} ({source}); are they in the same units?",
-                    significant(radius, 4),
-                    radius / r,
-                    significant(r, 7)
-                );
-            }
-            let (f, why) = fit_with(r)?;
-            (f, why, source)
-        }
-        None => {
-            // The fitted mean radius: the magnitude that makes the scale factors relative with
-            // product 1; when the fit is not determined, the radius of the best-fitting sphere.
-            // A fit does not depend on its magnitude but through that scale, so one fit serves.
-            let (unit, why) = fit_with(1.0)?;
-            let (radius, source) = if unit.identifiable {
-                (
-                    unit.mean_radius(),
-                    "fitted mean radius (scale factors are relative to it, product 1)",
-                )
-            } else {
-                (
-                    log_fit::sphere_radius(&log.readings)
-                        .with_context(|| format!("{shown}: no sphere fits the readings"))?,
-                    "radius of the best-fitting sphere (scale factors are relative to it)",
-                )
-            };
-            let f = unit
-                .at_magnitude(radius)
-                .with_context(|| format!("{shown}: no calibration at the magnitude {}", significant(radius, 7)))?;
-            (f, why, source.to_string())
-        }
-    };
+    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, place.as_ref())?)?;
     let mut json = to_json(&args.log, &log, &fit, &why, source);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
@@ -558,4 +498,79 @@ fn write_out(
     let manifest = CalibrationManifest::new(path, log.sha256.clone(), log.bytes, rows, files);
     set.put("manifest.json", &manifest.to_bytes()?)?;
     set.commit()
+}
+
+/// The magnitude the fit is made to: `--magnitude`, or the WMM's at `--site` and `--date` in the
+/// log's `--units`; `None` when neither is given (the fit takes its own mean radius).
+fn magnitude_of(args: &CalibrateArgs, place: Option<&Place>) -> Result<Option<(f64, String)>> {
+    let wmm = match (place, args.units) {
+        (Some(p), Some(units)) => Some(wmm_magnitude(&p.site, p.date, units, p.model)?),
+        (Some(_), None) if args.magnitude.is_none() => {
+            bail!("--site: give --units (the log's) for the WMM magnitude, or --magnitude");
+        }
+        (Some(_), None) if !args.attitude.any() => {
+            bail!(
+                "--site with --magnitude: the site would give only the box flags' field direction; add --roll and --pitch, or drop --site"
+            );
+        }
+        _ => None,
+    };
+    Ok(args.magnitude.map(|r| (r, "given".to_string())).or(wmm))
+}
+
+/// The fit of `log` with the model of `--fit` at the magnitude `given` (with where it comes from),
+/// or at the fit's own mean radius; the reasons of `--fit auto`, and where the magnitude comes
+/// from, in words.
+fn fit_at_magnitude(
+    args: &CalibrateArgs,
+    log: &log_file::Log,
+    settings: &FitSettings,
+    given: Option<(f64, String)>,
+) -> Result<(LogFit, Vec<AutoReason>, String)> {
+    let shown = args.log.display().to_string();
+    let fit_with = |magnitude: f64| -> Result<(LogFit, Vec<AutoReason>)> {
+        args.fit
+            .fit(&log.readings, magnitude, settings)
+            .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
+    };
+    Ok(match given {
+        Some((r, source)) => {
+            // A magnitude in other units than the log's (0.49 for a log in nT) still fits, with
+            // scale factors 1e5 away from 1: say so before they are read as a calibration.
+            if let Some(radius) = log_fit::sphere_radius(&log.readings)
+                && !(1e-2..=1e2).contains(&(radius / r))
+            {
+                to_stderr!(
+                    "magcal: warning: {shown}: the readings lie about {} from their centre, {:.1e} times the magnitude {} ({source}); are they in the same units?",
+                    significant(radius, 4),
+                    radius / r,
+                    significant(r, 7)
+                );
+            }
+            let (f, why) = fit_with(r)?;
+            (f, why, source)
+        }
+        None => {
+            // The fitted mean radius: the magnitude that makes the scale factors relative with
+            // product 1; when the fit is not determined, the radius of the best-fitting sphere.
+            // A fit does not depend on its magnitude but through that scale, so one fit serves.
+            let (unit, why) = fit_with(1.0)?;
+            let (radius, source) = if unit.identifiable {
+                (
+                    unit.mean_radius(),
+                    "fitted mean radius (scale factors are relative to it, product 1)",
+                )
+            } else {
+                (
+                    log_fit::sphere_radius(&log.readings)
+                        .with_context(|| format!("{shown}: no sphere fits the readings"))?,
+                    "radius of the best-fitting sphere (scale factors are relative to it)",
+                )
+            };
+            let f = unit
+                .at_magnitude(radius)
+                .with_context(|| format!("{shown}: no calibration at the magnitude {}", significant(radius, 7)))?;
+            (f, why, source.to_string())
+        }
+    })
 }
