@@ -340,6 +340,13 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
         writeln!(w, "  {reason}")?;
     }
     writeln!(w, "magnitude {} ({})", significant(j.magnitude, 7), j.magnitude_source)?;
+    print_estimates(w, j)?;
+    print_residuals_and_noise(w, j)?;
+    print_verdicts(w, j)
+}
+
+/// The estimates and their standard errors, or why there are none to use.
+fn print_estimates(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     if j.usable {
         writeln!(w, "{:<22}{}", "bias", row(j.bias))?;
         writeln!(w, "{:<22}{}", "psi_deg", row(j.psi_deg))?;
@@ -373,6 +380,11 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
             "NO CALIBRATION TO USE: the estimates are not printed (--json has them, with \"usable\": false)"
         )?;
     }
+    Ok(())
+}
+
+/// The residuals' size and the noise per component, with where it comes from.
+fn print_residuals_and_noise(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     writeln!(
         w,
         "residual | |b| - R |: rms {} ({} % of R), max {}",
@@ -400,6 +412,11 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
             (None, _) => "unknown: the fit is exact, so the log does not give it (give --noise)".to_string(),
         }
     )?;
+    Ok(())
+}
+
+/// The verdicts (identifiable, lack of fit, ellipsoid, usable) and the coverage of the log.
+fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     writeln!(
         w,
         "{}: {}",
