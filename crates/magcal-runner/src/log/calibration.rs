@@ -216,7 +216,6 @@ impl CalibrationJson {
     /// # Errors
     /// The first check that fails, in words.
     pub fn check(&self) -> Result<(), String> {
-        use magcal_core::small::{mat_mul, transpose, upper_triangular_inverse};
         if let Some(f) = &self.format
             && f != FORMAT
         {
@@ -248,6 +247,15 @@ impl CalibrationJson {
                 return Err(format!("{name} {v}: must be finite and not negative"));
             }
         }
+        self.check_p()?;
+        self.check_derived()
+    }
+
+    /// `p` upper triangular with a positive diagonal, `P^T P` finite, conditioned below
+    /// [`MAX_CONDITION`].
+    fn check_p(&self) -> Result<(), String> {
+        use magcal_core::small::{mat_mul, transpose};
+        let show = |m: &Mat3| format!("{m:?}");
         let p = &self.p;
         for (i, j) in [(1, 0), (2, 0), (2, 1)] {
             if p[i][j] != 0.0 {
@@ -278,6 +286,16 @@ impl CalibrationJson {
                 show(p)
             ));
         }
+        Ok(())
+    }
+
+    /// What is derived from `p` agrees with it, to the rounding of its computation: `k = P^-1`,
+    /// `scale`, `psi_deg`, `soft_iron_inverse`.
+    fn check_derived(&self) -> Result<(), String> {
+        use magcal_core::small::{mat_mul, transpose, upper_triangular_inverse};
+        let show = |m: &Mat3| format!("{m:?}");
+        let p = &self.p;
+        let cond = self.condition();
         let inverse = upper_triangular_inverse(p).ok_or_else(|| format!("p {}: singular", show(p)))?;
         // Substitution is backward stable: |K P - I| <= c n eps |K| |P| with c n well below 64.
         let eps = f64::EPSILON;
