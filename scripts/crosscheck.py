@@ -10,7 +10,7 @@ residual rms in percent of R; and the two coverage heuristics of the calibrated 
 (MotionCal's gaps over 100 equal-area regions, MicroStrain's occupied share of 18 x 32
 equal-angle bins), binned here with numpy from their definitions.
 
-Writes crates/magcal-runner/tests/crosscheck.json, which `tests/calibrate.rs` reads as
+Writes crates/magcal-runner/tests/crosscheck.json, which `tests/it/calibrate.rs` reads as
 expectations (tolerances there come from magcal's standard errors).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy

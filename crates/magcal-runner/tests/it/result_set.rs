@@ -1,11 +1,9 @@
 //! The result set is replaced whole or not at all, and `check` gives the right verdict.
 
-mod common;
-
 use std::fs;
 use std::path::Path;
 
-use common::{leftovers, magcal, magcal_with_limits, restore, run_into, smoke, snapshot, without_manifest};
+use crate::common::{leftovers, magcal, magcal_with_limits, restore, run_into, smoke, snapshot, without_manifest};
 use tempfile::TempDir;
 
 #[test]
@@ -67,7 +65,7 @@ fn a_full_disk_leaves_the_earlier_set_and_exits_2() {
     run_into(&out, 7);
     let old = snapshot(&out);
     // Every file may have 16 KiB: trials.csv and the figures need more.
-    let assert = magcal_with_limits(common::MEMORY_LIMIT, Some(16 << 10))
+    let assert = magcal_with_limits(crate::common::MEMORY_LIMIT, Some(16 << 10))
         .args(["run", "--quiet", "--trials", "20", "--seed", "8", "--out"])
         .arg(&out)
         .arg(smoke())

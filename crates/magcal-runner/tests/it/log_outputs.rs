@@ -2,15 +2,15 @@
 //! replace only regular files and never an input, every failed write is exit 2 with one line, and
 //! a calibration not to use is exit 3 after its outputs are written.
 
-mod common;
-
 use std::fs;
 use std::os::unix::fs::FileTypeExt;
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Output, Stdio};
 
-use common::{leftovers, magcal, magcal_process, magcal_with_file_size, restore, smoke, snapshot, without_manifest};
+use crate::common::{
+    leftovers, magcal, magcal_process, magcal_with_file_size, restore, smoke, snapshot, without_manifest,
+};
 use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, paper};

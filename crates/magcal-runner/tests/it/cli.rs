@@ -3,7 +3,6 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use assert_cmd::Command;
 use magcal_core::Attitude;
 use magcal_core::CalibrationStatus;
 use magcal_core::design::tour::rotation_angle;
@@ -11,17 +10,7 @@ use magcal_runner::output::{DesignPointRow, SummaryRow, TrialRow, read_csv};
 use magcal_runner::pipeline::Metric;
 use tempfile::TempDir;
 
-fn magcal() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_magcal"))
-}
-
-fn scenarios() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios")
-}
-
-fn smoke() -> PathBuf {
-    scenarios().join("smoke.toml")
-}
+use crate::common::{magcal, scenarios, smoke};
 
 /// Runs the smoke scenario into `dir` with `threads`.
 fn run_smoke(dir: &Path, threads: usize) {

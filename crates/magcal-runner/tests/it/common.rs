@@ -1,6 +1,5 @@
 //! Helpers of the end-to-end tests: the real binary under a memory limit, scenario edits, and
 //! snapshots of a result set.
-#![allow(dead_code)]
 
 use std::collections::BTreeMap;
 use std::fs;

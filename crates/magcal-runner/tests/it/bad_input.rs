@@ -1,14 +1,12 @@
 //! Bad input, end to end: every case exits 2 with one stderr line naming the file, the key and the
 //! value, and leaves an earlier result set byte-identical, with nothing left beside it. The binary
-//! runs under an address-space limit ([`common::MEMORY_LIMIT`]), so a size that escaped its bound
+//! runs under an address-space limit ([`crate::common::MEMORY_LIMIT`]), so a size that escaped its bound
 //! fails fast here instead of exhausting the machine.
-
-mod common;
 
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::{leftovers, magcal, run_into, scenarios, smoke, snapshot};
+use crate::common::{leftovers, magcal, run_into, scenarios, smoke, snapshot};
 use tempfile::TempDir;
 
 /// A scenario case: the text of the file, and what its error line must contain (besides its name).

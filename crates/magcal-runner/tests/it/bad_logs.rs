@@ -1,15 +1,13 @@
 //! Bad logs, options and result sets, end to end: every case exits 2 with ONE stderr line that
 //! names the file and the line, column or option, quotes at most a short excerpt, and leaves every
 //! input and earlier output byte-identical. The binary runs under the memory limit of
-//! [`common::magcal`], so an unbounded read fails here instead of exhausting the machine.
-
-mod common;
+//! [`crate::common::magcal`], so an unbounded read fails here instead of exhausting the machine.
 
 use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::{magcal, magcal_with_limits, run_into, scenarios};
+use crate::common::{magcal, magcal_with_limits, run_into, scenarios};
 use magcal_runner::digest::sha256_hex;
 use tempfile::TempDir;
 

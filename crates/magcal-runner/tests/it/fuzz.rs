@@ -26,7 +26,7 @@
 //! Plain regression tests below the fuzzers keep what the fuzzer found, readably.
 //!
 //! Cases per test: `MAGCAL_FUZZ_CASES` (default 24, what CI runs). A long run, as reported in the
-//! README: `MAGCAL_FUZZ_CASES=30000 cargo test --release -p magcal-runner --test fuzz -- mutated_logs`
+//! README: `MAGCAL_FUZZ_CASES=30000 cargo test --release -p magcal-runner --test it -- fuzz::mutated_logs`
 //! (the commands print to standard output: redirect it).
 //! Inputs that once failed are kept in `proptest-regressions/fuzz.txt` (beside `tests/`) and are
 //! replayed first.

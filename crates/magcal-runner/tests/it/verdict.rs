@@ -1,11 +1,9 @@
 //! The design verdict as a promise: "works" is what the trials of a run then show, the design
 //! recommended is one that works, and where none works the advice is computed by the same check.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
-use common::magcal;
+use crate::common::magcal;
 use magcal_runner::output::{AdviceRow, DesignMetricsRow, SummaryRow, read_csv};
 use tempfile::TempDir;
 

@@ -3,12 +3,10 @@
 //! its radius under the calibration is compared with the magnitude. On the public logs of
 //! `../shared/data/` (skipped, saying so, where that folder is absent) and on edits of them.
 
-mod common;
-
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::{data, magcal};
+use crate::common::{data, magcal};
 use magcal_runner::log::calibration::{CalibrationJson, FORMAT, MAX_CONDITION, read_calibration};
 use sha2::{Digest, Sha256};
 use tempfile::TempDir;
@@ -18,7 +16,7 @@ const H1: &str = "hamagure/data-set_1.csv";
 const H2: &str = "hamagure/data-set_2.csv";
 
 fn scenario(name: &str) -> PathBuf {
-    common::scenarios().join(format!("{name}.toml"))
+    crate::common::scenarios().join(format!("{name}.toml"))
 }
 
 /// `calibrate LOG ARGS --out DIR`: the calibration file it wrote (exit 0, or 3 for a calibration

@@ -1,12 +1,10 @@
 //! `magcal calibrate` and `magcal apply` on logs the tests write with a known truth, on the public
 //! logs of `../shared/data/` (skipped, saying so, where that folder is absent), and on bad logs.
 
-mod common;
-
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use common::{data, magcal};
+use crate::common::{data, magcal};
 use magcal_core::design::sources;
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, ErrorModel, paper};
@@ -411,7 +409,7 @@ fn the_full_fit_agrees_with_an_independent_scipy_fit() {
     // scripts/crosscheck.py: scipy least_squares on |P (s - O)| - 1, committed as
     // tests/crosscheck.json. Two solvers of the same least-squares problem agree far inside its
     // statistical uncertainty: within 1 % of magcal's standard errors.
-    let expected: serde_json::Value = serde_json::from_str(include_str!("crosscheck.json")).unwrap();
+    let expected: serde_json::Value = serde_json::from_str(include_str!("../crosscheck.json")).unwrap();
     for (name, want) in expected["logs"].as_object().unwrap() {
         let Some(log) = data(name) else { continue };
         let c = calibrate(&["--fit", "full"], &log);

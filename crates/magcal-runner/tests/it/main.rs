@@ -1,0 +1,15 @@
+//! The integration tests of `magcal`, linked into one binary: the real binary end to end on
+//! temporary directories (every run through [`common::magcal`] and its memory limit), and the
+//! fuzzers of the scenario parser and the log commands.
+
+mod common;
+
+mod apply_next;
+mod bad_input;
+mod bad_logs;
+mod calibrate;
+mod cli;
+mod fuzz;
+mod log_outputs;
+mod result_set;
+mod verdict;
