@@ -888,7 +888,7 @@ fn judge(errors: &ErrorModel, fields: &[Vec3], noise: Option<f64>, model: FitMod
     let mut j = judge_at(errors, fields, noise.unwrap_or(1.0), model);
     if noise.is_none() {
         // The information's shape does not depend on the noise: a singular direction is named
-        // as before, anything else waits for a noise.
+        // at the unit noise, anything else waits for a noise.
         if j.std_scale.is_some() {
             j.words = format!(
                 "unknown: the fit is exact ({} readings, {} parameters), so the log does not give the noise its standard errors rest on",
