@@ -836,4 +836,224 @@ mod tests {
             "{e}"
         );
     }
+
+    fn columns(text: &[u8], asked: Option<&str>) -> [String; 3] {
+        parse(text, asked, false).unwrap().1.columns
+    }
+
+    #[test]
+    fn the_default_columns_are_x_y_z_with_a_prefix_in_any_case_else_the_first_three_numeric() {
+        // Prefixes `m`, `mag`, `mag_`, any case, behind a time and an accelerometer; the order of
+        // the axes is the names', not the file's.
+        for (header, want, value) in [
+            ("t,ax,ay,az,mx,my,mz", ["mx", "my", "mz"], [1.0, 2.0, 3.0]),
+            (
+                "t,ax,ay,az,MAG_X,Mag_Y,mag_z",
+                ["MAG_X", "Mag_Y", "mag_z"],
+                [1.0, 2.0, 3.0],
+            ),
+            ("t,ax,ay,az,magx,magy,magz", ["magx", "magy", "magz"], [1.0, 2.0, 3.0]),
+            ("t,ax,ay,az,Z,Y,X", ["X", "Y", "Z"], [3.0, 2.0, 1.0]),
+        ] {
+            let text = format!("{header}\n0.5,9,8,7,1,2,3\n");
+            let (rows, s) = parse(text.as_bytes(), None, false).unwrap();
+            assert_eq!(s.columns, want, "{header}");
+            assert_eq!(rows, [(2, value)], "{header}");
+        }
+        // Plain `x, y, z` come before a prefixed set.
+        assert_eq!(columns(b"mx,my,mz,x,y,z\n1,2,3,4,5,6\n", None), ["x", "y", "z"]);
+        // No such names: the first three columns whose first data row is numeric.
+        let (rows, s) = parse(b"time,a,b,c,d\n12:00:01,1,2,3,4\n12:00:02,5,6,7,8\n", None, false).unwrap();
+        assert_eq!(s.columns, ["a", "b", "c"]);
+        assert_eq!(rows, [(2, [1.0, 2.0, 3.0]), (3, [5.0, 6.0, 7.0])]);
+        // Without a header, columns are named by their 1-based index; comments (indented too)
+        // do not set the separator.
+        let (rows, s) = parse(b"# a; b\n  # c,d\n7 1 2 3\n", None, false).unwrap();
+        assert_eq!(s.columns, ["column 1", "column 2", "column 3"]);
+        assert_eq!(rows, [(3, [7.0, 1.0, 2.0])]);
+        // An empty name is its index.
+        assert_eq!(columns(b"x,,z,w\n1,2,3,4\n", Some("1,2,4")), ["x", "column 2", "w"]);
+    }
+
+    #[test]
+    fn asked_columns_by_name_in_any_case_or_by_index_and_their_errors() {
+        let text = b"t,mx,my,mz,mz\n0,1,2,3,4\n";
+        // A name two columns carry is recorded by index, so that the record finds it again.
+        let (rows, s) = parse(text, Some(" MX, My ,4"), false).unwrap();
+        assert_eq!(s.columns, ["mx", "my", "column 4"]);
+        assert_eq!(rows, [(2, [1.0, 2.0, 3.0])]);
+        assert_eq!(columns(text, Some("2,3,5")), ["mx", "my", "column 5"]);
+        let prefix = "t.csv (read as comma-separated): ";
+        for (asked, message) in [
+            (
+                Some("mx,my"),
+                "--columns \"mx,my\": give three columns, names or 1-based indices",
+            ),
+            (
+                Some("1,2,9"),
+                "--columns \"1,2,9\": column 9 is not in the log (5 columns)",
+            ),
+            (
+                Some("0,1,2"),
+                "--columns \"0,1,2\": column 0 is not in the log (5 columns)",
+            ),
+            (
+                Some("mx,my,q"),
+                "--columns \"mx,my,q\": no column named \"q\" (columns: t, mx, my, mz, mz)",
+            ),
+            (
+                Some("mx,my,mz"),
+                "--columns \"mx,my,mz\": columns 4 and 5 are both named \"mz\"; give indices",
+            ),
+            (
+                None,
+                "columns 4, 5 are all named \"mz\"; choose with --columns (columns: t, mx, my, mz, mz)",
+            ),
+        ] {
+            assert_eq!(error(text, asked), format!("{prefix}{message}"));
+        }
+    }
+
+    #[test]
+    fn column_lists_in_errors_are_short_and_escape_control_characters() {
+        // A name with an escape sequence is shown escaped, never sent to the terminal.
+        let e = error(b"\x1b[2Jx,y,z\n1,2,3\n", Some("q,y,z"));
+        assert!(!e.contains('\x1b'), "{e:?}");
+        assert!(e.ends_with("no column named \"q\" (columns: \\u{1b}[2Jx, y, z)"), "{e}");
+        // At most 12 names, each cut at 24 characters.
+        let names: Vec<String> = (1..=30).map(|i| format!("{i}{}", "n".repeat(40))).collect();
+        let text = format!("{}\n{}\n", names.join(","), vec!["1"; 30].join(","));
+        let e = error(text.as_bytes(), Some("a,b,c"));
+        let listed: Vec<String> = names[..12].iter().map(|n| format!("{}...", &n[..24])).collect();
+        assert_eq!(
+            e.split_once("(columns: ").unwrap().1,
+            format!("{}, ... (30 columns))", listed.join(", "))
+        );
+        // The asked text itself is an excerpt.
+        let asked = "q".repeat(1000);
+        let e = error(b"x,y,z\n1,2,3\n", Some(&asked));
+        assert!(
+            e.len() < 200 && e.contains(&format!("{:?}...", "q".repeat(EXCERPT_CHARS))),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_bad_cell_is_named_by_line_column_and_value() {
+        assert_eq!(
+            error(b"x,y,z\n1,2,3\n4,abc,6\n", None),
+            "t.csv: line 3, column 2 (y): \"abc\" is not a number"
+        );
+        let skip = " (--skip-bad drops such rows and counts them)";
+        for (text, reason) in [
+            (&b"x,y,z\n1,2\n"[..], "line 2: no value in column 3 (z)"),
+            (b"x,y,z\n1,,3\n", "line 2: no value in column 2 (y)"),
+            (b"x,y,z\n-inf,2,3\n", "line 2: column 1 (x) is -inf"),
+            (b"x,y,z\n1,2,1e999\n", "line 2: column 3 (z) is inf"),
+        ] {
+            assert_eq!(error(text, None), format!("t.csv: {reason}{skip}"));
+        }
+        // Skipped, each with its line and reason; the other rows read.
+        let (rows, s) = parse(b"x,y,z\n1,2\n4,5,6\n\n1,,3\n", None, true).unwrap();
+        assert_eq!(rows, [(3, [4.0, 5.0, 6.0])]);
+        assert_eq!(
+            s.skipped,
+            [
+                (2, "no value in column 3 (z)".to_string()),
+                (5, "no value in column 2 (y)".to_string())
+            ]
+        );
+        // A text cell is an error even with skip_bad: it is not a missing value.
+        assert!(format!("{:#}", parse(b"x,y,z\n1,2,q\n", None, true).unwrap_err()).contains("\"q\" is not a number"));
+        // Every row skipped is no log.
+        assert_eq!(
+            format!("{:#}", parse(b"x,y,z\n1,2\n", None, true).unwrap_err()),
+            "t.csv: no readings (1 rows skipped)"
+        );
+    }
+
+    #[test]
+    fn utf16_and_binary_files_are_named_as_such() {
+        assert_eq!(
+            error(b"\xff\xfex\x00,\x00y\x00", None),
+            "t.csv: line 1: the log is UTF-16 text (it starts with a UTF-16 byte order mark); save it as UTF-8"
+        );
+        assert_eq!(
+            error(b"x,y,z\n1,2\x003\n", None),
+            "t.csv: line 2: byte 4 is NUL: not a text log (UTF-16 text or a binary file?)"
+        );
+    }
+
+    #[test]
+    fn excerpts_are_cut_at_a_character_count_and_say_so() {
+        assert_eq!(excerpt(b"abc"), "\"abc\"");
+        let long = "\u{e9}".repeat(100);
+        assert_eq!(
+            excerpt(long.as_bytes()),
+            format!("{:?}...", "\u{e9}".repeat(EXCERPT_CHARS))
+        );
+        let exact = "a".repeat(EXCERPT_CHARS);
+        assert_eq!(excerpt(exact.as_bytes()), format!("{exact:?}"));
+        // Bytes that are not UTF-8 are shown replaced, still quoted.
+        assert_eq!(excerpt(b"\xff1"), "\"\u{fffd}1\"");
+    }
+
+    #[test]
+    fn a_file_is_read_with_its_hash_and_size_and_a_directory_or_missing_file_is_named() {
+        use sha2::{Digest, Sha256};
+        let dir = tempfile::TempDir::new().unwrap();
+        let path = dir.path().join("log.csv");
+        let bytes = b"\xef\xbb\xbf# log\nmx;my;mz\n1,5;2;3\n\n4;5;6,25\n";
+        std::fs::write(&path, bytes).unwrap();
+        let log = read(&path, None, false).unwrap();
+        assert_eq!(log.readings, [[1.5, 2.0, 3.0], [4.0, 5.0, 6.25]]);
+        assert_eq!(log.lines, [3, 5]);
+        assert_eq!(log.columns, ["mx", "my", "mz"]);
+        assert_eq!(log.bytes, bytes.len() as u64);
+        let hex: String = Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(log.sha256, hex);
+        // The first row as the calibration check sees it: the same header.
+        assert_eq!(
+            first_row(&path),
+            Some((true, vec!["mx".to_string(), "my".into(), "mz".into()]))
+        );
+        let e = format!("{:#}", read(dir.path(), None, false).unwrap_err());
+        assert_eq!(e, format!("{}: is a directory, not a log", dir.path().display()));
+        let missing = dir.path().join("missing.csv");
+        let e = format!("{:#}", read(&missing, None, false).unwrap_err());
+        assert!(
+            e.starts_with(&format!("{}: cannot read the log: ", missing.display())),
+            "{e}"
+        );
+        // An error of the caller's is returned as it is, after the rows before it.
+        let mut seen = Vec::new();
+        let e = stream(&path, None, false, 0, |line, _| {
+            seen.push(line);
+            if line == 5 {
+                bail!("stop at line {line}")
+            } else {
+                Ok(())
+            }
+        })
+        .unwrap_err();
+        assert_eq!((format!("{e:#}"), seen), ("stop at line 5".to_string(), vec![3, 5]));
+    }
+
+    #[test]
+    fn the_first_row_is_a_header_only_with_a_cell_that_is_not_a_number() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let at = |name: &str, bytes: &[u8]| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).unwrap();
+            first_row(&p)
+        };
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(at("a", b"\n# c\n1\t2\t3\n"), Some((false, names(&["1", "2", "3"]))));
+        assert_eq!(at("b", b"x,,z\n1,2,3\n"), Some((true, names(&["x", "column 2", "z"]))));
+        // A decimal comma is a number where the separator allows it.
+        assert_eq!(at("c", b"1,5;2;3\n"), Some((false, names(&["1,5", "2", "3"]))));
+        assert_eq!(at("d", b"# only\n\n"), None);
+        assert_eq!(at("e", b"x,\x00y,z\n1,2,3\n"), None);
+        assert_eq!(first_row(&dir.path().join("missing")), None);
+    }
 }

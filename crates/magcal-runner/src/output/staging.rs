@@ -360,3 +360,300 @@ pub(super) fn same_inode(a: &std::fs::Metadata, b: &std::fs::Metadata) -> bool {
 pub(super) fn same_inode(_: &std::fs::Metadata, _: &std::fs::Metadata) -> bool {
     false
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+
+    /// A process id above the largest Linux gives (2^22): never running.
+    const DEAD: u32 = 4_194_305;
+
+    /// The manifest of a run set as [`SetKind::of`] recognises it (a name and a scenario hash).
+    const RUN_MANIFEST: &str = r#"{"name":"s","scenario_sha256":"0"}"#;
+
+    /// Every file below `dir`, relative path -> text.
+    fn files(dir: &Path) -> BTreeMap<String, String> {
+        fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, String>) {
+            for e in std::fs::read_dir(dir).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    walk(root, &p, out);
+                } else {
+                    let rel = p.strip_prefix(root).unwrap().to_string_lossy().replace('\\', "/");
+                    out.insert(rel, std::fs::read_to_string(&p).unwrap());
+                }
+            }
+        }
+        let mut out = BTreeMap::new();
+        walk(dir, dir, &mut out);
+        out
+    }
+
+    /// The names in `dir`, sorted.
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    fn make(dir: &Path, files: &[(&str, &str)]) {
+        for (rel, text) in files {
+            let p = dir.join(rel);
+            std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+            std::fs::write(p, text).unwrap();
+        }
+    }
+
+    fn map(files: &[(&str, &str)]) -> BTreeMap<String, String> {
+        files.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect()
+    }
+
+    fn message(e: &anyhow::Error) -> String {
+        format!("{e:#}")
+    }
+
+    #[test]
+    fn a_set_is_staged_beside_the_target_and_swapped_in_whole() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let target = tmp.path().join("out");
+        let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
+        assert_eq!(
+            set.dir(),
+            tmp.path().join(format!(".out.magcal-staging.{}", std::process::id()))
+        );
+        assert_eq!(set.target(), target);
+        set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
+        set.put("a.csv", b"1\n").unwrap();
+        set.put_with("plots/f.svg", |w| Ok(w.write_all(b"<svg/>")?)).unwrap();
+        // Nothing at the target until the commit.
+        assert!(!target.exists());
+        set.commit().unwrap();
+        let first = [
+            ("manifest.json", RUN_MANIFEST),
+            ("a.csv", "1\n"),
+            ("plots/f.svg", "<svg/>"),
+        ];
+        assert_eq!(files(&target), map(&first));
+        assert_eq!(names(tmp.path()), ["out"]);
+
+        // A second set replaces the first whole: none of its files survive.
+        let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
+        set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
+        set.put("b.csv", b"2\n").unwrap();
+        // The old set stays whole while the new one is staged.
+        assert_eq!(files(&target), map(&first));
+        set.commit().unwrap();
+        assert_eq!(
+            files(&target),
+            map(&[("manifest.json", RUN_MANIFEST), ("b.csv", "2\n")])
+        );
+        assert_eq!(names(tmp.path()), ["out"]);
+    }
+
+    #[test]
+    fn a_failed_write_or_an_abandoned_set_leaves_the_old_set_and_no_staging() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let target = tmp.path().join("out");
+        let old = [("manifest.json", RUN_MANIFEST), ("a.csv", "old\n")];
+        make(&target, &old);
+
+        let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
+        set.put("a.csv", b"new\n").unwrap();
+        let e = set
+            .put_with("b.csv", |w| {
+                w.write_all(b"partial")?;
+                Err(std::io::Error::new(std::io::ErrorKind::StorageFull, "disk full").into())
+            })
+            .unwrap_err();
+        assert_eq!(
+            message(&e),
+            format!("{}: cannot write: disk full", target.join("b.csv").display())
+        );
+        drop(set);
+        assert_eq!(files(&target), map(&old));
+        assert_eq!(names(tmp.path()), ["out"]);
+
+        // A file where a directory of the set must go.
+        let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
+        set.put("plots", b"").unwrap();
+        let e = set.put("plots/f.svg", b"<svg/>").unwrap_err();
+        assert!(message(&e).contains("plots: cannot create"), "{e:#}");
+        drop(set);
+        assert_eq!(files(&target), map(&old));
+        assert_eq!(names(tmp.path()), ["out"]);
+    }
+
+    #[test]
+    fn only_a_missing_or_empty_directory_or_a_set_of_the_same_kind_is_replaced() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let at = |name: &str| tmp.path().join(name);
+        // An empty directory is replaced.
+        std::fs::create_dir(at("empty")).unwrap();
+        let mut set = ResultSet::begin(&at("empty"), Target::Calibration, &[]).unwrap();
+        set.put("x", b"x").unwrap();
+        set.commit().unwrap();
+        assert_eq!(files(&at("empty")), map(&[("x", "x")]));
+
+        make(&at("foreign"), &[("notes.txt", "mine")]);
+        std::fs::write(at("file"), "a file").unwrap();
+        make(&at("run"), &[("manifest.json", RUN_MANIFEST)]);
+        make(&at("cal"), &[("manifest.json", r#"{"kind":"calibration"}"#)]);
+        let before: Vec<_> = ["foreign", "run", "cal"].iter().map(|n| files(&at(n))).collect();
+        for (name, kind, why) in [
+            (
+                "foreign",
+                Target::Results,
+                "exists and is not a magcal results directory (no magcal manifest.json); give another --out, or remove it",
+            ),
+            (
+                "foreign",
+                Target::Calibration,
+                "exists and is not a magcal results directory (no magcal manifest.json); give another --out, or remove it",
+            ),
+            ("file", Target::Results, "exists and is not a directory"),
+            (
+                "run",
+                Target::Calibration,
+                "holds a magcal run set, not a calibration set; give another --out, or remove it",
+            ),
+            (
+                "cal",
+                Target::Results,
+                "holds a magcal calibration set, not a run set; give another --out, or remove it",
+            ),
+        ] {
+            let e = ResultSet::begin(&at(name), kind, &[]).unwrap_err();
+            assert_eq!(message(&e), format!("{}: {why}", at(name).display()));
+        }
+        let after: Vec<_> = ["foreign", "run", "cal"].iter().map(|n| files(&at(n))).collect();
+        assert_eq!(before, after);
+        assert_eq!(std::fs::read_to_string(at("file")).unwrap(), "a file");
+        assert_eq!(names(tmp.path()), ["cal", "empty", "file", "foreign", "run"]);
+
+        // A set inside another, a directory holding an input, and no directory name of its own.
+        let e = ResultSet::begin(&at("run").join("inner"), Target::Results, &[]).unwrap_err();
+        assert_eq!(
+            message(&e),
+            format!(
+                "{}: {} holds a magcal run set, which is replaced whole: give another --out",
+                at("run").join("inner").display(),
+                at("run").display()
+            )
+        );
+        let input = at("foreign").join("notes.txt");
+        let e = ResultSet::begin(&at("foreign"), Target::Owned, &[&input]).unwrap_err();
+        assert_eq!(
+            message(&e),
+            format!(
+                "{}: holds the input {}; replacing the directory would destroy it: give another --out",
+                at("foreign").display(),
+                input.display()
+            )
+        );
+        for bad in [".", "..", "/"] {
+            let e = ResultSet::begin(Path::new(bad), Target::Results, &[]).unwrap_err();
+            assert_eq!(
+                message(&e),
+                format!("{bad}: name the output directory itself (not '.', '..' or a root)")
+            );
+        }
+        let long = at(&"n".repeat(201));
+        let e = ResultSet::begin(&long, Target::Results, &[]).unwrap_err();
+        assert!(
+            message(&e).ends_with(": the directory name is longer than 200 bytes"),
+            "{e:#}"
+        );
+        assert_eq!(
+            before,
+            ["foreign", "run", "cal"]
+                .iter()
+                .map(|n| files(&at(n)))
+                .collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn an_owned_part_is_replaced_whatever_it_holds() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let plots = tmp.path().join("plots");
+        make(&plots, &[("old.svg", "old"), ("deep/old.png", "old")]);
+        let mut set = ResultSet::begin(&plots, Target::Owned, &[]).unwrap();
+        set.put("new.svg", b"new").unwrap();
+        set.commit().unwrap();
+        assert_eq!(files(&plots), map(&[("new.svg", "new")]));
+        assert_eq!(names(tmp.path()), ["plots"]);
+    }
+
+    #[test]
+    fn the_commit_checks_the_target_again() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let target = tmp.path().join("out");
+        // A foreign directory made at the target after `begin` is never replaced.
+        let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
+        set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
+        make(&target, &[("notes.txt", "mine")]);
+        let e = set.commit().unwrap_err();
+        assert!(
+            message(&e).contains("exists and is not a magcal results directory"),
+            "{e:#}"
+        );
+        assert_eq!(files(&target), map(&[("notes.txt", "mine")]));
+        assert_eq!(names(tmp.path()), ["out"]);
+
+        // A set of the same kind made there meanwhile is exchanged like any other.
+        let other = tmp.path().join("other");
+        let mut set = ResultSet::begin(&other, Target::Results, &[]).unwrap();
+        set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
+        set.put("new.csv", b"new").unwrap();
+        make(&other, &[("manifest.json", RUN_MANIFEST), ("raced.csv", "raced")]);
+        set.commit().unwrap();
+        assert_eq!(
+            files(&other),
+            map(&[("manifest.json", RUN_MANIFEST), ("new.csv", "new")])
+        );
+        assert_eq!(names(tmp.path()), ["other", "out"]);
+    }
+
+    #[test]
+    fn what_killed_runs_left_is_removed_or_put_back_and_live_runs_are_left_alone() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let at = |name: &str| tmp.path().join(name);
+        let old = [("manifest.json", RUN_MANIFEST), ("a.csv", "old")];
+        // A run killed between setting the old set aside and renaming the new one in: the target
+        // is missing, and the set aside is put back.
+        make(&at(&format!(".out.magcal-old.{DEAD}")), &old);
+        make(&at(&format!(".out.magcal-staging.{DEAD}")), &[("half.csv", "")]);
+        // A running process's staging (pid 1 runs on every Linux), another target's, and a
+        // name that only looks like one.
+        make(&at(".out.magcal-staging.1"), &[("live.csv", "")]);
+        make(&at(&format!(".other.magcal-staging.{DEAD}")), &[("x", "")]);
+        make(&at(".out.magcal-staging.x"), &[("x", "")]);
+        let set = ResultSet::begin(&at("out"), Target::Results, &[]).unwrap();
+        assert_eq!(files(&at("out")), map(&old));
+        drop(set);
+        assert_eq!(files(&at("out")), map(&old));
+        let mut left = vec![
+            ".other.magcal-staging.4194305".to_string(),
+            ".out.magcal-staging.x".into(),
+            "out".into(),
+        ];
+        if cfg!(target_os = "linux") {
+            left.insert(1, ".out.magcal-staging.1".into());
+        }
+        assert_eq!(names(tmp.path()), left);
+
+        // With the target present, a set aside by a dead run is removed.
+        make(&at(&format!(".out.magcal-old.{DEAD}")), &[("stale.csv", "")]);
+        let mut set = ResultSet::begin(&at("out"), Target::Results, &[]).unwrap();
+        assert!(!at(&format!(".out.magcal-old.{DEAD}")).exists());
+        set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
+        set.commit().unwrap();
+        assert_eq!(files(&at("out")), map(&[("manifest.json", RUN_MANIFEST)]));
+        assert_eq!(names(tmp.path()), left);
+    }
+}
