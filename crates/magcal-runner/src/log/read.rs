@@ -433,22 +433,7 @@ fn read_from<R: Read>(
     let mut readings = 0usize;
     let mut skipped: Vec<(usize, String)> = Vec::new();
     while let Some(line) = lines.next(&mut buf, shown)? {
-        if line == 1 && buf.starts_with(b"\xef\xbb\xbf") {
-            buf.drain(..3);
-        }
-        // UTF-16 (a spreadsheet's "Unicode text") and binary files: named as such, not as a log
-        // without numeric columns quoting bytes a terminal cannot show.
-        if line == 1 && (buf.starts_with(b"\xff\xfe") || buf.starts_with(b"\xfe\xff")) {
-            bail!(
-                "{shown}: line 1: the log is UTF-16 text (it starts with a UTF-16 byte order mark); save it as UTF-8"
-            );
-        }
-        if let Some(at) = buf.iter().position(|&b| b == 0) {
-            bail!(
-                "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file?)",
-                at + 1
-            );
-        }
+        text_line(&mut buf, line, shown)?;
         let content = buf.trim_ascii_start();
         if content.is_empty() || content[0] == b'#' {
             continue;
@@ -472,27 +457,7 @@ fn read_from<R: Read>(
                 !cell.is_empty() && number(cell, separator).is_none()
             });
             if header {
-                names = (0..s.len())
-                    .map(|i| {
-                        // Control characters escaped: a name is quoted in errors, and a header
-                        // must never move the terminal's cursor.
-                        let name: String = String::from_utf8_lossy(s.get(i).unwrap_or_default())
-                            .chars()
-                            .map(|c| {
-                                if c.is_control() {
-                                    c.escape_debug().to_string()
-                                } else {
-                                    c.to_string()
-                                }
-                            })
-                            .collect();
-                        if name.is_empty() {
-                            format!("column {}", i + 1)
-                        } else {
-                            name
-                        }
-                    })
-                    .collect();
+                names = header_names(s);
                 continue;
             }
             names = (1..=s.len()).map(|i| format!("column {i}")).collect();
@@ -509,30 +474,7 @@ fn read_from<R: Read>(
                 *pick.insert(p)
             }
         };
-        let mut value = [0.0; 3];
-        let mut bad = None;
-        for (j, &c) in pick.iter().enumerate() {
-            match s.get(c) {
-                None | Some(b"") => bad = Some(format!("no value in column {} ({})", c + 1, names[c])),
-                Some(cell) => match number(cell, separator) {
-                    Some(v) if v.is_finite() => value[j] = v,
-                    Some(v) => bad = Some(format!("column {} ({}) is {v}", c + 1, names[c])),
-                    None => {
-                        let why = if decimal_comma(cell) {
-                            " (a decimal comma cannot be read where the comma separates cells; use decimal points, or ';' between cells)"
-                        } else {
-                            ""
-                        };
-                        bail!(
-                            "{shown}: line {line}, column {} ({}): {} is not a number{why}",
-                            c + 1,
-                            names[c],
-                            excerpt(cell)
-                        )
-                    }
-                },
-            }
-        }
+        let (value, bad) = row_value(s, pick, &names, shown, line)?;
         budget.check(shown, line, readings, skipped.len())?;
         match bad {
             Some(reason) if skip_bad => skipped.push((line, reason)),
@@ -559,6 +501,89 @@ fn read_from<R: Read>(
         sha256: String::new(),
         bytes: 0,
     })
+}
+
+/// Line `line` of the log in `buf` as text: a UTF-8 byte order mark on line 1 removed; UTF-16 text
+/// and binary files (a NUL byte) named as such, not as a log without numeric columns quoting
+/// bytes a terminal cannot show.
+fn text_line(buf: &mut Vec<u8>, line: usize, shown: &str) -> Result<()> {
+    if line == 1 && buf.starts_with(b"\xef\xbb\xbf") {
+        buf.drain(..3);
+    }
+    // UTF-16: a spreadsheet's "Unicode text".
+    if line == 1 && (buf.starts_with(b"\xff\xfe") || buf.starts_with(b"\xfe\xff")) {
+        bail!("{shown}: line 1: the log is UTF-16 text (it starts with a UTF-16 byte order mark); save it as UTF-8");
+    }
+    if let Some(at) = buf.iter().position(|&b| b == 0) {
+        bail!(
+            "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file?)",
+            at + 1
+        );
+    }
+    Ok(())
+}
+
+/// The column names of a header row, control characters escaped (a name is quoted in errors, and
+/// a header must never move the terminal's cursor); an empty name is `column N`.
+fn header_names(s: &Splitter) -> Vec<String> {
+    (0..s.len())
+        .map(|i| {
+            // Control characters escaped: a name is quoted in errors, and a header
+            // must never move the terminal's cursor.
+            let name: String = String::from_utf8_lossy(s.get(i).unwrap_or_default())
+                .chars()
+                .map(|c| {
+                    if c.is_control() {
+                        c.escape_debug().to_string()
+                    } else {
+                        c.to_string()
+                    }
+                })
+                .collect();
+            if name.is_empty() {
+                format!("column {}", i + 1)
+            } else {
+                name
+            }
+        })
+        .collect()
+}
+
+/// The reading of a data row from the columns `pick`, or why the row is bad (a missing or
+/// non-finite value: the caller skips it or stops); a cell that is not a number is an error.
+fn row_value(
+    s: &Splitter,
+    pick: [usize; 3],
+    names: &[String],
+    shown: &str,
+    line: usize,
+) -> Result<(Vec3, Option<String>)> {
+    let separator = s.separator;
+    let mut value = [0.0; 3];
+    let mut bad = None;
+    for (j, &c) in pick.iter().enumerate() {
+        match s.get(c) {
+            None | Some(b"") => bad = Some(format!("no value in column {} ({})", c + 1, names[c])),
+            Some(cell) => match number(cell, separator) {
+                Some(v) if v.is_finite() => value[j] = v,
+                Some(v) => bad = Some(format!("column {} ({}) is {v}", c + 1, names[c])),
+                None => {
+                    let why = if decimal_comma(cell) {
+                        " (a decimal comma cannot be read where the comma separates cells; use decimal points, or ';' between cells)"
+                    } else {
+                        ""
+                    };
+                    bail!(
+                        "{shown}: line {line}, column {} ({}): {} is not a number{why}",
+                        c + 1,
+                        names[c],
+                        excerpt(cell)
+                    )
+                }
+            },
+        }
+    }
+    Ok((value, bad))
 }
 
 /// The name column `i` is recorded by: its header name, or `column N` (1-based) when other

@@ -296,8 +296,8 @@ mod tests {
     use magcal_core::CalibrationStatus;
 
     use super::*;
-    use crate::pipeline::advice::{Reduced, Widening};
     use crate::output::Headings;
+    use crate::pipeline::advice::{Reduced, Widening};
     use crate::pipeline::{Outcomes, RunOptions};
 
     /// Two explicit designs of the smoke scenario ([P1] Table II) at one noise level, 40 trials.
