@@ -222,59 +222,7 @@ pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Resul
         )?;
     }
     if !out.cells.is_empty() {
-        writeln!(w)?;
-        writeln!(
-            w,
-            "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {:>17} {:>17} {:>17} {:>12}",
-            "design",
-            "sigma_nt",
-            "ok",
-            "n.conv",
-            "n.ident",
-            "failed",
-            "eta_psi med/crb %",
-            "eta_S med/crb %",
-            "eta_O med/crb %",
-            "heading med"
-        )?;
-        for c in &out.cells {
-            let s = c.summaries();
-            let o = c.outcomes();
-            let pair = |k: usize| {
-                let crb = s[k].metric.predicted_rms(&c.bound).unwrap_or(f64::NAN);
-                format!("{:>8}/{:<8}", cell(s[k].summary.median), cell(crb))
-            };
-            let name = if c.attitude_sigma_deg > 0.0 {
-                format!("{}~{}deg", out.designs[c.design].name, c.attitude_sigma_deg)
-            } else {
-                out.designs[c.design].name.clone()
-            };
-            writeln!(
-                w,
-                "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
-                name,
-                c.sigma_nt,
-                o.ok,
-                o.not_converged,
-                o.not_identifiable,
-                o.failed,
-                pair(0),
-                pair(1),
-                pair(2),
-                cell(s[6].summary.median)
-            )?;
-            if 100 * o.ok < 95 * c.trials.len() {
-                writeln!(
-                    w,
-                    "  warning: only {} of {} trials ok ({} not converged, {} not identifiable, {} failed); statistics are over the ok ones",
-                    o.ok,
-                    c.trials.len(),
-                    o.not_converged,
-                    o.not_identifiable,
-                    o.failed
-                )?;
-            }
-        }
+        cells(w, out)?;
     }
     if let Some(runs) = &out.pso_runs {
         let v: Vec<f64> = runs.iter().map(|r| -r.fitness).collect();
@@ -286,6 +234,65 @@ pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Resul
     let times: Vec<String> = out.stages.iter().map(|(n, t)| format!("{n} {t:.3} s")).collect();
     writeln!(w, "\ntimes: {}", times.join(", "))?;
     writeln!(w, "written to {}", dir.display())?;
+    Ok(())
+}
+
+/// The trials of every cell: outcome counts, the medians of the relative errors beside their
+/// Cramer-Rao rms, the heading median, and a warning under a cell where fewer than 95 % are `ok`.
+fn cells(w: &mut dyn Write, out: &RunOutput) -> std::io::Result<()> {
+    writeln!(w)?;
+    writeln!(
+        w,
+        "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {:>17} {:>17} {:>17} {:>12}",
+        "design",
+        "sigma_nt",
+        "ok",
+        "n.conv",
+        "n.ident",
+        "failed",
+        "eta_psi med/crb %",
+        "eta_S med/crb %",
+        "eta_O med/crb %",
+        "heading med"
+    )?;
+    for c in &out.cells {
+        let s = c.summaries();
+        let o = c.outcomes();
+        let pair = |k: usize| {
+            let crb = s[k].metric.predicted_rms(&c.bound).unwrap_or(f64::NAN);
+            format!("{:>8}/{:<8}", cell(s[k].summary.median), cell(crb))
+        };
+        let name = if c.attitude_sigma_deg > 0.0 {
+            format!("{}~{}deg", out.designs[c.design].name, c.attitude_sigma_deg)
+        } else {
+            out.designs[c.design].name.clone()
+        };
+        writeln!(
+            w,
+            "{:<14} {:>9} {:>6} {:>6} {:>6} {:>6} {} {} {} {:>10} deg",
+            name,
+            c.sigma_nt,
+            o.ok,
+            o.not_converged,
+            o.not_identifiable,
+            o.failed,
+            pair(0),
+            pair(1),
+            pair(2),
+            cell(s[6].summary.median)
+        )?;
+        if 100 * o.ok < 95 * c.trials.len() {
+            writeln!(
+                w,
+                "  warning: only {} of {} trials ok ({} not converged, {} not identifiable, {} failed); statistics are over the ok ones",
+                o.ok,
+                c.trials.len(),
+                o.not_converged,
+                o.not_identifiable,
+                o.failed
+            )?;
+        }
+    }
     Ok(())
 }
 
