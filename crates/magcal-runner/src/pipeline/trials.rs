@@ -107,7 +107,7 @@ impl Metric {
 /// The trials of one design at one noise level.
 #[derive(Debug, Clone)]
 pub struct Cell {
-    /// Index into [`RunOutput::designs`].
+    /// Index into [`super::RunOutput::designs`].
     pub design: usize,
     /// Noise level, nT.
     pub sigma_nt: f64,
