@@ -8,7 +8,7 @@ use magcal_core::design::pso::Swarm;
 use magcal_core::{Attitude, ParameterError};
 
 use super::raw;
-use super::validate::{check_name, count, finite, keyed, whole, within};
+use super::values::{check_name, count, finite, keyed, whole, within};
 use super::{DEFAULT_MAX_ATTITUDES, DesignSource, DesignSpec};
 use crate::limits::{self, show};
 

@@ -7,6 +7,7 @@ mod design;
 mod raw;
 pub mod site;
 mod validate;
+mod values;
 
 use std::path::{Path, PathBuf};
 

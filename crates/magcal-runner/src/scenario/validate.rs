@@ -9,6 +9,7 @@ use magcal_core::design::approximate::Approximate;
 use magcal_core::{AttitudeBox, ErrorModel, ParameterError, ReferenceField, TwoStep, wmm};
 
 use super::raw;
+use super::values::{check_name, count, finite, keyed, within};
 use super::{
     DEFAULT_CHECK_TRIALS, DesignSource, DesignSpec, MIN_CHECK_TRIALS, PsoRunsSpec, SCHEMA, Scenario, check_range,
 };
@@ -285,72 +286,4 @@ fn reference_field(f: &raw::Field) -> Result<(ReferenceField, String)> {
         .with_yaw_offset_deg(f.yaw_offset_deg)
         .map_err(|e| keyed("field.", &e, &show(f.yaw_offset_deg)))?;
     Ok((field, source))
-}
-
-pub(super) fn finite(key: &str, value: f64) -> Result<f64> {
-    if !value.is_finite() {
-        bail!("{key} = {}: must be a finite number", show(value));
-    }
-    Ok(value)
-}
-
-pub(super) fn within(key: &str, value: f64, min: f64, max: f64, unit: &str) -> Result<f64> {
-    finite(key, value)?;
-    if !(min..=max).contains(&value) {
-        bail!(
-            "{key} = {}: must lie in [{}, {}]{unit}",
-            show(value),
-            show(min),
-            show(max)
-        );
-    }
-    Ok(value)
-}
-
-pub(super) fn count(key: &str, value: usize, min: usize, max: usize) -> Result<usize> {
-    if value < min {
-        bail!("{key} = {value}: must be at least {min}");
-    }
-    if value > max {
-        bail!("{key} = {value}: must be at most {max}");
-    }
-    Ok(value)
-}
-
-/// A core parameter error against the key that carried it: `key = value: requirement`.
-pub(super) fn keyed(prefix: &str, e: &ParameterError, value: &str) -> anyhow::Error {
-    anyhow::anyhow!("{prefix}{} = {value}: {}", e.name(), e.requirement())
-}
-
-/// A whole number given as any TOML value; `what` says what was expected.
-pub(super) fn whole(key: &str, value: &toml::Value, what: &str) -> Result<i64> {
-    match value {
-        toml::Value::Integer(i) => Ok(*i),
-        toml::Value::Float(x) => bail!("{key} = {}: must be {what}", show(*x)),
-        toml::Value::String(text) => bail!("{key} = {:?}: must be {what}", limits::excerpt(text, 40)),
-        other => bail!("{key}: a {}, must be {what}", other.type_str()),
-    }
-}
-
-pub(super) fn check_name(key: &str, name: &str) -> Result<()> {
-    let shown: String = name.chars().take(80).collect();
-    let shown = if shown.len() < name.len() {
-        format!("{shown:?}... ({} characters)", name.chars().count())
-    } else {
-        format!("{name:?}")
-    };
-    let ok = !name.is_empty()
-        && !name.starts_with('.')
-        && name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
-    if !ok {
-        bail!(
-            "{key} = {shown}: use letters, digits, '_', '-' or '.', not starting with '.' (it names files and CSV rows)"
-        );
-    }
-    if name.len() > limits::MAX_NAME {
-        bail!("{key} = {shown}: at most {} characters", limits::MAX_NAME);
-    }
-    Ok(())
 }
