@@ -375,6 +375,21 @@ pub fn ln_det_of_count(m: usize) -> f64 {
     UNKNOWNS as f64 * (m as f64).ln()
 }
 
+/// One attitude per reading of a design that holds `attitudes[i]` for `counts[i]` readings, in
+/// that order: the readings [`DesignProblem::evaluate_replicated`] counts, one by one.
+///
+/// # Panics
+/// If the lengths differ.
+#[track_caller]
+pub fn replicated(attitudes: &[Attitude], counts: &[usize]) -> Vec<Attitude> {
+    assert_eq!(attitudes.len(), counts.len(), "one count per attitude");
+    attitudes
+        .iter()
+        .zip(counts)
+        .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
+        .collect()
+}
+
 /// `ln det (M_F / m) = ln det M_F - 9 ln m` of a design of `m` readings: its information per
 /// reading, which designs of different sizes share (nT, as `ln_det_mf`).
 pub fn ln_det_per_reading(ln_det_mf: f64, m: usize) -> f64 {

@@ -589,12 +589,7 @@ mod tests {
                 assert!(distance(a, b) > MERGE_RAD, "{a:?} {b:?}");
             }
         }
-        let expanded: Vec<Attitude> = plan
-            .attitudes
-            .iter()
-            .zip(&plan.readings)
-            .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
-            .collect();
+        let expanded = crate::design::replicated(&plan.attitudes, &plan.readings);
         let m_f = problem.information_matrix(&expanded);
         let direct = m_f.ln_det_nt();
         // Two summation orders of the same readings: |d ln det| <= 9 cond(M_F) eps, with room for
@@ -765,11 +760,7 @@ mod tests {
         assert_eq!(problem.evaluate_replicated(&design, &[1; 9]), problem.evaluate(&design));
         // Several: within the rounding of the expanded sum, 9 cond(M_F) eps per term.
         let counts = [3, 1, 4, 1, 5, 9, 2, 6, 5];
-        let expanded: Vec<Attitude> = design
-            .iter()
-            .zip(counts)
-            .flat_map(|(a, n)| std::iter::repeat_n(*a, n))
-            .collect();
+        let expanded = crate::design::replicated(&design, &counts);
         let m_f = problem.information_matrix(&expanded);
         let cond = crate::linear_model::cond_2(m_f.to_faer().as_ref());
         let tol = 9.0 * cond * f64::EPSILON * expanded.len() as f64;

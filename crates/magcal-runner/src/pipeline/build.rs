@@ -6,7 +6,7 @@ use anyhow::{Context, Result};
 use magcal_core::design::approximate::ApproximateDesign;
 use magcal_core::design::plan::PlanSearch;
 use magcal_core::design::pso::RunSummary;
-use magcal_core::design::{DesignProblem, sources, tour};
+use magcal_core::design::{DesignProblem, replicated, sources, tour};
 use magcal_core::rng::{MagcalRng, stream_id, stream_rng};
 use magcal_core::{Attitude, Conditioning, CramerRao, ParameterError, PhysicalScales};
 use rand::RngExt;
@@ -52,11 +52,7 @@ pub fn design(
     };
     let mut rng = stream_rng(scenario.seed, stream_id(&[DESIGN_STREAM, i as u64]));
     let (attitudes, readings) = attitudes(scenario, spec, approximate, &mut rng, progress)?;
-    let every: Vec<Attitude> = attitudes
-        .iter()
-        .zip(&readings)
-        .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
-        .collect();
+    let every = replicated(&attitudes, &readings);
     let metrics = problem(scenario, spec, every.len())?.evaluate_replicated(&attitudes, &readings);
     let body = scenario.field.body_fields(&every);
     let noise_free = scenario.truth.measure_all(&body);

@@ -91,11 +91,7 @@ impl BuiltDesign {
 
     /// One attitude per reading, in the order built: what the trials simulate.
     pub fn expanded(&self) -> Vec<Attitude> {
-        self.attitudes
-            .iter()
-            .zip(&self.readings)
-            .flat_map(|(a, &n)| std::iter::repeat_n(*a, n))
-            .collect()
+        magcal_core::design::replicated(&self.attitudes, &self.readings)
     }
 
     /// `ln det (M_F / m)`: the information per reading, which designs of different sizes share.
