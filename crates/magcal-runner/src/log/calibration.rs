@@ -37,6 +37,18 @@ pub struct CalibrationJson {
     /// The log's units where `calibrate` was told them (`--units`), else `null`.
     #[serde(default)]
     pub units: Option<String>,
+    /// The log's format ([`crate::log::flight::Format::name`]); `null` in a file written before
+    /// flight logs were read (a CSV log).
+    #[serde(default)]
+    pub log_format: Option<String>,
+    /// The magnetometer instance read from a flight log (`--compass`), numbered as the log
+    /// numbers it.
+    #[serde(default)]
+    pub instance: Option<u8>,
+    /// The readings' frame in words where the log says it (`body (forward, right, down)`,
+    /// `sensor`).
+    #[serde(default)]
+    pub frame: Option<String>,
     pub columns: [String; 3],
     pub samples: usize,
     pub skipped: usize,

@@ -3,5 +3,6 @@
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
 pub mod calibration;
+pub mod flight;
 pub mod read;
 pub mod vehicle;
