@@ -246,6 +246,7 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: &[AutoReason], s
         log_format: None,
         instance: None,
         frame: None,
+        motor: None,
         columns: log.columns.clone(),
         samples: log.readings.len(),
         skipped: log.skipped.len(),

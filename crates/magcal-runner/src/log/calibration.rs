@@ -49,6 +49,9 @@ pub struct CalibrationJson {
     /// `sensor`).
     #[serde(default)]
     pub frame: Option<String>,
+    /// The motor interference fitted with the calibration (`calibrate --motor`), else `null`.
+    #[serde(default)]
+    pub motor: Option<MotorJson>,
     pub columns: [String; 3],
     pub samples: usize,
     pub skipped: usize,
@@ -102,6 +105,21 @@ pub struct CalibrationJson {
     /// Whether the readings lie on an ellipsoid.
     #[serde(default)]
     pub ellipsoid: Option<EllipsoidJson>,
+}
+
+/// Motor interference: the raw reading carries `d * u` on top of the sensor's `K b + O`, with
+/// `u` the battery current or the throttle at the reading.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MotorJson {
+    /// `current` (amperes) or `throttle` (0 to 1).
+    pub input: String,
+    /// `d`: the raw reading's change per unit of `input`, in the log's units, in the readings'
+    /// frame.
+    pub per_unit: [f64; 3],
+    /// Standard errors of `per_unit`, `null` where unknown.
+    pub std_error: Option<[f64; 3]>,
+    /// The range of `input` over the readings fitted.
+    pub input_range: [f64; 2],
 }
 
 /// Where the noise comes from.
