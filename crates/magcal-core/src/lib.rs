@@ -57,6 +57,7 @@
 #![deny(clippy::float_cmp)]
 
 pub mod attitude;
+pub mod aviation;
 pub mod calibration;
 pub mod design;
 pub mod error;
