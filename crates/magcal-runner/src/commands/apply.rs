@@ -7,7 +7,9 @@ use clap::Args;
 
 use super::Failure;
 use crate::log::calibration::{RadiusMedian, columns_for, read_calibration};
-use crate::log::read as log_file;
+use crate::log::flight::Format;
+use crate::log::read::{self as log_file, HELD_BYTES_PER_READING};
+use crate::log::source::{self, LogArgs, format_of};
 use crate::output::file::Output;
 use crate::output::log_rows::AppliedRow;
 use crate::output::stderr::to_stderr;
@@ -20,13 +22,10 @@ pub struct ApplyArgs {
     pub calibration: PathBuf,
     /// The log to calibrate.
     pub log: PathBuf,
-    /// As for `calibrate` (default: the columns the calibration was made from).
-    #[arg(long)]
-    pub columns: Option<String>,
-    /// As for `calibrate`: rows with a non-finite or missing value are dropped, and each is named
-    /// on stderr.
-    #[arg(long)]
-    pub skip_bad: bool,
+    /// How to read the log, as for `calibrate` (default columns: those the calibration was made
+    /// from; rows dropped by `--skip-bad` are named on stderr).
+    #[command(flatten)]
+    pub input: LogArgs,
     /// Write the calibrated readings to this file, replaced whole (default, or `-`: standard
     /// output). Only a regular file or a missing path is replaced, and never an input.
     #[arg(long)]
@@ -51,50 +50,54 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     out.check(&inputs)?;
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
-    let columns = columns_for(&cal, &shown, &args.log, args.columns.as_deref())?;
-    // The log is streamed: each reading is calibrated and written as it is read, and nothing of
-    // it is held. An error part way (a bad row, a reading whose calibrated value is not finite)
-    // leaves the output as it was: the rows went to a temporary file that is then removed (on
-    // standard output, the rows before it have been written, as with any filter).
+    let mut input = args.input.clone();
+    input.columns = columns_for(&cal, &shown, &args.log, &input)?;
+    // A CSV log without times is streamed: each reading is calibrated and written as it is read,
+    // and nothing of it is held. A flight log, or a CSV log cut by time, is read whole first. An
+    // error part way (a bad row, a reading whose calibrated value is not finite) leaves the
+    // output as it was: the rows went to a temporary file that is then removed (on standard
+    // output, the rows before it have been written, as with any filter).
+    let streamable = format_of(&args.log, input.format)? == Format::Csv && input.time.is_none();
     let mut radius = RadiusMedian::new(cal.magnitude);
-    let mut streamed = None;
+    let mut skipped = Vec::new();
     out.write(&inputs, |w| {
         let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(w);
         csv.write_record(&output::header::<AppliedRow>()?)?;
-        streamed = Some(log_file::stream(
-            &args.log,
-            columns.as_deref(),
-            args.skip_bad,
-            0,
-            |line, raw| {
-                let b = cal.apply(raw);
-                // |b| through hypot: its squares overflow for components above 1e154, whose
-                // length is still finite.
-                let norm = b[0].hypot(b[1]).hypot(b[2]);
-                if !(b.iter().all(|v| v.is_finite()) && norm.is_finite()) {
-                    bail!(
-                        "{}: line {line}: the reading {raw:?} calibrated by {shown} is {b:?}, not finite (is the calibration for this sensor and units?)",
-                        args.log.display()
-                    );
-                }
-                radius.push(b);
-                csv.serialize(AppliedRow {
-                    line,
-                    x: Real(b[0]),
-                    y: Real(b[1]),
-                    z: Real(b[2]),
-                    norm: Real(norm),
-                })?;
-                Ok(())
-            },
-        )?);
+        let mut row = |line: usize, raw: magcal_core::Vec3| -> Result<()> {
+            let b = cal.apply(raw);
+            // |b| through hypot: its squares overflow for components above 1e154, whose length
+            // is still finite.
+            let norm = b[0].hypot(b[1]).hypot(b[2]);
+            if !(b.iter().all(|v| v.is_finite()) && norm.is_finite()) {
+                bail!(
+                    "{}: line {line}: the reading {raw:?} calibrated by {shown} is {b:?}, not finite (is the calibration for this sensor and units?)",
+                    args.log.display()
+                );
+            }
+            radius.push(b);
+            csv.serialize(AppliedRow {
+                line,
+                x: Real(b[0]),
+                y: Real(b[1]),
+                z: Real(b[2]),
+                norm: Real(norm),
+            })?;
+            Ok(())
+        };
+        if streamable {
+            skipped = log_file::stream(&args.log, input.columns.as_deref(), input.skip_bad, 0, &mut row)?.skipped;
+        } else {
+            let log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
+            for (&line, &raw) in log.lines.iter().zip(&log.readings) {
+                row(line, raw)?;
+            }
+            skipped = log.skipped;
+        }
         csv.flush()?;
         Ok(())
     })?;
-    if let Some(s) = &streamed {
-        for (line, reason) in &s.skipped {
-            to_stderr!("magcal: skipped line {line}: {reason}");
-        }
+    for (line, reason) in &skipped {
+        to_stderr!("magcal: skipped line {line}: {reason}");
     }
     if !cal.identifiable {
         to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);

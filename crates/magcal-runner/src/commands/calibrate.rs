@@ -14,7 +14,9 @@ use crate::digest::{Hashing, sha256_hex};
 use crate::log::calibration::{
     CalibrationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
 };
-use crate::log::read as log_file;
+use crate::log::flight::InForce;
+use crate::log::read::HELD_BYTES_PER_READING;
+use crate::log::source::{self, Log, LogArgs};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
 use crate::output::file::to_stdout;
 use crate::output::log_rows::ResidualRow;
@@ -58,12 +60,11 @@ impl Fit {
 /// `magcal calibrate`.
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
-    /// The log: a CSV file, one reading per row.
+    /// The log: a CSV file (one reading per row), an ArduPilot DataFlash log (`.bin`), a MAVLink
+    /// telemetry log (`.tlog`) or a PX4 ULog (`.ulg`).
     pub log: PathBuf,
-    /// The three columns, by name or 1-based index: `mx,my,mz` or `4,5,6` (default: x, y, z with
-    /// or without an m prefix, else the first three numeric columns).
-    #[arg(long)]
-    pub columns: Option<String>,
+    #[command(flatten)]
+    pub input: LogArgs,
     /// The field magnitude in the log's units (default: the fitted mean radius, and scale factors
     /// relative to it).
     #[arg(long, conflicts_with = "units")]
@@ -86,10 +87,6 @@ pub struct CalibrateArgs {
     /// The model.
     #[arg(long, value_enum, default_value = "full")]
     pub fit: Fit,
-    /// Drop rows with a non-finite or missing value, counting them (default: such a row is an
-    /// error).
-    #[arg(long)]
-    pub skip_bad: bool,
     /// Drop readings whose `|calibrated| - R` lies more than K robust standard deviations
     /// (1.4826 median absolute deviations) from the median, refit, and repeat until the kept set
     /// does not change; `rejected` counts them. K is at least 2, and at most a tenth of the log
@@ -136,7 +133,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         Some(dir) => Some(ResultSet::begin(dir, Target::Calibration, &inputs)?),
         None => None,
     };
-    let mut log = log_file::read(&args.log, args.columns.as_deref(), args.skip_bad)?;
+    let mut log = source::open(&args.log, &args.input, HELD_BYTES_PER_READING)?;
     for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
         if let Some(v) = value
             && !(v.is_finite() && v > 0.0)
@@ -165,13 +162,14 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         date,
         model: args.wmm,
     });
-    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, place.as_ref())?)?;
+    let units = units_of(args, &log)?;
+    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
     let mut json = to_json(&args.log, &log, &fit, &why, source);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
         n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
     }
-    record_provenance(&mut json, args, &log.sha256);
+    record_provenance(&mut json, units, &log);
     // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range
     // of f64 on the way (readings at 1e150 fitted to a magnitude of 1, P^T P overflowing) is not.
     if let Err(why) = json.check()
@@ -212,28 +210,41 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
 
 /// `--reject K` ([`log_fit::reject_outliers`]): the fits of its rounds are made to a unit field
 /// (the residuals are relative) with `settings`; `log` keeps the readings kept.
-fn reject(log: &mut log_file::Log, k: f64, model: Fit, settings: &FitSettings) -> Result<log_fit::Rejection> {
+fn reject(log: &mut Log, k: f64, model: Fit, settings: &FitSettings) -> Result<log_fit::Rejection> {
     let r = log_fit::reject_outliers(&log.readings, k, |kept| model.fit(kept, 1.0, settings).map(|(f, _)| f))?;
-    log.readings = r.kept(&log.readings);
-    log.lines = r.kept(&log.lines);
+    log.keep(&r.keep);
     Ok(r)
 }
 
-/// What the calibration was made from: the format, magcal's version, the log's SHA-256 and data
-/// rows (readings, skipped, rejected), and its units where given.
-fn record_provenance(json: &mut CalibrationJson, args: &CalibrateArgs, log_sha256: &str) {
+/// What the calibration was made from: the format, magcal's version, the log's SHA-256, data
+/// rows (readings, skipped, rejected), format, messages, instance, frame and units, and what its
+/// reader and cut say about it.
+fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log) {
     json.format = Some(crate::log::calibration::FORMAT.to_string());
     json.magcal_version = Some(env!("CARGO_PKG_VERSION").to_string());
     // The reader hashed the bytes it parsed: the file is not read a second time.
-    json.log_sha256 = Some(log_sha256.to_string());
+    json.log_sha256 = Some(log.sha256.clone());
     json.log_rows = Some(json.samples + json.skipped + json.rejected);
-    json.units = args
-        .units
-        .and_then(|u| u.to_possible_value())
-        .map(|v| v.get_name().to_string());
+    json.units = units.map(units_name);
+    let o = &log.origin;
+    json.log_format = Some(o.format.name().to_string());
+    json.instance = o.instance;
+    json.frame.clone_from(&o.frame);
+    json.log_messages.clone_from(&o.messages);
+    json.in_force = o.calibration.as_ref().map(|c| match c {
+        InForce::Raw => "raw".to_string(),
+        InForce::Undone(w) => format!("undone: {w}"),
+        InForce::Calibrated(w) => format!("calibrated: {w}"),
+    });
+    json.log_notes.clone_from(&o.notes);
+    json.time_span_s = log
+        .times
+        .as_ref()
+        .and_then(|t| Some([t.first()?, t.last()?]))
+        .map(|[a, b]| [*a, *b]);
 }
 
-fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: &[AutoReason], source: String) -> CalibrationJson {
+fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: String) -> CalibrationJson {
     let fields: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
@@ -246,6 +257,10 @@ fn to_json(path: &Path, log: &log_file::Log, fit: &LogFit, why: &[AutoReason], s
         log_format: None,
         instance: None,
         frame: None,
+        log_messages: Vec::new(),
+        in_force: None,
+        log_notes: Vec::new(),
+        time_span_s: None,
         motor: None,
         columns: log.columns.clone(),
         samples: log.readings.len(),
@@ -339,6 +354,7 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
         j.skipped,
         j.rejected
     )?;
+    print_origin(w, j)?;
     writeln!(w, "fit {}", j.fit)?;
     for reason in why {
         writeln!(w, "  {reason}")?;
@@ -347,6 +363,30 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
     print_estimates(w, j)?;
     print_residuals_and_noise(w, j)?;
     print_verdicts(w, j)
+}
+
+/// Where a flight log's readings came from (the format, messages, instance, frame, units and the
+/// calibration in force), the time span, and the log's notes.
+fn print_origin(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
+    if let Some(format) = j.log_format.as_deref().filter(|f| *f != "CSV") {
+        let instance = j.instance.map_or_else(String::new, |i| format!(", compass {i}"));
+        writeln!(w, "format {format}{instance}: {}", j.log_messages.join("; "))?;
+        let frame = j.frame.as_deref().unwrap_or("unknown");
+        let units = j.units.as_deref().unwrap_or("unknown");
+        writeln!(w, "  units {units}, frame {frame}")?;
+    } else if j.log_messages.len() > 1 {
+        writeln!(w, "  {}", j.log_messages[1..].join("; "))?;
+    }
+    if let Some(f) = &j.in_force {
+        writeln!(w, "  logged field: {f}")?;
+    }
+    if let Some([a, b]) = j.time_span_s {
+        writeln!(w, "  readings from {a:.3} to {b:.3} s")?;
+    }
+    for note in &j.log_notes {
+        writeln!(w, "  note: {note}")?;
+    }
+    Ok(())
 }
 
 /// The estimates and their standard errors, or why there are none to use.
@@ -485,7 +525,7 @@ fn write_out(
     path: &Path,
     rows: usize,
     json: &CalibrationJson,
-    log: &log_file::Log,
+    log: &Log,
     fit: &LogFit,
 ) -> Result<()> {
     let mut files = BTreeMap::new();
@@ -523,8 +563,28 @@ fn write_out(
 
 /// The magnitude the fit is made to: `--magnitude`, or the WMM's at `--site` and `--date` in the
 /// log's `--units`; `None` when neither is given (the fit takes its own mean radius).
-fn magnitude_of(args: &CalibrateArgs, place: Option<&Place>) -> Result<Option<(f64, String)>> {
-    let wmm = match (place, args.units) {
+/// The log's units: `--units`, or those its format fixes; the two must agree.
+fn units_of(args: &CalibrateArgs, log: &Log) -> Result<Option<Units>> {
+    match (args.units, log.origin.unit) {
+        (Some(given), Some(logged)) if given != logged => bail!(
+            "--units {}: {} is a {} log, whose readings are in {}",
+            units_name(given),
+            args.log.display(),
+            log.origin.format.name(),
+            units_name(logged)
+        ),
+        (given, logged) => Ok(given.or(logged)),
+    }
+}
+
+/// The name `--units` gives `u`.
+fn units_name(u: Units) -> String {
+    u.to_possible_value()
+        .map_or_else(String::new, |v| v.get_name().to_string())
+}
+
+fn magnitude_of(args: &CalibrateArgs, units: Option<Units>, place: Option<&Place>) -> Result<Option<(f64, String)>> {
+    let wmm = match (place, units) {
         (Some(p), Some(units)) => Some(wmm_magnitude(&p.site, p.date, units, p.model)?),
         (Some(_), None) if args.magnitude.is_none() => {
             bail!("--site: give --units (the log's) for the WMM magnitude, or --magnitude");
@@ -544,7 +604,7 @@ fn magnitude_of(args: &CalibrateArgs, place: Option<&Place>) -> Result<Option<(f
 /// from, in words.
 fn fit_at_magnitude(
     args: &CalibrateArgs,
-    log: &log_file::Log,
+    log: &Log,
     settings: &FitSettings,
     given: Option<(f64, String)>,
 ) -> Result<(LogFit, Vec<AutoReason>, String)> {

@@ -9,7 +9,8 @@ use magcal_core::{CramerRao, InformationMatrix, PhysicalScales, Vec3, log_fit};
 
 use super::Failure;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
-use crate::log::read as log_file;
+use crate::log::read::HELD_BYTES_PER_READING;
+use crate::log::source::{self, Log, LogArgs};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
 use crate::output::file::to_stdout;
 use crate::output::stderr::to_stderr;
@@ -42,12 +43,10 @@ pub struct NextArgs {
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub count: u64,
-    /// As for `calibrate` (default: the columns the calibration was made from).
-    #[arg(long)]
-    pub columns: Option<String>,
-    /// As for `calibrate`.
-    #[arg(long)]
-    pub skip_bad: bool,
+    /// How to read the log, as for `calibrate` (default columns: those the calibration was made
+    /// from).
+    #[command(flatten)]
+    pub input: LogArgs,
 }
 
 /// Runs `next`: the attitudes that most increase the information of the log (D-optimal
@@ -200,14 +199,15 @@ fn next_inner(args: &NextArgs) -> Result<()> {
 fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
     let shown = args.calibration.display().to_string();
     let log_shown = args.log.display().to_string();
-    let columns = columns_for(cal, &shown, &args.log, args.columns.as_deref())?;
-    let log_file::Log {
+    let mut input = args.input.clone();
+    input.columns = columns_for(cal, &shown, &args.log, &input)?;
+    let Log {
         readings: log_readings,
         skipped,
         columns: read_columns,
         sha256: sha,
         ..
-    } = log_file::read(&args.log, columns.as_deref(), args.skip_bad)?;
+    } = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
     // The readings alone are kept (24 bytes each), turned into nT and then into body fields in
     // place.
     let m = log_readings.len();

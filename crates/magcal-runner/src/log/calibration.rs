@@ -6,6 +6,8 @@ use anyhow::{Result, bail};
 use magcal_core::small::Mat3;
 use serde::{Deserialize, Serialize};
 
+use super::flight::Format;
+use super::source::{LogArgs, format_of};
 use crate::limits::excerpt;
 
 /// Standard errors of the fitted parameters; `null` where the information is singular.
@@ -49,6 +51,19 @@ pub struct CalibrationJson {
     /// `sensor`).
     #[serde(default)]
     pub frame: Option<String>,
+    /// The messages or columns the readings and what was logged beside them came from.
+    #[serde(default)]
+    pub log_messages: Vec<String>,
+    /// The calibration the logged field carried and what was done about it (flight logs): `raw`,
+    /// `undone: ...` or `calibrated: ...` (a fit then calibrates the calibrated sensor).
+    #[serde(default)]
+    pub in_force: Option<String>,
+    /// What the reader and the cut (window, rate) say about the log, one sentence each.
+    #[serde(default)]
+    pub log_notes: Vec<String>,
+    /// The time span of the readings fitted, seconds on the log's clock, where it has times.
+    #[serde(default)]
+    pub time_span_s: Option<[f64; 2]>,
     /// The motor interference fitted with the calibration (`calibrate --motor`), else `null`.
     #[serde(default)]
     pub motor: Option<MotorJson>,
@@ -426,14 +441,18 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationJson> {
 /// The columns to read `log` with: `asked` (`--columns`) when given, else the columns `cal` was
 /// made from, as 1-based indices of `log`'s header (a name, or the `column N` recorded for a
 /// column without a name of its own: no header, an empty name, a name several columns carry).
-/// `None` when the log's first row cannot be read (the reader then says why).
+/// `None` when the log's first row cannot be read (the reader then says why), and for a flight
+/// log (which names its own messages).
 ///
 /// # Errors
 /// A log without the recorded columns: one line naming the log, the calibration and both sets
 /// of columns.
-pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, asked: Option<&str>) -> Result<Option<String>> {
-    if let Some(asked) = asked {
-        return Ok(Some(asked.to_string()));
+pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, input: &LogArgs) -> Result<Option<String>> {
+    if let Some(asked) = &input.columns {
+        return Ok(Some(asked.clone()));
+    }
+    if format_of(log, input.format)? != Format::Csv {
+        return Ok(None);
     }
     // The first row as the log reader splits it (separator, quotes, empty names), so that the
     // names calibrate recorded are found in a log that is not comma-separated.

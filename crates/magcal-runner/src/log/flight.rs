@@ -2,7 +2,7 @@
 //! with their times, and the series a log carries beside them (attitude, battery current,
 //! throttle). The readers ([`super::dataflash`], [`super::tlog`], [`super::ulog`]) fill a
 //! [`FlightLog`]; the log layer ([`super::source`]) cuts it to a time window and a rate, matches
-//! the series to the readings by time and hands the commands a [`super::read::Log`].
+//! the series to the readings by time and hands the commands a [`super::source::Log`].
 //!
 //! # Frames
 //! - A reading is the field *before* any calibration, in [`FlightLog::unit`], in the frame

@@ -1,8 +1,11 @@
-//! Logs of real readings and what the log commands share: reading a CSV log ([`read`]), the
-//! calibration file ([`calibration`]) and the vehicle's box ([`vehicle`]). The site, date and units
+//! Logs of real readings and what the log commands share: a log of any format with what it
+//! carries beside the field ([`source`]), the CSV reader ([`read`]), what a flight log's reader
+//! hands over ([`flight`]), the calibration file ([`calibration`]) and the vehicle's box
+//! ([`vehicle`]). The site, date and units
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
 pub mod calibration;
 pub mod flight;
 pub mod read;
+pub mod source;
 pub mod vehicle;

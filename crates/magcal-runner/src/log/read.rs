@@ -19,7 +19,7 @@
 //! Every read is bounded, whatever the file is (a regular file, a FIFO, a device): a line longer
 //! than [`MAX_LINE_BYTES`] is an error, and so is a log with more rows than half of the memory the
 //! process may use can hold ([`limits::available_memory`]) at the caller's cost per reading
-//! ([`HELD_BYTES_PER_READING`] for [`read`]). Errors quote at most [`EXCERPT_CHARS`] characters
+//! ([`HELD_BYTES_PER_READING`] for a log held whole, [`crate::log::source::open`]). Errors quote at most [`EXCERPT_CHARS`] characters
 //! of the input.
 
 use std::io::{BufRead, BufReader, Read};
@@ -45,23 +45,6 @@ pub const EXCERPT_CHARS: usize = 40;
 /// Column names an error lists at most.
 const LISTED_COLUMNS: usize = 12;
 
-/// The readings of a log and what was skipped.
-#[derive(Debug, Clone)]
-pub struct Log {
-    /// The readings, in file order.
-    pub readings: Vec<Vec3>,
-    /// The 1-based line of each reading in the file.
-    pub lines: Vec<usize>,
-    /// Lines skipped for a non-finite or missing value (only with `skip_bad`), with the reason.
-    pub skipped: Vec<(usize, String)>,
-    /// The names of the three columns read (`column 4` without a header).
-    pub columns: [String; 3],
-    /// SHA-256 of the file's bytes as read (lower-case hex).
-    pub sha256: String,
-    /// The file's size in bytes as read.
-    pub bytes: u64,
-}
-
 /// What [`stream`] read.
 #[derive(Debug, Clone)]
 pub struct Streamed {
@@ -75,28 +58,6 @@ pub struct Streamed {
     pub sha256: String,
     /// The file's size in bytes as read.
     pub bytes: u64,
-}
-
-/// Reads `path` and holds its readings. `columns`: names or 1-based indices, comma-separated.
-///
-/// # Errors
-/// As [`stream`], with [`HELD_BYTES_PER_READING`] per reading.
-pub fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Log> {
-    let mut readings = Vec::new();
-    let mut lines = Vec::new();
-    let s = stream(path, columns, skip_bad, HELD_BYTES_PER_READING, |line, reading| {
-        readings.push(reading);
-        lines.push(line);
-        Ok(())
-    })?;
-    Ok(Log {
-        readings,
-        lines,
-        skipped: s.skipped,
-        columns: s.columns,
-        sha256: s.sha256,
-        bytes: s.bytes,
-    })
 }
 
 /// Reads `path` row by row, calling `each(line, reading)` for every reading in file order, and
@@ -119,6 +80,41 @@ pub fn stream<F>(
 where
     F: FnMut(usize, Vec3) -> Result<()>,
 {
+    stream_with(
+        path,
+        columns,
+        &[],
+        skip_bad,
+        held_bytes_per_reading,
+        |line, reading, _| each(line, reading),
+    )
+}
+
+/// A column read beside the three of the field (a time, an attitude, a current): the flag that
+/// names it (for errors) and its name or 1-based index.
+#[derive(Debug, Clone, Copy)]
+pub struct Extra<'a> {
+    pub flag: &'a str,
+    pub column: &'a str,
+}
+
+/// [`stream`], also reading the columns `extras`: `each(line, reading, values)` gets one value per
+/// extra, `None` where its cell is empty or not finite (an attitude the capture lost); a cell
+/// that is not a number is an error naming its line and column.
+///
+/// # Errors
+/// As [`stream`]; an extra column that is not in the log, or is one of the field's.
+pub fn stream_with<F>(
+    path: &Path,
+    columns: Option<&str>,
+    extras: &[Extra],
+    skip_bad: bool,
+    held_bytes_per_reading: u64,
+    mut each: F,
+) -> Result<Streamed>
+where
+    F: FnMut(usize, Vec3, &[Option<f64>]) -> Result<()>,
+{
     let shown = path.display().to_string();
     let meta = std::fs::metadata(path).with_context(|| format!("{shown}: cannot read the log"))?;
     if meta.is_dir() {
@@ -130,8 +126,11 @@ where
     let mut s = read_from(
         BufReader::with_capacity(1 << 16, &mut hashing),
         &shown,
-        columns,
-        skip_bad,
+        Wanted {
+            columns,
+            extras,
+            skip_bad,
+        },
         &budget,
         &mut each,
     )?;
@@ -139,6 +138,14 @@ where
     s.sha256 = hashing.hex();
     s.bytes = Hashing::bytes(&hashing);
     Ok(s)
+}
+
+/// What [`read_from`] reads of each row.
+#[derive(Clone, Copy)]
+struct Wanted<'a> {
+    columns: Option<&'a str>,
+    extras: &'a [Extra<'a>],
+    skip_bad: bool,
 }
 
 /// The memory a log may take: half of what the process may use.
@@ -419,16 +426,22 @@ fn list(names: &[String]) -> String {
 fn read_from<R: Read>(
     input: BufReader<R>,
     shown: &str,
-    columns: Option<&str>,
-    skip_bad: bool,
+    wanted: Wanted,
     budget: &Budget,
-    each: &mut dyn FnMut(usize, Vec3) -> Result<()>,
+    each: &mut dyn FnMut(usize, Vec3, &[Option<f64>]) -> Result<()>,
 ) -> Result<Streamed> {
+    let Wanted {
+        columns,
+        extras,
+        skip_bad,
+    } = wanted;
     let mut lines = Lines::new(input);
     let mut buf = Vec::new();
     let mut splitter: Option<Splitter> = None;
     let mut names: Vec<String> = Vec::new();
     let mut pick: Option<[usize; 3]> = None;
+    let mut extra_pick: Vec<usize> = Vec::new();
+    let mut extra_values: Vec<Option<f64>> = Vec::new();
     let mut first_row = true;
     let mut readings = 0usize;
     let mut skipped: Vec<(usize, String)> = Vec::new();
@@ -471,16 +484,25 @@ fn read_from<R: Read>(
                     .collect();
                 let p = choose(&names, &numeric, columns)
                     .with_context(|| format!("{shown} (read as {})", separator.name()))?;
+                extra_pick = extras
+                    .iter()
+                    .map(|e| choose_extra(&names, e, &p))
+                    .collect::<Result<_>>()
+                    .with_context(|| shown.to_string())?;
                 *pick.insert(p)
             }
         };
         let (value, bad) = row_value(s, pick, &names, shown, line)?;
+        extra_values.clear();
+        for &c in &extra_pick {
+            extra_values.push(extra_value(s, c, &names, shown, line)?);
+        }
         budget.check(shown, line, readings, skipped.len())?;
         match bad {
             Some(reason) if skip_bad => skipped.push((line, reason)),
             Some(reason) => bail!("{shown}: line {line}: {reason} (--skip-bad drops such rows and counts them)"),
             None => {
-                each(line, value)?;
+                each(line, value, &extra_values)?;
                 readings += 1;
             }
         }
@@ -584,6 +606,55 @@ fn row_value(
         }
     }
     Ok((value, bad))
+}
+
+/// The value of an extra column in a data row: `None` where the cell is empty or not finite; a
+/// cell that is not a number is an error.
+fn extra_value(s: &Splitter, c: usize, names: &[String], shown: &str, line: usize) -> Result<Option<f64>> {
+    match s.get(c) {
+        None | Some(b"") => Ok(None),
+        Some(cell) => match number(cell, s.separator) {
+            Some(v) => Ok(Some(v).filter(|v| v.is_finite())),
+            None => bail!(
+                "{shown}: line {line}, column {} ({}): {} is not a number",
+                c + 1,
+                names[c],
+                excerpt(cell)
+            ),
+        },
+    }
+}
+
+/// The column of an extra: by name (any case) or 1-based index; not one of the field's.
+fn choose_extra(names: &[String], extra: &Extra, field: &[usize; 3]) -> Result<usize> {
+    let shown = excerpt(extra.column.as_bytes());
+    let flag = extra.flag;
+    let i = match extra.column.trim().parse::<usize>() {
+        Ok(i) if (1..=names.len()).contains(&i) => i - 1,
+        Ok(i) => bail!("{flag} {shown}: column {i} is not in the log ({} columns)", names.len()),
+        Err(_) => {
+            let found: Vec<usize> = (0..names.len())
+                .filter(|&i| names[i].eq_ignore_ascii_case(extra.column.trim()))
+                .collect();
+            match found[..] {
+                [i] => i,
+                [] => bail!("{flag} {shown}: no column of that name (columns: {})", list(names)),
+                [a, b, ..] => bail!(
+                    "{flag} {shown}: columns {} and {} both have that name; give an index",
+                    a + 1,
+                    b + 1
+                ),
+            }
+        }
+    };
+    if field.contains(&i) {
+        bail!(
+            "{flag} {shown}: column {} ({}) is one of the field's columns",
+            i + 1,
+            names[i]
+        );
+    }
+    Ok(i)
 }
 
 /// The name column `i` is recorded by: its header name, or `column N` (1-based) when other
@@ -730,10 +801,13 @@ mod tests {
         let s = read_from(
             BufReader::new(text),
             "t.csv",
-            columns,
-            skip_bad,
+            Wanted {
+                columns,
+                extras: &[],
+                skip_bad,
+            },
             &budget,
-            &mut |l, r| {
+            &mut |l, r, _| {
                 rows.push((l, r));
                 Ok(())
             },
@@ -743,6 +817,81 @@ mod tests {
 
     fn error(text: &[u8], columns: Option<&str>) -> String {
         format!("{:#}", parse(text, columns, false).unwrap_err())
+    }
+
+    #[test]
+    fn extra_columns_are_read_by_name_or_index_and_empty_cells_are_none() {
+        let text = b"t,mx,my,mz,qw\n0.5,1,2,3,1\n1.0,4,5,6,\n1.5,7,8,9,nan\n";
+        let mut rows = Vec::new();
+        let extras = [
+            Extra {
+                flag: "--time",
+                column: "T",
+            },
+            Extra {
+                flag: "--quaternion",
+                column: "5",
+            },
+        ];
+        let wanted = Wanted {
+            columns: None,
+            extras: &extras,
+            skip_bad: false,
+        };
+        let budget = Budget { held: 32, limit: None };
+        read_from(BufReader::new(&text[..]), "t.csv", wanted, &budget, &mut |l, r, e| {
+            rows.push((l, r, e.to_vec()));
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(
+            rows,
+            [
+                (2, [1.0, 2.0, 3.0], vec![Some(0.5), Some(1.0)]),
+                (3, [4.0, 5.0, 6.0], vec![Some(1.0), None]),
+                (4, [7.0, 8.0, 9.0], vec![Some(1.5), None]),
+            ]
+        );
+        for (column, want) in [
+            ("mx", "--time \"mx\": column 2 (mx) is one of the field's columns"),
+            ("9", "--time \"9\": column 9 is not in the log (5 columns)"),
+            (
+                "when",
+                "--time \"when\": no column of that name (columns: t, mx, my, mz, qw)",
+            ),
+        ] {
+            let extras = [Extra { flag: "--time", column }];
+            let wanted = Wanted {
+                extras: &extras,
+                ..wanted
+            };
+            let e = read_from(BufReader::new(&text[..]), "t.csv", wanted, &budget, &mut |_, _, _| {
+                Ok(())
+            })
+            .unwrap_err();
+            assert!(format!("{e:#}").contains(want), "{e:#}");
+        }
+        let bad = b"t,x,y,z\n0.5,1,2,3\nsoon,1,2,3\n";
+        let extras = [Extra {
+            flag: "--time",
+            column: "t",
+        }];
+        let wanted = Wanted {
+            extras: &extras,
+            ..wanted
+        };
+        let e = read_from(
+            BufReader::new(&bad[..]),
+            "t.csv",
+            wanted,
+            &budget,
+            &mut |_, _, _| Ok(()),
+        )
+        .unwrap_err();
+        assert!(
+            format!("{e:#}").contains("t.csv: line 3, column 1 (t): \"soon\" is not a number"),
+            "{e:#}"
+        );
     }
 
     #[test]
@@ -839,10 +988,13 @@ mod tests {
         let e = read_from(
             BufReader::new(&b"x,y,z\n1,2,3\n\n4,5,6\n7,8,9\n"[..]),
             "t.csv",
-            None,
-            false,
+            Wanted {
+                columns: None,
+                extras: &[],
+                skip_bad: false,
+            },
             &budget,
-            &mut |_, _| Ok(()),
+            &mut |_, _, _| Ok(()),
         )
         .unwrap_err();
         assert!(
@@ -1021,6 +1173,32 @@ mod tests {
         assert_eq!(excerpt(exact.as_bytes()), format!("{exact:?}"));
         // Bytes that are not UTF-8 are shown replaced, still quoted.
         assert_eq!(excerpt(b"\xff1"), "\"\u{fffd}1\"");
+    }
+
+    /// The readings of `path` with their lines, and what the stream says.
+    #[derive(Debug)]
+    struct Held {
+        readings: Vec<Vec3>,
+        lines: Vec<usize>,
+        columns: [String; 3],
+        sha256: String,
+        bytes: u64,
+    }
+
+    fn read(path: &Path, columns: Option<&str>, skip_bad: bool) -> Result<Held> {
+        let (mut readings, mut lines) = (Vec::new(), Vec::new());
+        let s = stream(path, columns, skip_bad, 32, |line, r| {
+            readings.push(r);
+            lines.push(line);
+            Ok(())
+        })?;
+        Ok(Held {
+            readings,
+            lines,
+            columns: s.columns,
+            sha256: s.sha256,
+            bytes: s.bytes,
+        })
     }
 
     #[test]

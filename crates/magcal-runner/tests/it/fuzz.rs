@@ -37,6 +37,7 @@ use magcal_runner::commands;
 use magcal_runner::commands::check::CheckArgs;
 use magcal_runner::commands::run::RunArgs;
 use magcal_runner::commands::{Common, Failure};
+use magcal_runner::log::source::LogArgs;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, FileFailurePersistence};
 
@@ -975,7 +976,7 @@ proptest! {
         let edited = x.edit.as_ref().and_then(|e| e.apply(&bytes)).unwrap_or(bytes);
         std::fs::write(&cal, &edited).unwrap();
         let applied = tmp.path().join("calibrated.csv");
-        let apply = ApplyArgs { calibration: cal.clone(), log: log.clone(), columns: x.columns.clone(), skip_bad: x.skip_bad, out: Some(applied.clone()) };
+        let apply = ApplyArgs { calibration: cal.clone(), log: log.clone(), input: LogArgs { columns: x.columns.clone(), skip_bad: x.skip_bad, ..LogArgs::default() }, out: Some(applied.clone()) };
         match apply::run(&apply) {
             Ok(()) => {
                 let why = check_applied(&applied);
@@ -1117,8 +1118,7 @@ fn apply_finds_the_recorded_columns_in_logs_of_every_separator() {
         let apply = ApplyArgs {
             calibration: tmp.path().join("cal/calibration.json"),
             log: tmp.path().join("log.csv"),
-            columns: None,
-            skip_bad: false,
+            input: LogArgs::default(),
             out: Some(out.clone()),
         };
         if let Err(Failure::Input(e)) = apply::run(&apply) {
@@ -1199,8 +1199,7 @@ fn a_bad_row_met_by_apply_is_the_logs_fault_not_the_outputs() {
     let apply = ApplyArgs {
         calibration: tmp.path().join("cal/calibration.json"),
         log: log.clone(),
-        columns: None,
-        skip_bad: false,
+        input: LogArgs::default(),
         out: Some(out.clone()),
     };
     let Err(Failure::Input(e)) = apply::run(&apply) else {
@@ -1235,8 +1234,7 @@ fn apply_gives_the_length_of_calibrated_readings_near_the_largest_number() {
     let apply = ApplyArgs {
         calibration: tmp.path().join("cal/calibration.json"),
         log: tmp.path().join("log.csv"),
-        columns: None,
-        skip_bad: false,
+        input: LogArgs::default(),
         out: Some(out.clone()),
     };
     if let Err(Failure::Input(e)) = apply::run(&apply) {
