@@ -140,6 +140,9 @@ where
     Ok(s)
 }
 
+/// What [`read_from`] calls with each reading: its line, the field and the extras' values.
+type RowFn<'a> = dyn FnMut(usize, Vec3, &[Option<f64>]) -> Result<()> + 'a;
+
 /// What [`read_from`] reads of each row.
 #[derive(Clone, Copy)]
 struct Wanted<'a> {
@@ -428,7 +431,7 @@ fn read_from<R: Read>(
     shown: &str,
     wanted: Wanted,
     budget: &Budget,
-    each: &mut dyn FnMut(usize, Vec3, &[Option<f64>]) -> Result<()>,
+    each: &mut RowFn,
 ) -> Result<Streamed> {
     let Wanted {
         columns,
