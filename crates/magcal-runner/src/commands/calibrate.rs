@@ -15,6 +15,7 @@ use crate::log::calibration::{
     CalibrationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
 };
 use crate::log::flight::InForce;
+use crate::log::flown::{Bounds, Flown, SECTOR_DEG, flown};
 use crate::log::read::HELD_BYTES_PER_READING;
 use crate::log::source::{self, Log, LogArgs};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
@@ -185,6 +186,13 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
         json.coverage.box_from = Some(vehicle.label.clone());
     }
+    if let Some(attitudes) = &log.attitudes {
+        let bounds = vehicle.as_ref().map(|v| Bounds {
+            bounds: &v.bounds,
+            yaw_offset_deg: v.field.yaw_offset_deg(),
+        });
+        json.coverage.flown = flown(attitudes, bounds);
+    }
     if let Some(set) = set {
         write_out(set, &args.log, rows, &json, &log, &fit)?;
     }
@@ -302,6 +310,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
             microstrain_coverage_percent: log_fit::microstrain_coverage_percent(&fields),
             d_efficiency_per_reading: None,
             box_from: None,
+            flown: None,
         },
         usable: fit.usable,
         reasons: fit.reasons.clone(),
@@ -514,6 +523,59 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
             _ => String::new(),
         }
     )?;
+    if let Some(f) = &j.coverage.flown {
+        print_flown(w, f, j.samples, j.coverage.box_from.as_deref())?;
+    }
+    Ok(())
+}
+
+/// The roll, pitch and heading the log visited, and the share inside the box.
+fn print_flown(w: &mut dyn Write, f: &Flown, samples: usize, box_from: Option<&str>) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "attitudes: {} of {samples} readings have one (degrees; roll right side down, pitch nose up, heading clockwise from north)",
+        f.with_attitude
+    )?;
+    writeln!(
+        w,
+        "  {:<8}{:>9}{:>9}{:>9}{:>9}{:>9}",
+        "", "min", "p5", "median", "p95", "max"
+    )?;
+    for (name, v) in [("roll", f.roll_deg), ("pitch", f.pitch_deg)] {
+        writeln!(
+            w,
+            "  {name:<8}{:>9.1}{:>9.1}{:>9.1}{:>9.1}{:>9.1}",
+            v[0], v[1], v[2], v[3], v[4]
+        )?;
+    }
+    let sectors: Vec<String> = f
+        .heading_sectors
+        .iter()
+        .enumerate()
+        .map(|(i, n)| format!("{:.0}: {n}", i as f64 * SECTOR_DEG))
+        .collect();
+    writeln!(
+        w,
+        "  readings per {SECTOR_DEG:.0}-degree heading sector from: {}",
+        sectors.join(", ")
+    )?;
+    let empty: Vec<String> = f
+        .heading_sectors
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| **n == 0)
+        .map(|(i, _)| format!("{:.0}-{:.0}", i as f64 * SECTOR_DEG, (i + 1) as f64 * SECTOR_DEG))
+        .collect();
+    if !empty.is_empty() {
+        writeln!(w, "  no reading at headings {}", empty.join(", "))?;
+    }
+    if let (Some(n), Some(b)) = (f.in_box, box_from) {
+        writeln!(
+            w,
+            "  inside the box of {b}: {n} readings ({:.1} %)",
+            100.0 * n as f64 / f.with_attitude as f64
+        )?;
+    }
     Ok(())
 }
 

@@ -203,6 +203,9 @@ pub struct Coverage {
     pub d_efficiency_per_reading: Option<f64>,
     /// The scenario that gave the box.
     pub box_from: Option<String>,
+    /// With attitudes in the log: the roll, pitch and heading it visited, against the box.
+    #[serde(default)]
+    pub flown: Option<super::flown::Flown>,
 }
 
 impl CalibrationJson {

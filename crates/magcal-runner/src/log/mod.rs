@@ -6,6 +6,7 @@
 
 pub mod calibration;
 pub mod flight;
+pub mod flown;
 pub mod read;
 pub mod source;
 pub mod vehicle;

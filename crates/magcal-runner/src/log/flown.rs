@@ -1,0 +1,141 @@
+//! The attitudes a log visited, in the vehicle's terms: roll (right side down), pitch (nose up)
+//! and heading (clockwise from north), against the vehicle's box.
+
+use magcal_core::aviation::roll_pitch_heading_deg;
+use magcal_core::small::Mat3;
+use magcal_core::{Attitude, AttitudeBox};
+use serde::{Deserialize, Serialize};
+
+/// Heading sectors of the coverage table.
+pub const SECTORS: usize = 12;
+/// Width of a heading sector, degrees.
+pub const SECTOR_DEG: f64 = 360.0 / SECTORS as f64;
+
+/// What the log's attitudes visited.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Flown {
+    /// Readings with an attitude.
+    pub with_attitude: usize,
+    /// Roll, degrees: minimum, 5th percentile, median, 95th percentile, maximum.
+    pub roll_deg: [f64; 5],
+    /// Pitch, degrees, as `roll_deg`.
+    pub pitch_deg: [f64; 5],
+    /// Readings per heading sector of [`SECTOR_DEG`] degrees, the first from 0 (north).
+    pub heading_sectors: Vec<usize>,
+    /// Readings whose attitude lies inside the vehicle's box, where one is given.
+    pub in_box: Option<usize>,
+}
+
+/// The vehicle's box as the coverage reads it: \[P1\]'s box, and the yaw offset that turns a
+/// heading into its yaw.
+#[derive(Debug, Clone, Copy)]
+pub struct Bounds<'a> {
+    pub bounds: &'a AttitudeBox,
+    pub yaw_offset_deg: f64,
+}
+
+impl Bounds<'_> {
+    /// Whether a vehicle at `(roll, pitch, heading)` degrees is inside the box.
+    pub fn contains(&self, [roll, pitch, heading]: [f64; 3]) -> bool {
+        // docs/conventions.md "Sense of the angles": heading = -(yaw + yaw offset).
+        let yaw = -heading - self.yaw_offset_deg;
+        self.bounds.contains(&Attitude {
+            roll: roll.to_radians(),
+            yaw: yaw.to_radians(),
+            pitch: pitch.to_radians(),
+        })
+    }
+}
+
+/// The five-number summary of `v` (not empty): minimum, 5th percentile, median, 95th percentile
+/// and maximum, the percentiles by linear interpolation between order statistics.
+fn spread(v: &mut [f64]) -> [f64; 5] {
+    v.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        let x = q * (v.len() - 1) as f64;
+        let (i, f) = (x.floor() as usize, x.fract());
+        if i + 1 < v.len() {
+            v[i] + f * (v[i + 1] - v[i])
+        } else {
+            v[i]
+        }
+    };
+    [v[0], at(0.05), at(0.5), at(0.95), v[v.len() - 1]]
+}
+
+/// What `attitudes` (NED convention) visited; `None` when no reading has one.
+pub fn flown(attitudes: &[Option<Mat3>], bounds: Option<Bounds>) -> Option<Flown> {
+    let angles: Vec<[f64; 3]> = attitudes.iter().flatten().map(roll_pitch_heading_deg).collect();
+    if angles.is_empty() {
+        return None;
+    }
+    let mut sectors = vec![0; SECTORS];
+    for a in &angles {
+        sectors[((a[2] / SECTOR_DEG) as usize).min(SECTORS - 1)] += 1;
+    }
+    let mut roll: Vec<f64> = angles.iter().map(|a| a[0]).collect();
+    let mut pitch: Vec<f64> = angles.iter().map(|a| a[1]).collect();
+    Some(Flown {
+        with_attitude: angles.len(),
+        roll_deg: spread(&mut roll),
+        pitch_deg: spread(&mut pitch),
+        heading_sectors: sectors,
+        in_box: bounds.map(|b| angles.iter().filter(|a| b.contains(**a)).count()),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use magcal_core::aviation::dcm_of_euler;
+
+    #[test]
+    fn the_spread_and_sectors_count_what_was_flown() {
+        // Roll 0..=10, pitch -5..=5, headings 0, 36, ..., 360 (= 0).
+        let attitudes: Vec<Option<Mat3>> = (0..=10)
+            .map(|i| {
+                let i = f64::from(i);
+                Some(dcm_of_euler(
+                    i.to_radians(),
+                    (i - 5.0).to_radians(),
+                    (36.0 * i).to_radians(),
+                ))
+            })
+            .chain([None])
+            .collect();
+        let bounds = AttitudeBox::from_degrees([-5.0, 5.0], [-180.0, 180.0], [-20.0, 20.0]).unwrap();
+        let f = flown(
+            &attitudes,
+            Some(Bounds {
+                bounds: &bounds,
+                yaw_offset_deg: 0.0,
+            }),
+        )
+        .unwrap();
+        assert_eq!(f.with_attitude, 11);
+        let want_roll = [0.0, 0.5, 5.0, 9.5, 10.0];
+        for (a, b) in f.roll_deg.iter().zip(want_roll) {
+            assert!((a - b).abs() < 1e-9, "{:?}", f.roll_deg);
+        }
+        assert!((f.pitch_deg[2]).abs() < 1e-9 && (f.pitch_deg[4] - 5.0).abs() < 1e-9);
+        // Headings 0, 36, 72, ..., 324, 0: sectors of 30 degrees.
+        assert_eq!(f.heading_sectors, [2, 1, 1, 1, 1, 1, 0, 1, 1, 1, 1, 1]);
+        // Roll within 5 degrees: the first six.
+        assert_eq!(f.in_box, Some(6));
+        assert!(flown(&[None, None], None).is_none());
+    }
+
+    #[test]
+    fn a_heading_range_is_the_boxs_yaw_range_turned_by_the_offset() {
+        // Yaw [0, 90] with an offset of 90: headings -(yaw + 90) in [-180, -90] = [180, 270].
+        let bounds = AttitudeBox::from_degrees([-5.0, 5.0], [0.0, 90.0], [-5.0, 5.0]).unwrap();
+        let b = Bounds {
+            bounds: &bounds,
+            yaw_offset_deg: 90.0,
+        };
+        assert!(b.contains([0.0, 0.0, 200.0]));
+        assert!(b.contains([0.0, 0.0, 269.0]));
+        assert!(!b.contains([0.0, 0.0, 100.0]));
+        assert!(!b.contains([0.0, 6.0, 200.0]));
+    }
+}
