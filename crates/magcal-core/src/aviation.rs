@@ -8,7 +8,8 @@
 //!   the heading, clockwise from north; pitch > 0 raises the nose; roll > 0 lowers the right side.
 //! - [`NavFrame::Enu`]: body forward, left, up into east, north, up (ROS REP 103, many motion
 //!   capture systems). The same formula for the Euler angles, in those frames: yaw
-//!   counter-clockwise from east, pitch > 0 lowers the nose, roll > 0 lowers the left side.
+//!   counter-clockwise from east, pitch > 0 lowers the nose (a rotation about the left axis),
+//!   roll > 0 lowers the right side, as in NED.
 //!
 //! Inside `magcal` an attitude is held as `C` in the NED convention ([`to_ned`], [`from_ned`]).
 //! \[P1\]'s `(roll, yaw, pitch)` of eq. (2) (n-frame north, up, east; b-frame nose, up, right)
@@ -171,9 +172,11 @@ mod tests {
         let enu = from_ned(&dcm_of_euler(0.0, 0.0, 0.0), NavFrame::Enu);
         let [r, p, y] = euler_of_dcm(&enu);
         assert!(r.abs() < 1e-15 && p.abs() < 1e-15 && (y - std::f64::consts::FRAC_PI_2).abs() < 1e-15);
-        // Nose up 0.3 rad in NED is pitch -0.3 in ENU/FLU (pitch about the left axis).
-        let enu = from_ned(&dcm_of_euler(0.0, 0.3, 0.0), NavFrame::Enu);
-        assert!((euler_of_dcm(&enu)[1] + 0.3).abs() < 1e-15);
+        // Nose up 0.3 rad in NED is pitch -0.3 in ENU/FLU (pitch about the left axis); roll
+        // right side down is the same roll in both.
+        let enu = from_ned(&dcm_of_euler(0.2, 0.3, 0.0), NavFrame::Enu);
+        let [r, p, _] = euler_of_dcm(&enu);
+        assert!((p + 0.3).abs() < 1e-15 && (r - 0.2).abs() < 1e-15, "{r} {p}");
         for (r, p, y) in [(0.1, -0.4, 2.0), (-3.0, 1.2, -0.5)] {
             let c = dcm_of_euler(r, p, y);
             assert!(close(&to_ned(&from_ned(&c, NavFrame::Enu), NavFrame::Enu), &c, 1e-15));

@@ -5,6 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use magcal_core::aviation::{NavFrame, dcm_of_euler, euler_of_dcm, from_ned, roll_pitch_heading_deg};
+use magcal_core::small::Mat3;
 use magcal_core::{CramerRao, InformationMatrix, PhysicalScales, Vec3, log_fit};
 
 use super::Failure;
@@ -107,7 +109,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     let (problem, factor) = fitted_problem(&cal, &vehicle).with_context(|| shown.clone())?;
     let LogRead {
         readings: mut log_readings,
-        skipped,
+        flown,
         before: (before_identifiable, before_source),
     } = read_log(args, &cal)?;
     let m = log_readings.len();
@@ -173,15 +175,15 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     // The table is formatted in memory (a few kilobytes) and written at the end, so that a
     // failed write is one error.
     let mut w = Vec::new();
-    for (line, reason) in &skipped {
-        to_stderr!("magcal: skipped line {line}: {reason}");
-    }
     writeln!(
         w,
         "{m} readings of {log_shown}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
         args.count, vehicle.label
     )?;
     write_attitudes(&mut w, &chosen, &field, &vehicle.field_source)?;
+    if let Some(flown) = &flown {
+        write_relative(&mut w, &chosen, field.yaw_offset_deg(), flown)?;
+    }
     let (e_before, e_after) = (efficiency(&before, m), efficiency(&after, m + attitudes.len()));
     write_information(&mut w, [&crb_before, &crb_after], factor, [e_before, e_after])?;
     write_coverage_and_verdict(
@@ -206,8 +208,17 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
         skipped,
         columns: read_columns,
         sha256: sha,
+        attitudes,
+        origin,
         ..
     } = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
+    for (line, reason) in &skipped {
+        to_stderr!("magcal: skipped line {line}: {reason}");
+    }
+    let flown = attitudes.map(|a| Flown {
+        attitudes: a.into_iter().flatten().collect(),
+        frame: origin.attitude_frame,
+    });
     // The readings alone are kept (24 bytes each), turned into nT and then into body fields in
     // place.
     let m = log_readings.len();
@@ -237,7 +248,7 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
     let before = identifiable_before(cal, same_readings, &log_readings);
     Ok(LogRead {
         readings: log_readings,
-        skipped,
+        flown,
         before,
     })
 }
@@ -246,8 +257,8 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
 struct LogRead {
     /// The readings, in the log's units.
     readings: Vec<Vec3>,
-    /// The rows skipped: line and reason.
-    skipped: Vec<(usize, String)>,
+    /// The attitudes the log flew, where it has them.
+    flown: Option<Flown>,
     /// Whether the log was identifiable before, and on what that rests.
     before: (bool, String),
 }
@@ -295,6 +306,117 @@ fn write_attitudes(
                 .map_or("-".to_string(), |h| format!("{:.2}", h.0)),
             n,
             d
+        )?;
+    }
+    Ok(())
+}
+
+/// The attitudes a log flew (NED convention) and the convention in which the log gives them.
+struct Flown {
+    attitudes: Vec<Mat3>,
+    frame: NavFrame,
+}
+
+/// The attitude `a` of \[P1\] as a NED-convention `C`: the same roll and pitch, the heading
+/// `-(yaw + yaw offset)` (docs/conventions.md "Sense of the angles").
+fn ned_of(a: &magcal_core::Attitude, yaw_offset_deg: f64) -> Mat3 {
+    dcm_of_euler(a.roll, a.pitch, -(a.yaw + yaw_offset_deg.to_radians()))
+}
+
+/// The angle of the rotation between two attitudes, degrees.
+fn angle_between(a: &Mat3, b: &Mat3) -> f64 {
+    let trace: f64 = (0..3).map(|i| (0..3).map(|k| a[k][i] * b[k][i]).sum::<f64>()).sum();
+    ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+/// A tilt in words: `level`, or the pitch and roll that are not within half a degree of 0.
+fn tilt_words(roll: f64, pitch: f64) -> String {
+    let mut parts = Vec::new();
+    if pitch.abs() >= 0.5 {
+        parts.push(format!(
+            "nose {} {:.0}",
+            if pitch > 0.0 { "up" } else { "down" },
+            pitch.abs()
+        ));
+    }
+    if roll.abs() >= 0.5 {
+        parts.push(format!(
+            "{} side down {:.0}",
+            if roll > 0.0 { "right" } else { "left" },
+            roll.abs()
+        ));
+    }
+    if parts.is_empty() {
+        "level".to_string()
+    } else {
+        parts.join(", ")
+    }
+}
+
+/// The attitudes to add relative to what the log flew: each as a tilt at headings, how far the
+/// nearest attitude the log flew lies, and (for a log in the ENU convention) the roll, pitch and
+/// yaw the log itself would show.
+fn write_relative(
+    w: &mut Vec<u8>,
+    chosen: &[(magcal_core::Attitude, f64)],
+    yaw_offset_deg: f64,
+    flown: &Flown,
+) -> Result<()> {
+    // Tilts rounded to a degree, each with its headings, in the order first chosen.
+    let mut tilts: Vec<(String, Vec<String>, f64)> = Vec::new();
+    let mut enu = Vec::new();
+    // The same attitude chosen again is one row of the table.
+    let mut rows: Vec<&magcal_core::Attitude> = Vec::new();
+    for (a, _) in chosen {
+        if rows
+            .last()
+            .is_none_or(|last| magcal_core::design::tour::rotation_angle(last, a) >= 1e-6)
+        {
+            rows.push(a);
+        }
+    }
+    for a in rows {
+        let c = ned_of(a, yaw_offset_deg);
+        let [roll, pitch, heading] = roll_pitch_heading_deg(&c);
+        let tilt = tilt_words(roll, pitch);
+        let nearest = flown
+            .attitudes
+            .iter()
+            .map(|f| angle_between(f, &c))
+            .fold(f64::INFINITY, f64::min);
+        let heading = format!("{}", (heading.round() as i64).rem_euclid(360));
+        match tilts.iter_mut().find(|t| t.0 == tilt) {
+            Some(t) if t.1.contains(&heading) => {}
+            Some(t) => {
+                t.1.push(heading);
+                t.2 = t.2.max(nearest);
+            }
+            None => tilts.push((tilt, vec![heading], nearest)),
+        }
+        if flown.frame == NavFrame::Enu {
+            let [r, p, y] = euler_of_dcm(&from_ned(&c, NavFrame::Enu)).map(f64::to_degrees);
+            enu.push(format!("({r:.1}, {p:.1}, {y:.1})"));
+        }
+    }
+    writeln!(
+        w,
+        "  relative to the log's {} attitudes (heading clockwise from north, degrees):",
+        flown.attitudes.len()
+    )?;
+    for (tilt, headings, nearest) in &tilts {
+        writeln!(
+            w,
+            "    {tilt} at heading{} {}: the log came within {nearest:.0} degrees of {}",
+            if headings.len() > 1 { "s" } else { "" },
+            headings.join(", "),
+            if headings.len() > 1 { "each" } else { "it" }
+        )?;
+    }
+    if !enu.is_empty() {
+        writeln!(
+            w,
+            "  as the log gives attitudes (ENU, body forward-left-up: roll, pitch, yaw counter-clockwise from east), in the table's order: {}",
+            enu.join(", ")
         )?;
     }
     Ok(())
