@@ -32,7 +32,7 @@ pub struct SimulateArgs {
 }
 
 /// Runs `simulate`: a log of noisy readings (nT) of the scenario's sensor at the attitudes of one
-/// of its designs, `roll_deg,yaw_deg,pitch_deg,mx,my,mz`, to try `calibrate` on a known truth.
+/// of its designs, `roll_deg,yaw_deg,pitch_deg,true_heading_deg,mx,my,mz`, to try `calibrate` on a known truth.
 ///
 /// # Errors
 /// A bad scenario, an unknown design, a bad noise level (exit 2).
@@ -80,12 +80,14 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
     let readings = scenario
         .truth
         .noisy_readings(&scenario.field.body_fields(&attitudes), sigma, &mut rng)?;
+    let headings = crate::output::Headings::of(&scenario.field);
     let rows = attitudes.iter().zip(&readings).map(|(a, s)| {
         let [r, y, p] = a.to_degrees();
         SimulatedRow {
             roll_deg: Real(r),
             yaw_deg: Real(y),
             pitch_deg: Real(p),
+            true_heading_deg: headings.true_heading(a),
             mx: Real(s[0]),
             my: Real(s[1]),
             mz: Real(s[2]),

@@ -34,17 +34,37 @@ pub struct Bounds<'a> {
     pub yaw_offset_deg: f64,
 }
 
+/// How far outside the box an attitude may lie and still count as inside, degrees: the precision
+/// to which `magcal` writes angles, so that a design's attitude on the box's edge, written and
+/// read back, is inside.
+pub const EDGE_DEG: f64 = 1e-6;
+
 impl Bounds<'_> {
-    /// Whether a vehicle at `(roll, pitch, heading)` degrees is inside the box.
+    /// Whether a vehicle at `(roll, pitch, heading)` degrees is inside the box (within
+    /// [`EDGE_DEG`]).
     pub fn contains(&self, [roll, pitch, heading]: [f64; 3]) -> bool {
         // docs/conventions.md "Sense of the angles": heading = -(yaw + yaw offset).
         let yaw = -heading - self.yaw_offset_deg;
-        self.bounds.contains(&Attitude {
+        let a = Attitude {
             roll: roll.to_radians(),
             yaw: yaw.to_radians(),
             pitch: pitch.to_radians(),
-        })
+        };
+        let b = self.bounds;
+        let off = [
+            (a.roll - b.roll.confine(a.roll)).abs(),
+            (a.pitch - b.pitch.confine(a.pitch)).abs(),
+            yaw_off(a.yaw, b.yaw.min(), b.yaw.max()),
+        ];
+        off.iter().all(|o| *o <= EDGE_DEG.to_radians())
     }
+}
+
+/// How far the yaw `y` lies outside `[min, max]` around the circle, radians (0 inside).
+fn yaw_off(y: f64, min: f64, max: f64) -> f64 {
+    use std::f64::consts::TAU;
+    let y = min + (y - min).rem_euclid(TAU);
+    if y <= max { 0.0 } else { (y - max).min(min + TAU - y) }
 }
 
 /// The five-number summary of `v` (not empty): minimum, 5th percentile, median, 95th percentile
@@ -91,14 +111,14 @@ mod tests {
 
     #[test]
     fn the_spread_and_sectors_count_what_was_flown() {
-        // Roll 0..=10, pitch -5..=5, headings 0, 36, ..., 360 (= 0).
+        // Roll 0..=10, pitch -5..=5, headings 5, 41, ..., 365 (= 5).
         let attitudes: Vec<Option<Mat3>> = (0..=10)
             .map(|i| {
                 let i = f64::from(i);
                 Some(dcm_of_euler(
                     i.to_radians(),
                     (i - 5.0).to_radians(),
-                    (36.0 * i).to_radians(),
+                    (36.0 * i + 5.0).to_radians(),
                 ))
             })
             .chain([None])
@@ -118,8 +138,8 @@ mod tests {
             assert!((a - b).abs() < 1e-9, "{:?}", f.roll_deg);
         }
         assert!((f.pitch_deg[2]).abs() < 1e-9 && (f.pitch_deg[4] - 5.0).abs() < 1e-9);
-        // Headings 0, 36, 72, ..., 324, 0: sectors of 30 degrees.
-        assert_eq!(f.heading_sectors, [2, 1, 1, 1, 1, 1, 0, 1, 1, 1, 1, 1]);
+        // Headings 5, 41, 77, ..., 329, 5: sectors of 30 degrees.
+        assert_eq!(f.heading_sectors, [2, 1, 1, 1, 1, 0, 1, 1, 1, 1, 1, 0]);
         // Roll within 5 degrees: the first six.
         assert_eq!(f.in_box, Some(6));
         assert!(flown(&[None, None], None).is_none());
@@ -137,5 +157,8 @@ mod tests {
         assert!(b.contains([0.0, 0.0, 269.0]));
         assert!(!b.contains([0.0, 0.0, 100.0]));
         assert!(!b.contains([0.0, 6.0, 200.0]));
+        // On the edge, written to 1e-9 degree and read back: inside; 1e-5 degree out: outside.
+        assert!(b.contains([5.000_000_001, -5.000_000_001, 270.000_000_001]));
+        assert!(!b.contains([5.000_01, 0.0, 200.0]));
     }
 }

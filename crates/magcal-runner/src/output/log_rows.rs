@@ -39,6 +39,9 @@ pub struct SimulatedRow {
     pub roll_deg: Real,
     pub yaw_deg: Real,
     pub pitch_deg: Real,
+    /// The true heading of the nose, clockwise from north: with `roll_deg` and `pitch_deg`, the
+    /// attitude as autopilots log it (`calibrate --euler roll_deg,pitch_deg,true_heading_deg`).
+    pub true_heading_deg: Real,
     pub mx: Real,
     pub my: Real,
     pub mz: Real,
@@ -61,7 +64,7 @@ mod tests {
         );
         assert_eq!(
             header::<SimulatedRow>().unwrap().iter().collect::<Vec<_>>(),
-            ["roll_deg", "yaw_deg", "pitch_deg", "mx", "my", "mz"]
+            ["roll_deg", "yaw_deg", "pitch_deg", "true_heading_deg", "mx", "my", "mz"]
         );
     }
 

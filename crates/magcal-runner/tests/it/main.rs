@@ -5,6 +5,7 @@
 mod common;
 
 mod apply_next;
+mod attitudes;
 mod bad_input;
 mod bad_logs;
 mod calibrate;
