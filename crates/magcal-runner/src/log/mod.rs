@@ -2,7 +2,9 @@
 //! calibration file ([`calibration`]) and the vehicle's box ([`vehicle`]). The site, date and units
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
+pub mod binary;
 pub mod calibration;
+pub mod dataflash;
 pub mod flight;
 pub mod read;
 pub mod vehicle;
