@@ -4,7 +4,9 @@
 //! ([`vehicle`]). The site, date and units
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
+pub mod binary;
 pub mod calibration;
+pub mod dataflash;
 pub mod flight;
 pub mod flown;
 pub mod read;

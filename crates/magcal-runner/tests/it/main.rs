@@ -10,6 +10,7 @@ mod bad_input;
 mod bad_logs;
 mod calibrate;
 mod cli;
+mod dataflash;
 mod fuzz;
 mod log_outputs;
 mod result_set;
