@@ -278,7 +278,10 @@ pub fn open(path: &Path, args: &LogArgs, held_bytes_per_reading: u64) -> Result<
 type Reader = fn(&Path, &Selection) -> Result<FlightLog>;
 
 fn reader(format: Format) -> Result<Reader> {
-    bail!("{} logs cannot be read yet", format.name())
+    match format {
+        Format::DataFlash => Ok(super::dataflash::read),
+        _ => bail!("{} logs cannot be read yet", format.name()),
+    }
 }
 
 /// The format of `path`: asked for, else told by its first bytes (a regular file), else by its
