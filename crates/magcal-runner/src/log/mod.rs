@@ -3,6 +3,7 @@
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
 pub mod calibration;
+pub mod export;
 pub mod flight;
 pub mod read;
 pub mod vehicle;
