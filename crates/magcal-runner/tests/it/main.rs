@@ -9,6 +9,7 @@ mod bad_input;
 mod bad_logs;
 mod calibrate;
 mod cli;
+mod export;
 mod fuzz;
 mod log_outputs;
 mod result_set;
