@@ -27,7 +27,7 @@ pub struct ApplyArgs {
     /// on stderr.
     #[arg(long)]
     pub skip_bad: bool,
-    /// The matrix to calibrate with: `triangular`, [P1]'s `P` (`b = P (raw - bias)`), or
+    /// The matrix to calibrate with: `triangular`, the paper's `P` (`b = P (raw - bias)`), or
     /// `symmetric`, `A^-1` (`b = A^-1 (raw - bias)`, as `export` writes it for the autopilots).
     /// The two give the same `|b|` and differ by a rotation.
     #[arg(long, value_enum, default_value_t = Matrix::Triangular)]

@@ -411,6 +411,14 @@ pub fn comment_safe(text: &str) -> String {
     text.chars().map(|c| if c.is_control() { '?' } else { c }).collect()
 }
 
+/// `notes` as `#` comment lines.
+fn comments(w: &mut dyn Write, notes: &[String]) -> io::Result<()> {
+    for note in notes {
+        writeln!(w, "# {}", comment_safe(note))?;
+    }
+    Ok(())
+}
+
 /// Writes ArduPilot's `.param` lines: `#` comments, then `NAME,VALUE` (the form Mission Planner
 /// writes; its `ParamFile.loadParamFile` and pymavlink's `MAVParmDict.load`, which MAVProxy's
 /// `param load` uses, both split on commas and spaces and skip lines starting with `#`).
@@ -418,9 +426,7 @@ pub fn comment_safe(text: &str) -> String {
 /// # Errors
 /// A write that fails.
 pub fn write_ardupilot(w: &mut dyn Write, notes: &[String], p: &ArduPilot) -> io::Result<()> {
-    for note in notes {
-        writeln!(w, "# {}", comment_safe(note))?;
-    }
+    comments(w, notes)?;
     for (name, value) in p.params() {
         writeln!(w, "{name},{value}")?;
     }
@@ -432,9 +438,7 @@ pub fn write_ardupilot(w: &mut dyn Write, notes: &[String], p: &ArduPilot) -> io
 /// # Errors
 /// A write that fails.
 pub fn write_px4(w: &mut dyn Write, notes: &[String], p: &Px4) -> io::Result<()> {
-    for note in notes {
-        writeln!(w, "# {}", comment_safe(note))?;
-    }
+    comments(w, notes)?;
     for (name, value) in p.params() {
         writeln!(w, "param set {name} {value}")?;
     }
@@ -449,9 +453,7 @@ pub fn write_px4(w: &mut dyn Write, notes: &[String], p: &Px4) -> io::Result<()>
 /// # Errors
 /// A write that fails.
 pub fn write_motioncal(w: &mut dyn Write, notes: &[String], cal: &Calibration) -> io::Result<()> {
-    for note in notes {
-        writeln!(w, "# {}", comment_safe(note))?;
-    }
+    comments(w, notes)?;
     let [x, y, z] = cal.bias;
     let m = &cal.matrix;
     writeln!(w, "mag_hardiron {x} {y} {z}")?;
@@ -469,9 +471,7 @@ pub fn write_motioncal(w: &mut dyn Write, notes: &[String], cal: &Calibration) -
 /// # Errors
 /// A write that fails.
 pub fn write_magneto(w: &mut dyn Write, notes: &[String], cal: &Calibration) -> io::Result<()> {
-    for note in notes {
-        writeln!(w, "# {}", comment_safe(note))?;
-    }
+    comments(w, notes)?;
     let [x, y, z] = cal.bias;
     writeln!(w, "Combined bias vector B:")?;
     writeln!(w, "{x} {y} {z}")?;

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use crate::common::{data, magcal};
+use crate::common::{assert_refused, data, edited, magcal};
 use magcal_runner::log::export::{self as fmt, ArduPilot, Calibration, Px4};
 use tempfile::TempDir;
 
@@ -478,28 +478,42 @@ fn motor_interference_is_cancelled_by_each_autopilots_compensation() {
         .zip(&amps)
         .map(|(r, u)| [0, 1, 2].map(|i| r[i] + d[i] * u))
         .collect();
-    let (code, ap, stderr) = export(&cal, "ardupilot", &[]);
-    assert_eq!(code, 0, "{stderr}");
-    let p = read_param(&ap);
-    assert_eq!(p["COMPASS_MOTCT"], 2.0);
-    let got: Vec<Vec3> = with_motor
-        .iter()
-        .zip(&amps)
-        .map(|(r, &u)| ardupilot_correct(&p, "", r.map(|v| v / 100.0), u))
-        .collect();
-    let w = worst(&got, &want.iter().map(|b| b.map(|v| v / 100.0)).collect::<Vec<_>>());
-    assert!(w <= ROUND_TRIP, "ArduPilot with MOT: {w:e}");
-    let (code, px4, stderr) = export(&cal, "px4", &[]);
-    assert_eq!(code, 0, "{stderr}");
-    let p = read_px4(&px4);
-    assert_eq!(p["CAL_MAG_COMP_TYP"], 2.0);
-    let got: Vec<Vec3> = with_motor
-        .iter()
-        .zip(&amps)
-        .map(|(r, &u)| px4_correct(&p, 0, r.map(|v| v / 1e5), u))
-        .collect();
-    let w = worst(&got, &want.iter().map(|b| b.map(|v| v / 1e5)).collect::<Vec<_>>());
-    assert!(w <= ROUND_TRIP, "PX4 with COMP: {w:e}");
+    // Each autopilot: its text, the parameter naming the input (2: current), its formula, and
+    // its unit in nT.
+    type Formula = fn(&BTreeMap<String, f64>, Vec3, f64) -> Vec3;
+    type Reader = fn(&str) -> BTreeMap<String, f64>;
+    let autopilots: [(&str, Reader, &str, Formula, f64); 2] = [
+        (
+            "ardupilot",
+            read_param,
+            "COMPASS_MOTCT",
+            |p, r, u| ardupilot_correct(p, "", r, u),
+            100.0,
+        ),
+        (
+            "px4",
+            read_px4,
+            "CAL_MAG_COMP_TYP",
+            |p, r, u| px4_correct(p, 0, r, u),
+            1e5,
+        ),
+    ];
+    let mut px4 = BTreeMap::new();
+    for (to, read, input, correct, per) in autopilots {
+        let (code, text, stderr) = export(&cal, to, &[]);
+        assert_eq!(code, 0, "{stderr}");
+        let p = read(&text);
+        assert_eq!(p[input], 2.0, "{to}");
+        let got: Vec<Vec3> = with_motor
+            .iter()
+            .zip(&amps)
+            .map(|(r, &u)| correct(&p, r.map(|v| v / per), u))
+            .collect();
+        let w = worst(&got, &want.iter().map(|b| b.map(|v| v / per)).collect::<Vec<_>>());
+        assert!(w <= EXACT, "{to} with its motor compensation: {w:e}");
+        px4 = p;
+    }
+    let p = px4;
     // The formula without the compensation is off by M d u: the test can fail.
     let got: Vec<Vec3> = with_motor
         .iter()
@@ -562,26 +576,6 @@ fn the_conventions_check_values_are_reproduced() {
     }
 }
 
-/// The calibration at `cal` with `edit` applied to its JSON, written to `dir/name`.
-fn edited(cal: &Path, dir: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
-    let mut json: serde_json::Value = serde_json::from_slice(&fs::read(cal).unwrap()).unwrap();
-    edit(&mut json);
-    let path = dir.join(name);
-    fs::write(&path, serde_json::to_vec(&json).unwrap()).unwrap();
-    path
-}
-
-/// Exit 2, one line on stderr holding every needle, nothing on stdout.
-fn assert_refused((code, stdout, stderr): &(i32, String, String), needles: &[&str]) {
-    assert_eq!(*code, 2, "{stderr}");
-    assert!(stdout.is_empty(), "{stdout}");
-    assert_eq!(stderr.lines().count(), 1, "{stderr}");
-    assert!(stderr.starts_with("magcal: error: "), "{stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "{n:?} not in {stderr}");
-    }
-}
-
 #[test]
 fn values_outside_what_ardupilot_takes_are_named_and_strict_refuses_them() {
     let tmp = TempDir::new().unwrap();
@@ -592,7 +586,7 @@ fn values_outside_what_ardupilot_takes_are_named_and_strict_refuses_them() {
     assert!(!stderr.contains("warning"), "{stderr}");
     // A bias of 2000 mGauss on x: above COMPASS_OFFS_MAX (default 1800, or as given), per axis
     // and in length.
-    let big = edited(&case.cal, tmp.path(), "big.json", |j| {
+    let big = edited(&case.cal, "big.json", |j| {
         j["bias"][0] = serde_json::json!(200_000.0);
     });
     let (code, stdout, stderr) = export(&big, "ardupilot", &[]);
@@ -609,7 +603,7 @@ fn values_outside_what_ardupilot_takes_are_named_and_strict_refuses_them() {
     assert_refused(&refused, &["--strict: COMPASS_OFS_X = -2000", "(and 1 more)"]);
     // The same log in nT declared as Gauss: a field of 4.8e7 mGauss, which ArduPilot's
     // calibrator never sees (150 to 950).
-    let wrong = edited(&case.cal, tmp.path(), "wrong-units.json", |j| {
+    let wrong = edited(&case.cal, "wrong-units.json", |j| {
         j["units"] = serde_json::json!("G");
     });
     let (_, _, stderr) = export(&wrong, "ardupilot", &[]);
@@ -641,7 +635,7 @@ fn frames_usability_and_notes_are_said() {
     );
     assert!(stderr.contains("frame of its log's columns"), "{stderr}");
     // A PX4 log's sensor frame exported to ArduPilot, and an ArduPilot log's body frame to PX4.
-    let px4 = edited(&case.cal, tmp.path(), "px4.json", |j| {
+    let px4 = edited(&case.cal, "px4.json", |j| {
         j["frame"] = serde_json::json!("sensor");
         j["log_format"] = serde_json::json!("PX4 ULog");
     });
@@ -654,7 +648,7 @@ fn frames_usability_and_notes_are_said() {
     let (_, _, stderr) = export(&px4, "px4", &[]);
     assert!(!stderr.contains("warning"), "{stderr}");
     assert!(stderr.contains("CAL_MAG0_ID and CAL_MAG0_ROT"), "{stderr}");
-    let ap = edited(&case.cal, tmp.path(), "ap.json", |j| {
+    let ap = edited(&case.cal, "ap.json", |j| {
         j["frame"] = serde_json::json!("body (forward, right, down)");
     });
     let (_, _, stderr) = export(&ap, "px4", &[]);
@@ -668,7 +662,7 @@ fn frames_usability_and_notes_are_said() {
     );
     // A calibration not marked usable: written all the same, exit 3 with the reasons; --strict
     // writes nothing.
-    let unusable = edited(&case.cal, tmp.path(), "unusable.json", |j| {
+    let unusable = edited(&case.cal, "unusable.json", |j| {
         j["usable"] = serde_json::json!(false);
         j["reasons"] = serde_json::json!(["the log rejects the model"]);
     });
@@ -726,7 +720,7 @@ fn bad_input_is_refused_before_anything_is_written() {
         &export(&case.cal, "px4", &["--compass", "4"]),
         &["--compass 4", "0 to 3"],
     );
-    let from_file = edited(&case.cal, tmp.path(), "instance.json", |j| {
+    let from_file = edited(&case.cal, "instance.json", |j| {
         j["instance"] = serde_json::json!(3);
     });
     assert_refused(
@@ -747,7 +741,7 @@ fn bad_input_is_refused_before_anything_is_written() {
         &["--compass 1", "no magnetometer instances"],
     );
     // A motor term that is not one.
-    let bad_motor = edited(&case.cal, tmp.path(), "motor.json", |j| {
+    let bad_motor = edited(&case.cal, "motor.json", |j| {
         j["motor"] = serde_json::json!({"input": "rpm", "per_unit": [1.0, 2.0, 3.0], "std_error": null, "input_range": [0.0, 1.0]});
     });
     assert_refused(&export(&bad_motor, "px4", &[]), &["motor.input \"rpm\""]);
