@@ -39,6 +39,10 @@ enum Command {
     Next(commands::next::NextArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
     Simulate(commands::simulate::SimulateArgs),
+    /// Write a calibration.json as an autopilot's parameters (ArduPilot, PX4) or a tool's form
+    /// (MotionCal, Magneto, a C header); exit 3 when the calibration is not marked usable (the
+    /// output is written all the same).
+    Export(commands::export::ExportArgs),
 }
 
 impl Command {
@@ -52,6 +56,7 @@ impl Command {
             Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) => true,
             Self::Apply(a) => to_stdout(&a.out),
             Self::Simulate(a) => to_stdout(&a.out),
+            Self::Export(a) => to_stdout(&a.out),
         }
     }
 }
@@ -121,6 +126,7 @@ pub fn main() -> ExitCode {
         Command::Apply(args) => commands::apply::run(&args),
         Command::Next(args) => commands::next::run(&args),
         Command::Simulate(args) => commands::simulate::run(&args),
+        Command::Export(args) => commands::export::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -26,10 +26,25 @@ pub struct ApplyArgs {
     /// from; rows dropped by `--skip-bad` are named on stderr).
     #[command(flatten)]
     pub input: LogArgs,
+    /// The matrix to calibrate with: `triangular`, the paper's `P` (`b = P (raw - bias)`), or
+    /// `symmetric`, `A^-1` (`b = A^-1 (raw - bias)`, as `export` writes it for the autopilots).
+    /// The two give the same `|b|` and differ by a rotation.
+    #[arg(long, value_enum, default_value_t = Matrix::Triangular)]
+    pub matrix: Matrix,
     /// Write the calibrated readings to this file, replaced whole (default, or `-`: standard
     /// output). Only a regular file or a missing path is replaced, and never an input.
     #[arg(long)]
     pub out: Option<PathBuf>,
+}
+
+/// `apply --matrix`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Matrix {
+    /// `p`, upper triangular (\[P1\] eq. (6)).
+    #[default]
+    Triangular,
+    /// `soft_iron_inverse`, symmetric.
+    Symmetric,
 }
 
 /// Runs `apply`: the calibration is checked ([`crate::log::calibration::CalibrationJson::check`]),
@@ -64,7 +79,10 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
         let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(w);
         csv.write_record(&output::header::<AppliedRow>()?)?;
         let mut row = |line: usize, raw: magcal_core::Vec3| -> Result<()> {
-            let b = cal.apply(raw);
+            let b = match args.matrix {
+                Matrix::Triangular => cal.apply(raw),
+                Matrix::Symmetric => magcal_core::small::mat_vec(&cal.soft_iron_inverse, magcal_core::small::sub(raw, cal.bias)),
+            };
             // |b| through hypot: its squares overflow for components above 1e154, whose length
             // is still finite.
             let norm = b[0].hypot(b[1]).hypot(b[2]);

@@ -9,6 +9,7 @@ pub mod apply;
 pub mod calibrate;
 pub mod check;
 pub mod design;
+pub mod export;
 pub mod next;
 pub mod plot;
 pub mod run;

@@ -7,6 +7,7 @@
 pub mod binary;
 pub mod calibration;
 pub mod dataflash;
+pub mod export;
 pub mod flight;
 pub mod flown;
 pub mod read;

@@ -6,7 +6,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use crate::common::{data, magcal};
+use crate::common::{assert_refused, data, edited, magcal};
 use magcal_runner::log::calibration::{CalibrationJson, FORMAT, MAX_CONDITION, read_calibration};
 use sha2::{Digest, Sha256};
 use tempfile::TempDir;
@@ -50,18 +50,6 @@ fn run(args: &[&std::ffi::OsStr]) -> (i32, String, String) {
         String::from_utf8(out.stdout).unwrap(),
         String::from_utf8(out.stderr).unwrap(),
     )
-}
-
-/// Exit 2 with one line on stderr that starts with `magcal: error: ` and holds every `needle`,
-/// and nothing on stdout.
-fn assert_refused((code, stdout, stderr): &(i32, String, String), needles: &[&str]) {
-    assert_eq!(*code, 2, "{stderr}");
-    assert!(stdout.is_empty(), "{stdout}");
-    assert_eq!(stderr.lines().count(), 1, "{stderr}");
-    assert!(stderr.starts_with("magcal: error: "), "{stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "{n:?} not in {stderr}");
-    }
 }
 
 /// The median of `|P (raw - bias)|` over `readings`, computed here from the JSON's `p` and `bias`.
@@ -145,15 +133,6 @@ fn a_calibration_records_what_it_was_made_from_and_every_public_fit_passes_the_c
 
 /// An edit of a calibration's JSON.
 type Edit = Box<dyn FnOnce(&mut serde_json::Value)>;
-
-/// The ck-explorer calibration with `edit` applied to its JSON, written beside it.
-fn edited(cal: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
-    let mut j = json(cal);
-    edit(&mut j);
-    let path = cal.with_file_name(name);
-    fs::write(&path, serde_json::to_vec_pretty(&j).unwrap()).unwrap();
-    path
-}
 
 #[test]
 fn apply_and_next_refuse_a_calibration_that_cannot_be_used() {

@@ -144,3 +144,24 @@ pub fn data(path: &str) -> Option<PathBuf> {
         None
     }
 }
+
+/// Exit 2 with one line on stderr that starts with `magcal: error: ` and holds every `needle`,
+/// and nothing on stdout.
+pub fn assert_refused((code, stdout, stderr): &(i32, String, String), needles: &[&str]) {
+    assert_eq!(*code, 2, "{stderr}");
+    assert!(stdout.is_empty(), "{stdout}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(stderr.starts_with("magcal: error: "), "{stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "{n:?} not in {stderr}");
+    }
+}
+
+/// The calibration at `cal` with `edit` applied to its JSON, written beside it as `name`.
+pub fn edited(cal: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
+    let mut j: serde_json::Value = serde_json::from_slice(&fs::read(cal).unwrap()).unwrap();
+    edit(&mut j);
+    let path = cal.with_file_name(name);
+    fs::write(&path, serde_json::to_vec_pretty(&j).unwrap()).unwrap();
+    path
+}

@@ -976,7 +976,7 @@ proptest! {
         let edited = x.edit.as_ref().and_then(|e| e.apply(&bytes)).unwrap_or(bytes);
         std::fs::write(&cal, &edited).unwrap();
         let applied = tmp.path().join("calibrated.csv");
-        let apply = ApplyArgs { calibration: cal.clone(), log: log.clone(), input: LogArgs { columns: x.columns.clone(), skip_bad: x.skip_bad, ..LogArgs::default() }, out: Some(applied.clone()) };
+        let apply = ApplyArgs { calibration: cal.clone(), log: log.clone(), input: LogArgs { columns: x.columns.clone(), skip_bad: x.skip_bad, ..LogArgs::default() }, matrix: Default::default(), out: Some(applied.clone()) };
         match apply::run(&apply) {
             Ok(()) => {
                 let why = check_applied(&applied);
@@ -1119,6 +1119,7 @@ fn apply_finds_the_recorded_columns_in_logs_of_every_separator() {
             calibration: tmp.path().join("cal/calibration.json"),
             log: tmp.path().join("log.csv"),
             input: LogArgs::default(),
+            matrix: Default::default(),
             out: Some(out.clone()),
         };
         if let Err(Failure::Input(e)) = apply::run(&apply) {
@@ -1200,6 +1201,7 @@ fn a_bad_row_met_by_apply_is_the_logs_fault_not_the_outputs() {
         calibration: tmp.path().join("cal/calibration.json"),
         log: log.clone(),
         input: LogArgs::default(),
+        matrix: Default::default(),
         out: Some(out.clone()),
     };
     let Err(Failure::Input(e)) = apply::run(&apply) else {
@@ -1235,6 +1237,7 @@ fn apply_gives_the_length_of_calibrated_readings_near_the_largest_number() {
         calibration: tmp.path().join("cal/calibration.json"),
         log: tmp.path().join("log.csv"),
         input: LogArgs::default(),
+        matrix: Default::default(),
         out: Some(out.clone()),
     };
     if let Err(Failure::Input(e)) = apply::run(&apply) {
