@@ -5,4 +5,5 @@
 pub mod calibration;
 pub mod flight;
 pub mod read;
+pub mod ulog;
 pub mod vehicle;

@@ -12,4 +12,5 @@ mod cli;
 mod fuzz;
 mod log_outputs;
 mod result_set;
+mod ulog;
 mod verdict;
