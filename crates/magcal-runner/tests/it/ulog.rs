@@ -307,36 +307,20 @@ const O: [f64; 3] = [0.12, -0.045, 0.3];
 /// The Earth's field, NED, Gauss.
 const FIELD_NED: [f64; 3] = [0.21, -0.01, 0.43];
 
-/// The rotation of a unit quaternion `[w, x, y, z]` (body to NED).
-fn dcm(q: [f64; 4]) -> [[f64; 3]; 3] {
-    let [w, x, y, z] = q;
+/// Roll, pitch, yaw (radians) of attitude `i` of `n`: yaw through two full turns, roll and
+/// pitch swinging by 30 degrees.
+fn angles(i: usize, n: usize) -> [f64; 3] {
+    let s = i as f64 / n as f64;
     [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
+        0.5 * (10.0 * s).cos(),
+        0.5 * (6.0 * s).sin(),
+        4.0 * std::f64::consts::PI * s,
     ]
 }
 
-/// Attitude `i` of `n`: yaw through two full turns, roll and pitch swinging by 30 degrees.
+/// Attitude `i` of `n` as the quaternion `[w, x, y, z]` (body FRD to NED) of its angles.
 fn attitude(i: usize, n: usize) -> [f32; 4] {
-    let s = i as f64 / n as f64;
-    let (yaw, pitch, roll) = (
-        4.0 * std::f64::consts::PI * s,
-        0.5 * (6.0 * s).sin(),
-        0.5 * (10.0 * s).cos(),
-    );
+    let [roll, pitch, yaw] = angles(i, n);
     let (cy, sy) = ((yaw / 2.0).cos(), (yaw / 2.0).sin());
     let (cp, sp) = ((pitch / 2.0).cos(), (pitch / 2.0).sin());
     let (cr, sr) = ((roll / 2.0).cos(), (roll / 2.0).sin());
@@ -348,10 +332,20 @@ fn attitude(i: usize, n: usize) -> [f32; 4] {
     ]
 }
 
-/// The true sensor's reading at attitude `q`.
-fn true_reading(q: [f32; 4]) -> [f64; 3] {
-    let c = dcm(q.map(f64::from));
-    let b: [f64; 3] = std::array::from_fn(|i| (0..3).map(|k| c[k][i] * FIELD_NED[k]).sum());
+/// The field in the body frame at attitude `i` of `n`: `C^T F` with `C = Rz(yaw) Ry(pitch)
+/// Rx(roll)`, the rotation of the same angles as the quaternion.
+fn body_field(i: usize, n: usize) -> [f64; 3] {
+    let c = ulog::euler_dcm(
+        angles(i, n)[0].to_degrees(),
+        angles(i, n)[1].to_degrees(),
+        angles(i, n)[2].to_degrees(),
+    );
+    std::array::from_fn(|i| (0..3).map(|k| c[k][i] * FIELD_NED[k]).sum())
+}
+
+/// The true sensor's reading at attitude `i` of `n`.
+fn true_reading(i: usize, n: usize) -> [f64; 3] {
+    let b = body_field(i, n);
     std::array::from_fn(|i| (0..3).map(|k| K[i][k] * b[k]).sum::<f64>() + O[i])
 }
 
@@ -410,7 +404,7 @@ fn synthetic(n: usize, version: u32, rot: i32, logged: impl Fn(usize, [f64; 3]) 
         w.data(1, &[&t.to_le_bytes(), &t.to_le_bytes(), &delta, &[3]]);
         out.attitudes.push(q);
         if i % 2 == 0 {
-            let r = logged(i / 2, true_reading(q));
+            let r = logged(i / 2, true_reading(i, 2 * n));
             let mut xyz = Vec::new();
             for x in r {
                 xyz.extend_from_slice(&x.to_le_bytes());
@@ -511,11 +505,10 @@ fn a_synthetic_raw_log_reads_back_exactly() {
     let to_body = log.to_body.unwrap();
     assert_eq!(to_body, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
     // The true calibration brings every reading to the field the attitude predicts, to float32
-    // rounding of the reading (|r| < 1 G, K near I: 1e-6 G is 16 float32 ulps).
-    for (s, q) in log.samples.iter().zip(att.values.iter().step_by(2)) {
+    // rounding of the reading and the quaternion (|r| < 1 G, K near I: 1e-6 G is 16 float32 ulps).
+    for (j, s) in log.samples.iter().enumerate() {
         let b = solve_upper(K, std::array::from_fn(|i| s.raw[i] - O[i]));
-        let c = dcm(*q);
-        let predicted: [f64; 3] = std::array::from_fn(|i| (0..3).map(|k| c[k][i] * FIELD_NED[k]).sum());
+        let predicted = body_field(2 * j, att.values.len());
         for i in 0..3 {
             assert!((b[i] - predicted[i]).abs() < 1e-6, "{b:?} against {predicted:?}");
         }
@@ -578,8 +571,7 @@ fn a_pre_1_12_calibration_is_undone_with_the_values_in_force() {
     assert!(words.contains("CAL_MAG0_XOFF..ZOFF"), "{words}");
     let check = |p: &Px4Log, w: &Written, changed_from: usize| {
         for (i, s) in p.log.samples.iter().enumerate() {
-            let q = w.attitudes[2 * i];
-            let truth = true_reading(q);
+            let truth = true_reading(2 * i, w.attitudes.len());
             let off = if i >= changed_from { [0.5f32, -0.5, 0.125] } else { off };
             let m = apply(truth, off);
             for k in 0..3 {
@@ -606,8 +598,7 @@ fn a_pre_1_12_calibration_is_undone_with_the_values_in_force() {
     let shift = change.buf.len();
     for i in 120..200 {
         let o = w.offsets[i] - at;
-        let q = w.attitudes[2 * i];
-        let m = apply(true_reading(q), [0.5, -0.5, 0.125]);
+        let m = apply(true_reading(2 * i, w.attitudes.len()), [0.5, -0.5, 0.125]);
         let x0 = o + 3 + 2 + 8 + 8 + 4;
         for k in 0..3 {
             tail[x0 + 4 * k..x0 + 4 * k + 4].copy_from_slice(&m[k].to_le_bytes());
