@@ -203,7 +203,7 @@ pub fn read_px4(path: &Path, selection: &Selection) -> Result<Px4Log> {
 /// As [`read`].
 pub fn read_from<R: Read>(reader: R, shown: &str, selection: &Selection) -> Result<Px4Log> {
     let mut hashing = Hashing::new(reader);
-    let raw = parse(&mut hashing, shown)?;
+    let raw = parse(&mut hashing, shown, Budget::new())?;
     let sha256 = hashing.hex();
     let bytes = Hashing::bytes(&hashing);
     assemble(raw, shown, selection, sha256, bytes)
@@ -412,7 +412,7 @@ impl<R: Read> Stream<'_, R> {
 }
 
 /// Reads the whole file once, keeping what [`assemble`] needs.
-fn parse<R: Read>(reader: &mut R, shown: &str) -> Result<Raw> {
+fn parse<R: Read>(reader: &mut R, shown: &str, mut budget: Budget) -> Result<Raw> {
     let mut s = Stream {
         inner: reader,
         pos: 0,
@@ -427,7 +427,6 @@ fn parse<R: Read>(reader: &mut R, shown: &str) -> Result<Raw> {
         version: header[7],
         ..Raw::default()
     };
-    let mut budget = Budget::new();
     let mut formats: HashMap<String, Vec<FieldDef>> = HashMap::new();
     let mut sizes: HashMap<String, u64> = HashMap::new();
     let mut subs: HashMap<u16, Option<Decoder>> = HashMap::new();
@@ -1487,6 +1486,45 @@ mod tests {
         let m = rotation_matrix(8).unwrap();
         assert!((m[1][1] + 1.0).abs() < 1e-15 && (m[2][2] + 1.0).abs() < 1e-15);
         assert!(rotation_matrix(48).is_none() && rotation_matrix(-1).is_none());
+    }
+
+    #[test]
+    fn what_is_kept_is_charged_against_the_memory_budget() {
+        fn msg(out: &mut Vec<u8>, kind: u8, body: &[u8]) {
+            out.extend_from_slice(&(body.len() as u16).to_le_bytes());
+            out.push(kind);
+            out.extend_from_slice(body);
+        }
+        let mut log = b"ULog\x01\x12\x35\x01".to_vec();
+        log.extend_from_slice(&0u64.to_le_bytes());
+        msg(
+            &mut log,
+            b'F',
+            b"sensor_mag:uint64_t timestamp;float x;float y;float z;",
+        );
+        msg(&mut log, b'A', b"\x00\x00\x00sensor_mag");
+        for t in 0..1000u64 {
+            let mut d = vec![0, 0];
+            d.extend_from_slice(&t.to_le_bytes());
+            d.extend_from_slice(&[0; 12]);
+            msg(&mut log, b'D', &d);
+        }
+        let budget = |limit| Budget {
+            used: 0,
+            limit: Some((limit, 2 * limit, "a test's limit")),
+        };
+        let raw = parse(&mut log.as_slice(), "t.ulg", budget(1 << 30)).unwrap();
+        assert_eq!(raw.sensor_mag[&0].len(), 1000);
+        // 100 readings fit in 100 * HELD_PER_READING bytes and a little; the 101st does not.
+        let limit = 100 * HELD_PER_READING + HELD_PER_ENTRY * 6 + 64;
+        let e = parse(&mut log.as_slice(), "t.ulg", budget(limit))
+            .unwrap_err()
+            .to_string();
+        let at = 16 + 3 + 54 + 3 + 13 + 100 * 25;
+        assert!(
+            e.starts_with(&format!("t.ulg: byte {at}: the log holds more than fits in memory")),
+            "{e}"
+        );
     }
 
     #[test]
