@@ -12,4 +12,5 @@ pub mod flight;
 pub mod flown;
 pub mod read;
 pub mod source;
+pub mod ulog;
 pub mod vehicle;

@@ -280,6 +280,7 @@ type Reader = fn(&Path, &Selection) -> Result<FlightLog>;
 fn reader(format: Format) -> Result<Reader> {
     match format {
         Format::DataFlash => Ok(super::dataflash::read),
+        Format::Ulog => Ok(super::ulog::read),
         _ => bail!("{} logs cannot be read yet", format.name()),
     }
 }

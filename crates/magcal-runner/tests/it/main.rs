@@ -15,4 +15,5 @@ mod export;
 mod fuzz;
 mod log_outputs;
 mod result_set;
+mod ulog;
 mod verdict;
