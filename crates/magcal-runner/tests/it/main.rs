@@ -11,5 +11,6 @@ mod calibrate;
 mod cli;
 mod fuzz;
 mod log_outputs;
+mod reference;
 mod result_set;
 mod verdict;
