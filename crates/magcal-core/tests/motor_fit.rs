@@ -9,7 +9,7 @@
 //! are fixed.
 
 use magcal_core::design::sources;
-use magcal_core::log_fit::motor::{MotorError, MotorInput, fit_motor};
+use magcal_core::log_fit::motor::{MotorError, MotorFit, MotorInput, fit_motor};
 use magcal_core::log_fit::{FitModel, FitSettings};
 use magcal_core::rng::stream_rng;
 use magcal_core::{AttitudeBox, ErrorModel, Vec3, paper};
@@ -39,6 +39,18 @@ fn magnitude() -> f64 {
     paper::changsha_field().magnitude()
 }
 
+/// `model`'s joint fit of a log whose input is the battery current, the noise from the residuals.
+fn fit(readings: &[Vec3], current: &[f64], model: FitModel) -> Result<MotorFit, MotorError> {
+    fit_motor(
+        readings,
+        current,
+        MotorInput::Current,
+        magnitude(),
+        model,
+        &FitSettings::default(),
+    )
+}
+
 #[test]
 fn the_standard_errors_of_the_interference_are_honest_over_200_logs() {
     // z = (d_hat - d) / se per axis over 200 logs of 300 readings: mean 0 within 4 standard
@@ -48,15 +60,7 @@ fn the_standard_errors_of_the_interference_are_honest_over_200_logs() {
     let mut z = [Vec::new(), Vec::new(), Vec::new()];
     for seed in 0..200 {
         let (readings, current) = log(&truth, D_NT_PER_A, 300, 5000 + seed);
-        let f = fit_motor(
-            &readings,
-            &current,
-            MotorInput::Current,
-            magnitude(),
-            FitModel::Full,
-            &FitSettings::default(),
-        )
-        .unwrap();
+        let f = fit(&readings, &current, FitModel::Full).unwrap();
         assert!(f.identifiable, "log {seed}: {}", f.verdict);
         let se = f.std_per_unit.unwrap();
         for i in 0..3 {
@@ -89,15 +93,7 @@ fn every_model_recovers_the_interference_and_the_sensor_it_can_describe() {
         ),
     ] {
         let (readings, current) = log(&truth, D_NT_PER_A, 2000, 7);
-        let f = fit_motor(
-            &readings,
-            &current,
-            MotorInput::Current,
-            magnitude(),
-            model,
-            &FitSettings::default(),
-        )
-        .unwrap();
+        let f = fit(&readings, &current, model).unwrap();
         assert!(f.identifiable, "{model:?}: {}", f.verdict);
         let (sd, ss, sb) = (f.std_per_unit.unwrap(), f.std_scale.unwrap(), f.std_bias.unwrap());
         for i in 0..3 {
@@ -120,15 +116,7 @@ fn every_model_recovers_the_interference_and_the_sensor_it_can_describe() {
 #[test]
 fn a_log_without_interference_gives_none_within_its_standard_errors() {
     let (readings, current) = log(&paper::true_error_model(), [0.0; 3], 1000, 11);
-    let f = fit_motor(
-        &readings,
-        &current,
-        MotorInput::Current,
-        magnitude(),
-        FitModel::Full,
-        &FitSettings::default(),
-    )
-    .unwrap();
+    let f = fit(&readings, &current, FitModel::Full).unwrap();
     assert!(f.identifiable, "{}", f.verdict);
     let se = f.std_per_unit.unwrap();
     for i in 0..3 {
@@ -148,57 +136,26 @@ fn a_log_without_interference_gives_none_within_its_standard_errors() {
 #[test]
 fn an_input_that_does_not_vary_is_refused_and_one_that_barely_varies_is_not_identifiable() {
     let (readings, _) = log(&paper::true_error_model(), D_NT_PER_A, 300, 13);
-    let settings = FitSettings::default();
     let constant = vec![12.5; readings.len()];
     assert_eq!(
-        fit_motor(
-            &readings,
-            &constant,
-            MotorInput::Current,
-            magnitude(),
-            FitModel::Full,
-            &settings
-        ),
+        fit(&readings, &constant, FitModel::Full),
         Err(MotorError::ConstantInput { value: 12.5 })
     );
     // A current that moves by 1e-12 A: d u is the bias plus 1e-12 d, which 30 nT of noise never
     // shows. The information of (O, d) in correlation form is singular to working precision.
     let barely: Vec<f64> = (0..readings.len()).map(|k| 12.5 + 1e-12 * (k % 7) as f64).collect();
-    let f = fit_motor(
-        &readings,
-        &barely,
-        MotorInput::Current,
-        magnitude(),
-        FitModel::Full,
-        &settings,
-    )
-    .unwrap();
+    let f = fit(&readings, &barely, FitModel::Full).unwrap();
     assert!(!f.identifiable && f.std_per_unit.is_none(), "{}", f.verdict);
     assert!(f.verdict.contains("varies too little"), "{}", f.verdict);
     assert!(f.information_min_eigenvalue < 1e-12, "{}", f.information_min_eigenvalue);
     // A current that varies: the same eigenvalue is of order 1.
     let (readings, current) = log(&paper::true_error_model(), D_NT_PER_A, 300, 13);
-    let f = fit_motor(
-        &readings,
-        &current,
-        MotorInput::Current,
-        magnitude(),
-        FitModel::Full,
-        &settings,
-    )
-    .unwrap();
+    let f = fit(&readings, &current, FitModel::Full).unwrap();
     assert!(f.information_min_eigenvalue > 1e-3, "{}", f.information_min_eigenvalue);
     let mut bad = current.clone();
     bad[4] = f64::NAN;
     assert!(matches!(
-        fit_motor(
-            &readings,
-            &bad,
-            MotorInput::Current,
-            magnitude(),
-            FitModel::Full,
-            &settings
-        ),
+        fit(&readings, &bad, FitModel::Full),
         Err(MotorError::NonFiniteInput { index: 4, .. })
     ));
 }
