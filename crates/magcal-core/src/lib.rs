@@ -44,6 +44,7 @@
 //! | section IV.C, Monte Carlo trials | [`monte_carlo::trial`] |
 //! | eq. (5), (13): the Cramer-Rao floor and identifiability | [`identifiability::CramerRao`] |
 //! | eq. (1)-(2), (5)-(6): heading error of a calibration | [`heading::HeadingProbe`] |
+//! | eq. (6), IV.C: heading against a reference attitude | [`reference::align`] |
 //!
 //! ## References
 //! - \[P1\] Z. Wu, X. Hu, M. Wu, P. Liu, "D-Optimal Design Applied to Calibration of Strapdown
@@ -69,6 +70,7 @@ pub mod log_fit;
 pub mod metrics;
 pub mod monte_carlo;
 pub mod paper;
+pub mod reference;
 pub mod rng;
 pub mod sensor;
 pub mod small;

@@ -56,6 +56,7 @@
 
 mod coverage;
 mod lack_of_fit;
+pub mod motor;
 mod reject;
 
 pub use coverage::{microstrain_coverage_percent, motioncal_gaps};
@@ -1020,7 +1021,8 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], noise: f64, model: FitModel) -
 
 /// The standard errors per unit noise of the parameters `x` of a model with `theta = T x`, fitted
 /// by unweighted least squares of the residuals whose gradients and variances `rows` gives
-/// ([`residual_jacobian`]): the square roots of the diagonal of `A^-1 B A^-1`,
+/// ([`residual_jacobian`], `P` parameters of the model's gradient: 9, or 12 with [`motor`]'s
+/// interference): the square roots of the diagonal of `A^-1 B A^-1`,
 /// `A = T^T (sum J J^T) T`, `B = T^T (sum |g|^2 J J^T) T`. `None` when `A` is singular to
 /// working precision (a pivot below the rounding of its largest diagonal entry).
 ///
@@ -1030,11 +1032,14 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], noise: f64, model: FitModel) -
 /// (`A_w = sum J J^T / |g|^2`) is the covariance of the weighted fit, not of this one: with
 /// \[P1\]'s scale factors (1.3, 0.7, 1.2) in a box of +-30 degrees of tilt, intervals from it held
 /// the true psi2 in 89 % of 400 logs of 300 readings; the sandwich gives the fit's own covariance.
-fn sandwich_std<const N: usize>(rows: impl Iterator<Item = ([f64; 9], f64)>, T: &[[f64; N]; 9]) -> Option<[f64; N]> {
+fn sandwich_std<const P: usize, const N: usize>(
+    rows: impl Iterator<Item = ([f64; P], f64)>,
+    T: &[[f64; N]; P],
+) -> Option<[f64; N]> {
     let mut A = [[0.0; N]; N];
     let mut B = [[0.0; N]; N];
     for (J, g2) in rows {
-        let x: [f64; N] = std::array::from_fn(|a| (0..9).map(|i| J[i] * T[i][a]).sum());
+        let x: [f64; N] = std::array::from_fn(|a| (0..P).map(|i| J[i] * T[i][a]).sum());
         for a in 0..N {
             for b in 0..N {
                 A[a][b] += x[a] * x[b];

@@ -14,6 +14,7 @@ mod dataflash;
 mod export;
 mod fuzz;
 mod log_outputs;
+mod reference;
 mod result_set;
 mod ulog;
 mod verdict;
