@@ -370,7 +370,7 @@ mod tests {
             let [w, x, y, z] = a.body_to_nav_quaternion(0.0);
             assert!(w >= 0.0 && (norm([x, y, z]).hypot(w) - 1.0).abs() < 1e-14);
             // v' = q v q*, by the rotation matrix of q.
-            let r = crate::reference::rotation_from_quaternion([w, x, y, z]).unwrap();
+            let r = crate::aviation::dcm_of_quaternion([w, x, y, z]).unwrap();
             for v in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.3, -0.2, 0.9]] {
                 let want = mat_t_vec(&c_nb, v);
                 let got = [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);

@@ -105,6 +105,13 @@ pub fn from_ned(c: &Mat3, frame: NavFrame) -> Mat3 {
     }
 }
 
+/// A NED-convention `C` with its navigation frame turned to east, north, up (the body frame kept):
+/// the z-up attitude [`crate::reference::align`] takes. The half turn about the north-east
+/// diagonal: its own inverse.
+pub fn z_up_of_ned(c: &Mat3) -> Mat3 {
+    mat_mul(&ENU_TO_NED, c)
+}
+
 /// `(roll, pitch, heading)` in degrees of a NED-convention `C`: heading clockwise from north in
 /// `[0, 360)`.
 pub fn roll_pitch_heading_deg(c_ned: &Mat3) -> [f64; 3] {

@@ -23,8 +23,8 @@
 //! figures measure.
 //!
 //! # Vertical axis
-//! The autopilots log body-to-NED attitudes, whose z axis points down. [`enu_from_ned`] turns
-//! such an attitude into a z-up one. Fitting the NED attitudes directly gives the same `Q`, `F`
+//! The autopilots log body-to-NED attitudes, whose z axis points down.
+//! [`crate::aviation::z_up_of_ned`] turns such an attitude into a z-up one. Fitting the NED attitudes directly gives the same `Q`, `F`
 //! turned into NED, and the heading errors measured about the down axis: each the negative of
 //! the z-up one, so the signs flip while the statistics of `|e|` (rms, p95, max) and the
 //! direction errors do not.
@@ -163,45 +163,6 @@ pub struct Alignment {
     pub iterations: usize,
     /// Newton's steps that finished it (see [`align`]).
     pub newton_steps: usize,
-}
-
-/// The unit quaternion `(w, x, y, z)` (Hamilton) as the rotation matrix it applies to vectors,
-/// `v' = q v q*`. The quaternion is normalised first; `None` when its norm is not positive and
-/// finite.
-pub fn rotation_from_quaternion(q: [f64; 4]) -> Option<Mat3> {
-    let n = (q.iter().map(|v| v * v).sum::<f64>()).sqrt();
-    if !(n.is_finite() && n > 0.0) {
-        return None;
-    }
-    let [w, x, y, z] = q.map(|v| v / n);
-    Some([
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ])
-}
-
-/// A body-to-NED attitude quaternion `(w, x, y, z)` (ArduPilot's and PX4's) as a body-to-ENU one:
-/// `q_enu = t * q_ned` with `t = (0, 1/sqrt 2, 1/sqrt 2, 0)`, the half turn about the
-/// north-east diagonal that swaps north and east and turns down into up. The body frame is left
-/// as it is ([`align`]'s `Q` absorbs it). Its own inverse: the same map takes ENU to NED.
-pub fn enu_from_ned(q: [f64; 4]) -> [f64; 4] {
-    let h = std::f64::consts::FRAC_1_SQRT_2;
-    let [w, x, y, z] = q;
-    // (0, h, h, 0) * (w, x, y, z), Hamilton product.
-    [-h * x - h * y, h * w + h * z, h * w - h * z, h * y - h * x]
 }
 
 /// The `p`-th percentile (`0 <= p <= 100`) of `values`, by linear interpolation between the
@@ -586,14 +547,21 @@ fn angle_between(a: Vec3, b: Vec3) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::aviation::z_up_of_ned;
     use crate::rng::stream_rng;
     use rand::RngExt;
+
+    /// The rotation of a quaternion of any positive norm.
+    fn rotation(q: [f64; 4]) -> Mat3 {
+        let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        crate::aviation::dcm_of_quaternion(q.map(|v| v / n)).unwrap()
+    }
 
     /// `count` rotations from random quaternions (not uniform on SO(3); any spread will do).
     fn random_rotations(count: usize, seed: u64) -> Vec<Mat3> {
         let mut rng = stream_rng(seed, 0);
         (0..count)
-            .map(|_| rotation_from_quaternion(std::array::from_fn(|_| rng.random_range(-1.0..1.0))).unwrap())
+            .map(|_| rotation(std::array::from_fn(|_| rng.random_range(-1.0..1.0))))
             .collect()
     }
 
@@ -690,30 +658,9 @@ mod tests {
         let quaternions: Vec<[f64; 4]> = (0..300)
             .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
             .collect();
-        let enu: Vec<Mat3> = quaternions
-            .iter()
-            .map(|&q| rotation_from_quaternion(q).unwrap())
-            .collect();
-        let ned: Vec<Mat3> = quaternions
-            .iter()
-            .map(|&q| rotation_from_quaternion(enu_from_ned(q)).unwrap())
-            .collect();
-        // The map is the half turn that swaps the first two axes and negates the third, and its
-        // own inverse.
+        let enu: Vec<Mat3> = quaternions.iter().map(|&q| rotation(q)).collect();
+        let ned: Vec<Mat3> = enu.iter().map(z_up_of_ned).collect();
         let swap = [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
-        for (q, (c_enu, c_ned)) in quaternions.iter().zip(enu.iter().zip(&ned)) {
-            let want = mat_mul(&swap, c_enu);
-            let back = enu_from_ned(enu_from_ned(*q));
-            let n = norm([q[0], q[1], q[2]]).hypot(q[3]);
-            for i in 0..3 {
-                for j in 0..3 {
-                    assert!((c_ned[i][j] - want[i][j]).abs() <= 8.0 * f64::EPSILON);
-                }
-            }
-            for i in 0..4 {
-                assert!((back[i] + q[i]).abs() <= 8.0 * f64::EPSILON * n, "{back:?} {q:?}");
-            }
-        }
         // A calibration with a scale error, so that the errors are not all zero.
         let calibrated: Vec<Vec3> = enu
             .iter()

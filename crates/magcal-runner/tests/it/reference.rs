@@ -2,7 +2,8 @@
 //! "Heading against a reference attitude" from BROAD trial 02 of `../shared/data/` (skipped,
 //! saying so, where that folder is absent).
 
-use magcal_core::reference::{AlignSettings, Alignment, align, rotation_from_quaternion};
+use magcal_core::aviation::dcm_of_quaternion;
+use magcal_core::reference::{AlignSettings, Alignment, align};
 use magcal_core::small::{Mat3, Vec3};
 use magcal_core::{ErrorModel, paper};
 
@@ -26,7 +27,7 @@ fn broad_02() -> Option<(Vec<Vec3>, Vec<Mat3>)> {
         }
         let value = |i: usize| row[i].parse::<f64>().unwrap();
         readings.push(field.map(value));
-        attitudes.push(rotation_from_quaternion(quaternion.map(value)).unwrap());
+        attitudes.push(dcm_of_quaternion(quaternion.map(value)).unwrap());
     }
     Some((readings, attitudes))
 }
