@@ -64,6 +64,9 @@ pub struct CalibrationJson {
     /// The time span of the readings fitted, seconds on the log's clock, where it has times.
     #[serde(default)]
     pub time_span_s: Option<[f64; 2]>,
+    /// With attitudes in the log: the heading the calibration gives against them.
+    #[serde(default)]
+    pub heading_vs_log: Option<HeadingCheckJson>,
     /// The motor interference fitted with the calibration (`calibrate --motor`), else `null`.
     #[serde(default)]
     pub motor: Option<MotorJson>,
@@ -135,6 +138,32 @@ pub struct MotorJson {
     pub std_error: Option<[f64; 3]>,
     /// The range of `input` over the readings fitted.
     pub input_range: [f64; 2],
+}
+
+/// The heading a calibration gives against the attitudes a log carries (docs/conventions.md
+/// "Heading against a reference attitude"): against the autopilot's own estimate, which was made
+/// with the calibration in force when it flew, a figure of consistency, not of truth.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct HeadingCheckJson {
+    /// Readings with an attitude.
+    pub readings: usize,
+    /// What the attitudes are, in words.
+    pub against: String,
+    /// The calibrated readings `P (raw - bias)`.
+    pub calibrated: Option<HeadingFiguresJson>,
+    /// The raw readings taken as calibrated, for comparison.
+    pub uncalibrated: Option<HeadingFiguresJson>,
+    /// Why there are no figures, where there are none.
+    pub error: Option<String>,
+}
+
+/// Heading and direction errors, degrees.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct HeadingFiguresJson {
+    pub heading_rms_deg: f64,
+    pub heading_p95_deg: f64,
+    pub heading_max_deg: f64,
+    pub direction_rms_deg: f64,
 }
 
 /// Where the noise comes from.

@@ -1,5 +1,8 @@
 //! `magcal calibrate LOG`: fit a log (docs/conventions.md "Real data" and its calibration forms).
 
+mod heading;
+mod motor;
+
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -12,7 +15,7 @@ use magcal_core::small::upper_triangular_inverse;
 use super::Failure;
 use crate::digest::{Hashing, sha256_hex};
 use crate::log::calibration::{
-    CalibrationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
+    CalibrationJson, Coverage, EllipsoidJson, HeadingCheckJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
 };
 use crate::log::flight::InForce;
 use crate::log::flown::{Bounds, Flown, SECTOR_DEG, flown};
@@ -114,6 +117,12 @@ pub struct CalibrateArgs {
     pub scenario: Option<PathBuf>,
     #[command(flatten)]
     pub attitude: BoxFlags,
+    /// Fit the motors' interference with the calibration: the raw reading moving by `d` per
+    /// ampere of battery current or per unit of throttle (the log's current or throttle, matched
+    /// to each reading); the calibration is then the sensor's at zero input, and `motor` in the
+    /// JSON gives `d` with its standard errors (for `export`'s `COMPASS_MOT*` or `CAL_MAGn_*COMP`).
+    #[arg(long, value_enum)]
+    pub motor: Option<motor::Motor>,
 }
 
 /// Runs `calibrate`: fits the log, writes the calibration set of `--out` (swapped in whole), then
@@ -164,8 +173,20 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         model: args.wmm,
     });
     let units = units_of(args, &log)?;
-    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
+    let (mut fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
+    let joint = match args.motor {
+        Some(m) => {
+            let (refit, joint) = motor::refit(&mut log, &fit, m, &settings).with_context(|| shown.clone())?;
+            fit = refit;
+            Some(joint)
+        }
+        None => None,
+    };
     let mut json = to_json(&args.log, &log, &fit, &why, source);
+    if let Some(joint) = &joint {
+        motor::record(&mut json, joint);
+    }
+    json.heading_vs_log = heading::check(&log, &fit);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
         n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
@@ -269,6 +290,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         in_force: None,
         log_notes: Vec::new(),
         time_span_s: None,
+        heading_vs_log: None,
         motor: None,
         columns: log.columns.clone(),
         samples: log.readings.len(),
@@ -525,6 +547,38 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
     )?;
     if let Some(f) = &j.coverage.flown {
         print_flown(w, f, j.samples, j.coverage.box_from.as_deref())?;
+    }
+    if let Some(h) = &j.heading_vs_log {
+        print_heading(w, h)?;
+    }
+    if let Some(m) = &j.motor {
+        let se = m.std_error.map_or("unknown".to_string(), row);
+        writeln!(
+            w,
+            "motor interference per unit {} (over {} to {}): d{}\n  std error d          {se}",
+            m.input,
+            significant(m.input_range[0], 4),
+            significant(m.input_range[1], 4),
+            row(m.per_unit)
+        )?;
+    }
+    Ok(())
+}
+
+/// The heading against the log's attitudes, calibrated and raw.
+fn print_heading(w: &mut dyn Write, h: &HeadingCheckJson) -> std::io::Result<()> {
+    writeln!(w, "heading against {} ({} readings)", h.against, h.readings)?;
+    for (name, f) in [("calibrated", &h.calibrated), ("raw readings", &h.uncalibrated)] {
+        if let Some(f) = f {
+            writeln!(
+                w,
+                "  {name:<13} heading rms {:.3}, p95 {:.3}, max {:.3} deg; direction rms {:.3} deg",
+                f.heading_rms_deg, f.heading_p95_deg, f.heading_max_deg, f.direction_rms_deg
+            )?;
+        }
+    }
+    if let Some(e) = &h.error {
+        writeln!(w, "  no figures: {e}")?;
     }
     Ok(())
 }
