@@ -481,17 +481,8 @@ fn read_from<R: Read>(
         let pick = match pick {
             Some(p) => p,
             None => {
-                // The first data row decides which columns are numeric.
-                let numeric: Vec<bool> = (0..names.len())
-                    .map(|i| s.get(i).is_some_and(|c| number(c, separator).is_some()))
-                    .collect();
-                let p = choose(&names, &numeric, columns)
-                    .with_context(|| format!("{shown} (read as {})", separator.name()))?;
-                extra_pick = extras
-                    .iter()
-                    .map(|e| choose_extra(&names, e, &p))
-                    .collect::<Result<_>>()
-                    .with_context(|| shown.to_string())?;
+                let (p, e) = pick_columns(s, &names, columns, extras, shown)?;
+                extra_pick = e;
                 *pick.insert(p)
             }
         };
@@ -526,6 +517,28 @@ fn read_from<R: Read>(
         sha256: String::new(),
         bytes: 0,
     })
+}
+
+/// The field's three columns and the extras' columns, from the first data row (which decides
+/// which columns are numeric).
+fn pick_columns(
+    s: &Splitter,
+    names: &[String],
+    columns: Option<&str>,
+    extras: &[Extra],
+    shown: &str,
+) -> Result<([usize; 3], Vec<usize>)> {
+    let separator = s.separator;
+    let numeric: Vec<bool> = (0..names.len())
+        .map(|i| s.get(i).is_some_and(|c| number(c, separator).is_some()))
+        .collect();
+    let p = choose(names, &numeric, columns).with_context(|| format!("{shown} (read as {})", separator.name()))?;
+    let e = extras
+        .iter()
+        .map(|e| choose_extra(names, e, &p))
+        .collect::<Result<_>>()
+        .with_context(|| shown.to_string())?;
+    Ok((p, e))
 }
 
 /// Line `line` of the log in `buf` as text: a UTF-8 byte order mark on line 1 removed; UTF-16 text

@@ -14,6 +14,7 @@ mod dataflash;
 mod export;
 mod fuzz;
 mod log_outputs;
+mod motor;
 mod reference;
 mod result_set;
 mod ulog;

@@ -153,6 +153,9 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     }
     let rows = log.readings.len() + log.skipped.len();
     let shown = args.log.display().to_string();
+    if let Some(m) = args.motor {
+        motor::inputs(&log, m).with_context(|| shown.clone())?;
+    }
     let mut settings = FitSettings {
         noise: args.noise,
         truncation: None,
@@ -201,19 +204,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         json.reasons
             .push(format!("the calibration fails the checks of apply and next: {why}"));
     }
-    let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
-    if let Some(vehicle) = &vehicle {
-        json.coverage.d_efficiency_per_reading = log_efficiency(&json, vehicle, &log.readings)
-            .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
-        json.coverage.box_from = Some(vehicle.label.clone());
-    }
-    if let Some(attitudes) = &log.attitudes {
-        let bounds = vehicle.as_ref().map(|v| Bounds {
-            bounds: &v.bounds,
-            yaw_offset_deg: v.field.yaw_offset_deg(),
-        });
-        json.coverage.flown = flown(attitudes, bounds);
-    }
+    coverage_in_box(&mut json, args, &log, place.as_ref())?;
     if let Some(set) = set {
         write_out(set, &args.log, rows, &json, &log, &fit)?;
     }
@@ -235,6 +226,25 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             json.reasons.join("; ")
         )))
     }
+}
+
+/// The coverage against the vehicle's box (`--scenario` or the box flags): the certified
+/// D-efficiency per reading, and the share of the log's attitudes inside the box.
+fn coverage_in_box(json: &mut CalibrationJson, args: &CalibrateArgs, log: &Log, place: Option<&Place>) -> Result<()> {
+    let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place)?;
+    if let Some(vehicle) = &vehicle {
+        json.coverage.d_efficiency_per_reading = log_efficiency(json, vehicle, &log.readings)
+            .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
+        json.coverage.box_from = Some(vehicle.label.clone());
+    }
+    if let Some(attitudes) = &log.attitudes {
+        let bounds = vehicle.as_ref().map(|v| Bounds {
+            bounds: &v.bounds,
+            yaw_offset_deg: v.field.yaw_offset_deg(),
+        });
+        json.coverage.flown = flown(attitudes, bounds);
+    }
+    Ok(())
 }
 
 /// `--reject K` ([`log_fit::reject_outliers`]): the fits of its rounds are made to a unit field

@@ -19,18 +19,25 @@ pub enum Motor {
 }
 
 /// The input of each reading.
-fn inputs(log: &Log, motor: Motor) -> Result<Vec<f64>> {
+///
+/// # Errors
+/// A log without the input, or a reading without one.
+pub fn inputs(log: &Log, motor: Motor) -> Result<Vec<f64>> {
     let (series, kind, flag) = match motor {
         Motor::Current => (&log.currents, "battery current", "--current"),
         Motor::Throttle => (&log.throttles, "throttle", "--throttle"),
     };
     let Some(series) = series else {
-        bail!("the log has no {kind} (a CSV log names its column with {flag})");
+        bail!(
+            "--motor {}: the log has no {kind} (a CSV log names its column with {flag})",
+            name(motor)
+        );
     };
     let missing = series.iter().filter(|v| v.is_none()).count();
     if missing > 0 {
         bail!(
-            "{missing} of {} readings have no {kind} near them in time; cut the log to where it has one (--from, --to)",
+            "--motor {}: {missing} of {} readings have no {kind} near them in time; cut the log to where it has one (--from, --to)",
+            name(motor),
             series.len()
         );
     }
@@ -45,7 +52,7 @@ fn inputs(log: &Log, motor: Motor) -> Result<Vec<f64>> {
 /// # Errors
 /// A log without the input, or with a reading without one; a joint fit that fails.
 pub fn refit(log: &mut Log, fit: &LogFit, motor: Motor, settings: &FitSettings) -> Result<(LogFit, MotorFit)> {
-    let u = inputs(log, motor).with_context(|| format!("--motor {}", name(motor)))?;
+    let u = inputs(log, motor)?;
     let kind = match motor {
         Motor::Current => MotorInput::Current,
         Motor::Throttle => MotorInput::Throttle,
