@@ -2,6 +2,7 @@
 //! calibration file ([`calibration`]) and the vehicle's box ([`vehicle`]). The site, date and units
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
+pub mod ardupilot;
 pub mod binary;
 pub mod calibration;
 pub mod dataflash;

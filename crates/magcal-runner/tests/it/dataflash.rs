@@ -444,7 +444,7 @@ fn a_synthetic_log_gives_back_the_true_sensor_under_both_calibrations() {
         };
         assert!(words.contains("changed 1 times"), "{words}");
         assert!(
-            words.contains("COMPASS_OFS = (-40.25, 61.5, -118.75) (PARM)"),
+            words.contains("COMPASS_OFS = (-40.25, 61.5, -118.75) (parameters)"),
             "{words}"
         );
         assert!(
