@@ -187,7 +187,7 @@ pub fn undo(
     undo_notes(&v0, &sfx, inst, (changes, from_mag, ofs_changes), notes);
     let scale = match v0[9] {
         Some(s) if applied(s) => format!("COMPASS_SCALE{sfx} = {} (s)", show(s)),
-        Some(s) if s == 0.0 => format!("COMPASS_SCALE{sfx} = 0 (not set: s = 1)"),
+        Some(0.0) => format!("COMPASS_SCALE{sfx} = 0 (not set: s = 1)"),
         Some(s) => format!("COMPASS_SCALE{sfx} = {} (not applied: s = 1)", show(s)),
         None => "no COMPASS_SCALE (s = 1)".into(),
     };
