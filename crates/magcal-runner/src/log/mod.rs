@@ -8,4 +8,5 @@ pub mod calibration;
 pub mod dataflash;
 pub mod flight;
 pub mod read;
+pub mod tlog;
 pub mod vehicle;
