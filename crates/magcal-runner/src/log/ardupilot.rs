@@ -40,11 +40,12 @@ pub fn middle(k: f64) -> f64 {
 /// One reading as logged, before the calibration is undone.
 #[derive(Debug, Clone, Copy)]
 pub struct Logged {
-    /// `OfsX..Z` (middle of the truncation interval), NaN where the message has none.
+    /// The logged offsets in force (`MAG.OfsX..Z`, `SENSOR_OFFSETS`) at the middle of their
+    /// truncation interval; NaN where the log has none.
     pub ofs: [f64; 3],
-    /// The same `Ofs` as logged (for the comparison with `PARM`).
+    /// The same offsets as logged (for the comparison with the parameters).
     pub ofs_logged: [f64; 3],
-    /// `MOX..Z`, 0 where the message has none.
+    /// The motor compensation added (`MAG.MOX..Z`, or rebuilt from the parameters), mGauss.
     pub mo: Vec3,
 }
 
@@ -308,7 +309,8 @@ fn undo_notes(v0: &InForceAt, sfx: &str, inst: &Readings, counts: (u64, u64, u64
     }
     if ofs_changes > 0 {
         notes.push(format!(
-            "MAG's logged offsets changed {ofs_changes} times during the readings."
+            "The logged offsets ({}) changed {ofs_changes} times during the readings.",
+            inst.ofs_source
         ));
     }
     let d_identity =

@@ -26,7 +26,7 @@ fn expected() -> serde_json::Value {
 }
 
 /// Roll, pitch, yaw (degrees, yaw in [0, 360)) of a body-to-NED quaternion, through its matrix.
-fn euler_deg(q: [f64; 4]) -> [f64; 3] {
+pub fn euler_deg(q: [f64; 4]) -> [f64; 3] {
     let [w, x, y, z] = q;
     let c20 = 2.0 * (x * z - w * y);
     let c21 = 2.0 * (y * z + w * x);

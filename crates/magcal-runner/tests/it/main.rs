@@ -13,4 +13,5 @@ mod dataflash;
 mod fuzz;
 mod log_outputs;
 mod result_set;
+mod tlog;
 mod verdict;
