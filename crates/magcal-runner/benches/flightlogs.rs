@@ -82,7 +82,7 @@ fn generate(path: &Path) {
             out.extend(25.0f32.to_le_bytes());
             out.extend([1, 1, 0x90, 0x01, 0x90, 0x01]);
         }
-        if i % 4 == 0 {
+        if i.is_multiple_of(4) {
             for k in 0..3u8 {
                 out.extend([0xA3, 0x95, 0x82]);
                 out.extend(t.to_le_bytes());
