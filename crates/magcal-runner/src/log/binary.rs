@@ -231,6 +231,37 @@ impl Dropped {
     }
 }
 
+/// Bytes a reader skipped because they were not what the format puts there, in runs.
+#[derive(Debug, Default)]
+pub struct Skipped {
+    bytes: u64,
+    runs: u64,
+    first: Option<u64>,
+    end: u64,
+}
+
+impl Skipped {
+    /// `n` bytes skipped from byte `offset`; a run goes on where the last one ended.
+    pub fn skip(&mut self, offset: u64, n: usize) {
+        if self.first.is_none() || offset != self.end {
+            self.runs += 1;
+        }
+        self.first.get_or_insert(offset);
+        self.bytes += n as u64;
+        self.end = offset + n as u64;
+    }
+
+    /// The note on what was skipped (`what`: "messages", "records"), if anything was.
+    pub fn note(&self, what: &str) -> Option<String> {
+        self.first.map(|at| {
+            format!(
+                "Skipped {} bytes that are not {what}, in {} places from byte {at} on (damaged or partly written).",
+                self.bytes, self.runs
+            )
+        })
+    }
+}
+
 /// Where a reader is: the file as shown, the byte offset of the message, and the budget.
 pub struct At<'a> {
     pub shown: &'a str,

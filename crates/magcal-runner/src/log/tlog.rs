@@ -53,7 +53,7 @@ use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::{MavlinkVersion, Message, calculate_crc};
 
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
-use super::binary::{At, Budget, Chunks, Dropped, in_order, quaternion_of_euler};
+use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler};
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
 use crate::scenario::site::Units;
 
@@ -182,9 +182,7 @@ struct Parsed {
     unknown: u64,
     undecoded: BTreeMap<&'static str, u64>,
     other_systems: BTreeMap<u8, u64>,
-    skipped_bytes: u64,
-    skipped_places: u64,
-    first_skip: Option<u64>,
+    skipped: Skipped,
     truncated_at: Option<u64>,
 }
 
@@ -229,9 +227,7 @@ fn parse(chunks: &mut Chunks, shown: &str, selection: &Selection, budget: &mut B
             }
             Look::Not => {
                 let skip = resync(w, &mut extras);
-                log.skipped_bytes += skip as u64;
-                log.skipped_places += 1;
-                log.first_skip.get_or_insert(offset);
+                log.skipped.skip(offset, skip);
                 chunks.advance(skip);
                 continue;
             }
@@ -491,9 +487,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         unknown,
         undecoded,
         other_systems,
-        skipped_bytes,
-        skipped_places,
-        first_skip,
+        skipped,
         truncated_at,
         ..
     } = parsed;
@@ -532,11 +526,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
     notes.extend(mo_note);
     let undone = undo(&mut readings, k, &data.params, shown, &mut notes)?;
     notes.extend(frame_notes(bad_crc, unknown, &undecoded, &other_systems));
-    if let Some(at) = first_skip {
-        notes.push(format!(
-            "Skipped {skipped_bytes} bytes that are not records, in {skipped_places} places from byte {at} on (damaged or partly written)."
-        ));
-    }
+    notes.extend(skipped.note("records"));
     if let Some(at) = truncated_at {
         notes.push(format!(
             "The last record, at byte {at}, is cut short (the log was not closed); it is ignored."
