@@ -97,7 +97,8 @@ pub fn followed(name: &str) -> bool {
     })
 }
 
-/// The calibration undone, in words: for [`InForce::Undone`] and for the messages used.
+/// The calibration undone, in words: for [`super::flight::InForce::Undone`] and for the messages
+/// used.
 pub struct Undone {
     pub words: String,
     pub params: String,

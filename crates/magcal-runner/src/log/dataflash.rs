@@ -44,7 +44,7 @@ use std::path::Path;
 use anyhow::{Result, bail};
 
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
-use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler};
+use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
 use crate::scenario::site::Units;
 
@@ -70,12 +70,11 @@ pub fn read(path: &Path, selection: &Selection) -> Result<FlightLog> {
 /// # Errors
 /// As [`read`].
 pub fn read_with(path: &Path, selection: &Selection, mut budget: Budget) -> Result<FlightLog> {
-    let shown = path.display().to_string();
-    let mut chunks = Chunks::open(path)?;
-    let mut log = Parsed::default();
-    parse(&mut chunks, &shown, selection, &mut budget, &mut log)?;
-    let (sha256, bytes) = chunks.finish()?;
-    assemble(log, &shown, selection, sha256, bytes)
+    read_file(
+        path,
+        |chunks, shown, log: &mut Parsed| parse(chunks, shown, selection, &mut budget, log),
+        |log, shown, sha256, bytes| assemble(log, shown, selection, sha256, bytes),
+    )
 }
 
 /// A field of a message: its offset in the payload and its format character.
@@ -571,31 +570,8 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         skipped,
         truncated_at,
     } = parsed;
-    let mut instances: Vec<u8> = data
-        .instances
-        .keys()
-        .copied()
-        .chain(data.seen.iter().copied())
-        .collect();
-    instances.sort_unstable();
-    instances.dedup();
-    let k = match selection.instance {
-        Some(k) => k,
-        None => match instances.first() {
-            Some(&k) => k,
-            None => bail!("{shown}: no magnetometer readings (no MAG, MAG2 or MAG3 messages)"),
-        },
-    };
-    let Some(mut inst) = data.instances.remove(&k) else {
-        bail!(
-            "{shown}: --compass {k}: the log has no readings of magnetometer {k}; it has {}",
-            if instances.is_empty() {
-                "none".to_string()
-            } else {
-                list(&instances)
-            }
-        );
-    };
+    let instances_kept = std::mem::take(&mut data.instances);
+    let (instances, k, mut inst) = take_instance(instances_kept, &data.seen, selection, shown, "MAG, MAG2 or MAG3")?;
     let mut notes = Vec::new();
     let undone = undo(&mut inst.readings, k, &data.params, shown, &mut notes)?;
     notes.extend(skipped.note("messages"));
@@ -628,8 +604,4 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         sha256,
         bytes,
     })
-}
-
-fn list(v: &[u8]) -> String {
-    v.iter().map(u8::to_string).collect::<Vec<_>>().join(", ")
 }

@@ -53,7 +53,7 @@ use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::{MavlinkVersion, Message, calculate_crc};
 
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
-use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler};
+use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
 use crate::scenario::site::Units;
 
@@ -82,12 +82,11 @@ pub fn read(path: &Path, selection: &Selection) -> Result<FlightLog> {
 /// # Errors
 /// As [`read`].
 pub fn read_with(path: &Path, selection: &Selection, mut budget: Budget) -> Result<FlightLog> {
-    let shown = path.display().to_string();
-    let mut chunks = Chunks::open(path)?;
-    let mut log = Parsed::default();
-    parse(&mut chunks, &shown, selection, &mut budget, &mut log)?;
-    let (sha256, bytes) = chunks.finish()?;
-    assemble(log, &shown, selection, sha256, bytes)
+    read_file(
+        path,
+        |chunks, shown, log: &mut Parsed| parse(chunks, shown, selection, &mut budget, log),
+        |log, shown, sha256, bytes| assemble(log, shown, selection, sha256, bytes),
+    )
 }
 
 /// A frame found at the start of a byte slice.
@@ -491,30 +490,14 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         truncated_at,
         ..
     } = parsed;
-    let mut instances: Vec<u8> = data
-        .instances
-        .keys()
-        .copied()
-        .chain(data.seen.iter().copied())
-        .collect();
-    instances.sort_unstable();
-    instances.dedup();
-    let k = match (selection.instance, instances.first()) {
-        (Some(k), _) => k,
-        (None, Some(&k)) => k,
-        (None, None) => bail!("{shown}: no magnetometer readings (no RAW_IMU, SCALED_IMU2 or SCALED_IMU3 messages)"),
-    };
-    let Some(inst) = data.instances.remove(&k) else {
-        let has: Vec<String> = instances.iter().map(u8::to_string).collect();
-        bail!(
-            "{shown}: --compass {k}: the log has no readings of magnetometer {k}; it has {}",
-            if has.is_empty() {
-                "none".to_string()
-            } else {
-                has.join(", ")
-            }
-        );
-    };
+    let instances_kept = std::mem::take(&mut data.instances);
+    let (instances, k, inst) = take_instance(
+        instances_kept,
+        &data.seen,
+        selection,
+        shown,
+        "RAW_IMU, SCALED_IMU2 or SCALED_IMU3",
+    )?;
     let from_sys = !data.sys_current.times.is_empty();
     let current = std::mem::take(if from_sys {
         &mut data.sys_current

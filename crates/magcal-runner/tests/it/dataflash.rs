@@ -227,9 +227,9 @@ fn padded(s: &str, n: usize) -> Vec<u8> {
 // ------------------------------------------------------------------------------------------------
 // A known sensor under a known old calibration.
 
-type M3 = [[f64; 3]; 3];
+pub type M3 = [[f64; 3]; 3];
 
-fn mv(m: &M3, v: [f64; 3]) -> [f64; 3] {
+pub fn mv(m: &M3, v: [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|i| (0..3).map(|j| m[i][j] * v[j]).sum())
 }
 
@@ -240,7 +240,7 @@ fn inf_norm(m: &M3) -> f64 {
 }
 
 /// Body (FRD) to NED of roll, pitch, yaw (radians): Rz(yaw) Ry(pitch) Rx(roll).
-fn c_bn(r: f64, p: f64, y: f64) -> M3 {
+pub fn c_bn(r: f64, p: f64, y: f64) -> M3 {
     let (sr, cr) = r.sin_cos();
     let (sp, cp) = p.sin_cos();
     let (sy, cy) = y.sin_cos();
@@ -393,7 +393,7 @@ fn synthetic(n: usize, mag_kind: char, seed: u64) -> (Writer, Truth) {
     (w, truth)
 }
 
-fn inverse(a: &M3) -> M3 {
+pub fn inverse(a: &M3) -> M3 {
     let c = |i: usize, j: usize| {
         let (r0, r1, c0, c1) = ((i + 1) % 3, (i + 2) % 3, (j + 1) % 3, (j + 2) % 3);
         a[r0][c0] * a[r1][c1] - a[r0][c1] * a[r1][c0]
@@ -490,9 +490,11 @@ fn the_truncation_of_int16_fields_is_taken_at_its_middle() {
 // ------------------------------------------------------------------------------------------------
 // Damaged logs.
 
+const NOT_DATAFLASH: &str = "not an ArduPilot DataFlash log";
+
 /// Every outcome of a damaged log: a log whose readings and series are finite and in order, or an
 /// error naming the file and a byte offset or message.
-fn check_outcome(path: &Path, r: anyhow::Result<FlightLog>) {
+pub fn check_outcome(path: &Path, r: anyhow::Result<FlightLog>, not_format: &str) {
     let shown = path.display().to_string();
     match r {
         Ok(log) => {
@@ -507,15 +509,16 @@ fn check_outcome(path: &Path, r: anyhow::Result<FlightLog>) {
                     assert!((n - 1.0).abs() < 1e-9);
                 }
             }
+            for s in [&log.current, &log.throttle].into_iter().flatten() {
+                assert!(s.times.windows(2).all(|w| w[0] <= w[1]));
+            }
         }
         Err(e) => {
             let e = format!("{e:#}");
             assert!(e.starts_with(&shown), "{e}");
             assert!(!e.contains('\n'), "{e}");
             assert!(
-                e.contains("byte ")
-                    || e.contains("no magnetometer readings")
-                    || e.contains("not an ArduPilot DataFlash log"),
+                e.contains("byte ") || e.contains("no magnetometer readings") || e.contains(not_format),
                 "{e}"
             );
         }
@@ -535,7 +538,7 @@ fn the_fixture_cut_at_any_length_reads_or_says_where() {
         .chain(bytes.len() - 1024..=bytes.len());
     for n in lengths {
         std::fs::write(&cut, &bytes[..n]).unwrap();
-        check_outcome(&cut, read(&cut, &pick(None)));
+        check_outcome(&cut, read(&cut, &pick(None)), NOT_DATAFLASH);
     }
 }
 
@@ -547,20 +550,25 @@ fn random_damage_to_the_fixture_never_panics() {
     let bad = dir.path().join("bad.bin");
     let mut rng = stream_rng(21, 1);
     for case in 0..400 {
-        let mut b = bytes.clone();
-        for _ in 0..rng.random_range(1..40) {
-            let at = rng.random_range(0..b.len());
-            match case % 3 {
-                0 => b[at] ^= 1 << rng.random_range(0..8),
-                1 => b.insert(at, rng.random()),
-                _ => {
-                    b.remove(at);
-                }
+        std::fs::write(&bad, damage(&bytes, case, &mut rng)).unwrap();
+        check_outcome(&bad, read(&bad, &pick(None)), NOT_DATAFLASH);
+    }
+}
+
+/// `bytes` with 1 to 40 random bit flips (`case` 0 mod 3), byte insertions (1) or removals (2).
+pub fn damage(bytes: &[u8], case: usize, rng: &mut impl rand::Rng) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    for _ in 0..rng.random_range(1..40) {
+        let at = rng.random_range(0..b.len());
+        match case % 3 {
+            0 => b[at] ^= 1 << rng.random_range(0..8),
+            1 => b.insert(at, rng.random()),
+            _ => {
+                b.remove(at);
             }
         }
-        std::fs::write(&bad, &b).unwrap();
-        check_outcome(&bad, read(&bad, &pick(None)));
     }
+    b
 }
 
 #[test]

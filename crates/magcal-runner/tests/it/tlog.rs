@@ -5,10 +5,8 @@
 //! `SENSOR_OFFSETS` is deprecated in the dialect; ArduPilot's telemetry has it, so the logs here do.
 #![allow(deprecated)]
 
-use std::path::Path;
-
 use magcal_core::rng::stream_rng;
-use magcal_runner::log::flight::{FlightLog, InForce, Selection};
+use magcal_runner::log::flight::{InForce, Selection};
 use magcal_runner::log::tlog::{PROBE, read};
 use mavlink::dialects::ardupilotmega::{
     ATTITUDE_DATA, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavParamType, MavType, PARAM_VALUE_DATA, RAW_IMU_DATA,
@@ -19,7 +17,9 @@ use rand::RngExt;
 use tempfile::TempDir;
 
 use crate::common::data;
-use crate::dataflash::euler_deg;
+use crate::dataflash::{M3, c_bn, check_outcome, damage, euler_deg, inverse, mv};
+
+const NOT_TLOG: &str = "not a MAVLink telemetry log";
 
 /// The ground station's clock at the vehicle's boot, microseconds since 1970.
 const EPOCH_US: u64 = 1_700_000_000_000_000;
@@ -60,32 +60,6 @@ impl Tlog {
         });
         self.push(t_us, 1, MavlinkVersion::V2, &msg);
     }
-}
-
-type M3 = [[f64; 3]; 3];
-
-fn mv(m: &M3, v: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|i| (0..3).map(|j| m[i][j] * v[j]).sum())
-}
-
-fn inverse(a: &M3) -> M3 {
-    let c = |i: usize, j: usize| {
-        let (r0, r1, c0, c1) = ((i + 1) % 3, (i + 2) % 3, (j + 1) % 3, (j + 2) % 3);
-        a[r0][c0] * a[r1][c1] - a[r0][c1] * a[r1][c0]
-    };
-    let det: f64 = (0..3).map(|j| a[0][j] * c(0, j)).sum();
-    std::array::from_fn(|i| std::array::from_fn(|j| c(j, i) / det))
-}
-
-fn c_bn(r: f64, p: f64, y: f64) -> M3 {
-    let (sr, cr) = r.sin_cos();
-    let (sp, cp) = p.sin_cos();
-    let (sy, cy) = y.sin_cos();
-    [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
 }
 
 struct Truth {
@@ -347,33 +321,7 @@ fn damaged_frames_are_counted_and_skipped() {
         log.notes
     );
     assert!(log.notes.iter().any(|n| n.contains("is cut short")), "{:?}", log.notes);
-    check_outcome(&path, Ok(log));
-}
-
-/// Every outcome of a damaged log: readings and series finite and in order, or an error naming
-/// the file and a byte offset or message.
-fn check_outcome(path: &Path, r: anyhow::Result<FlightLog>) {
-    let shown = path.display().to_string();
-    match r {
-        Ok(log) => {
-            assert!(!log.samples.is_empty());
-            assert!(log.samples.windows(2).all(|w| w[0].time_s <= w[1].time_s));
-            assert!(log.samples.iter().all(|s| s.raw.iter().all(|x| x.is_finite())));
-            for s in [&log.current, &log.throttle].into_iter().flatten() {
-                assert!(s.times.windows(2).all(|w| w[0] <= w[1]));
-            }
-        }
-        Err(e) => {
-            let e = format!("{e:#}");
-            assert!(e.starts_with(&shown) && !e.contains('\n'), "{e}");
-            assert!(
-                e.contains("byte ")
-                    || e.contains("no magnetometer readings")
-                    || e.contains("not a MAVLink telemetry log"),
-                "{e}"
-            );
-        }
-    }
+    check_outcome(&path, Ok(log), NOT_TLOG);
 }
 
 #[test]
@@ -383,23 +331,12 @@ fn a_tlog_cut_at_any_length_or_damaged_reads_or_says_where() {
     let p = dir.path().join("cut.tlog");
     for n in (0..w.bytes.len()).step_by(13).chain([w.bytes.len()]) {
         std::fs::write(&p, &w.bytes[..n]).unwrap();
-        check_outcome(&p, read(&p, &pick(None)));
+        check_outcome(&p, read(&p, &pick(None)), NOT_TLOG);
     }
     let mut rng = stream_rng(8, 3);
     for case in 0..300 {
-        let mut b = w.bytes.clone();
-        for _ in 0..rng.random_range(1..30) {
-            let at = rng.random_range(0..b.len());
-            match case % 3 {
-                0 => b[at] ^= 1 << rng.random_range(0..8),
-                1 => b.insert(at, rng.random()),
-                _ => {
-                    b.remove(at);
-                }
-            }
-        }
-        std::fs::write(&p, &b).unwrap();
-        check_outcome(&p, read(&p, &pick(None)));
+        std::fs::write(&p, damage(&w.bytes, case, &mut rng)).unwrap();
+        check_outcome(&p, read(&p, &pick(None)), NOT_TLOG);
     }
 }
 
