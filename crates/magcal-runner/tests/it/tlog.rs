@@ -5,6 +5,8 @@
 //! `SENSOR_OFFSETS` is deprecated in the dialect; ArduPilot's telemetry has it, so the logs here do.
 #![allow(deprecated)]
 
+use std::path::Path;
+
 use magcal_core::rng::stream_rng;
 use magcal_runner::log::flight::{InForce, Selection};
 use magcal_runner::log::tlog::{PROBE, read};
@@ -17,7 +19,7 @@ use rand::RngExt;
 use tempfile::TempDir;
 
 use crate::common::data;
-use crate::dataflash::{M3, c_bn, check_outcome, damage, euler_deg, inverse, mv};
+use crate::dataflash::{M3, c_bn, check_outcome, damage, euler_deg, inverse, mv, same_time};
 
 const NOT_TLOG: &str = "not a MAVLink telemetry log";
 
@@ -369,5 +371,50 @@ fn files_that_are_not_telemetry_logs_are_refused() {
     assert!(
         e.ends_with("no magnetometer readings (no RAW_IMU, SCALED_IMU2 or SCALED_IMU3 messages)"),
         "{e}"
+    );
+}
+
+#[test]
+fn a_tlog_written_by_pymavlink_reads_as_pymavlink_reads_it() {
+    // tests/data/pymavlink.tlog and its reading are written by scripts/crosscheck-flightlogs.py.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/pymavlink.tlog");
+    let text = include_str!("../flightlogs.json");
+    let want = serde_json::from_str::<serde_json::Value>(text).unwrap()["ardupilot_tlog"].clone();
+    let log = read(&path, &pick(None)).unwrap();
+    let samples = want["samples"].as_array().unwrap();
+    assert_eq!(log.samples.len(), samples.len());
+    for (s, w) in log.samples.iter().zip(samples) {
+        assert!(same_time(s.time_s, &w["time_s"]), "{} vs {w}", s.time_s);
+        for c in 0..3 {
+            let r = w["raw"][c].as_f64().unwrap();
+            // The same formula in another order of operations, on readings below 1e3 mGauss.
+            assert!((s.raw[c] - r).abs() < 64.0 * f64::EPSILON * 1e3, "{:?} vs {w}", s.raw);
+        }
+    }
+    let att = log.attitude.as_ref().unwrap();
+    let want_att = want["attitude"].as_array().unwrap();
+    assert_eq!(att.values.len(), want_att.len());
+    for ((t, q), w) in att.times.iter().zip(&att.values).zip(want_att) {
+        assert!(same_time(*t, &w["time_s"]), "{t} vs {w}");
+        let e = euler_deg(*q);
+        for (c, name) in ["roll", "pitch", "yaw"].iter().enumerate() {
+            let d = (e[c] - w[name].as_f64().unwrap().to_degrees() + 180.0).rem_euclid(360.0) - 180.0;
+            assert!(d.abs() < 1e-9, "{name}: {e:?} vs {w}");
+        }
+    }
+    let cur: Vec<f64> = want["current"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(log.current.as_ref().unwrap().values, cur);
+    let bad = want["bad_crc"].as_u64().unwrap();
+    assert!(
+        log.notes.contains(&format!(
+            "Skipped {bad} frames whose checksum fails (damaged in transmission)."
+        )),
+        "{:?}",
+        log.notes
     );
 }
