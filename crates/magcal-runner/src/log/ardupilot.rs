@@ -86,14 +86,24 @@ pub fn param_names(k: u8) -> [String; 10] {
     ]
 }
 
-/// Whether `name` is one of the `COMPASS_` parameters this reader follows.
+/// Whether `name` is one of the `COMPASS_` parameters the readers follow: `OFS`, `DIA`, `ODI`,
+/// `MOT` (`_X`, `_Y`, `_Z`, with instance suffix none, `2`, `3`), `SCALE` (likewise) and `MOTCT`.
+/// A fixed set, so that a log of made-up names holds no more than these.
 pub fn followed(name: &str) -> bool {
     let Some(rest) = name.strip_prefix("COMPASS_") else {
         return false;
     };
-    ["OFS", "DIA", "ODI", "SCALE"].iter().any(|p| {
-        rest.strip_prefix(p)
-            .is_some_and(|s| s.is_empty() || s.starts_with(['_', '2', '3']))
+    if rest == "MOTCT" {
+        return true;
+    }
+    if let Some(r) = rest.strip_prefix("SCALE") {
+        return matches!(r, "" | "2" | "3");
+    }
+    ["OFS", "DIA", "ODI", "MOT"].iter().any(|p| {
+        rest.strip_prefix(p).is_some_and(|r| {
+            let r = r.strip_prefix(['2', '3']).unwrap_or(r);
+            matches!(r, "_X" | "_Y" | "_Z")
+        })
     })
 }
 
@@ -320,5 +330,57 @@ fn undo_notes(v0: &InForceAt, sfx: &str, inst: &Readings, counts: (u64, u64, u64
         notes.push(
             "This log comes from older firmware (MAG has MOfsX..Z), which may have added the motor compensation before D: where it did, the readings are off by (D - I) MO.".into(),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_followed_parameters_are_a_fixed_set() {
+        for name in [
+            "COMPASS_OFS_X",
+            "COMPASS_OFS2_Y",
+            "COMPASS_DIA3_Z",
+            "COMPASS_ODI_Z",
+            "COMPASS_SCALE",
+            "COMPASS_SCALE3",
+            "COMPASS_MOT2_X",
+            "COMPASS_MOTCT",
+        ] {
+            assert!(followed(name), "{name}");
+        }
+        for name in [
+            "COMPASS_OFS_XX",
+            "COMPASS_OFS4_X",
+            "COMPASS_OFS",
+            "COMPASS_SCALE4",
+            "COMPASS_DEC",
+            "OFS_X",
+        ] {
+            assert!(!followed(name), "{name}");
+        }
+    }
+
+    #[test]
+    fn a_truncated_integer_is_read_at_the_middle_of_its_interval() {
+        assert_eq!(middle(3.0), 3.5);
+        assert_eq!(middle(-3.0), -3.5);
+        assert_eq!(middle(0.0), 0.0);
+    }
+
+    #[test]
+    fn the_inverse_of_d_is_its_inverse_and_singular_d_is_refused() {
+        let a = [[1.02, 0.01, -0.02], [0.01, 0.97, 0.015], [-0.02, 0.015, 1.05]];
+        let inv = inverse3(&a).unwrap();
+        let product = magcal_core::small::mat_mul(&a, &inv);
+        for (i, row) in product.iter().enumerate() {
+            for (j, p) in row.iter().enumerate() {
+                let want = if i == j { 1.0 } else { 0.0 };
+                assert!((p - want).abs() < 16.0 * f64::EPSILON, "{p}");
+            }
+        }
+        assert!(inverse3(&[[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
     }
 }

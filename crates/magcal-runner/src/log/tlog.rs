@@ -144,16 +144,19 @@ fn look(w: &[u8]) -> Look {
     })
 }
 
-/// The CRC extras of the message ids met, `None` for ids the dialect does not know.
+/// The CRC extras of the known message ids met (at most the dialect's few hundred).
 #[derive(Default)]
-struct Extras(HashMap<u32, Option<u8>>);
+struct Extras(HashMap<u32, u8>);
 
 impl Extras {
+    /// The CRC extra of message `id`, `None` where the dialect does not know it.
     fn get(&mut self, id: u32) -> Option<u8> {
-        *self
-            .0
-            .entry(id)
-            .or_insert_with(|| MavMessage::default_message_from_id(id).map(|_| MavMessage::extra_crc(id)))
+        if let Some(&e) = self.0.get(&id) {
+            return Some(e);
+        }
+        let e = MavMessage::default_message_from_id(id).map(|_| MavMessage::extra_crc(id))?;
+        self.0.insert(id, e);
+        Some(e)
     }
 
     /// Whether `f` (at the start of `w`) is a known message whose checksum holds.
@@ -372,7 +375,7 @@ fn take(
         }
         MavMessage::PARAM_VALUE(d) => {
             let name = d.param_id.to_str().unwrap_or_default();
-            if followed(name) || name.starts_with("COMPASS_MOT") {
+            if followed(name) {
                 let v = f64::from(d.param_value);
                 let series = data.params.entry(name.to_string()).or_default();
                 if series.last().is_none_or(|&(_, last)| last.to_bits() != v.to_bits()) {
