@@ -67,7 +67,7 @@ impl Chunks {
         &self.buf[self.pos..self.end]
     }
 
-    /// Reads until at least `n` bytes (at most [`CHUNK`]) from the current position are in
+    /// Reads until at least `n` bytes (at most 1 MiB) from the current position are in
     /// memory, or the file ends; returns how many are.
     ///
     /// # Errors
@@ -228,6 +228,88 @@ impl Dropped {
             ));
         }
         out
+    }
+}
+
+/// Opens `path`, parses it front to back into a `P` with `parse` (given the chunks and the path as
+/// shown), reads what is left so that the hash covers the whole file, and hands the `P`, the
+/// file's SHA-256 and its size to `assemble`.
+///
+/// # Errors
+/// The file cannot be read, or `parse` or `assemble` fails.
+pub fn read_file<P: Default>(
+    path: &Path,
+    parse: impl FnOnce(&mut Chunks, &str, &mut P) -> Result<()>,
+    assemble: impl FnOnce(P, &str, String, u64) -> Result<super::flight::FlightLog>,
+) -> Result<super::flight::FlightLog> {
+    let shown = path.display().to_string();
+    let mut chunks = Chunks::open(path)?;
+    let mut parsed = P::default();
+    parse(&mut chunks, &shown, &mut parsed)?;
+    let (sha256, bytes) = chunks.finish()?;
+    assemble(parsed, &shown, sha256, bytes)
+}
+
+/// Takes the readings of the asked instance (the lowest where none is asked) from `kept`, the
+/// instances whose readings were kept; `seen` are instances met but not kept, `messages` names the
+/// messages that carry readings. Returns the instances the log has, ascending, the instance
+/// taken and its readings.
+///
+/// # Errors
+/// No readings at all, or none of the asked instance.
+pub fn take_instance<T>(
+    mut kept: BTreeMap<u8, T>,
+    seen: &[u8],
+    selection: &super::flight::Selection,
+    shown: &str,
+    messages: &str,
+) -> Result<(Vec<u8>, u8, T)> {
+    let mut instances: Vec<u8> = kept.keys().copied().chain(seen.iter().copied()).collect();
+    instances.sort_unstable();
+    instances.dedup();
+    let Some(k) = selection.instance.or(instances.first().copied()) else {
+        bail!("{shown}: no magnetometer readings (no {messages} messages)");
+    };
+    let Some(readings) = kept.remove(&k) else {
+        let has: Vec<String> = instances.iter().map(u8::to_string).collect();
+        let has = if has.is_empty() {
+            "none".to_string()
+        } else {
+            has.join(", ")
+        };
+        bail!("{shown}: --compass {k}: the log has no readings of magnetometer {k}; it has {has}");
+    };
+    Ok((instances, k, readings))
+}
+
+/// Bytes a reader skipped because they were not what the format puts there, in runs.
+#[derive(Debug, Default)]
+pub struct Skipped {
+    bytes: u64,
+    runs: u64,
+    first: Option<u64>,
+    end: u64,
+}
+
+impl Skipped {
+    /// `n` bytes skipped from byte `offset`; a run goes on where the last one ended.
+    pub fn skip(&mut self, offset: u64, n: usize) {
+        if self.first.is_none() || offset != self.end {
+            self.runs += 1;
+        }
+        self.first.get_or_insert(offset);
+        self.bytes += n as u64;
+        self.end = offset + n as u64;
+    }
+
+    /// The note on what was skipped (`what`: "messages", "records"), if anything was.
+    pub fn note(&self, what: &str) -> Option<String> {
+        self.first.map(|at| {
+            format!(
+                "Skipped {} bytes that are not {what}, in {} places from byte {at} on (damaged or partly written).",
+                self.bytes, self.runs
+            )
+        })
     }
 }
 

@@ -21,49 +21,32 @@
 //!   `BAT` (`Curr`, amperes, instance 0); `CTUN` (`ThO`, 0 to 1).
 //!
 //! # The calibration undone
-//! ArduPilot's `AP_Compass_Backend::correct_field` turns the body-frame raw field `r` into
-//! `m = D (s (r + OFS)) + MOT` (offsets added, then the scale factor `s`, then the symmetric
-//! `D = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]]`, then the motor
-//! compensation, which is what `MO*` logs). `D` is taken as the identity when all of `DIA` are 0
-//! (as ArduPilot does), and `s` only when `COMPASS_SCALE` lies in ArduPilot's sanity range
-//! (`Compass::have_scale_factor`, [`SCALE_RANGE`]); else `s = 1`. So this reader returns
-//! `r = D^-1 (m - MO) / s - OFS` with the values in force at each reading. Firmware before the
-//! motor term moved after `D` added `MOT` before it; where such a log (labels `MOfsX..`) has
-//! non-zero motor offsets and `D` is not the identity the notes say so.
-//!
-//! The logged fields are `int16` casts (`Write_Compass_instance`: `(int16_t)mag_field.x`), which
-//! truncate towards zero: a logged `k` came from `[k, k + 1)` for `k > 0`, `(k - 1, k]` for
-//! `k < 0`, `(-1, 1)` for 0. The reader takes the middle of that interval (`k +- 0.5`, 0), which
-//! removes the truncation's bias of half a unit; the error left is below 0.5 mGauss per
-//! component of `m`. The offsets in force are taken from the `PARM` value (full precision) where
-//! it truncates to the logged `Ofs`, else from `Ofs` (offsets learnt in flight, or parameters not
-//! logged), and the notes count such readings.
+//! With the values in force at each reading ([`super::ardupilot`]): `OFS` from `PARM` where it
+//! truncates to the logged `Ofs`, else the logged `Ofs`; `D` and `s` from `PARM`; `MO` as logged.
+//! Firmware before the motor term moved after `D` (logs whose `MAG` labels it `MOfsX..Z`) added
+//! it before `D`; where such a log has non-zero motor offsets and `D` is not the identity the
+//! notes say so.
 //!
 //! # Why this parser and not a crate
-//! `ardupilot-binlog` 0.2.0 (the DataFlash crate on crates.io) was read and measured: it
-//! allocates a vector of decoded values for every message (1.0 s for a 100 MB synthetic log,
-//! parsing alone), skips bad bytes silently and stops silently after 256 in a row, gives no byte
-//! offsets, and an `FMT` with a length below 3 makes it panic (`capacity overflow`: `msg_len - 3`
-//! on a `u8` cast to `usize` after a wrap). This parser decodes only the fields it uses, at offsets
-//! fixed when the `FMT` is read, and reads the same 100 MB log with hashing in the time the
-//! benchmark (`benches/flightlogs.rs`) reports; its reading of the public fixture is compared
-//! with pymavlink's (`scripts/crosscheck-flightlogs.py`, `tests/flightlogs.json`).
+//! `ardupilot-binlog` 0.2.0, the DataFlash crate on crates.io, was read and measured on the same
+//! logs: it decodes every field of every message into a fresh vector (1.0 s for the 100 MB log of
+//! `benches/flightlogs.rs`, parsing alone, against 0.16 to 0.27 s for this reader with the file
+//! hashed, on 2 cores under a load of 5), skips bad bytes silently and stops silently after 256 in
+//! a row, gives no byte offsets, and an `FMT` with a length below 3 makes it panic (`msg_len - 3`
+//! wraps: `capacity overflow`). pymavlink's `DFReader` is the reference: this reader's reading of
+//! the public fixture is compared with it (`scripts/crosscheck-flightlogs.py`, whose numbers
+//! `tests/flightlogs.json` holds). This reader decodes only the fields it uses, at offsets fixed
+//! when their `FMT` is read.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 use anyhow::{Result, bail};
-use magcal_core::Vec3;
-use magcal_core::small::Mat3;
 
-use super::binary::{At, Budget, Chunks, Dropped, in_order, quaternion_of_euler};
+use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
+use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
-use crate::limits::show;
 use crate::scenario::site::Units;
-
-/// The range of `COMPASS_SCALE` that ArduPilot applies (`COMPASS_MIN_SCALE_FACTOR` to
-/// `COMPASS_MAX_SCALE_FACTOR`, 1/1.5 to 1.5); outside it (0 is "not set") it scales by 1.
-pub const SCALE_RANGE: (f64, f64) = (1.0 / 1.5, 1.5);
 
 const MAGIC: [u8; 2] = [0xA3, 0x95];
 const FMT_TYPE: u8 = 0x80;
@@ -87,12 +70,11 @@ pub fn read(path: &Path, selection: &Selection) -> Result<FlightLog> {
 /// # Errors
 /// As [`read`].
 pub fn read_with(path: &Path, selection: &Selection, mut budget: Budget) -> Result<FlightLog> {
-    let shown = path.display().to_string();
-    let mut chunks = Chunks::open(path)?;
-    let mut log = Parsed::default();
-    parse(&mut chunks, &shown, selection, &mut budget, &mut log)?;
-    let (sha256, bytes) = chunks.finish()?;
-    assemble(log, &shown, selection, sha256, bytes)
+    read_file(
+        path,
+        |chunks, shown, log: &mut Parsed| parse(chunks, shown, selection, &mut budget, log),
+        |log, shown, sha256, bytes| assemble(log, shown, selection, sha256, bytes),
+    )
 }
 
 /// A field of a message: its offset in the payload and its format character.
@@ -130,14 +112,10 @@ impl Field {
     }
 
     /// A field ArduPilot fills by a C cast to an integer (truncation towards zero): the middle of
-    /// the interval the logged value came from (see the module docs).
+    /// the interval the logged value came from ([`middle`]).
     fn get_truncated(self, p: &[u8]) -> f64 {
         let v = self.get(p);
-        if Self::integer(self.kind) && v != 0.0 {
-            v + 0.5 * v.signum()
-        } else {
-            v
-        }
+        if Self::integer(self.kind) { middle(v) } else { v }
     }
 
     fn integer(kind: u8) -> bool {
@@ -218,29 +196,12 @@ struct Layout {
     role: Role,
 }
 
-/// One reading as logged, before the calibration is undone.
-#[derive(Debug, Clone, Copy)]
-struct Logged {
-    /// `OfsX..Z` (middle of the truncation interval), NaN where the message has none.
-    ofs: [f64; 3],
-    /// The same `Ofs` as logged (for the comparison with `PARM`).
-    ofs_logged: [f64; 3],
-    /// `MOX..Z`, 0 where the message has none.
-    mo: Vec3,
-}
-
 /// The readings of one instance, as logged.
 #[derive(Default)]
 struct Instance {
-    /// `raw` holds `m` until the calibration is undone.
-    samples: Vec<Sample>,
-    logged: Vec<Logged>,
+    readings: Readings,
     /// The message and fields, for [`FlightLog::messages`].
     source: String,
-    ofs_integer: bool,
-    has_ofs: bool,
-    has_mo: bool,
-    old_labels: bool,
 }
 
 /// Everything read from the file.
@@ -248,9 +209,7 @@ struct Instance {
 struct Parsed {
     data: Data,
     dropped: Dropped,
-    skipped_bytes: u64,
-    skipped_places: u64,
-    first_skip: Option<u64>,
+    skipped: Skipped,
     truncated_at: Option<u64>,
 }
 
@@ -268,35 +227,6 @@ struct Data {
     att_source: Option<String>,
     bat_source: Option<String>,
     ctun_source: Option<String>,
-}
-
-/// Names of the parameters a reader of instance `k` needs.
-fn param_names(k: u8) -> [String; 10] {
-    let sfx = if k == 0 { String::new() } else { (k + 1).to_string() };
-    let xyz = |p: &str, a: &str| format!("COMPASS_{p}{sfx}_{a}");
-    [
-        xyz("OFS", "X"),
-        xyz("OFS", "Y"),
-        xyz("OFS", "Z"),
-        xyz("DIA", "X"),
-        xyz("DIA", "Y"),
-        xyz("DIA", "Z"),
-        xyz("ODI", "X"),
-        xyz("ODI", "Y"),
-        xyz("ODI", "Z"),
-        format!("COMPASS_SCALE{sfx}"),
-    ]
-}
-
-/// Whether `name` is one of the `COMPASS_` parameters this reader follows.
-fn followed(name: &str) -> bool {
-    let Some(rest) = name.strip_prefix("COMPASS_") else {
-        return false;
-    };
-    ["OFS", "DIA", "ODI", "SCALE"].iter().any(|p| {
-        rest.strip_prefix(p)
-            .is_some_and(|s| s.is_empty() || s.starts_with(['_', '2', '3']))
-    })
 }
 
 fn parse(chunks: &mut Chunks, shown: &str, selection: &Selection, budget: &mut Budget, log: &mut Parsed) -> Result<()> {
@@ -329,9 +259,7 @@ fn parse(chunks: &mut Chunks, shown: &str, selection: &Selection, budget: &mut B
         let known = w[..2] == MAGIC && types[usize::from(w[2])].is_some();
         if !known {
             let skip = resync(w, &types);
-            log.skipped_bytes += skip as u64;
-            log.skipped_places += u64::from(log.first_skip.is_none() || w[..2] == MAGIC || skip > 1);
-            log.first_skip.get_or_insert(offset);
+            log.skipped.skip(offset, skip);
             chunks.advance(skip);
             continue;
         }
@@ -528,21 +456,32 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
                 }
                 return Ok(());
             }
-            let inst = data.instances.entry(k).or_insert_with(|| Instance {
-                source: mag_source(
-                    &layout.name,
-                    instance.is_ok(),
-                    k,
-                    ofs.is_some(),
-                    mo.is_some(),
-                    *old_labels,
-                ),
-                ofs_integer: ofs.is_some_and(|o| Field::integer(o[0].kind)),
-                has_ofs: ofs.is_some(),
-                has_mo: mo.is_some(),
-                old_labels: *old_labels,
-                ..Instance::default()
-            });
+            let inst = &mut data
+                .instances
+                .entry(k)
+                .or_insert_with(|| Instance {
+                    source: mag_source(
+                        &layout.name,
+                        instance.is_ok(),
+                        k,
+                        ofs.is_some(),
+                        mo.is_some(),
+                        *old_labels,
+                    ),
+                    readings: Readings {
+                        ofs_integer: ofs.is_some_and(|o| Field::integer(o[0].kind)),
+                        has_ofs: ofs.is_some(),
+                        ofs_source: "MAG's OfsX..Z",
+                        mo_source: if mo.is_some() {
+                            "MO as logged".into()
+                        } else {
+                            "MO = 0 (not logged)".into()
+                        },
+                        mo_before_d: *old_labels,
+                        ..Readings::default()
+                    },
+                })
+                .readings;
             let t = time.get(p);
             let m = mag.map(|f| f.get_truncated(p));
             let (o, o_logged) = match ofs {
@@ -628,50 +567,21 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
     let Parsed {
         mut data,
         dropped,
-        skipped_bytes,
-        skipped_places,
-        first_skip,
+        skipped,
         truncated_at,
     } = parsed;
-    let mut instances: Vec<u8> = data
-        .instances
-        .keys()
-        .copied()
-        .chain(data.seen.iter().copied())
-        .collect();
-    instances.sort_unstable();
-    instances.dedup();
-    let k = match selection.instance {
-        Some(k) => k,
-        None => match instances.first() {
-            Some(&k) => k,
-            None => bail!("{shown}: no magnetometer readings (no MAG, MAG2 or MAG3 messages)"),
-        },
-    };
-    let Some(mut inst) = data.instances.remove(&k) else {
-        bail!(
-            "{shown}: --compass {k}: the log has no readings of magnetometer {k}; it has {}",
-            if instances.is_empty() {
-                "none".to_string()
-            } else {
-                list(&instances)
-            }
-        );
-    };
+    let instances_kept = std::mem::take(&mut data.instances);
+    let (instances, k, mut inst) = take_instance(instances_kept, &data.seen, selection, shown, "MAG, MAG2 or MAG3")?;
     let mut notes = Vec::new();
-    let undone = undo(&mut inst, k, &data.params, shown, &mut notes)?;
-    if let Some(at) = first_skip {
-        notes.push(format!(
-            "Skipped {skipped_bytes} bytes that are not messages, in {skipped_places} places from byte {at} on (damaged or partly written)."
-        ));
-    }
+    let undone = undo(&mut inst.readings, k, &data.params, shown, &mut notes)?;
+    notes.extend(skipped.note("messages"));
     if let Some(at) = truncated_at {
         notes.push(format!(
             "The last message, at byte {at}, is cut short (the log was not closed); it is ignored."
         ));
     }
     notes.extend(dropped.notes());
-    let mut messages = vec![inst.source.clone(), undone.params];
+    let mut messages = vec![inst.source.clone(), format!("PARM: {}", undone.params)];
     messages.extend(
         [data.att_source, data.bat_source, data.ctun_source]
             .into_iter()
@@ -684,7 +594,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         frame: "body (forward, right, down)".into(),
         instances,
         instance: k,
-        samples: inst.samples,
+        samples: inst.readings.samples,
         attitude: (!data.attitude.times.is_empty()).then_some(data.attitude),
         current: (!data.current.times.is_empty()).then_some(data.current),
         throttle: (!data.throttle.times.is_empty()).then_some(data.throttle),
@@ -694,228 +604,4 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         sha256,
         bytes,
     })
-}
-
-const IDENTITY: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-
-fn list(v: &[u8]) -> String {
-    v.iter().map(u8::to_string).collect::<Vec<_>>().join(", ")
-}
-
-/// The calibration undone, in words: for [`InForce::Undone`] and for the messages used.
-struct Undone {
-    words: String,
-    params: String,
-}
-
-/// The parameters in force at one reading (`None`: not in the log), in the order of
-/// [`param_names`].
-type InForceAt = [Option<f64>; 10];
-
-/// `D^-1` and `s` of the parameters in force.
-struct Inverse {
-    d_inv: Mat3,
-    s: f64,
-}
-
-/// Undoes, in place, the calibration in force at each reading of instance `k` (see the module
-/// docs).
-fn undo(
-    inst: &mut Instance,
-    k: u8,
-    params: &HashMap<String, Vec<(u64, f64)>>,
-    shown: &str,
-    notes: &mut Vec<String>,
-) -> Result<Undone> {
-    let names = param_names(k);
-    let sfx = if k == 0 { String::new() } else { (k + 1).to_string() };
-    let series: [Option<&Vec<(u64, f64)>>; 10] = std::array::from_fn(|i| params.get(&names[i]));
-    let mut cursor = [0usize; 10];
-    let mut last: Option<InForceAt> = None;
-    let mut inverse = Inverse {
-        d_inv: IDENTITY,
-        s: 1.0,
-    };
-    let (mut changes, mut from_mag, mut ofs_changes) = (0u64, 0u64, 0u64);
-    let mut first: Option<(InForceAt, [f64; 3])> = None;
-    let mut prev_logged: Option<[f64; 3]> = None;
-    for (sample, logged) in inst.samples.iter_mut().zip(&inst.logged) {
-        let v: InForceAt = std::array::from_fn(|i| {
-            series[i].map(|s| {
-                while cursor[i] + 1 < s.len() && s[cursor[i] + 1].0 < sample.offset {
-                    cursor[i] += 1;
-                }
-                s[cursor[i]].1
-            })
-        });
-        if last.as_ref().is_none_or(|l| !same(l, &v)) {
-            changes += u64::from(last.is_some());
-            inverse = invert(&v).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "{shown}: byte {}: COMPASS_DIA{sfx}_* = {} and COMPASS_ODI{sfx}_* = {} in force give a singular matrix: the readings cannot be undone",
-                    sample.offset,
-                    triple(&v[3..6], 1.0),
-                    triple(&v[6..9], 0.0)
-                )
-            })?;
-            last = Some(v);
-        }
-        let mut ofs = [0.0; 3];
-        let mut took_logged = false;
-        for c in 0..3 {
-            let lo = logged.ofs_logged[c];
-            ofs[c] = match v[c] {
-                Some(pv) if lo.is_nan() || ofs_matches(pv, lo, inst.ofs_integer) => pv,
-                _ if lo.is_nan() => 0.0,
-                _ => {
-                    took_logged = true;
-                    logged.ofs[c]
-                }
-            };
-        }
-        from_mag += u64::from(took_logged);
-        if inst.has_ofs {
-            ofs_changes += u64::from(prev_logged.is_some_and(|p| p != logged.ofs_logged));
-            prev_logged = Some(logged.ofs_logged);
-        }
-        first.get_or_insert((v, ofs));
-        let corrected = std::array::from_fn(|c| sample.raw[c] - logged.mo[c]);
-        let r = magcal_core::small::mat_vec(&inverse.d_inv, corrected);
-        sample.raw = std::array::from_fn(|c| r[c] / inverse.s - ofs[c]);
-        if !sample.raw.iter().all(|x| x.is_finite()) {
-            bail!(
-                "{shown}: byte {}: the reading with the calibration in force undone is not finite",
-                sample.offset
-            );
-        }
-    }
-    let (v0, ofs0) = first.unwrap_or(([None; 10], [0.0; 3]));
-    undo_notes(&v0, &sfx, inst, (changes, from_mag, ofs_changes), notes);
-    let scale = match v0[9] {
-        Some(s) if applied(s) => format!("COMPASS_SCALE{sfx} = {} (s)", show(s)),
-        Some(s) => format!("COMPASS_SCALE{sfx} = {} (not applied: s = 1)", show(s)),
-        None => "no COMPASS_SCALE (s = 1)".into(),
-    };
-    let ofs_source = if v0[..3].iter().all(Option::is_some) {
-        "PARM"
-    } else {
-        "MAG"
-    };
-    let words = format!(
-        "r = D^-1 (m - MO) / s - OFS (ArduPilot's correct_field undone), with at the first reading COMPASS_OFS{sfx} = {} ({ofs_source}), COMPASS_DIA{sfx} = {}, COMPASS_ODI{sfx} = {}, {scale}, MO as logged; the parameters changed {changes} times and the logged offsets {ofs_changes} times during the readings",
-        triple(&ofs0.map(Some), 0.0),
-        triple(&v0[3..6], 1.0),
-        triple(&v0[6..9], 0.0),
-    );
-    let params = format!("PARM: COMPASS_OFS{sfx}_*, COMPASS_DIA{sfx}_*, COMPASS_ODI{sfx}_*, COMPASS_SCALE{sfx}");
-    Ok(Undone { words, params })
-}
-
-/// Whether two sets of parameters in force are the same, bit for bit.
-fn same(a: &InForceAt, b: &InForceAt) -> bool {
-    a.iter().zip(b).all(|(x, y)| x.map(f64::to_bits) == y.map(f64::to_bits))
-}
-
-/// Whether ArduPilot applies a `COMPASS_SCALE` of `s`.
-fn applied(s: f64) -> bool {
-    (SCALE_RANGE.0..=SCALE_RANGE.1).contains(&s)
-}
-
-/// Whether the `COMPASS_OFS` parameter `pv` is what the log's `Ofs` field shows as `lo`: its
-/// truncation for an integer field, its `float` for a float field.
-fn ofs_matches(pv: f64, lo: f64, integer: bool) -> bool {
-    if integer {
-        pv.trunc() == lo
-    } else {
-        (pv as f32) == (lo as f32)
-    }
-}
-
-/// `D^-1` and `s` of the parameters `v` (missing ones at ArduPilot's defaults); `None` when `D` is
-/// singular.
-fn invert(v: &InForceAt) -> Option<Inverse> {
-    let mut dia = [0, 1, 2].map(|c| v[3 + c].unwrap_or(1.0));
-    if dia == [0.0; 3] {
-        // correct_field: diagonals of zero are taken as 1.
-        dia = [1.0; 3];
-    }
-    let odi = [0, 1, 2].map(|c| v[6 + c].unwrap_or(0.0));
-    let d = [
-        [dia[0], odi[0], odi[1]],
-        [odi[0], dia[1], odi[2]],
-        [odi[1], odi[2], dia[2]],
-    ];
-    let s = v[9].filter(|&s| applied(s)).unwrap_or(1.0);
-    Some(Inverse {
-        d_inv: inverse3(&d)?,
-        s,
-    })
-}
-
-/// The inverse of `a` by its adjugate; `None` when `a` is singular to working precision.
-fn inverse3(a: &Mat3) -> Option<Mat3> {
-    let cof = |i: usize, j: usize| {
-        let (r0, r1) = ((i + 1) % 3, (i + 2) % 3);
-        let (c0, c1) = ((j + 1) % 3, (j + 2) % 3);
-        a[r0][c0] * a[r1][c1] - a[r0][c1] * a[r1][c0]
-    };
-    let det: f64 = (0..3).map(|j| a[0][j] * cof(0, j)).sum();
-    let scale = a.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
-    if !det.is_finite() || det.abs() <= 64.0 * f64::EPSILON * scale.powi(3) {
-        return None;
-    }
-    Some(std::array::from_fn(|i| std::array::from_fn(|j| cof(j, i) / det)))
-}
-
-/// `(x, y, z)` of parameters, `default` for missing ones.
-fn triple(v: &[Option<f64>], default: f64) -> String {
-    let s: Vec<String> = v.iter().map(|x| show(x.unwrap_or(default))).collect();
-    format!("({})", s.join(", "))
-}
-
-/// The notes on the calibration undone: parameters missing or not applied, offsets taken from
-/// the readings, changes.
-fn undo_notes(v0: &InForceAt, sfx: &str, inst: &Instance, counts: (u64, u64, u64), notes: &mut Vec<String>) {
-    let (changes, from_mag, ofs_changes) = counts;
-    if v0[3..9].iter().all(Option::is_none) {
-        notes.push(format!(
-            "The log has no PARM COMPASS_DIA{sfx}_* or COMPASS_ODI{sfx}_*: DIA = 1 and ODI = 0 were assumed."
-        ));
-    }
-    if let Some(s) = v0[9].filter(|&s| s != 0.0 && !applied(s)) {
-        notes.push(format!(
-            "COMPASS_SCALE{sfx} = {} lies outside {}..{}, where ArduPilot does not apply it: s = 1.",
-            show(s),
-            show(SCALE_RANGE.0),
-            show(SCALE_RANGE.1)
-        ));
-    }
-    if v0[..3].iter().any(Option::is_none) {
-        notes.push(if inst.has_ofs {
-            format!("The log has no PARM COMPASS_OFS{sfx}_*: the offsets are MAG's OfsX..Z (whole mGauss, the middle of their truncation).")
-        } else {
-            format!("The log has neither PARM COMPASS_OFS{sfx}_* nor offsets in MAG: offsets of 0 were assumed.")
-        });
-    } else if from_mag > 0 {
-        notes.push(format!(
-            "{from_mag} readings logged offsets that differ from COMPASS_OFS{sfx}_* in force (offsets learnt in flight, or changes not logged): their offsets are MAG's OfsX..Z."
-        ));
-    }
-    if changes > 0 {
-        notes.push(format!(
-            "The calibration parameters changed {changes} times during the readings; each reading was undone with the values in force at it."
-        ));
-    }
-    if ofs_changes > 0 {
-        notes.push(format!(
-            "MAG's logged offsets changed {ofs_changes} times during the readings."
-        ));
-    }
-    let d_identity =
-        v0[3..6].iter().all(|x| x.is_none_or(|x| x == 1.0)) && v0[6..9].iter().all(|x| x.is_none_or(|x| x == 0.0));
-    if inst.old_labels && inst.has_mo && inst.logged.iter().any(|l| l.mo != [0.0; 3]) && !d_identity {
-        notes.push(
-            "This log's MAG has MOfsX..Z (older firmware, which may have added the motor compensation before D): where it did, the readings are off by (D - I) MO.".into(),
-        );
-    }
 }

@@ -4,6 +4,7 @@
 //! ([`vehicle`]). The site, date and units
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
+pub mod ardupilot;
 pub mod binary;
 pub mod calibration;
 pub mod dataflash;
@@ -12,5 +13,6 @@ pub mod flight;
 pub mod flown;
 pub mod read;
 pub mod source;
+pub mod tlog;
 pub mod ulog;
 pub mod vehicle;

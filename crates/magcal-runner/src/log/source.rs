@@ -280,8 +280,9 @@ type Reader = fn(&Path, &Selection) -> Result<FlightLog>;
 fn reader(format: Format) -> Result<Reader> {
     match format {
         Format::DataFlash => Ok(super::dataflash::read),
+        Format::Tlog => Ok(super::tlog::read),
         Format::Ulog => Ok(super::ulog::read),
-        _ => bail!("{} logs cannot be read yet", format.name()),
+        Format::Csv => bail!("a CSV log has no flight log reader"),
     }
 }
 

@@ -17,5 +17,6 @@ mod log_outputs;
 mod motor;
 mod reference;
 mod result_set;
+mod tlog;
 mod ulog;
 mod verdict;
