@@ -433,83 +433,7 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
                 }
             }
         }
-        Role::Mag {
-            time,
-            instance,
-            mag,
-            ofs,
-            mo,
-            old_labels,
-        } => {
-            let k = match instance {
-                Ok(f) => f.get(p),
-                Err(k) => f64::from(*k),
-            };
-            if !(0.0..=255.0).contains(&k) || k.fract() != 0.0 {
-                *at.dropped.not_finite.entry("MAG").or_default() += 1;
-                return Ok(());
-            }
-            let k = k as u8;
-            if selection.instance.is_some_and(|want| want != k) {
-                if !data.seen.contains(&k) {
-                    data.seen.push(k);
-                }
-                return Ok(());
-            }
-            let inst = &mut data
-                .instances
-                .entry(k)
-                .or_insert_with(|| Instance {
-                    source: mag_source(
-                        &layout.name,
-                        instance.is_ok(),
-                        k,
-                        ofs.is_some(),
-                        mo.is_some(),
-                        *old_labels,
-                    ),
-                    readings: Readings {
-                        ofs_integer: ofs.is_some_and(|o| Field::integer(o[0].kind)),
-                        has_ofs: ofs.is_some(),
-                        ofs_source: "MAG's OfsX..Z",
-                        mo_source: if mo.is_some() {
-                            "MO as logged".into()
-                        } else {
-                            "MO = 0 (not logged)".into()
-                        },
-                        mo_before_d: *old_labels,
-                        ..Readings::default()
-                    },
-                })
-                .readings;
-            let t = time.get(p);
-            let m = mag.map(|f| f.get_truncated(p));
-            let (o, o_logged) = match ofs {
-                Some(f) => (f.map(|f| f.get_truncated(p)), f.map(|f| f.get(p))),
-                None => ([f64::NAN; 3], [f64::NAN; 3]),
-            };
-            let mo = mo.map_or([0.0; 3], |f| f.map(|f| f.get_truncated(p)));
-            let finite =
-                m.iter().chain(&mo).all(|v| v.is_finite()) && (ofs.is_none() || o.iter().all(|v| v.is_finite()));
-            if !finite || !t.is_finite() {
-                *at.dropped.not_finite.entry("MAG").or_default() += 1;
-            } else if !in_order(inst.samples.last().map(|s| s.time_s), t) {
-                *at.dropped.out_of_order.entry("MAG").or_default() += 1;
-            } else {
-                let sample = Sample {
-                    time_s: t,
-                    raw: m,
-                    offset: at.offset,
-                };
-                at.budget.push(&mut inst.samples, sample, at.shown, at.offset)?;
-                let logged = Logged {
-                    ofs: o,
-                    ofs_logged: o_logged,
-                    mo,
-                };
-                at.budget.push(&mut inst.logged, logged, at.shown, at.offset)?;
-            }
-        }
+        Role::Mag { .. } => take_mag(layout, p, selection, at, data)?,
         Role::Att { time, rpy } => {
             data.att_source
                 .get_or_insert_with(|| "ATT: Roll, Pitch, Yaw (degrees)".into());
@@ -538,6 +462,91 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
             at.push_series(&mut data.throttle, time.get(p), v, v.is_finite(), "CTUN")?;
         }
     }
+    Ok(())
+}
+
+/// Takes a magnetometer reading (`MAG`, `MAG2`, `MAG3`) of the instance asked for, with the
+/// offsets and motor term logged beside it.
+fn take_mag(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mut Data) -> Result<()> {
+    let Role::Mag {
+        time,
+        instance,
+        mag,
+        ofs,
+        mo,
+        old_labels,
+    } = &layout.role
+    else {
+        return Ok(());
+    };
+    let k = match instance {
+        Ok(f) => f.get(p),
+        Err(k) => f64::from(*k),
+    };
+    if !(0.0..=255.0).contains(&k) || k.fract() != 0.0 {
+        *at.dropped.not_finite.entry("MAG").or_default() += 1;
+        return Ok(());
+    }
+    let k = k as u8;
+    if selection.instance.is_some_and(|want| want != k) {
+        if !data.seen.contains(&k) {
+            data.seen.push(k);
+        }
+        return Ok(());
+    }
+    let inst = &mut data
+        .instances
+        .entry(k)
+        .or_insert_with(|| Instance {
+            source: mag_source(
+                &layout.name,
+                instance.is_ok(),
+                k,
+                ofs.is_some(),
+                mo.is_some(),
+                *old_labels,
+            ),
+            readings: Readings {
+                ofs_integer: ofs.is_some_and(|o| Field::integer(o[0].kind)),
+                has_ofs: ofs.is_some(),
+                ofs_source: "MAG's OfsX..Z",
+                mo_source: if mo.is_some() {
+                    "MO as logged".into()
+                } else {
+                    "MO = 0 (not logged)".into()
+                },
+                mo_before_d: *old_labels,
+                ..Readings::default()
+            },
+        })
+        .readings;
+    let t = time.get(p);
+    let m = mag.map(|f| f.get_truncated(p));
+    let (o, o_logged) = match ofs {
+        Some(f) => (f.map(|f| f.get_truncated(p)), f.map(|f| f.get(p))),
+        None => ([f64::NAN; 3], [f64::NAN; 3]),
+    };
+    let mo = mo.map_or([0.0; 3], |f| f.map(|f| f.get_truncated(p)));
+    let finite = m.iter().chain(&mo).all(|v| v.is_finite()) && (ofs.is_none() || o.iter().all(|v| v.is_finite()));
+    if !finite || !t.is_finite() {
+        *at.dropped.not_finite.entry("MAG").or_default() += 1;
+    } else if !in_order(inst.samples.last().map(|s| s.time_s), t) {
+        *at.dropped.out_of_order.entry("MAG").or_default() += 1;
+    } else {
+        let sample = Sample {
+            time_s: t,
+            raw: m,
+            offset: at.offset,
+        };
+        at.budget.push(&mut inst.samples, sample, at.shown, at.offset)?;
+        let logged = Logged {
+            ofs: o,
+            ofs_logged: o_logged,
+            mo,
+        };
+        at.budget.push(&mut inst.logged, logged, at.shown, at.offset)?;
+    }
+
     Ok(())
 }
 

@@ -324,46 +324,26 @@ fn take(
             return Ok(());
         }
     };
+    let imu = match &msg {
+        MavMessage::RAW_IMU(d) => Some((0, "RAW_IMU", d.time_usec as f64 * 1e-6, [d.xmag, d.ymag, d.zmag])),
+        MavMessage::SCALED_IMU2(d) => Some((
+            1,
+            "SCALED_IMU2",
+            f64::from(d.time_boot_ms) * 1e-3,
+            [d.xmag, d.ymag, d.zmag],
+        )),
+        MavMessage::SCALED_IMU3(d) => Some((
+            2,
+            "SCALED_IMU3",
+            f64::from(d.time_boot_ms) * 1e-3,
+            [d.xmag, d.ymag, d.zmag],
+        )),
+        _ => None,
+    };
+    if let Some((k, name, t, xyz)) = imu {
+        return mag(data, at, selection, k, name, t, m.received, xyz);
+    }
     match msg {
-        MavMessage::RAW_IMU(d) => {
-            let t = d.time_usec as f64 * 1e-6;
-            mag(
-                data,
-                at,
-                selection,
-                0,
-                "RAW_IMU",
-                t,
-                m.received,
-                [d.xmag, d.ymag, d.zmag],
-            )?;
-        }
-        MavMessage::SCALED_IMU2(d) => {
-            let t = f64::from(d.time_boot_ms) * 1e-3;
-            mag(
-                data,
-                at,
-                selection,
-                1,
-                "SCALED_IMU2",
-                t,
-                m.received,
-                [d.xmag, d.ymag, d.zmag],
-            )?;
-        }
-        MavMessage::SCALED_IMU3(d) => {
-            let t = f64::from(d.time_boot_ms) * 1e-3;
-            mag(
-                data,
-                at,
-                selection,
-                2,
-                "SCALED_IMU3",
-                t,
-                m.received,
-                [d.xmag, d.ymag, d.zmag],
-            )?;
-        }
         // Deprecated in the dialect since 2022; older ArduPilot firmware sends it, and it is the
         // only message with the offsets in force.
         #[allow(deprecated)]
