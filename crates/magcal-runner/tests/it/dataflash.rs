@@ -306,9 +306,16 @@ struct Truth {
 /// A log of `n` readings in ArduPilot's layout, with `MagX..` of format `mag_kind` (`h` as
 /// ArduPilot writes them, or `f`), the calibration changed half-way.
 fn synthetic(n: usize, mag_kind: char, seed: u64) -> (Writer, Truth) {
-    let k: M3 = [[1.08, 0.03, -0.02], [0.0, 0.95, 0.04], [0.0, 0.0, 1.02]];
-    let o = [35.0, -60.0, 120.0];
-    let field_ned = [180.0, -20.0, 420.0];
+    synthetic_in(n, mag_kind, seed, [180.0, -20.0, 420.0])
+}
+
+/// The true sensor of [`synthetic`]: `raw = K b + O`, mGauss.
+const TRUE_K: M3 = [[1.08, 0.03, -0.02], [0.0, 0.95, 0.04], [0.0, 0.0, 1.02]];
+const TRUE_O: [f64; 3] = [35.0, -60.0, 120.0];
+
+/// [`synthetic`] in the field `field_ned` (mGauss).
+fn synthetic_in(n: usize, mag_kind: char, seed: u64, field_ned: [f64; 3]) -> (Writer, Truth) {
+    let (k, o) = (TRUE_K, TRUE_O);
     let cals = [
         OldCal {
             ofs: [-40.25, 61.5, -118.75],
@@ -701,4 +708,91 @@ fn a_log_larger_than_the_budget_is_refused_before_it_is_read_whole() {
         "refused at byte {at} of {}",
         w.bytes.len()
     );
+}
+
+#[test]
+fn a_log_under_an_old_calibration_calibrated_and_exported_gives_the_wmm_field_by_ardupilots_formula() {
+    use magcal_core::wmm::{Model, Site, field_ned};
+    // The WMM field at Zurich in mid-2026, in mGauss; MAG written under two old calibrations.
+    let site = Site {
+        lat_deg: 47.4,
+        lon_deg: 8.5,
+        alt_m: 400.0,
+        year: 2026.5,
+    };
+    let field = field_ned(Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
+    let r = field.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (w, truth) = synthetic_in(2000, 'h', 17, field);
+    let tmp = TempDir::new().unwrap();
+    let log = w.save(tmp.path(), "old.bin");
+    let out = crate::common::magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--site", "47.4,8.5,400", "--date", "2026.5", "--out"])
+        .arg(tmp.path().join("cal"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let cal: magcal_runner::log::calibration::CalibrationJson =
+        serde_json::from_slice(&std::fs::read(tmp.path().join("cal/calibration.json")).unwrap()).unwrap();
+    assert_eq!(cal.units.as_deref(), Some("mG"));
+    assert!((cal.magnitude - r).abs() < 1e-9 * r, "{} vs {r}", cal.magnitude);
+    // The true sensor, not the old calibrations: [P1]'s parameters within 4 standard errors.
+    let t = magcal_core::ErrorModel::from_k(&TRUE_K, TRUE_O);
+    let se = &cal.std_error;
+    for i in 0..3 {
+        assert!(
+            (cal.bias[i] - TRUE_O[i]).abs() <= 4.0 * se.bias.unwrap()[i],
+            "{:?}",
+            cal.bias
+        );
+        assert!(
+            (cal.scale[i] - t.scale()[i]).abs() <= 4.0 * se.scale.unwrap()[i],
+            "{:?}",
+            cal.scale
+        );
+        assert!(
+            (cal.psi_deg[i] - t.psi_deg()[i]).abs() <= 4.0 * se.psi_deg.unwrap()[i],
+            "{:?}",
+            cal.psi_deg
+        );
+    }
+    // The parameters ArduPilot takes, applied by its formula (AP_Compass_Backend::correct_field:
+    // m = D s (r + OFS)) to the true raw readings: |m| is the WMM magnitude to within the noise
+    // (the int16 logging's, about 0.3 mGauss a component).
+    let out = crate::common::magcal()
+        .arg("export")
+        .arg(tmp.path().join("cal/calibration.json"))
+        .args(["--to", "ardupilot"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let param = |name: &str| -> f64 {
+        text.lines()
+            .find_map(|l| l.strip_prefix(&format!("{name},")))
+            .unwrap_or_else(|| panic!("{name}: {text}"))
+            .trim()
+            .parse()
+            .unwrap()
+    };
+    let ofs = ["X", "Y", "Z"].map(|a| param(&format!("COMPASS_OFS_{a}")));
+    let dia = ["X", "Y", "Z"].map(|a| param(&format!("COMPASS_DIA_{a}")));
+    let odi = ["X", "Y", "Z"].map(|a| param(&format!("COMPASS_ODI_{a}")));
+    let s = param("COMPASS_SCALE");
+    let d: M3 = [
+        [dia[0], odi[0], odi[1]],
+        [odi[0], dia[1], odi[2]],
+        [odi[1], odi[2], dia[2]],
+    ];
+    let noise = cal.noise.unwrap();
+    let mut sum = 0.0;
+    for raw in &truth.raw {
+        let m = mv(&d, std::array::from_fn(|c| s * (raw[c] + ofs[c])));
+        let e = m.iter().map(|v| v * v).sum::<f64>().sqrt() - r;
+        sum += e * e;
+    }
+    let rms = (sum / truth.raw.len() as f64).sqrt();
+    assert!(noise < 1.0, "{noise}");
+    assert!(rms < noise, "|m| - R rms {rms} mGauss, noise {noise}");
 }
