@@ -740,12 +740,8 @@ fn a_log_under_an_old_calibration_calibrated_and_exported_gives_the_wmm_field_by
     // The true sensor, not the old calibrations: [P1]'s parameters within 4 standard errors.
     let t = magcal_core::ErrorModel::from_k(&TRUE_K, TRUE_O);
     let se = &cal.std_error;
-    for i in 0..3 {
-        assert!(
-            (cal.bias[i] - TRUE_O[i]).abs() <= 4.0 * se.bias.unwrap()[i],
-            "{:?}",
-            cal.bias
-        );
+    for (i, o) in TRUE_O.iter().enumerate() {
+        assert!((cal.bias[i] - o).abs() <= 4.0 * se.bias.unwrap()[i], "{:?}", cal.bias);
         assert!(
             (cal.scale[i] - t.scale()[i]).abs() <= 4.0 * se.scale.unwrap()[i],
             "{:?}",
