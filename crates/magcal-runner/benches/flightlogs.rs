@@ -3,6 +3,9 @@
 //! writes one, `IMU` at 400 Hz for two IMUs making most of its bytes, `MAG` x3, `ATT`, `BAT`,
 //! `CTUN` at 100 Hz, parameters at the start.
 //!
+//! Then the whole process on it, `magcal calibrate big.bin --json` (read, fit, JSON), with its
+//! peak resident memory (the children's `ru_maxrss`).
+//!
 //! `cargo bench -p magcal-runner --bench flightlogs`
 
 use std::path::Path;
@@ -87,8 +90,14 @@ fn generate(path: &Path) {
                 out.extend([0xA3, 0x95, 0x82]);
                 out.extend(t.to_le_bytes());
                 out.push(k);
-                let phase = (i as f64) * 1e-3;
-                for v in [250.0 * phase.cos(), 250.0 * phase.sin(), -420.0] {
+                // The field turning through every direction, on an ellipsoid: a log the full
+                // model calibrates.
+                let (a, b) = ((i as f64) * 1e-3, (i as f64) * 3.7e-4);
+                for v in [
+                    480.0 * b.cos() * a.cos() + 30.0,
+                    450.0 * b.cos() * a.sin() - 20.0,
+                    430.0 * b.sin() + 60.0,
+                ] {
                     out.extend((v as i16).to_le_bytes());
                 }
                 for v in [-40i16, 61, -118, 0, 0, 0] {
@@ -143,7 +152,34 @@ fn flightlogs(c: &mut Criterion) {
     group.bench_function("read_100MB_compass_0", |b| {
         b.iter(|| dataflash::read(&path, &one).unwrap())
     });
+    group.bench_function("calibrate_100MB_process", |b| {
+        b.iter(|| {
+            let out = std::process::Command::new(env!("CARGO_BIN_EXE_magcal"))
+                .arg("calibrate")
+                .arg(&path)
+                .arg("--json")
+                .output()
+                .unwrap();
+            let code = out.status.code();
+            assert!(
+                code == Some(0) || code == Some(3),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        })
+    });
     group.finish();
+    // SAFETY: getrusage writes the struct it is given.
+    let rss_kib = unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_CHILDREN, &mut u);
+        u.ru_maxrss
+    };
+    eprintln!(
+        "calibrate on {} bytes: peak resident memory {} MiB",
+        log.bytes,
+        rss_kib / 1024
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
