@@ -81,8 +81,9 @@ pub struct CalibrateArgs {
     /// The date of the log: `YYYY-MM-DD` or a decimal year (with `--site`).
     #[arg(long, requires = "site", value_name = "DATE")]
     pub date: Option<Date>,
-    /// The log's units (with `--site`).
-    #[arg(long, value_enum, requires = "site")]
+    /// The log's units: recorded in the calibration (for `export`), and with `--site` they give
+    /// the WMM magnitude. A flight log's format fixes them (mG for ArduPilot, G for PX4).
+    #[arg(long, value_enum)]
     pub units: Option<Units>,
     /// The model (default: the newest whose five-year window holds the date): WMM2010, WMM2015,
     /// WMM2015v2, WMM2020, WMM2025.
