@@ -332,8 +332,12 @@ fn the_heading_against_broad_attitudes_reproduces_the_check_values_through_the_c
             "qw,qx,qy,qz",
             "--attitude-frame",
             "enu",
+            "--units",
+            "uT",
         ],
     );
+    // Units without a site are recorded, for export.
+    assert_eq!(c.units.as_deref(), Some("uT"));
     let h = c.heading_vs_log.unwrap();
     assert_eq!(h.readings, 32_280);
     let raw = h.uncalibrated.unwrap();

@@ -377,7 +377,6 @@ fn site_date_units_and_box_flags_are_typed_at_the_edge() {
             cal(&["--site", "1,2", "--date", "2013.0", "--units", "furlongs"]),
             vec!["'--units", "furlongs"],
         ),
-        (cal(&["--units", "G"]), vec!["--site"]),
         (cal(&["--date", "2013.0"]), vec!["--site"]),
         (cal(&["--wmm", "WMM2010"]), vec!["--site"]),
         (cal(&["--site", "1,2", "--units", "G"]), vec!["--date"]),
