@@ -14,16 +14,8 @@ use crate::common::magcal;
 /// forward-left-up into east-north-up) computed here by quaternion products, independently of
 /// the rotation matrices the reader uses; with the scenario's path.
 fn usv_log(dir: &Path) -> (PathBuf, PathBuf) {
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/usv.toml");
     let log = dir.join("usv.csv");
-    let out = magcal()
-        .arg("simulate")
-        .arg(&scenario)
-        .args(["--design", "plan300", "--out"])
-        .arg(&log)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (scenario, _) = crate::common::simulate("usv", "plan300", &log);
     let text = std::fs::read_to_string(&log).unwrap();
     let mut lines = text.lines();
     let header = lines.next().unwrap();
@@ -68,20 +60,10 @@ fn enu_quaternion(roll: f64, pitch: f64, heading: f64) -> [f64; 4] {
 }
 
 fn calibrate_json(log: &Path, args: &[&str]) -> CalibrationJson {
-    let out = magcal()
-        .arg("calibrate")
-        .arg(log)
-        .args(args)
-        .arg("--json")
-        .output()
-        .unwrap();
+    let (code, json, stderr) = crate::common::calibrate_json(log, args);
     // The USV's plan leaves the up axis's scale and bias confounded (exit 3, the JSON written).
-    assert!(
-        matches!(out.status.code(), Some(0 | 3)),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+    assert!(matches!(code, Some(0 | 3)), "{stderr}");
+    json
 }
 
 #[test]

@@ -488,17 +488,9 @@ fn reject_drops_outliers_and_counts_them() {
 /// `magcal simulate scenarios/NAME.toml --design DESIGN` into `dir/NAME.csv`: the scenario's path,
 /// the log's, and the field magnitude simulate reports (nT).
 fn simulated(dir: &Path, name: &str, design: &str) -> (PathBuf, PathBuf, f64) {
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../scenarios/{name}.toml"));
     let log = dir.join(format!("{name}.csv"));
-    let out = magcal()
-        .arg("simulate")
-        .arg(&scenario)
-        .args(["--design", design, "--out"])
-        .arg(&log)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let magnitude = String::from_utf8_lossy(&out.stderr)
+    let (scenario, stderr) = crate::common::simulate(name, design, &log);
+    let magnitude = stderr
         .split("--magnitude ")
         .nth(1)
         .and_then(|v| v.trim_end_matches(|c: char| c == ')' || c.is_whitespace()).parse().ok())

@@ -165,3 +165,36 @@ pub fn edited(cal: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value))
     fs::write(&path, serde_json::to_vec_pretty(&j).unwrap()).unwrap();
     path
 }
+
+/// `magcal calibrate LOG ARGS --json`: the exit code, the JSON printed and stderr.
+pub fn calibrate_json(
+    log: &Path,
+    args: &[&str],
+) -> (Option<i32>, magcal_runner::log::calibration::CalibrationJson, String) {
+    let out = magcal()
+        .arg("calibrate")
+        .arg(log)
+        .args(args)
+        .arg("--json")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    let json = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"));
+    (out.status.code(), json, stderr)
+}
+
+/// `magcal simulate scenarios/NAME.toml --design DESIGN --out OUT`: the scenario's path and
+/// stderr.
+pub fn simulate(name: &str, design: &str, out: &Path) -> (PathBuf, String) {
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("../../scenarios/{name}.toml"));
+    let o = magcal()
+        .arg("simulate")
+        .arg(&scenario)
+        .args(["--design", design, "--out"])
+        .arg(out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{stderr}");
+    (scenario, stderr)
+}

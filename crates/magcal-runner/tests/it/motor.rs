@@ -4,11 +4,10 @@
 use std::path::Path;
 
 use magcal_core::rng::stream_rng;
-use magcal_runner::log::calibration::CalibrationJson;
 use rand::RngExt;
 use tempfile::TempDir;
 
-use crate::common::{data, magcal};
+use crate::common::{calibrate_json, data, magcal};
 
 /// The ck-explorer log (Gauss) with a battery current column: a random walk over 0 to 30 A, and
 /// `d * current` added to the readings.
@@ -34,32 +33,11 @@ fn with_current(dir: &Path, d: [f64; 3]) -> Option<std::path::PathBuf> {
     Some(log)
 }
 
-fn calibrate(log: &Path, args: &[&str]) -> (Option<i32>, CalibrationJson, String) {
-    let out = magcal()
-        .arg("calibrate")
-        .arg(log)
-        .args(args)
-        .arg("--json")
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    let json = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"));
-    (out.status.code(), json, stderr)
-}
-
 /// `magcal simulate` of the 300 random attitudes of scenarios/plan300.toml (the paper's sensor,
 /// 30 nT of noise) with a current column as [`with_current`] makes it and `d * current` added.
 fn simulated_with_current(dir: &Path, d: [f64; 3]) -> std::path::PathBuf {
-    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/plan300.toml");
     let sim = dir.join("sim.csv");
-    let out = magcal()
-        .arg("simulate")
-        .arg(&scenario)
-        .args(["--design", "random300", "--out"])
-        .arg(&sim)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    crate::common::simulate("plan300", "random300", &sim);
     let text = std::fs::read_to_string(&sim).unwrap();
     let mut rng = stream_rng(22, 0);
     let mut current: f64 = 10.0;
@@ -81,7 +59,7 @@ fn a_known_interference_is_recovered_within_its_standard_errors() {
     // 20, -10 and 30 nT per ampere: up to 900 nT at 30 A, against 30 nT of noise.
     let d = [20.0, -10.0, 30.0];
     let log = simulated_with_current(tmp.path(), d);
-    let (code, fitted, stderr) = calibrate(&log, &["--current", "current", "--motor", "current"]);
+    let (code, fitted, stderr) = calibrate_json(&log, &["--current", "current", "--motor", "current"]);
     assert_eq!(code, Some(0), "{stderr}");
     let m = fitted.motor.as_ref().unwrap();
     assert_eq!(m.input, "current");
@@ -104,7 +82,7 @@ fn a_known_interference_is_recovered_within_its_standard_errors() {
         );
     }
     // Without --motor the interference goes into the residuals: several times the noise.
-    let (_, plain, _) = calibrate(&log, &["--current", "current"]);
+    let (_, plain, _) = calibrate_json(&log, &["--current", "current"]);
     assert!(
         plain.residual_rms > 3.0 * fitted.residual_rms,
         "{} vs {}",
@@ -123,7 +101,7 @@ fn on_a_real_log_a_known_interference_is_recovered_to_a_few_percent() {
     let Some(log) = with_current(tmp.path(), d) else {
         return;
     };
-    let (code, fitted, stderr) = calibrate(&log, &["--current", "current", "--motor", "current"]);
+    let (code, fitted, stderr) = calibrate_json(&log, &["--current", "current", "--motor", "current"]);
     assert_eq!(code, Some(0), "{stderr}");
     let m = fitted.motor.unwrap();
     for i in 0..3 {
@@ -132,7 +110,7 @@ fn on_a_real_log_a_known_interference_is_recovered_to_a_few_percent() {
     // A log without an interference: |d| below 2e-4 G/A, 6 mG over the 30 A range, about the
     // log's own residual scatter (1.3 % of its 0.5 G field).
     let clean = with_current(tmp.path(), [0.0; 3]).unwrap();
-    let (_, none, stderr) = calibrate(&clean, &["--current", "current", "--motor", "current"]);
+    let (_, none, stderr) = calibrate_json(&clean, &["--current", "current", "--motor", "current"]);
     let m = none.motor.unwrap_or_else(|| panic!("{stderr}"));
     assert!(m.per_unit.iter().all(|v| v.abs() < 2e-4), "{:?}", m.per_unit);
 }
