@@ -193,15 +193,42 @@ fn export_inner(args: &ExportArgs) -> Result<CalibrationJson> {
     out.check(&inputs)?;
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
-    let units = log_units(args, &cal, &shown)?;
-    let instance = instance(args, &cal, &shown)?;
+    let converted = convert(args, &cal, &shown)?;
+    let made = render(args, &cal, &shown, &converted)?;
+    if args.strict {
+        refuse_strict(args, &cal, &shown, &made.problems)?;
+    }
+    out.write(&inputs, |w| Ok(w.write_all(&made.text)?))?;
+    to_stderr!("magcal: note: {}", made.keep);
+    for note in &made.notes {
+        to_stderr!("magcal: note: {note}");
+    }
+    for problem in &made.problems {
+        to_stderr!("magcal: warning: {problem}");
+    }
+    Ok(cal)
+}
+
+/// The calibration in the target's unit, and the instance its parameters are for.
+struct Converted {
+    calibration: Calibration,
+    /// The unit's name, or "the log's units" where neither the file nor `--units` names it.
+    unit_label: String,
+    instance: u8,
+}
+
+/// Checks the calibration's units, instance and motor interference against the target, and
+/// converts it to the target's unit (where the target has one), its field quantities finite.
+fn convert(args: &ExportArgs, cal: &CalibrationJson, shown: &str) -> Result<Converted> {
+    let units = log_units(args, cal, shown)?;
+    let instance = instance(args, cal, shown)?;
     let in_log = Calibration {
         bias: cal.bias,
         matrix: cal.soft_iron_inverse,
         magnitude: cal.magnitude,
-        motor: motor(&cal, &shown)?,
+        motor: motor(cal, shown)?,
     };
-    let (converted, unit_label) = match (args.to.unit(), units) {
+    let (calibration, unit_label) = match (args.to.unit(), units) {
         (Some(to), Some(from)) => (in_log.scaled(from.nt() / to.nt()), unit_name(to).to_string()),
         (Some(to), None) => bail!(
             "{shown}: field units is null (made without --units), and {} takes {}: give --units nT|uT|mG|G, the units of the log it was made from",
@@ -211,10 +238,10 @@ fn export_inner(args: &ExportArgs) -> Result<CalibrationJson> {
         (None, Some(from)) => (in_log, unit_name(from).to_string()),
         (None, None) => (in_log, "the log's units".to_string()),
     };
-    if !converted
+    if !calibration
         .bias
         .iter()
-        .chain([&converted.magnitude])
+        .chain([&calibration.magnitude])
         .all(|v| v.is_finite())
     {
         bail!(
@@ -223,65 +250,41 @@ fn export_inner(args: &ExportArgs) -> Result<CalibrationJson> {
             cal.magnitude
         );
     }
-    let (frame_warnings, mut notes) = frame_check(args.to, &cal);
+    Ok(Converted {
+        calibration,
+        unit_label,
+        instance,
+    })
+}
+
+/// The export made whole before anything is written, and what to say on stderr.
+struct Made {
+    text: Vec<u8>,
+    /// What the export keeps ([`keeps`]).
+    keep: String,
+    notes: Vec<String>,
+    /// The range warnings, then the frame warnings.
+    problems: Vec<String>,
+}
+
+/// The target's text with its header, its notes, and its warnings.
+fn render(args: &ExportArgs, cal: &CalibrationJson, shown: &str, converted: &Converted) -> Result<Made> {
+    let (frame_warnings, mut notes) = frame_check(args.to, cal);
     let keep = keeps(args.to, fmt::rotation_deg(&cal.soft_iron_inverse, &cal.k));
-    let mut header = vec![
+    let header = vec![
         format!(
             "magcal {} export --to {} of {} (log {}, fit {})",
             env!("CARGO_PKG_VERSION"),
             args.to.name(),
-            crate::limits::excerpt(&shown, 120),
+            crate::limits::excerpt(shown, 120),
             crate::limits::excerpt(&cal.log, 120),
             crate::limits::excerpt(&cal.fit, 20)
         ),
         keep.clone(),
     ];
-    let mut warnings: Vec<RangeWarning> = Vec::new();
-    // The text is made whole before anything is written.
     let mut text = Vec::new();
-    match args.to {
-        Target::ArduPilot => {
-            let p = ArduPilot::new(&converted, instance);
-            warnings = p.warnings(converted.magnitude, f64::from(args.offs_max));
-            header.push(
-                "ArduPilot applies m = D * s * (r + OFS) + MOT * u (AP_Compass_Backend::correct_field), mGauss, D from DIA and ODI, s = COMPASS_SCALE, u throttle (0 to 1) or current (A)"
-                    .to_string(),
-            );
-            fmt::write_ardupilot(&mut text, &header, &p)?;
-        }
-        Target::Px4 => {
-            let p = Px4::new(&converted, instance);
-            header.push(
-                "PX4 applies m = R * S * ((r + power * COMP) - OFF) (calibration::Magnetometer::Correct), Gauss, S from SCALE and ODIAG, power throttle (0 to 1) or current (kA)"
-                    .to_string(),
-            );
-            notes.push(format!(
-                "CAL_MAG{instance}_ID and CAL_MAG{instance}_ROT must be those of the device on the vehicle: PX4 gives slot {instance} to the magnetometer whose device id is CAL_MAG{instance}_ID, and this calibration does not know it"
-            ));
-            fmt::write_px4(&mut text, &header, &p)?;
-        }
-        Target::MotionCal => {
-            header.push(
-                "MotionCal and Adafruit_Sensor_Calibration apply b = softiron * (raw - hardiron), uT; mag_softiron is xx yy zz xy xz yz"
-                    .to_string(),
-            );
-            fmt::write_motioncal(&mut text, &header, &converted)?;
-        }
-        Target::Magneto => {
-            header.push(format!(
-                "Magneto's form, in {unit_label}: Hcalc = Ainv*(H-B), |Hcalc| = Hm"
-            ));
-            fmt::write_magneto(&mut text, &header, &converted)?;
-        }
-        Target::C => {
-            header.insert(
-                0,
-                format!("b = magcal_soft_iron * (raw - magcal_hard_iron), in {unit_label}; |b| = magcal_field"),
-            );
-            fmt::write_c(&mut text, &header, &converted)?;
-        }
-    }
-    if converted.motor.is_some() && args.to.max_instance().is_none() {
+    let warnings = write_target(&mut text, args, converted, header, &mut notes)?;
+    if converted.calibration.motor.is_some() && args.to.max_instance().is_none() {
         notes.push(format!(
             "{} has no motor compensation: the motor interference of {shown} is not exported",
             args.to.name()
@@ -289,30 +292,92 @@ fn export_inner(args: &ExportArgs) -> Result<CalibrationJson> {
     }
     let mut problems: Vec<String> = warnings.iter().map(ToString::to_string).collect();
     problems.extend(frame_warnings);
-    if args.strict {
-        if let Some(first) = problems.first() {
-            bail!(
-                "{shown}: --strict: {first}{}",
-                match problems.len() {
-                    1 => String::new(),
-                    n => format!(" (and {} more)", n - 1),
-                }
+    Ok(Made {
+        text,
+        keep,
+        notes,
+        problems,
+    })
+}
+
+/// Writes the target's form to `text` under `header` and the line that states the target's
+/// formula; the range warnings (ArduPilot's only), and a note where the target needs one.
+fn write_target(
+    text: &mut Vec<u8>,
+    args: &ExportArgs,
+    converted: &Converted,
+    mut header: Vec<String>,
+    notes: &mut Vec<String>,
+) -> Result<Vec<RangeWarning>> {
+    let Converted {
+        calibration,
+        unit_label,
+        instance,
+    } = converted;
+    let instance = *instance;
+    let mut warnings: Vec<RangeWarning> = Vec::new();
+    match args.to {
+        Target::ArduPilot => {
+            let p = ArduPilot::new(calibration, instance);
+            warnings = p.warnings(calibration.magnitude, f64::from(args.offs_max));
+            header.push(
+                "ArduPilot applies m = D * s * (r + OFS) + MOT * u (AP_Compass_Backend::correct_field), mGauss, D from DIA and ODI, s = COMPASS_SCALE, u throttle (0 to 1) or current (A)"
+                    .to_string(),
             );
+            fmt::write_ardupilot(text, &header, &p)?;
         }
-        if !cal.usable {
-            bail!(
-                "--strict: {}",
-                not_usable(args, &cal).replace("the parameters were written, but ", "")
+        Target::Px4 => {
+            let p = Px4::new(calibration, instance);
+            header.push(
+                "PX4 applies m = R * S * ((r + power * COMP) - OFF) (calibration::Magnetometer::Correct), Gauss, S from SCALE and ODIAG, power throttle (0 to 1) or current (kA)"
+                    .to_string(),
             );
+            notes.push(format!(
+                "CAL_MAG{instance}_ID and CAL_MAG{instance}_ROT must be those of the device on the vehicle: PX4 gives slot {instance} to the magnetometer whose device id is CAL_MAG{instance}_ID, and this calibration does not know it"
+            ));
+            fmt::write_px4(text, &header, &p)?;
+        }
+        Target::MotionCal => {
+            header.push(
+                "MotionCal and Adafruit_Sensor_Calibration apply b = softiron * (raw - hardiron), uT; mag_softiron is xx yy zz xy xz yz"
+                    .to_string(),
+            );
+            fmt::write_motioncal(text, &header, calibration)?;
+        }
+        Target::Magneto => {
+            header.push(format!(
+                "Magneto's form, in {unit_label}: Hcalc = Ainv*(H-B), |Hcalc| = Hm"
+            ));
+            fmt::write_magneto(text, &header, calibration)?;
+        }
+        Target::C => {
+            header.insert(
+                0,
+                format!("b = magcal_soft_iron * (raw - magcal_hard_iron), in {unit_label}; |b| = magcal_field"),
+            );
+            fmt::write_c(text, &header, calibration)?;
         }
     }
-    out.write(&inputs, |w| Ok(w.write_all(&text)?))?;
-    to_stderr!("magcal: note: {keep}");
-    for note in &notes {
-        to_stderr!("magcal: note: {note}");
+    Ok(warnings)
+}
+
+/// `--strict`: refuses the first of `problems` (counting the others), or a calibration not
+/// marked usable.
+fn refuse_strict(args: &ExportArgs, cal: &CalibrationJson, shown: &str, problems: &[String]) -> Result<()> {
+    if let Some(first) = problems.first() {
+        bail!(
+            "{shown}: --strict: {first}{}",
+            match problems.len() {
+                1 => String::new(),
+                n => format!(" (and {} more)", n - 1),
+            }
+        );
     }
-    for problem in &problems {
-        to_stderr!("magcal: warning: {problem}");
+    if !cal.usable {
+        bail!(
+            "--strict: {}",
+            not_usable(args, cal).replace("the parameters were written, but ", "")
+        );
     }
-    Ok(cal)
+    Ok(())
 }

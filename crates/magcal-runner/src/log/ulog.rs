@@ -411,38 +411,21 @@ impl<R: Read> Stream<'_, R> {
     }
 }
 
-/// Reads the whole file once, keeping what [`assemble`] needs.
-fn parse<R: Read>(reader: &mut R, shown: &str, mut budget: Budget) -> Result<Raw> {
+/// Reads the whole file once, keeping what [`assemble`] needs: the header, then one message at a
+/// time, each handed to [`Pass::take`].
+fn parse<R: Read>(reader: &mut R, shown: &str, budget: Budget) -> Result<Raw> {
     let mut s = Stream {
         inner: reader,
         pos: 0,
         shown,
     };
-    let mut header = [0u8; 16];
-    let got = s.fill(&mut header)?;
-    if got < 16 || header[..7] != MAGIC {
-        bail!("{shown}: not a PX4 ULog file (it does not start with the 16-byte ULog header \"ULog\" 01 12 35)");
-    }
-    let mut raw = Raw {
-        version: header[7],
-        ..Raw::default()
-    };
-    let mut formats: HashMap<String, Vec<FieldDef>> = HashMap::new();
-    let mut sizes: HashMap<String, u64> = HashMap::new();
-    let mut subs: HashMap<u16, Option<Decoder>> = HashMap::new();
-    let mut in_data = false;
+    let mut pass = Pass::new(file_version(&mut s)?, budget);
     let mut first = true;
-    let mut appended: Vec<u64> = Vec::new();
     let mut payload = vec![0u8; usize::from(u16::MAX)];
     loop {
         let at = s.pos;
-        if let Some(&next) = appended.first()
-            && next < at + 3
-        {
-            // The appended data starts here, or within the next message header's bytes.
-            raw.skipped_before_appended += next.saturating_sub(at);
-            s.skip(next.saturating_sub(at), "the appended data starts")?;
-            appended.remove(0);
+        // The appended data starts here, or within the next message header's bytes.
+        if pass.skip_to_appended(&mut s, at, at + 3)? {
             continue;
         }
         let mut head = [0u8; 3];
@@ -458,16 +441,10 @@ fn parse<R: Read>(reader: &mut R, shown: &str, mut budget: Budget) -> Result<Raw
         let end = at + 3 + size as u64;
         // Appended data (a crash log's tail) starts at a fixed offset: a message of the main
         // section that runs past it was cut where the appended data was written.
-        if let Some(&next) = appended.first()
-            && end > next
-        {
-            raw.skipped_before_appended += next - at;
-            s.skip(next - s.pos, "the appended data starts")?;
-            appended.remove(0);
+        if pass.skip_to_appended(&mut s, at, end)? {
             continue;
         }
-        let body = &mut payload[..size];
-        let got = s.fill(body)?;
+        let got = s.fill(&mut payload[..size])?;
         if got < size {
             bail!(
                 "{shown}: byte {at}: message '{}' of {size} bytes ends at byte {end}, past the end of the file (byte {}): truncated",
@@ -475,190 +452,16 @@ fn parse<R: Read>(reader: &mut R, shown: &str, mut budget: Budget) -> Result<Raw
                 s.pos
             );
         }
-        let body = &payload[..size];
-        let name = show_type(kind);
-        let m = |what: &str| format!("{shown}: byte {at}: message '{name}' ({size} bytes): {what}");
-        match kind {
-            b'B' => {
-                if !first {
-                    bail!("{}", m("flag bits are allowed only as the first message"));
-                }
-                if size < 40 {
-                    bail!("{}", m("flag bits need 40 bytes"));
-                }
-                let incompat = &body[8..16];
-                if incompat[0] & !1 != 0 || incompat[1..].iter().any(|&b| b != 0) {
-                    bail!(
-                        "{}",
-                        m(&format!(
-                            "incompatible flags {incompat:02x?} that this reader does not know: a newer ULog"
-                        ))
-                    );
-                }
-                if incompat[0] & 1 != 0 {
-                    for k in 0..3 {
-                        let o = u64::from_le_bytes(body[16 + 8 * k..24 + 8 * k].try_into().expect("8 bytes"));
-                        if o != 0 {
-                            if o < end || appended.last().is_some_and(|&p| o <= p) {
-                                bail!(
-                                    "{}",
-                                    m(&format!(
-                                        "appended data offset {o} is not after the flag bits and ascending"
-                                    ))
-                                );
-                            }
-                            appended.push(o);
-                        }
-                    }
-                }
-            }
-            b'F' => {
-                let text =
-                    std::str::from_utf8(body).map_err(|_| anyhow::anyhow!("{}", m("a format that is not UTF-8")))?;
-                let (fname, fields) = parse_format(text).map_err(|e| anyhow::anyhow!("{}", m(&e)))?;
-                budget.charge(size as u64 + HELD_PER_ENTRY * (1 + fields.len() as u64), shown, at)?;
-                if formats.insert(fname.clone(), fields).is_some() {
-                    bail!("{}", m(&format!("format {} defined twice", excerpt(&fname))));
-                }
-            }
-            b'I' | b'M' => {
-                let skip = usize::from(kind == b'M');
-                if size < 1 + skip {
-                    bail!("{}", m("too short"));
-                }
-                let key_len = usize::from(body[skip]);
-                if 1 + skip + key_len > size {
-                    bail!("{}", m(&format!("a key of {key_len} bytes runs past the message")));
-                }
-                let key = std::str::from_utf8(&body[1 + skip..1 + skip + key_len])
-                    .map_err(|_| anyhow::anyhow!("{}", m("a key that is not UTF-8")))?;
-                let value = &body[1 + skip + key_len..];
-                if kind == b'I'
-                    && let Some((ty, k)) = key.split_once(' ')
-                {
-                    if ty == "uint32_t" && value.len() == 4 {
-                        budget.charge(HELD_PER_ENTRY + k.len() as u64, shown, at)?;
-                        raw.info_u32
-                            .insert(k.to_string(), u32::from_le_bytes(value.try_into().expect("4 bytes")));
-                    } else if ty.starts_with("char[") && matches!(k, "ver_sw" | "ver_hw" | "sys_name" | "ver_sw_branch")
-                    {
-                        let text = String::from_utf8_lossy(value).trim_end_matches('\0').to_string();
-                        raw.info_text.insert(k.to_string(), text);
-                    }
-                }
-            }
-            b'P' | b'Q' => {
-                let skip = usize::from(kind == b'Q');
-                if size < 1 + skip {
-                    bail!("{}", m("too short"));
-                }
-                let key_len = usize::from(body[skip]);
-                if 1 + skip + key_len + 4 != size {
-                    bail!(
-                        "{}",
-                        m(&format!(
-                            "a key of {key_len} bytes and a 4-byte value do not make {size} bytes"
-                        ))
-                    );
-                }
-                let key = std::str::from_utf8(&body[1 + skip..1 + skip + key_len])
-                    .map_err(|_| anyhow::anyhow!("{}", m("a parameter name that is not UTF-8")))?;
-                let bytes: [u8; 4] = body[size - 4..].try_into().expect("4 bytes");
-                let (ty, pname) = key
-                    .split_once(' ')
-                    .ok_or_else(|| anyhow::anyhow!("{}", m(&format!("parameter {} has no type", excerpt(key)))))?;
-                let value = match ty {
-                    "float" => Param::Float(f32::from_le_bytes(bytes)),
-                    "int32_t" => Param::Int(i32::from_le_bytes(bytes)),
-                    _ => bail!(
-                        "{}",
-                        m(&format!("parameter {} of type {}", excerpt(pname), excerpt(ty)))
-                    ),
-                };
-                if kind == b'P' {
-                    budget.charge(HELD_PER_ENTRY + key_len as u64, shown, at)?;
-                    if in_data {
-                        raw.changes.push((at, pname.to_string(), value));
-                    } else {
-                        raw.initial.insert(pname.to_string(), value);
-                    }
-                }
-            }
-            b'A' => {
-                in_data = true;
-                if size < 4 {
-                    bail!("{}", m("too short for an add-logged message"));
-                }
-                let multi_id = body[0];
-                let id = u16::from_le_bytes([body[1], body[2]]);
-                let topic = std::str::from_utf8(&body[3..])
-                    .map_err(|_| anyhow::anyhow!("{}", m("a topic name that is not UTF-8")))?;
-                if !formats.contains_key(topic) {
-                    bail!("{}", m(&format!("topic {} has no format", excerpt(topic))));
-                }
-                let decoder = match Topic::from_name(topic) {
-                    Some(t) => {
-                        Some(decoder(t, multi_id, &formats, &mut sizes).map_err(|e| anyhow::anyhow!("{}", m(&e)))?)
-                    }
-                    None => None,
-                };
-                budget.charge(HELD_PER_ENTRY, shown, at)?;
-                if subs.insert(id, decoder).is_some() {
-                    bail!("{}", m(&format!("message id {id} added twice")));
-                }
-            }
-            b'R' => {
-                in_data = true;
-                if size < 2 {
-                    bail!("{}", m("too short"));
-                }
-                subs.remove(&u16::from_le_bytes([body[0], body[1]]));
-            }
-            b'D' => {
-                if size < 2 {
-                    bail!("{}", m("too short for a data message"));
-                }
-                let id = u16::from_le_bytes([body[0], body[1]]);
-                let Some(sub) = subs.get(&id) else {
-                    bail!(
-                        "{}",
-                        m(&format!(
-                            "data of message id {id}, which no add-logged message announced"
-                        ))
-                    );
-                };
-                if let Some(d) = sub {
-                    let data = &body[2..];
-                    if data.len() < d.need {
-                        bail!(
-                            "{}",
-                            m(&format!(
-                                "{} (multi_id {}) needs {} bytes of data, the message has {}",
-                                d.topic.name(),
-                                d.multi_id,
-                                d.need,
-                                data.len()
-                            ))
-                        );
-                    }
-                    keep(&mut raw, d, data, at, &mut budget, shown)?;
-                }
-            }
-            b'O' => {
-                in_data = true;
-                if size < 2 {
-                    bail!("{}", m("too short"));
-                }
-                raw.dropouts += 1;
-                raw.dropout_ms += u64::from(u16::from_le_bytes([body[0], body[1]]));
-            }
-            b'L' | b'C' | b'S' => in_data = true,
-            other if other.is_ascii_alphabetic() => *raw.unknown.entry(other).or_default() += 1,
-            _ => bail!("{}", m("not a ULog message type: corrupt")),
-        }
+        let msg = Message {
+            shown,
+            at,
+            kind,
+            body: &payload[..size],
+        };
+        pass.take(&msg, first)?;
         first = false;
     }
-    if let Some(&next) = appended.first()
+    if let Some(&next) = pass.appended.first()
         && next > s.pos
     {
         bail!(
@@ -666,7 +469,327 @@ fn parse<R: Read>(reader: &mut R, shown: &str, mut budget: Budget) -> Result<Raw
             s.pos
         );
     }
-    Ok(raw)
+    Ok(pass.raw)
+}
+
+/// Reads the 16-byte header: the ULog magic, then the file version, returned.
+fn file_version<R: Read>(s: &mut Stream<'_, R>) -> Result<u8> {
+    let mut header = [0u8; 16];
+    let got = s.fill(&mut header)?;
+    if got < 16 || header[..7] != MAGIC {
+        bail!(
+            "{}: not a PX4 ULog file (it does not start with the 16-byte ULog header \"ULog\" 01 12 35)",
+            s.shown
+        );
+    }
+    Ok(header[7])
+}
+
+/// One message as read: where it starts, its type and its payload (after the 3-byte header).
+struct Message<'a> {
+    shown: &'a str,
+    at: u64,
+    kind: u8,
+    body: &'a [u8],
+}
+
+impl Message<'_> {
+    /// The byte after the message.
+    fn end(&self) -> u64 {
+        self.at + 3 + self.body.len() as u64
+    }
+
+    /// The text of an error about this message: the file, its byte offset, type and size, `what`.
+    fn error(&self, what: &str) -> String {
+        format!(
+            "{}: byte {}: message '{}' ({} bytes): {what}",
+            self.shown,
+            self.at,
+            show_type(self.kind),
+            self.body.len()
+        )
+    }
+}
+
+/// What the pass over the file holds while it reads: what it keeps, and the state of the log
+/// (formats, subscriptions, whether the data section began, appended data still ahead).
+struct Pass {
+    raw: Raw,
+    budget: Budget,
+    formats: HashMap<String, Vec<FieldDef>>,
+    /// Bytes of the formats sized so far.
+    sizes: HashMap<String, u64>,
+    /// The decoder of each message id added, `None` for a topic not read.
+    subs: HashMap<u16, Option<Decoder>>,
+    in_data: bool,
+    /// Byte offsets where appended data starts, ascending, those not reached yet.
+    appended: Vec<u64>,
+}
+
+impl Pass {
+    fn new(version: u8, budget: Budget) -> Self {
+        Self {
+            raw: Raw {
+                version,
+                ..Raw::default()
+            },
+            budget,
+            formats: HashMap::new(),
+            sizes: HashMap::new(),
+            subs: HashMap::new(),
+            in_data: false,
+            appended: Vec::new(),
+        }
+    }
+
+    /// Skips from `at` to the next appended data when it starts before `upto`, counting the
+    /// bytes skipped since `at`; whether it did.
+    fn skip_to_appended<R: Read>(&mut self, s: &mut Stream<'_, R>, at: u64, upto: u64) -> Result<bool> {
+        let Some(&next) = self.appended.first() else {
+            return Ok(false);
+        };
+        if next >= upto {
+            return Ok(false);
+        }
+        self.raw.skipped_before_appended += next.saturating_sub(at);
+        s.skip(next.saturating_sub(s.pos), "the appended data starts")?;
+        self.appended.remove(0);
+        Ok(true)
+    }
+
+    /// Takes one message; `first` when it is the first after the header.
+    fn take(&mut self, msg: &Message<'_>, first: bool) -> Result<()> {
+        match msg.kind {
+            b'B' => self.flag_bits(msg, first),
+            b'F' => self.format(msg),
+            b'I' | b'M' => self.info(msg),
+            b'P' | b'Q' => self.parameter(msg),
+            b'A' => self.add_logged(msg),
+            b'R' => self.remove_logged(msg),
+            b'D' => self.data(msg),
+            b'O' => self.dropout(msg),
+            b'L' | b'C' | b'S' => {
+                self.in_data = true;
+                Ok(())
+            }
+            other if other.is_ascii_alphabetic() => {
+                *self.raw.unknown.entry(other).or_default() += 1;
+                Ok(())
+            }
+            _ => bail!("{}", msg.error("not a ULog message type: corrupt")),
+        }
+    }
+
+    /// `B`, the flag bits: incompatible flags this reader does not know are an error; the
+    /// offsets of appended data are kept.
+    fn flag_bits(&mut self, msg: &Message<'_>, first: bool) -> Result<()> {
+        let body = msg.body;
+        if !first {
+            bail!("{}", msg.error("flag bits are allowed only as the first message"));
+        }
+        if body.len() < 40 {
+            bail!("{}", msg.error("flag bits need 40 bytes"));
+        }
+        let incompat = &body[8..16];
+        if incompat[0] & !1 != 0 || incompat[1..].iter().any(|&b| b != 0) {
+            bail!(
+                "{}",
+                msg.error(&format!(
+                    "incompatible flags {incompat:02x?} that this reader does not know: a newer ULog"
+                ))
+            );
+        }
+        if incompat[0] & 1 != 0 {
+            for k in 0..3 {
+                let o = u64::from_le_bytes(body[16 + 8 * k..24 + 8 * k].try_into().expect("8 bytes"));
+                if o != 0 {
+                    if o < msg.end() || self.appended.last().is_some_and(|&p| o <= p) {
+                        bail!(
+                            "{}",
+                            msg.error(&format!(
+                                "appended data offset {o} is not after the flag bits and ascending"
+                            ))
+                        );
+                    }
+                    self.appended.push(o);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// `F`, a format: kept by name, each name once.
+    fn format(&mut self, msg: &Message<'_>) -> Result<()> {
+        let text = std::str::from_utf8(msg.body)
+            .map_err(|_| anyhow::anyhow!("{}", msg.error("a format that is not UTF-8")))?;
+        let (fname, fields) = parse_format(text).map_err(|e| anyhow::anyhow!("{}", msg.error(&e)))?;
+        let held = msg.body.len() as u64 + HELD_PER_ENTRY * (1 + fields.len() as u64);
+        self.budget.charge(held, msg.shown, msg.at)?;
+        if self.formats.insert(fname.clone(), fields).is_some() {
+            bail!("{}", msg.error(&format!("format {} defined twice", excerpt(&fname))));
+        }
+        Ok(())
+    }
+
+    /// `I` or `M`, an information message (`M` with its multi-message flag): the `uint32_t`
+    /// values, and the texts `ver_sw`, `ver_hw`, `sys_name`, `ver_sw_branch`, are kept.
+    fn info(&mut self, msg: &Message<'_>) -> Result<()> {
+        let (body, size) = (msg.body, msg.body.len());
+        let skip = usize::from(msg.kind == b'M');
+        if size < 1 + skip {
+            bail!("{}", msg.error("too short"));
+        }
+        let key_len = usize::from(body[skip]);
+        if 1 + skip + key_len > size {
+            bail!(
+                "{}",
+                msg.error(&format!("a key of {key_len} bytes runs past the message"))
+            );
+        }
+        let key = std::str::from_utf8(&body[1 + skip..1 + skip + key_len])
+            .map_err(|_| anyhow::anyhow!("{}", msg.error("a key that is not UTF-8")))?;
+        let value = &body[1 + skip + key_len..];
+        if msg.kind == b'I'
+            && let Some((ty, k)) = key.split_once(' ')
+        {
+            if ty == "uint32_t" && value.len() == 4 {
+                self.budget.charge(HELD_PER_ENTRY + k.len() as u64, msg.shown, msg.at)?;
+                self.raw
+                    .info_u32
+                    .insert(k.to_string(), u32::from_le_bytes(value.try_into().expect("4 bytes")));
+            } else if ty.starts_with("char[") && matches!(k, "ver_sw" | "ver_hw" | "sys_name" | "ver_sw_branch") {
+                let text = String::from_utf8_lossy(value).trim_end_matches('\0').to_string();
+                self.raw.info_text.insert(k.to_string(), text);
+            }
+        }
+        Ok(())
+    }
+
+    /// `P`, a parameter, or `Q`, a parameter default (checked, not kept): a `float` or
+    /// `int32_t`, kept as in force at the start where it comes before the data section, else
+    /// as a change at its byte offset.
+    fn parameter(&mut self, msg: &Message<'_>) -> Result<()> {
+        let (body, size) = (msg.body, msg.body.len());
+        let skip = usize::from(msg.kind == b'Q');
+        if size < 1 + skip {
+            bail!("{}", msg.error("too short"));
+        }
+        let key_len = usize::from(body[skip]);
+        if 1 + skip + key_len + 4 != size {
+            bail!(
+                "{}",
+                msg.error(&format!(
+                    "a key of {key_len} bytes and a 4-byte value do not make {size} bytes"
+                ))
+            );
+        }
+        let key = std::str::from_utf8(&body[1 + skip..1 + skip + key_len])
+            .map_err(|_| anyhow::anyhow!("{}", msg.error("a parameter name that is not UTF-8")))?;
+        let bytes: [u8; 4] = body[size - 4..].try_into().expect("4 bytes");
+        let (ty, pname) = key
+            .split_once(' ')
+            .ok_or_else(|| anyhow::anyhow!("{}", msg.error(&format!("parameter {} has no type", excerpt(key)))))?;
+        let value = match ty {
+            "float" => Param::Float(f32::from_le_bytes(bytes)),
+            "int32_t" => Param::Int(i32::from_le_bytes(bytes)),
+            _ => bail!(
+                "{}",
+                msg.error(&format!("parameter {} of type {}", excerpt(pname), excerpt(ty)))
+            ),
+        };
+        if msg.kind == b'P' {
+            self.budget.charge(HELD_PER_ENTRY + key_len as u64, msg.shown, msg.at)?;
+            if self.in_data {
+                self.raw.changes.push((msg.at, pname.to_string(), value));
+            } else {
+                self.raw.initial.insert(pname.to_string(), value);
+            }
+        }
+        Ok(())
+    }
+
+    /// `A`, a subscription added: its message id, with the decoder of a topic this reader reads.
+    fn add_logged(&mut self, msg: &Message<'_>) -> Result<()> {
+        let body = msg.body;
+        self.in_data = true;
+        if body.len() < 4 {
+            bail!("{}", msg.error("too short for an add-logged message"));
+        }
+        let multi_id = body[0];
+        let id = u16::from_le_bytes([body[1], body[2]]);
+        let topic = std::str::from_utf8(&body[3..])
+            .map_err(|_| anyhow::anyhow!("{}", msg.error("a topic name that is not UTF-8")))?;
+        if !self.formats.contains_key(topic) {
+            bail!("{}", msg.error(&format!("topic {} has no format", excerpt(topic))));
+        }
+        let decoder = match Topic::from_name(topic) {
+            Some(t) => Some(
+                decoder(t, multi_id, &self.formats, &mut self.sizes)
+                    .map_err(|e| anyhow::anyhow!("{}", msg.error(&e)))?,
+            ),
+            None => None,
+        };
+        self.budget.charge(HELD_PER_ENTRY, msg.shown, msg.at)?;
+        if self.subs.insert(id, decoder).is_some() {
+            bail!("{}", msg.error(&format!("message id {id} added twice")));
+        }
+        Ok(())
+    }
+
+    /// `R`, a subscription removed.
+    fn remove_logged(&mut self, msg: &Message<'_>) -> Result<()> {
+        self.in_data = true;
+        if msg.body.len() < 2 {
+            bail!("{}", msg.error("too short"));
+        }
+        self.subs.remove(&u16::from_le_bytes([msg.body[0], msg.body[1]]));
+        Ok(())
+    }
+
+    /// `D`, data of a subscription: decoded and kept where its topic is read.
+    fn data(&mut self, msg: &Message<'_>) -> Result<()> {
+        let body = msg.body;
+        if body.len() < 2 {
+            bail!("{}", msg.error("too short for a data message"));
+        }
+        let id = u16::from_le_bytes([body[0], body[1]]);
+        let Some(sub) = self.subs.get(&id) else {
+            bail!(
+                "{}",
+                msg.error(&format!(
+                    "data of message id {id}, which no add-logged message announced"
+                ))
+            );
+        };
+        if let Some(d) = sub {
+            let data = &body[2..];
+            if data.len() < d.need {
+                bail!(
+                    "{}",
+                    msg.error(&format!(
+                        "{} (multi_id {}) needs {} bytes of data, the message has {}",
+                        d.topic.name(),
+                        d.multi_id,
+                        d.need,
+                        data.len()
+                    ))
+                );
+            }
+            keep(&mut self.raw, d, data, msg.at, &mut self.budget, msg.shown)?;
+        }
+        Ok(())
+    }
+
+    /// `O`, a dropout: counted, with its milliseconds.
+    fn dropout(&mut self, msg: &Message<'_>) -> Result<()> {
+        self.in_data = true;
+        if msg.body.len() < 2 {
+            bail!("{}", msg.error("too short"));
+        }
+        self.raw.dropouts += 1;
+        self.raw.dropout_ms += u64::from(u16::from_le_bytes([msg.body[0], msg.body[1]]));
+        Ok(())
+    }
 }
 
 /// A message type for an error: its letter, or its code.
@@ -949,6 +1072,100 @@ fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
 
 /// Turns `raw` into the [`Px4Log`] of `selection`'s instance.
 fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes: u64) -> Result<Px4Log> {
+    let chosen = choose_instance(&raw, shown, selection)?;
+    let mut notes = Vec::new();
+    let mut messages = Vec::new();
+    let ver = raw.info_u32.get("ver_sw_release").copied().filter(|&v| v != 0);
+    match ver {
+        Some(v) => messages.push(format!("info: ver_sw_release 0x{v:08X} = {}", version_words(v))),
+        None => notes.push("The log has no firmware version (info ver_sw_release).".to_string()),
+    }
+    let slot = match_slot(&raw, &chosen, &mut notes);
+    let (calibration, frame, samples) = carried(&raw, &chosen, &slot, ver, shown, &mut notes)?;
+    messages.insert(0, chosen.source());
+    if let Some(p) = &slot.prefix {
+        messages.push(format!("parameters: {p}* (matched by {})", slot.matched_by));
+    }
+    let to_body = if !chosen.from_sensor {
+        Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    } else {
+        body_rotation(
+            slot.cal("ROT"),
+            &slot.parameters,
+            slot.prefix.as_deref(),
+            &raw,
+            &mut notes,
+        )
+    };
+    let comp_type = slot.parameters.get("CAL_MAG_COMP_TYP").copied().unwrap_or(0.0);
+    note_compensation(&slot, comp_type, &mut notes);
+    let beside = beside(&raw, shown, comp_type, &mut messages)?;
+    let rate_hz = rate_of(&samples);
+    note_rate(&raw, &chosen, &samples, rate_hz, beside.attitude.as_ref(), &mut notes);
+    note_file(&raw, &mut notes);
+    let log = FlightLog {
+        format: Format::Ulog,
+        messages,
+        unit: Units::Gauss,
+        frame,
+        instances: chosen.instances,
+        instance: chosen.instance,
+        samples,
+        attitude: beside.attitude,
+        current: beside.current,
+        throttle: beside.throttle,
+        to_body,
+        calibration,
+        notes,
+        sha256,
+        bytes,
+    };
+    Ok(Px4Log {
+        log,
+        calibration_index: slot.index,
+        matched_by: slot.matched_by,
+        parameters: slot.parameters,
+        ver_sw_release: ver,
+        rate_hz,
+    })
+}
+
+/// The magnetometer series read: `sensor_mag`, else `vehicle_magnetometer`, and its instance.
+struct Chosen<'a> {
+    /// Whether the readings are `sensor_mag`'s.
+    from_sensor: bool,
+    topic: &'static str,
+    /// The instances the log has of `topic`, ascending.
+    instances: Vec<u8>,
+    instance: u8,
+    /// The instance's readings, at least one.
+    readings: &'a [RawReading],
+}
+
+impl Chosen<'_> {
+    /// The `device_id` of the first reading, where the topic carries one.
+    fn device_id(&self) -> Option<u32> {
+        self.readings[0].device_id
+    }
+
+    /// What was read, for the log's messages.
+    fn source(&self) -> String {
+        format!(
+            "{} (multi_id {}{}): {}",
+            self.topic,
+            self.instance,
+            self.device_id().map_or(String::new(), |id| format!(", device_id {id}")),
+            if self.from_sensor {
+                "x, y, z"
+            } else {
+                "magnetometer_ga[0..2]"
+            }
+        )
+    }
+}
+
+/// The series of `selection`'s instance (default the lowest), or an error naming those there are.
+fn choose_instance<'a>(raw: &'a Raw, shown: &str, selection: &Selection) -> Result<Chosen<'a>> {
     let from_sensor = !raw.sensor_mag.is_empty();
     let series = if from_sensor { &raw.sensor_mag } else { &raw.vehicle_mag };
     if series.is_empty() {
@@ -969,51 +1186,95 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
             list.join(", ")
         );
     };
-    let mut notes = Vec::new();
-    let mut messages = Vec::new();
-    let ver = raw.info_u32.get("ver_sw_release").copied().filter(|&v| v != 0);
-    match ver {
-        Some(v) => messages.push(format!("info: ver_sw_release 0x{v:08X} = {}", version_words(v))),
-        None => notes.push("The log has no firmware version (info ver_sw_release).".to_string()),
-    }
-    let raw_from_firmware = ver.map(|v| (v >> 16) >= 0x010C);
+    Ok(Chosen {
+        from_sensor,
+        topic,
+        instances,
+        instance,
+        readings,
+    })
+}
 
-    // The calibration slot n of this sensor.
-    let device_id = readings[0].device_id;
+/// The `CAL_MAGn_*` slot matched to the instance read, and the parameters kept.
+struct Slot {
+    /// The `n` matched, if any.
+    index: Option<u8>,
+    /// How `n` was matched, in words.
+    matched_by: String,
+    /// `CAL_MAGn_` of the `n` matched.
+    prefix: Option<String>,
+    /// See [`Px4Log::parameters`].
+    parameters: BTreeMap<String, f64>,
+}
+
+impl Slot {
+    /// `CAL_MAGn_{suffix}` of the slot matched, where logged.
+    fn cal(&self, suffix: &str) -> Option<f64> {
+        self.prefix
+            .as_ref()
+            .and_then(|p| self.parameters.get(&format!("{p}{suffix}")).copied())
+    }
+}
+
+/// The calibration slot of the instance read, with notes on a change of sensor or of the slot's
+/// parameters inside the log.
+fn match_slot(raw: &Raw, chosen: &Chosen<'_>, notes: &mut Vec<String>) -> Slot {
+    let (index, matched_by) = slot_index(raw, chosen);
+    if let Some(id) = chosen.device_id()
+        && let Some(other) = chosen.readings.iter().find(|r| r.device_id != Some(id))
+    {
+        notes.push(format!(
+            "{} instance {} changes device_id from {id} to {} at byte {}: another sensor took its place.",
+            chosen.topic,
+            chosen.instance,
+            other.device_id.unwrap_or(0),
+            other.offset
+        ));
+    }
+    let prefix = index.map(|n| format!("CAL_MAG{n}_"));
+    let parameters = kept_parameters(raw, prefix.as_deref());
+    if let Some(p) = &prefix {
+        note_changes(raw, p, notes);
+    }
+    Slot {
+        index,
+        matched_by,
+        prefix,
+        parameters,
+    }
+}
+
+/// The `n` of `CAL_MAGn_*`: by `CAL_MAGn_ID == device_id`, else the instance number where
+/// `CAL_MAGn_XOFF` is logged; and how, in words.
+fn slot_index(raw: &Raw, chosen: &Chosen<'_>) -> (Option<u8>, String) {
+    let device_id = chosen.device_id();
     let param = |name: &str| raw.initial.get(name).copied();
-    let mut calibration_index = None;
-    let mut matched_by = String::from("no CAL_MAGn_* parameters in the log");
     if let Some(id) = device_id {
         for n in 0..10u8 {
             if let Some(Param::Int(v)) = param(&format!("CAL_MAG{n}_ID"))
                 && v as u32 == id
             {
-                calibration_index = Some(n);
-                matched_by = format!("CAL_MAG{n}_ID = device_id {id}");
-                break;
+                return (Some(n), format!("CAL_MAG{n}_ID = device_id {id}"));
             }
         }
     }
-    if calibration_index.is_none() && param(&format!("CAL_MAG{instance}_XOFF")).is_some() {
-        calibration_index = Some(instance);
-        matched_by = match device_id {
+    let instance = chosen.instance;
+    if param(&format!("CAL_MAG{instance}_XOFF")).is_some() {
+        let words = match device_id {
             Some(id) => format!("instance number (no CAL_MAGn_ID equals device_id {id})"),
-            None => format!("instance number ({topic} carries no device_id)"),
+            None => format!("instance number ({} carries no device_id)", chosen.topic),
         };
+        return (Some(instance), words);
     }
-    if let Some(id) = device_id
-        && let Some(other) = readings.iter().find(|r| r.device_id != Some(id))
-    {
-        notes.push(format!(
-            "{topic} instance {instance} changes device_id from {id} to {} at byte {}: another sensor took its place.",
-            other.device_id.unwrap_or(0),
-            other.offset
-        ));
-    }
+    (None, String::from("no CAL_MAGn_* parameters in the log"))
+}
+
+/// The parameters in force at the start that bear on the calibration: `CAL_MAGn_*` of `prefix`,
+/// `CAL_MAG_COMP_TYP`, `SENS_BOARD_ROT`, `SENS_BOARD_*_OFF`.
+fn kept_parameters(raw: &Raw, prefix: Option<&str>) -> BTreeMap<String, f64> {
     let mut parameters = BTreeMap::new();
-    let prefix = calibration_index.map(|n| format!("CAL_MAG{n}_"));
     for (k, v) in &raw.initial {
-        let wanted = prefix.as_ref().is_some_and(|p| k.starts_with(p.as_str()))
+        let wanted = prefix.is_some_and(|p| k.starts_with(p))
             || k == "CAL_MAG_COMP_TYP"
             || k == "SENS_BOARD_ROT"
             || (k.starts_with("SENS_BOARD_") && k.ends_with("_OFF"));
@@ -1021,117 +1282,122 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
             parameters.insert(k.clone(), v.value());
         }
     }
-    let cal = |suffix: &str| {
-        prefix
-            .as_ref()
-            .and_then(|p| parameters.get(&format!("{p}{suffix}")).copied())
-    };
-    if let Some(p) = &prefix {
-        let changed: Vec<&str> = raw
-            .changes
-            .iter()
-            .filter(|(_, k, v)| k.starts_with(p.as_str()) && raw.initial.get(k) != Some(v))
-            .map(|(_, k, _)| k.as_str())
-            .collect();
-        if !changed.is_empty() {
-            notes.push(format!(
-                "{} change{} of {p}* inside the log (first {}); the values in force at each reading are used.",
-                changed.len(),
-                if changed.len() == 1 { "" } else { "s" },
-                changed[0]
-            ));
-        }
-    }
+    parameters
+}
 
-    // What the readings carry, and the raw field.
-    let n_words = calibration_index.map_or(String::new(), |n| format!("CAL_MAG{n}"));
-    let (calibration, frame, samples) = if !from_sensor {
+/// A note where the parameters of `prefix` change inside the log.
+fn note_changes(raw: &Raw, prefix: &str, notes: &mut Vec<String>) {
+    let changed: Vec<&str> = raw
+        .changes
+        .iter()
+        .filter(|(_, k, v)| k.starts_with(prefix) && raw.initial.get(k) != Some(v))
+        .map(|(_, k, _)| k.as_str())
+        .collect();
+    if !changed.is_empty() {
+        notes.push(format!(
+            "{} change{} of {prefix}* inside the log (first {}); the values in force at each reading are used.",
+            changed.len(),
+            if changed.len() == 1 { "" } else { "s" },
+            changed[0]
+        ));
+    }
+}
+
+/// What the readings carry, the frame they are in, and the readings.
+type Carried = (InForce, String, Vec<Sample>);
+
+/// What the readings carry, by topic and firmware version `ver` (see the module docs), and the
+/// readings: raw, undone, or as logged.
+fn carried(
+    raw: &Raw,
+    chosen: &Chosen<'_>,
+    slot: &Slot,
+    ver: Option<u32>,
+    shown: &str,
+    notes: &mut Vec<String>,
+) -> Result<Carried> {
+    let (readings, topic) = (chosen.readings, chosen.topic);
+    if !chosen.from_sensor {
         let words = format!(
             "vehicle_magnetometer: PX4 publishes it after its calibration in force{} and rotated into the body frame; a fit calibrates the calibrated field",
-            if n_words.is_empty() {
-                String::new()
-            } else {
-                format!(" ({n_words}_*)")
-            }
+            slot.index.map_or(String::new(), |n| format!(" (CAL_MAG{n}_*)"))
         );
         notes.push(
             "The log has no sensor_mag: read vehicle_magnetometer, which PX4 calibrates before it logs it.".to_string(),
         );
-        (
+        return Ok((
             InForce::Calibrated(words),
             "body (forward, right, down)".to_string(),
             plain(readings, shown, topic)?,
-        )
-    } else if raw_from_firmware == Some(true) {
-        (InForce::Raw, "sensor".to_string(), plain(readings, shown, topic)?)
-    } else if raw_from_firmware.is_none() {
-        let words = "the log has no firmware version: sensor_mag is raw from PX4 1.12 on and calibrated before, which cannot be told here; read as logged".to_string();
-        (
-            InForce::Calibrated(words),
-            "sensor (as logged)".to_string(),
-            plain(readings, shown, topic)?,
-        )
-    } else {
-        match prefix.as_ref().and_then(|p| old_calibration(p, &raw)) {
-            Some(cal0) => {
-                let samples = undo(readings, &raw, prefix.as_deref().unwrap_or_default(), cal0, shown)?;
-                let p = prefix.as_deref().unwrap_or_default();
-                let words = format!(
-                    "PX4 before 1.12 logs sensor_mag after its driver applied m = SCALE * (r - OFF) per axis; undone with {p}XOFF..ZOFF and {p}XSCALE..ZSCALE in force at each reading (n matched by {matched_by})"
-                );
-                (
-                    InForce::Undone(words),
-                    "sensor (after the driver's orientation)".to_string(),
-                    samples,
-                )
-            }
-            None => {
-                let words = format!(
-                    "PX4 before 1.12 logs sensor_mag after its driver's calibration, and the log lacks {}XOFF..ZOFF or XSCALE..ZSCALE (finite, scales not zero) to undo it",
-                    prefix.as_deref().unwrap_or("CAL_MAGn_")
-                );
-                (
-                    InForce::Calibrated(words),
-                    "sensor (calibrated by the driver)".to_string(),
-                    plain(readings, shown, topic)?,
-                )
-            }
-        }
-    };
-    messages.insert(
-        0,
-        format!(
-            "{topic} (multi_id {instance}{}): {}",
-            device_id.map_or(String::new(), |id| format!(", device_id {id}")),
-            if from_sensor {
-                "x, y, z"
-            } else {
-                "magnetometer_ga[0..2]"
-            }
-        ),
-    );
-    if let Some(p) = &prefix {
-        messages.push(format!("parameters: {p}* (matched by {matched_by})"));
+        ));
     }
+    match ver.map(|v| (v >> 16) >= 0x010C) {
+        Some(true) => Ok((InForce::Raw, "sensor".to_string(), plain(readings, shown, topic)?)),
+        None => {
+            let words = "the log has no firmware version: sensor_mag is raw from PX4 1.12 on and calibrated before, which cannot be told here; read as logged".to_string();
+            Ok((
+                InForce::Calibrated(words),
+                "sensor (as logged)".to_string(),
+                plain(readings, shown, topic)?,
+            ))
+        }
+        Some(false) => undo_driver(raw, chosen, slot, shown),
+    }
+}
 
-    // The rotation into the body frame.
-    let to_body = if !from_sensor {
-        Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    } else {
-        body_rotation(cal("ROT"), &parameters, prefix.as_deref(), &raw, &mut notes)
-    };
+/// `sensor_mag` of PX4 before 1.12, which its driver calibrated: undone where the log has the
+/// slot's offsets and scales, else as logged.
+fn undo_driver(raw: &Raw, chosen: &Chosen<'_>, slot: &Slot, shown: &str) -> Result<Carried> {
+    let readings = chosen.readings;
+    match slot.prefix.as_ref().and_then(|p| old_calibration(p, raw)) {
+        Some(cal0) => {
+            let p = slot.prefix.as_deref().unwrap_or_default();
+            let samples = undo(readings, raw, p, cal0, shown)?;
+            let words = format!(
+                "PX4 before 1.12 logs sensor_mag after its driver applied m = SCALE * (r - OFF) per axis; undone with {p}XOFF..ZOFF and {p}XSCALE..ZSCALE in force at each reading (n matched by {})",
+                slot.matched_by
+            );
+            Ok((
+                InForce::Undone(words),
+                "sensor (after the driver's orientation)".to_string(),
+                samples,
+            ))
+        }
+        None => {
+            let words = format!(
+                "PX4 before 1.12 logs sensor_mag after its driver's calibration, and the log lacks {}XOFF..ZOFF or XSCALE..ZSCALE (finite, scales not zero) to undo it",
+                slot.prefix.as_deref().unwrap_or("CAL_MAGn_")
+            );
+            Ok((
+                InForce::Calibrated(words),
+                "sensor (calibrated by the driver)".to_string(),
+                plain(readings, shown, chosen.topic)?,
+            ))
+        }
+    }
+}
 
-    // Power compensation, which the raw field does not carry.
-    let comp = ["XCOMP", "YCOMP", "ZCOMP"].map(|k| cal(k).unwrap_or(0.0));
-    let comp_type = parameters.get("CAL_MAG_COMP_TYP").copied().unwrap_or(0.0);
+/// A note where the slot has a power compensation, which the raw field does not carry.
+fn note_compensation(slot: &Slot, comp_type: f64, notes: &mut Vec<String>) {
+    let comp = ["XCOMP", "YCOMP", "ZCOMP"].map(|k| slot.cal(k).unwrap_or(0.0));
     if comp.iter().any(|&c| c != 0.0) {
         notes.push(format!(
             "PX4 adds power * ({}, {}, {}) (CAL_MAG_COMP_TYP = {comp_type}) to the field before its calibration; the readings here are without it.",
             comp[0], comp[1], comp[2]
         ));
     }
+}
 
-    // The series beside the readings.
+/// The series logged beside the readings.
+struct Beside {
+    attitude: Option<Series<[f64; 4]>>,
+    current: Option<Series<f64>>,
+    throttle: Option<Series<f64>>,
+}
+
+/// The attitude, the current of the battery `CAL_MAG_COMP_TYP` = `comp_type` names, and the
+/// throttle, each named in `messages` where the log has it.
+fn beside(raw: &Raw, shown: &str, comp_type: f64, messages: &mut Vec<String>) -> Result<Beside> {
     let attitude = series_of(&raw.attitude, shown, "vehicle_attitude", |q| {
         [f64::from(q[0]), f64::from(q[1]), f64::from(q[2]), f64::from(q[3])]
     })?;
@@ -1155,15 +1421,35 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
     } else {
         None
     };
+    Ok(Beside {
+        attitude,
+        current,
+        throttle,
+    })
+}
 
-    // The rate, and whether it is enough.
+/// Readings per second: (readings - 1) / time spanned; 0 for one reading or no time spanned.
+fn rate_of(samples: &[Sample]) -> f64 {
     let span = samples.last().map_or(0.0, |l| l.time_s) - samples[0].time_s;
-    let rate_hz = if samples.len() > 1 && span > 0.0 {
+    if samples.len() > 1 && span > 0.0 {
         (samples.len() - 1) as f64 / span
     } else {
         0.0
-    };
-    let turn = attitude.as_ref().map(peak_turn_rate);
+    }
+}
+
+/// Notes where the readings are too few or too slow to calibrate (see the module docs), and
+/// where `vehicle_magnetometer` then holds more of them.
+fn note_rate(
+    raw: &Raw,
+    chosen: &Chosen<'_>,
+    samples: &[Sample],
+    rate_hz: f64,
+    attitude: Option<&Series<[f64; 4]>>,
+    notes: &mut Vec<String>,
+) {
+    let topic = chosen.topic;
+    let turn = attitude.map(peak_turn_rate);
     let how = "raise it with SDLOG_PROFILE (add 64, sensor comparison: sensor_mag at 10 Hz) or a line 'sensor_mag 20' in the SD card's etc/logging/logger_topics.txt (50 Hz)";
     if samples.len() < MIN_READINGS {
         notes.push(format!(
@@ -1185,11 +1471,11 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
             "{topic} is logged at {rate_hz:.2} Hz {moving}: below {MIN_RATE_HZ} Hz, too slow to calibrate (PX4's default logging profile records it at 1 Hz); {how}."
         ));
     }
-    if from_sensor
+    if chosen.from_sensor
         && rate_hz < MIN_RATE_HZ
         && let Some(v) = raw
             .vehicle_mag
-            .get(&instance)
+            .get(&chosen.instance)
             .or_else(|| raw.vehicle_mag.values().next())
         && v.len() > samples.len()
     {
@@ -1199,6 +1485,11 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
             samples.len()
         ));
     }
+}
+
+/// Notes on what the pass over the file met: dropouts, messages of unknown types, bytes skipped
+/// before appended data, a file version newer than this reader knows.
+fn note_file(raw: &Raw, notes: &mut Vec<String>) {
     if raw.dropouts > 0 {
         notes.push(format!(
             "The logger dropped data {} times ({} ms in all).",
@@ -1223,31 +1514,6 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
             raw.version
         ));
     }
-    let log = FlightLog {
-        format: Format::Ulog,
-        messages,
-        unit: Units::Gauss,
-        frame,
-        instances,
-        instance,
-        samples,
-        attitude,
-        current,
-        throttle,
-        to_body,
-        calibration,
-        notes,
-        sha256,
-        bytes,
-    };
-    Ok(Px4Log {
-        log,
-        calibration_index,
-        matched_by,
-        parameters,
-        ver_sw_release: ver,
-        rate_hz,
-    })
 }
 
 /// The readings as logged.
