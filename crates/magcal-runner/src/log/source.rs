@@ -234,7 +234,7 @@ impl Log {
     pub fn keep(&mut self, keep: &[bool]) {
         self.readings = kept(&self.readings, keep);
         self.lines = kept(&self.lines, keep);
-        for v in [&mut self.times].into_iter().flatten() {
+        if let Some(v) = &mut self.times {
             *v = kept(v, keep);
         }
         if let Some(v) = &mut self.attitudes {
@@ -414,31 +414,20 @@ struct CsvExtras<'a> {
 impl<'a> CsvExtras<'a> {
     fn new(args: &'a LogArgs) -> Result<Self> {
         let mut extras = Vec::new();
-        let mut add = |list: Vec<Extra<'a>>| {
+        // Where each asked-for list starts among the extras.
+        let mut add = |flag: &'a str, value: &'a Option<String>, n: usize| -> Result<Option<usize>> {
+            let Some(value) = value else {
+                return Ok(None);
+            };
             let at = extras.len();
-            extras.extend(list);
-            Some(at)
+            extras.extend(column_list(flag, value, n)?);
+            Ok(Some(at))
         };
-        let time = match &args.time {
-            Some(c) => add(column_list("--time", c, 1)?),
-            None => None,
-        };
-        let euler = match &args.euler {
-            Some(c) => add(column_list("--euler", c, 3)?),
-            None => None,
-        };
-        let quaternion = match &args.quaternion {
-            Some(c) => add(column_list("--quaternion", c, 4)?),
-            None => None,
-        };
-        let current = match &args.current {
-            Some(c) => add(column_list("--current", c, 1)?),
-            None => None,
-        };
-        let throttle = match &args.throttle {
-            Some(c) => add(column_list("--throttle", c, 1)?),
-            None => None,
-        };
+        let time = add("--time", &args.time, 1)?;
+        let euler = add("--euler", &args.euler, 3)?;
+        let quaternion = add("--quaternion", &args.quaternion, 4)?;
+        let current = add("--current", &args.current, 1)?;
+        let throttle = add("--throttle", &args.throttle, 1)?;
         Ok(Self {
             extras,
             time,
