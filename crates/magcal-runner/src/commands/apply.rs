@@ -2,14 +2,15 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::Failure;
+use crate::log::calibration::MotorJson;
 use crate::log::calibration::{RadiusMedian, columns_for, read_calibration};
 use crate::log::flight::Format;
 use crate::log::read::{self as log_file, HELD_BYTES_PER_READING};
-use crate::log::source::{self, LogArgs, format_of};
+use crate::log::source::{self, Log, LogArgs, format_of};
 use crate::output::file::Output;
 use crate::output::log_rows::AppliedRow;
 use crate::output::stderr::to_stderr;
@@ -72,7 +73,19 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     // error part way (a bad row, a reading whose calibrated value is not finite) leaves the
     // output as it was: the rows went to a temporary file that is then removed (on standard
     // output, the rows before it have been written, as with any filter).
-    let streamable = format_of(&args.log, input.format)? == Format::Csv && input.time.is_none();
+    // A calibration with motor interference needs each reading's input: the log is read whole.
+    let streamable = cal.motor.is_none() && format_of(&args.log, input.format)? == Format::Csv && input.time.is_none();
+    // A log read whole is read before anything is written: its errors replace nothing.
+    let held = match streamable {
+        true => None,
+        false => {
+            let mut log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
+            if let Some(m) = &cal.motor {
+                without_interference(&mut log, m).with_context(|| format!("{}: {shown}", args.log.display()))?;
+            }
+            Some(log)
+        }
+    };
     let mut radius = RadiusMedian::new(cal.magnitude);
     let mut skipped = Vec::new();
     out.write(&inputs, |w| {
@@ -102,14 +115,16 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
             })?;
             Ok(())
         };
-        if streamable {
-            skipped = log_file::stream(&args.log, input.columns.as_deref(), input.skip_bad, 0, &mut row)?.skipped;
-        } else {
-            let log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
-            for (&line, &raw) in log.lines.iter().zip(&log.readings) {
-                row(line, raw)?;
+        match &held {
+            None => {
+                skipped = log_file::stream(&args.log, input.columns.as_deref(), input.skip_bad, 0, &mut row)?.skipped;
             }
-            skipped = log.skipped;
+            Some(log) => {
+                for (&line, &raw) in log.lines.iter().zip(&log.readings) {
+                    row(line, raw)?;
+                }
+                skipped.clone_from(&log.skipped);
+            }
         }
         csv.flush()?;
         Ok(())
@@ -122,6 +137,38 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     }
     if let Some(why) = cal.radius_mismatch(radius.ratio()) {
         to_stderr!("magcal: warning: {}: {why}", args.log.display());
+    }
+    Ok(())
+}
+
+/// Removes the motor interference `m` from the readings of `log`: `raw - d u` with `u` each
+/// reading's current or throttle, as `calibrate --motor` fitted the calibration.
+///
+/// # Errors
+/// A log without that input, or a reading without one.
+fn without_interference(log: &mut Log, m: &MotorJson) -> Result<()> {
+    let (series, flag) = match m.input.as_str() {
+        "current" => (&log.currents, "--current"),
+        "throttle" => (&log.throttles, "--throttle"),
+        other => bail!("motor.input {other:?}: not current or throttle"),
+    };
+    let Some(series) = series else {
+        bail!(
+            "the calibration removes motor interference per unit {}, and the log has none (a CSV log names its column with {flag})",
+            m.input
+        );
+    };
+    let u: Vec<f64> = series.iter().flatten().copied().collect();
+    if u.len() != series.len() {
+        bail!(
+            "{} of {} readings have no {} near them in time; cut the log to where it has one (--from, --to)",
+            series.len() - u.len(),
+            series.len(),
+            m.input
+        );
+    }
+    for (r, u) in log.readings.iter_mut().zip(u) {
+        *r = std::array::from_fn(|i| r[i] - m.per_unit[i] * u);
     }
     Ok(())
 }

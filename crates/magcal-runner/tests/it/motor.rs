@@ -81,6 +81,33 @@ fn a_known_interference_is_recovered_within_its_standard_errors() {
             fitted.bias
         );
     }
+    // apply removes the interference with each reading's current: |b| within the noise of the
+    // magnitude; without the current column it refuses, writing nothing.
+    let cal = tmp.path().join("cal.json");
+    std::fs::write(&cal, serde_json::to_vec(&fitted).unwrap()).unwrap();
+    let out = magcal()
+        .arg("apply")
+        .arg(&cal)
+        .arg(&log)
+        .args(["--current", "current", "--matrix", "symmetric"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let errors: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap().parse::<f64>().unwrap() - fitted.magnitude)
+        .collect();
+    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    assert_eq!(errors.len(), 300);
+    assert!(rms < 2.0 * fitted.noise.unwrap(), "{rms} vs noise {:?}", fitted.noise);
+    let out = magcal().arg("apply").arg(&cal).arg(&log).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(out.stdout.is_empty());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("the log has none (a CSV log names its column with --current)")
+    );
     // Without --motor the interference goes into the residuals: several times the noise.
     let (_, plain, _) = calibrate_json(&log, &["--current", "current"]);
     assert!(

@@ -104,8 +104,10 @@ pub fn record(json: &mut CalibrationJson, joint: &MotorFit) {
         _ => None,
     };
     if !joint.identifiable {
+        // The verdict is the joint fit's: the refit at zero input alone would call it identifiable.
         json.identifiable = false;
         json.usable = false;
-        json.reasons.push(format!("motor interference: {}", joint.verdict));
+        json.verdict = format!("motor interference: {}", joint.verdict);
+        json.reasons.push(json.verdict.clone());
     }
 }
