@@ -43,6 +43,17 @@ impl Format {
             Self::Ulog => "PX4 ULog",
         }
     }
+
+    /// The name with its indefinite article: `a CSV`, `an ArduPilot DataFlash`.
+    pub fn with_article(self) -> String {
+        let name = self.name();
+        let article = if name.starts_with(['A', 'E', 'I', 'O', 'U']) {
+            "an"
+        } else {
+            "a"
+        };
+        format!("{article} {name}")
+    }
 }
 
 /// What the caller asks a reader for.

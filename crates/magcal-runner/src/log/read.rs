@@ -554,7 +554,7 @@ fn text_line(buf: &mut Vec<u8>, line: usize, shown: &str) -> Result<()> {
     }
     if let Some(at) = buf.iter().position(|&b| b == 0) {
         bail!(
-            "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file?)",
+            "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file? a flight log through a pipe: give --format)",
             at + 1
         );
     }
@@ -1173,7 +1173,7 @@ mod tests {
         );
         assert_eq!(
             error(b"x,y,z\n1,2\x003\n", None),
-            "t.csv: line 2: byte 4 is NUL: not a text log (UTF-16 text or a binary file?)"
+            "t.csv: line 2: byte 4 is NUL: not a text log (UTF-16 text or a binary file? a flight log through a pipe: give --format)"
         );
     }
 

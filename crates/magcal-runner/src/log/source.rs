@@ -262,7 +262,7 @@ impl Log {
 pub fn open(path: &Path, args: &LogArgs, held_bytes_per_reading: u64) -> Result<Log> {
     let format = format_of(path, args.format)?;
     let shown = path.display().to_string();
-    check_flags(args, format).with_context(|| format!("{shown} is a {} log", format.name()))?;
+    check_flags(args, format).with_context(|| format!("{shown} is {} log", format.with_article()))?;
     let mut log = match format {
         Format::Csv => read_csv(path, args, held_bytes_per_reading)?,
         _ => {
@@ -299,9 +299,9 @@ pub fn format_of(path: &Path, asked: FormatArg) -> Result<Format> {
     // Only a regular file is sniffed: the bytes read from a pipe would be lost to the reader.
     let mut head = [0u8; 16];
     let regular = std::fs::metadata(path).is_ok_and(|m| m.is_file());
-    let n = match std::fs::File::open(path) {
-        Ok(mut f) if regular => read_head(&mut f, &mut head),
-        // The reader names a missing or unreadable file.
+    // The reader names a missing or unreadable file.
+    let n = match regular.then(|| std::fs::File::open(path)) {
+        Some(Ok(mut f)) => read_head(&mut f, &mut head),
         _ => 0,
     };
     if let Some(f) = format_of_bytes(&head[..n]) {

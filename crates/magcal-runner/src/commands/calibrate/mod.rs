@@ -694,10 +694,10 @@ fn write_out(
 fn units_of(args: &CalibrateArgs, log: &Log) -> Result<Option<Units>> {
     match (args.units, log.origin.unit) {
         (Some(given), Some(logged)) if given != logged => bail!(
-            "--units {}: {} is a {} log, whose readings are in {}",
+            "--units {}: {} is {} log, whose readings are in {}",
             units_name(given),
             args.log.display(),
-            log.origin.format.name(),
+            log.origin.format.with_article(),
             units_name(logged)
         ),
         (given, logged) => Ok(given.or(logged)),
