@@ -263,6 +263,19 @@ struct LogRead {
     before: (bool, String),
 }
 
+/// The rows of the table of attitudes to add: the same attitude chosen again is one row, with its
+/// readings and the first variance.
+fn table_rows(chosen: &[(magcal_core::Attitude, f64)]) -> Vec<(magcal_core::Attitude, usize, f64)> {
+    let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
+    for (a, d) in chosen {
+        match rows.last_mut() {
+            Some(last) if magcal_core::design::tour::rotation_angle(&last.0, a) < 1e-6 => last.1 += 1,
+            _ => rows.push((*a, 1, *d)),
+        }
+    }
+    rows
+}
+
 /// The attitudes to add as a pilot reads them: roll, pitch, true and magnetic heading, readings,
 /// and the variance of the linear model's prediction there; the same attitude chosen again is one
 /// row with its readings.
@@ -272,14 +285,7 @@ fn write_attitudes(
     field: &magcal_core::ReferenceField,
     field_source: &str,
 ) -> Result<()> {
-    // The same attitude chosen again is one row with its readings.
-    let mut rows: Vec<(magcal_core::Attitude, usize, f64)> = Vec::new();
-    for (a, d) in chosen {
-        match rows.last_mut() {
-            Some(last) if magcal_core::design::tour::rotation_angle(&last.0, a) < 1e-6 => last.1 += 1,
-            _ => rows.push((*a, 1, *d)),
-        }
-    }
+    let rows = table_rows(chosen);
     // The headings a pilot reads: true, and magnetic from the declination of the vehicle's field.
     let headings = crate::output::Headings::of(field);
     writeln!(
@@ -365,17 +371,7 @@ fn write_relative(
     // Tilts rounded to a degree, each with its headings, in the order first chosen.
     let mut tilts: Vec<(String, Vec<String>, f64)> = Vec::new();
     let mut enu = Vec::new();
-    // The same attitude chosen again is one row of the table.
-    let mut rows: Vec<&magcal_core::Attitude> = Vec::new();
-    for (a, _) in chosen {
-        if rows
-            .last()
-            .is_none_or(|last| magcal_core::design::tour::rotation_angle(last, a) >= 1e-6)
-        {
-            rows.push(a);
-        }
-    }
-    for a in rows {
+    for (a, _, _) in &table_rows(chosen) {
         let c = ned_of(a, yaw_offset_deg);
         let [roll, pitch, heading] = roll_pitch_heading_deg(&c);
         let tilt = tilt_words(roll, pitch);

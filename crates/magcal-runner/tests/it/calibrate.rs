@@ -43,22 +43,9 @@ fn assert_recovers(c: &CalibrationJson, truth: &ErrorModel, per: f64) {
 }
 
 fn calibrate(args: &[&str], log: &Path) -> CalibrationJson {
-    let out = magcal()
-        .arg("calibrate")
-        .arg(log)
-        .args(args)
-        .arg("--json")
-        .output()
-        .unwrap();
-    let c: CalibrationJson =
-        serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)));
+    let (code, c, stderr) = crate::common::calibrate_json(log, args);
     // Exit 3 exactly when the calibration should not be used.
-    assert_eq!(
-        out.status.code(),
-        Some(if c.usable { 0 } else { 3 }),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_eq!(code, Some(if c.usable { 0 } else { 3 }), "{}", stderr);
     c
 }
 
