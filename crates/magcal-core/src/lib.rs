@@ -71,6 +71,7 @@ pub mod metrics;
 pub mod monte_carlo;
 pub mod paper;
 pub mod reference;
+pub mod replay;
 pub mod rng;
 pub mod sensor;
 pub mod small;

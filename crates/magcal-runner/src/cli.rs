@@ -39,6 +39,9 @@ enum Command {
     Next(commands::next::NextArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
     Simulate(commands::simulate::SimulateArgs),
+    /// The paper's Monte Carlo on a real log with reference attitudes: each design's attitudes
+    /// realised by the log's own readings, every model scored against the reference.
+    Replay(commands::replay::ReplayArgs),
     /// Write a calibration.json as an autopilot's parameters (ArduPilot, PX4) or a tool's form
     /// (MotionCal, Magneto, a C header); exit 3 when the calibration is not marked usable (the
     /// output is written all the same).
@@ -51,6 +54,7 @@ impl Command {
         let to_stdout = |out: &Option<PathBuf>| Output::from_flag(out.as_deref()) == Output::Stdout;
         match self {
             Self::Run(a) => !a.common.quiet,
+            Self::Replay(a) => !a.common.quiet,
             Self::Design(a) => !a.common.quiet,
             Self::Check(a) => !a.common.quiet,
             Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) => true,
@@ -127,6 +131,7 @@ pub fn main() -> ExitCode {
         Command::Next(args) => commands::next::run(&args),
         Command::Simulate(args) => commands::simulate::run(&args),
         Command::Export(args) => commands::export::run(&args),
+        Command::Replay(args) => commands::replay::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -12,6 +12,7 @@ pub mod design;
 pub mod export;
 pub mod next;
 pub mod plot;
+pub mod replay;
 pub mod run;
 pub mod simulate;
 

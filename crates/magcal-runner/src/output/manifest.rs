@@ -44,6 +44,8 @@ pub enum SetKind {
     Run,
     /// `calibrate --out`: a calibration of a log ([`CalibrationManifest`]).
     Calibration,
+    /// `replay`: a scenario's designs replayed on a log ([`ReplayManifest`]).
+    Replay,
 }
 
 impl SetKind {
@@ -52,6 +54,7 @@ impl SetKind {
         match self {
             Self::Run => "run",
             Self::Calibration => "calibration",
+            Self::Replay => "replay",
         }
     }
 
@@ -148,6 +151,61 @@ impl CalibrationManifest {
         }
     }
 
+    /// Pretty JSON with a final newline, sealed with its own hash (`manifest_sha256`).
+    ///
+    /// # Errors
+    /// Only a failure of serde_json.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        sealed(
+            self.clone(),
+            |m, seal| m.manifest_sha256 = seal,
+            |m| {
+                let mut bytes = serde_json::to_vec_pretty(m)?;
+                bytes.push(b'\n');
+                Ok(bytes)
+            },
+        )
+        .map(|(bytes, _)| bytes)
+    }
+}
+
+/// The `manifest.json` of a replay set (`replay SCENARIO LOG`): what it was made from, with which
+/// settings, and the SHA-256 of every file beside it. The same scenario, log, settings and seed
+/// give the same files on any number of threads.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayManifest {
+    /// Always [`SetKind::Replay`].
+    pub kind: SetKind,
+    /// The command line.
+    pub command: Vec<String>,
+    /// The scenario's name, path as given and SHA-256.
+    pub scenario: String,
+    pub scenario_path: String,
+    pub scenario_sha256: String,
+    /// The log, as given on the command line, its SHA-256 and size as read.
+    pub log: String,
+    pub log_sha256: String,
+    pub log_bytes: u64,
+    /// The seed and the trials per design.
+    pub seed: u64,
+    pub trials: usize,
+    /// The settings that shape the result, by name (hold, angle, models, truth, noise, ...).
+    pub settings: BTreeMap<String, String>,
+    /// The magcal version and the build.
+    pub version: String,
+    pub git_revision: String,
+    pub rustc: String,
+    pub target: String,
+    /// The files of the set beside this one, and the SHA-256 of each as written.
+    pub files: Vec<String>,
+    pub file_sha256: BTreeMap<String, String>,
+    /// SHA-256 of this manifest (see [the module documentation](self)). Always the last field.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub manifest_sha256: Option<String>,
+}
+
+impl ReplayManifest {
     /// Pretty JSON with a final newline, sealed with its own hash (`manifest_sha256`).
     ///
     /// # Errors

@@ -38,6 +38,9 @@ pub enum Target {
     /// A calibration set of `calibrate --out`: replaced only when it is missing, empty, or holds a
     /// magcal calibration set.
     Calibration,
+    /// A replay set of `replay`: replaced only when it is missing, empty, or holds a magcal
+    /// replay set.
+    Replay,
     /// A part of a results directory that the result set owns whole (its `plots/`).
     Owned,
 }
@@ -48,6 +51,7 @@ impl Target {
         match self {
             Self::Results => Some(SetKind::Run),
             Self::Calibration => Some(SetKind::Calibration),
+            Self::Replay => Some(SetKind::Replay),
             Self::Owned => None,
         }
     }

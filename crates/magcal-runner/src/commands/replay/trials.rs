@@ -1,0 +1,152 @@
+//! The trials of a replay: for each design, draws of held readings that realise its attitudes,
+//! every model calibrated from the same draw (paired), each calibration scored on the log's other
+//! readings against the reference attitudes.
+
+use magcal_core::reference::{AlignSettings, align};
+use magcal_core::replay::{Realised, held};
+use magcal_core::rng::{stream_id, stream_rng};
+use magcal_core::{CalibrationStatus, RelativeErrors, TwoStep, Vec3};
+use rand::RngExt;
+use rayon::prelude::*;
+
+use super::models::{Fitted, Model, calibrate};
+use super::prepare::Prepared;
+
+/// Stream-id prefix of a replay's draws: `[REPLAY_STREAM, design, trial]`.
+const REPLAY_STREAM: u64 = 0xFFFA;
+
+/// Heading and direction errors of a calibration against the reference, degrees.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Figures {
+    pub heading_rms: f64,
+    pub heading_p95: f64,
+    pub heading_max: f64,
+    pub direction_rms: f64,
+}
+
+/// What one model made of one draw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scored {
+    pub status: CalibrationStatus,
+    /// Against the reference attitudes; `None` without an estimate, or where the alignment
+    /// failed.
+    pub figures: Option<Figures>,
+    /// Against the truth, where known and there is an estimate.
+    pub eta: Option<RelativeErrors>,
+    /// RMS of `|calibrated| - R` over the readings calibrated, nT.
+    pub rms_residual: Option<f64>,
+}
+
+/// One trial: the largest angle between a design attitude's direction and the window drawn for
+/// it, and each model's outcome in the order asked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Trial {
+    pub drawn_max_deg: f64,
+    pub scored: Vec<Scored>,
+}
+
+/// What the trials share.
+pub struct Plan<'a> {
+    pub log: &'a Prepared,
+    pub models: &'a [Model],
+    pub hold: usize,
+    /// The noise of a held reading per component that the verdicts rest on, nT.
+    pub held_noise: f64,
+    pub two_step: &'a TwoStep,
+    /// The readings every calibration is scored on (indices into the log), before the trial's
+    /// own windows are taken out.
+    pub scoring: &'a [usize],
+    pub seed: u64,
+}
+
+impl Plan<'_> {
+    /// `trials` draws of design `d`, whose attitudes `points` realise, in trial order.
+    pub fn run(&self, d: usize, points: &[Realised], trials: usize, bar: &indicatif::ProgressBar) -> Vec<Trial> {
+        (0..trials)
+            .into_par_iter()
+            .map(|t| {
+                let trial = self.trial(d, t, points);
+                bar.inc(1);
+                trial
+            })
+            .collect()
+    }
+
+    fn trial(&self, d: usize, t: usize, points: &[Realised]) -> Trial {
+        let mut rng = stream_rng(self.seed, stream_id(&[REPLAY_STREAM, d as u64, t as u64]));
+        let mut starts = Vec::with_capacity(points.len());
+        let mut drawn_max_deg = 0.0f64;
+        for p in points {
+            let k = rng.random_range(0..p.starts.len());
+            starts.push(p.starts[k]);
+            drawn_max_deg = drawn_max_deg.max(p.angles_deg[k]);
+        }
+        let readings: Vec<Vec3> = starts.iter().map(|&s| held(&self.log.readings, s, self.hold)).collect();
+        let scoring: Vec<usize> = self
+            .scoring
+            .iter()
+            .copied()
+            .filter(|&i| !starts.iter().any(|&s| (s..s + self.hold).contains(&i)))
+            .collect();
+        let scored = self
+            .models
+            .iter()
+            .map(|&m| {
+                self.scored(
+                    calibrate(m, &readings, self.log.magnitude, self.held_noise, self.two_step),
+                    &scoring,
+                )
+            })
+            .collect();
+        Trial { drawn_max_deg, scored }
+    }
+
+    /// A calibration scored on the readings `scoring`.
+    pub fn scored(&self, fitted: Result<Fitted, CalibrationStatus>, scoring: &[usize]) -> Scored {
+        let fitted = match fitted {
+            Ok(f) => f,
+            Err(status) => {
+                return Scored {
+                    status,
+                    figures: None,
+                    eta: None,
+                    rms_residual: None,
+                };
+            }
+        };
+        let calibrated: Vec<Vec3> = scoring.iter().map(|&i| fitted.apply(self.log.readings[i])).collect();
+        let attitudes: Vec<_> = scoring.iter().map(|&i| self.log.attitudes[i]).collect();
+        let figures = align(&calibrated, &attitudes, &AlignSettings::default())
+            .ok()
+            .map(|a| Figures {
+                heading_rms: a.summary.heading_rms_deg,
+                heading_p95: a.summary.heading_p95_deg,
+                heading_max: a.summary.heading_max_deg,
+                direction_rms: a.summary.direction_rms_deg,
+            });
+        Scored {
+            status: fitted.status,
+            figures,
+            eta: self
+                .log
+                .truth
+                .as_ref()
+                .map(|t| RelativeErrors::between(&fitted.estimate, t)),
+            rms_residual: Some(fitted.rms_residual),
+        }
+    }
+
+    /// Every model calibrated from the whole log (each reading on its own), scored on the
+    /// scoring readings: what a replayed design is measured against.
+    pub fn whole_log(&self) -> Vec<Scored> {
+        self.models
+            .iter()
+            .map(|&m| {
+                self.scored(
+                    calibrate(m, &self.log.readings, self.log.magnitude, self.log.noise, self.two_step),
+                    self.scoring,
+                )
+            })
+            .collect()
+    }
+}
