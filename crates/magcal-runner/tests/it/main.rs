@@ -16,6 +16,7 @@ mod fuzz;
 mod log_outputs;
 mod motor;
 mod reference;
+mod replay;
 mod result_set;
 mod tlog;
 mod ulog;
