@@ -33,8 +33,8 @@ use crate::log::source::{self, Log, LogArgs};
 use crate::output::file::to_stdout;
 use crate::output::staging::{ResultSet, Target};
 use crate::pipeline::{self, BuiltDesign, RunOptions};
-use crate::scenario::Scenario;
 use crate::scenario::site::Units;
+use crate::scenario::{DesignKind, Scenario};
 
 /// `magcal replay`.
 #[derive(Debug, Args)]
@@ -83,6 +83,11 @@ pub struct ReplayArgs {
     /// it), or realise it as it is (`none`).
     #[arg(long, value_enum, default_value = "fit")]
     pub orient: Orient,
+    /// A `random` design of the scenario: drawn afresh in each trial (`redraw`: random attitudes
+    /// of the design's count, each drawn again until the log realises it) or the scenario's one
+    /// draw (`fixed`).
+    #[arg(long, value_enum, default_value = "redraw")]
+    pub random: RandomArg,
     /// Score each calibration on at most this many of the log's readings, evenly spaced (those
     /// the trial drew are left out).
     #[arg(long, default_value_t = 4000, value_parser = clap::value_parser!(u64).range(100..=10_000_000))]
@@ -96,6 +101,15 @@ pub enum Orient {
     Fit,
     /// The design as it is.
     None,
+}
+
+/// `replay --random`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RandomArg {
+    /// Random attitudes drawn afresh in each trial.
+    Redraw,
+    /// The scenario's one draw.
+    Fixed,
 }
 
 /// Stream-id prefix of the orientation search of design `d`: `[ORIENT_STREAM, d]`.
@@ -238,7 +252,23 @@ fn replay(
         scoring: &scoring,
         seed: scenario.seed,
     };
-    let total: usize = realised.iter().filter(|r| r.iter().all(|p| !p.is_empty())).count() * scenario.trials;
+    let redraw = trials::Redraw {
+        bounds: &scenario.bounds,
+        field: &scenario.field,
+        map: map.as_ref(),
+        starts: &starts,
+        directions: &directions,
+        within_deg: args.within_deg,
+        candidates: args.candidates as usize,
+    };
+    let random = |design: &BuiltDesign| design.kind == DesignKind::Random && args.random == RandomArg::Redraw;
+    let total: usize = built
+        .designs
+        .iter()
+        .zip(&realised)
+        .filter(|(d, r)| random(d) || r.iter().all(|p| !p.is_empty()))
+        .count()
+        * scenario.trials;
     let bar = bars_stage(bars, total);
     let trials = built
         .designs
@@ -246,15 +276,23 @@ fn replay(
         .zip(&realised)
         .enumerate()
         .map(|(d, (design, points))| {
-            if points.iter().any(Realised::is_empty) {
+            let points = if random(design) {
+                trials::Points::Random {
+                    m: design.m(),
+                    redraw: &redraw,
+                }
+            } else if points.iter().any(Realised::is_empty) {
                 return Vec::new();
-            }
-            let expanded: Vec<Realised> = points
-                .iter()
-                .zip(&design.readings)
-                .flat_map(|(p, &k)| std::iter::repeat_n(p.clone(), k))
-                .collect();
-            plan.run(d, &expanded, scenario.trials, &bar)
+            } else {
+                trials::Points::Fixed(
+                    points
+                        .iter()
+                        .zip(&design.readings)
+                        .flat_map(|(p, &k)| std::iter::repeat_n(p.clone(), k))
+                        .collect(),
+                )
+            };
+            plan.run(d, &points, scenario.trials, &bar)
         })
         .collect();
     bar.finish_and_clear();

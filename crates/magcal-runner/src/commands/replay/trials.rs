@@ -3,8 +3,10 @@
 //! readings against the reference attitudes.
 
 use magcal_core::reference::{AlignSettings, align};
-use magcal_core::replay::{Realised, held};
+use magcal_core::replay::{CoverageMap, Realised, body_of_paper, held, orient, realise};
 use magcal_core::rng::{stream_id, stream_rng};
+use magcal_core::small::{Mat3, mat_vec, norm, scale};
+use magcal_core::{AttitudeBox, ReferenceField};
 use magcal_core::{CalibrationStatus, RelativeErrors, TwoStep, Vec3};
 use rand::RngExt;
 use rayon::prelude::*;
@@ -37,12 +39,90 @@ pub struct Scored {
     pub rms_residual: Option<f64>,
 }
 
+impl Scored {
+    /// A trial whose attitudes the log could not realise: failed, with no estimate.
+    fn unrealised() -> Self {
+        Self {
+            status: CalibrationStatus::RankDeficient,
+            figures: None,
+            eta: None,
+            rms_residual: None,
+        }
+    }
+}
+
 /// One trial: the largest angle between a design attitude's direction and the window drawn for
 /// it, and each model's outcome in the order asked.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Trial {
     pub drawn_max_deg: f64,
     pub scored: Vec<Scored>,
+}
+
+/// What realises a design's attitudes in a trial.
+pub enum Points<'a> {
+    /// The design's own attitudes, realised once.
+    Fixed(Vec<Realised>),
+    /// `m` attitudes drawn uniformly in the box afresh for each trial (a random design: one
+    /// draw would say little about random attitudes), each drawn again until the log realises
+    /// it, at most [`MAX_REDRAWS`] times.
+    Random { m: usize, redraw: &'a Redraw<'a> },
+}
+
+/// Draws of attitudes an unrealisable random attitude is replaced by, at most.
+pub const MAX_REDRAWS: usize = 1000;
+
+/// What a random design drawn in a trial needs to be realised.
+pub struct Redraw<'a> {
+    pub bounds: &'a AttitudeBox,
+    pub field: &'a ReferenceField,
+    /// The log's coverage, to turn the draw to (`--orient fit`).
+    pub map: Option<&'a CoverageMap>,
+    pub starts: &'a [Option<usize>],
+    pub directions: &'a [Option<Vec3>],
+    pub within_deg: f64,
+    pub candidates: usize,
+}
+
+impl Redraw<'_> {
+    /// `m` random attitudes realised on the log, or `None` where one could not be in
+    /// [`MAX_REDRAWS`] draws.
+    fn draw<R: rand::Rng + ?Sized>(&self, m: usize, rng: &mut R) -> Option<Vec<Realised>> {
+        let target = |rng: &mut R| {
+            let a = magcal_core::design::sources::random_attitude(self.bounds, rng);
+            let b = self.field.body_fields(&[a])[0];
+            body_of_paper(scale(1.0 / norm(b), b))
+        };
+        let targets: Vec<Vec3> = (0..m).map(|_| target(rng)).collect();
+        let turn: Mat3 = match self.map {
+            Some(map) => orient(&targets, map, 2000, rng).0,
+            None => [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        };
+        let mut points = Vec::with_capacity(m);
+        for t in targets {
+            let mut t = t;
+            let mut tries = 0;
+            loop {
+                let r = realise(
+                    mat_vec(&turn, t),
+                    self.starts,
+                    self.directions,
+                    self.within_deg,
+                    self.candidates,
+                );
+                if !r.is_empty() {
+                    points.push(r);
+                    break;
+                }
+                tries += 1;
+                if tries == MAX_REDRAWS {
+                    return None;
+                }
+                t = target(rng);
+            }
+        }
+        Some(points)
+    }
 }
 
 /// What the trials share.
@@ -61,7 +141,7 @@ pub struct Plan<'a> {
 
 impl Plan<'_> {
     /// `trials` draws of design `d`, whose attitudes `points` realise, in trial order.
-    pub fn run(&self, d: usize, points: &[Realised], trials: usize, bar: &indicatif::ProgressBar) -> Vec<Trial> {
+    pub fn run(&self, d: usize, points: &Points, trials: usize, bar: &indicatif::ProgressBar) -> Vec<Trial> {
         (0..trials)
             .into_par_iter()
             .map(|t| {
@@ -72,8 +152,24 @@ impl Plan<'_> {
             .collect()
     }
 
-    fn trial(&self, d: usize, t: usize, points: &[Realised]) -> Trial {
+    fn trial(&self, d: usize, t: usize, points: &Points) -> Trial {
         let mut rng = stream_rng(self.seed, stream_id(&[REPLAY_STREAM, d as u64, t as u64]));
+        let drawn;
+        let points: &[Realised] = match points {
+            Points::Fixed(p) => p,
+            Points::Random { m, redraw } => match redraw.draw(*m, &mut rng) {
+                Some(p) => {
+                    drawn = p;
+                    &drawn
+                }
+                None => {
+                    return Trial {
+                        drawn_max_deg: f64::NAN,
+                        scored: self.models.iter().map(|_| Scored::unrealised()).collect(),
+                    };
+                }
+            },
+        };
         let mut starts = Vec::with_capacity(points.len());
         let mut drawn_max_deg = 0.0f64;
         for p in points {

@@ -257,6 +257,7 @@ fn settings(args: &ReplayArgs, r: &Replay, units: Units) -> BTreeMap<String, Str
     );
     put("truth", args.truth.as_str().into());
     put("orient", format!("{:?}", args.orient).to_lowercase());
+    put("random", format!("{:?}", args.random).to_lowercase());
     put("units_nt", units.nt().to_string());
     put("noise_nt", p.noise.to_string());
     put("noise_source", p.noise_source.into());
@@ -364,8 +365,8 @@ pub fn print(w: &mut dyn Write, r: &Replay, dir: &Path, seconds: f64) -> Result<
         "{:<14} {:>4} {:<10} {:>9}  {:<26} {:<26} eta psi / S / O % (median)",
         "design", "m", "model", "ok/trials", "heading rms deg", "direction rms deg"
     )?;
-    for (d, points) in r.designs.iter().zip(&r.realised) {
-        if let Some(i) = points.iter().position(|p| p.is_empty()) {
+    for ((d, points), trials) in r.designs.iter().zip(&r.realised).zip(&r.trials) {
+        if let (Some(i), true) = (points.iter().position(|p| p.is_empty()), trials.is_empty()) {
             writeln!(
                 w,
                 "{:<14} {:>4} not realised: attitude {i} has no window of the log within the angle asked",
