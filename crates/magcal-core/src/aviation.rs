@@ -119,6 +119,12 @@ pub fn roll_pitch_heading_deg(c_ned: &Mat3) -> [f64; 3] {
     [r.to_degrees(), p.to_degrees(), y.to_degrees().rem_euclid(360.0)]
 }
 
+/// The tilt of a NED-convention `C` in degrees, `[0, 180]`: the angle between the body's down
+/// axis and the navigation frame's (so between body up and up), `acos(cos roll cos pitch)`.
+pub fn tilt_deg(c_ned: &Mat3) -> f64 {
+    c_ned[2][0].hypot(c_ned[2][1]).atan2(c_ned[2][2]).to_degrees()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -149,6 +155,25 @@ mod tests {
         // Heading 90: the nose points east.
         let nose = mat_vec(&dcm_of_euler(0.0, 0.0, 90f64.to_radians()), [1.0, 0.0, 0.0]);
         assert!((nose[1] - 1.0).abs() < 1e-15);
+    }
+
+    #[test]
+    fn tilt_is_acos_of_cos_roll_cos_pitch_whatever_the_heading() {
+        for (r, p, y) in [
+            (0.1_f64, -0.4_f64, 2.0),
+            (-3.0, 1.2, -0.5),
+            (0.0, 0.0, 3.1),
+            (1.0, -1.5, -3.0),
+            (3.0, 0.2, 1.0),
+        ] {
+            let want = (r.cos() * p.cos()).acos().to_degrees();
+            let got = tilt_deg(&dcm_of_euler(r, p, y));
+            // acos loses digits near 0 and 180 degrees; atan2 does not: 1e-12 of a radian.
+            assert!((got - want).abs() < 1e-9, "{got} against {want}");
+        }
+        // Upside down, and level.
+        assert!((tilt_deg(&dcm_of_euler(std::f64::consts::PI, 0.0, 0.4)) - 180.0).abs() < 1e-12);
+        assert!(tilt_deg(&dcm_of_euler(0.0, 0.0, 2.0)).abs() < 1e-12);
     }
 
     #[test]

@@ -92,6 +92,15 @@ pub enum ReferenceError {
         /// `det C`.
         determinant: f64,
     },
+    /// The rotation held by [`align_fixed`] is not a rotation: not finite, not orthonormal
+    /// within [`ROTATION_TOLERANCE`], or a reflection.
+    #[error("the rotation held is not a rotation (|Q^T Q - I| = {deviation:.3e}, det {determinant:.6})")]
+    HeldNotARotation {
+        /// Largest entry of `|Q^T Q - I|`.
+        deviation: f64,
+        /// `det Q`.
+        determinant: f64,
+    },
     /// Every attitude is the same: the rotation `Q` is not determined at all.
     #[error(
         "all {count} attitudes are the same: the rotation between the calibrated and body frames is not determined"
@@ -201,7 +210,6 @@ pub fn align(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) 
         "AlignSettings::tolerance must be positive and finite"
     );
     validate(calibrated, attitudes)?;
-    let m = calibrated.len() as f64;
     let moments = Moments::of(calibrated, attitudes);
     let mut best: Option<(Mat3, f64, usize, usize)> = None;
     for start in axis_rotations() {
@@ -214,6 +222,43 @@ pub fn align(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) 
     let (q, _, iterations, newton_steps) = best.expect("24 starts");
     let field = moments.field(&q);
     check_turns(&moments, &q, field, attitudes)?;
+    measure(calibrated, attitudes, q, field, iterations, newton_steps)
+}
+
+/// [`align`] with the rotation `Q` held at `rotation` (calibrated frame to body frame, known
+/// from elsewhere: a calibration fitted against reference attitudes) and only the field fitted:
+/// `F = mean_t C_t Q b_t`, which minimises `S(Q, F)` for that `Q`. The errors are measured as
+/// [`align`] measures them; `iterations` and `newton_steps` are 0. With `Q` held, a constant
+/// rotation of the calibrated frame is no longer absorbed: it shows in the errors.
+///
+/// # Errors
+/// Fewer than two readings, a field that is not finite, an attitude or `rotation` that is not a
+/// rotation ([`ReferenceError::NotARotation`], [`ReferenceError::HeldNotARotation`]), a fitted
+/// field with no horizontal part. Equal attitudes are accepted: `F` is determined all the same.
+///
+/// # Panics
+/// If the two slices differ in length (a caller bug).
+#[track_caller]
+pub fn align_fixed(calibrated: &[Vec3], attitudes: &[Mat3], rotation: &Mat3) -> Result<Alignment, ReferenceError> {
+    assert_eq!(calibrated.len(), attitudes.len(), "one attitude per calibrated field");
+    let (deviation, determinant) = (orthonormality(rotation), det(rotation));
+    if !(deviation <= ROTATION_TOLERANCE && determinant > 0.0) {
+        return Err(ReferenceError::HeldNotARotation { deviation, determinant });
+    }
+    validate_each(calibrated, attitudes)?;
+    let field = Moments::of(calibrated, attitudes).field(rotation);
+    measure(calibrated, attitudes, *rotation, field, 0, 0)
+}
+
+/// The errors of every reading under `Q = q` and `F = field`, and their statistics.
+fn measure(
+    calibrated: &[Vec3],
+    attitudes: &[Mat3],
+    q: Mat3,
+    field: Vec3,
+    iterations: usize,
+    newton_steps: usize,
+) -> Result<Alignment, ReferenceError> {
     let horizontal = field[0].hypot(field[1]);
     if horizontal.is_nan() || horizontal <= HORIZONTAL_TOLERANCE * norm(field) {
         return Err(ReferenceError::NoHorizontalField { field });
@@ -227,14 +272,7 @@ pub fn align(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) 
         heading_deg.push(signed_angle_about_z(field, v).to_degrees());
         direction_deg.push(angle_between(v, field).to_degrees());
     }
-    let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>() / m).sqrt();
-    let abs: Vec<f64> = heading_deg.iter().map(|e| e.abs()).collect();
-    let summary = ErrorSummary {
-        heading_rms_deg: rms(&heading_deg),
-        heading_p95_deg: percentile(&abs, 95.0),
-        heading_max_deg: abs.iter().fold(0.0, |a: f64, &e| a.max(e)),
-        direction_rms_deg: rms(&direction_deg),
-    };
+    let summary = summarise(&heading_deg, &direction_deg);
     Ok(Alignment {
         rotation: q,
         field,
@@ -247,8 +285,106 @@ pub fn align(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) 
     })
 }
 
+/// The statistics of heading errors `heading_deg` and direction errors `direction_deg` (one
+/// each per reading); NaN for no readings.
+fn summarise(heading_deg: &[f64], direction_deg: &[f64]) -> ErrorSummary {
+    let m = heading_deg.len() as f64;
+    let rms = |x: &[f64]| (x.iter().map(|v| v * v).sum::<f64>() / m).sqrt();
+    let abs: Vec<f64> = heading_deg.iter().map(|e| e.abs()).collect();
+    ErrorSummary {
+        heading_rms_deg: rms(heading_deg),
+        heading_p95_deg: percentile(&abs, 95.0),
+        heading_max_deg: if abs.is_empty() {
+            f64::NAN
+        } else {
+            abs.iter().fold(0.0, |a: f64, &e| a.max(e))
+        },
+        direction_rms_deg: rms(direction_deg),
+    }
+}
+
+/// The errors of an [`Alignment`] gathered into cells (a partition of the readings, such as
+/// sectors of heading or bands of tilt): for each cell its count and, where it holds readings,
+/// their statistics ([`ErrorSummary`]; `None` for an empty cell). `cell_of[t]` is reading `t`'s
+/// cell, `None` for a reading in none.
+///
+/// # Panics
+/// If `cell_of` does not have one entry per reading, or names a cell `>= cells` (caller bugs).
+#[track_caller]
+pub fn cell_summaries(
+    alignment: &Alignment,
+    cell_of: &[Option<usize>],
+    cells: usize,
+) -> Vec<(usize, Option<ErrorSummary>)> {
+    assert_eq!(cell_of.len(), alignment.heading_deg.len(), "one cell per reading");
+    let mut members: Vec<(Vec<f64>, Vec<f64>)> = vec![(Vec::new(), Vec::new()); cells];
+    for ((cell, h), d) in cell_of.iter().zip(&alignment.heading_deg).zip(&alignment.direction_deg) {
+        if let Some(c) = *cell {
+            assert!(c < cells, "cell {c} of {cells}");
+            members[c].0.push(*h);
+            members[c].1.push(*d);
+        }
+    }
+    members
+        .iter()
+        .map(|(h, d)| (h.len(), (!h.is_empty()).then(|| summarise(h, d))))
+        .collect()
+}
+
+/// The axis (a unit vector) and angle (radians in [0, pi]) of a rotation `r`: `r` turns vectors
+/// by the angle about the axis, counter-clockwise seen from its tip. For the identity the axis
+/// is `(0, 0, 1)` by choice; at a half turn exactly the axis's sign is a choice too.
+pub fn axis_angle(r: &Mat3) -> (Vec3, f64) {
+    // The antisymmetric part of r is sin(angle) [axis]x, the trace 1 + 2 cos(angle).
+    let v = [r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]];
+    let s = norm(v) / 2.0;
+    let c = (r[0][0] + r[1][1] + r[2][2] - 1.0) / 2.0;
+    let angle = s.atan2(c);
+    if c > 0.0 {
+        return if s > 0.0 {
+            (v.map(|x| x / (2.0 * s)), angle)
+        } else {
+            ([0.0, 0.0, 1.0], angle)
+        };
+    }
+    // From 90 degrees on, the symmetric part is accurate where the sine is not:
+    // (r + r^T) / 2 - cos(angle) I = (1 - cos(angle)) axis axis^T. Its largest column, with the
+    // sign of the antisymmetric part.
+    let columns: [Vec3; 3] =
+        std::array::from_fn(|j| std::array::from_fn(|i| (r[i][j] + r[j][i]) / 2.0 - c * f64::from(u8::from(i == j))));
+    let best = columns
+        .into_iter()
+        .max_by(|a, b| norm(*a).total_cmp(&norm(*b)))
+        .expect("three columns");
+    let sign = if dot(best, v) < 0.0 { -1.0 } else { 1.0 };
+    let n = sign * norm(best);
+    (best.map(|x| x / n), angle)
+}
+
 /// The checks of [`align`]'s inputs that need no fit.
 fn validate(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), ReferenceError> {
+    validate_each(calibrated, attitudes)?;
+    let first = attitudes[0];
+    let equal = attitudes
+        .iter()
+        .all(|c| (0..3).all(|i| (0..3).all(|j| (c[i][j] - first[i][j]).abs() <= 4.0 * f64::EPSILON)));
+    if equal {
+        return Err(ReferenceError::AttitudesAllEqual { count: attitudes.len() });
+    }
+    Ok(())
+}
+
+/// The largest entry of `|C^T C - I|` (NaN where `C` is not finite).
+fn orthonormality(c: &Mat3) -> f64 {
+    let ctc = mat_mul(&transpose(c), c);
+    (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .map(|(i, j)| (ctc[i][j] - f64::from(u8::from(i == j))).abs())
+        .fold(0.0_f64, |a, d| if d.is_nan() { f64::NAN } else { a.max(d) })
+}
+
+/// The count, and each reading's field and attitude.
+fn validate_each(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), ReferenceError> {
     if calibrated.len() < 2 {
         return Err(ReferenceError::TooFewReadings { got: calibrated.len() });
     }
@@ -256,11 +392,7 @@ fn validate(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), ReferenceErro
         if !b.iter().all(|v| v.is_finite()) {
             return Err(ReferenceError::NonFiniteField { index, value: *b });
         }
-        let ctc = mat_mul(&transpose(c), c);
-        let deviation = (0..3)
-            .flat_map(|i| (0..3).map(move |j| (i, j)))
-            .map(|(i, j)| (ctc[i][j] - f64::from(u8::from(i == j))).abs())
-            .fold(0.0_f64, |a, d| if d.is_nan() { f64::NAN } else { a.max(d) });
+        let deviation = orthonormality(c);
         let determinant = det(c);
         if !(deviation <= ROTATION_TOLERANCE && determinant > 0.0) {
             return Err(ReferenceError::NotARotation {
@@ -269,13 +401,6 @@ fn validate(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), ReferenceErro
                 determinant,
             });
         }
-    }
-    let first = attitudes[0];
-    let equal = attitudes
-        .iter()
-        .all(|c| (0..3).all(|i| (0..3).all(|j| (c[i][j] - first[i][j]).abs() <= 4.0 * f64::EPSILON)));
-    if equal {
-        return Err(ReferenceError::AttitudesAllEqual { count: attitudes.len() });
     }
     Ok(())
 }
@@ -793,6 +918,111 @@ mod tests {
             align(&vertical, &attitudes, &settings),
             Err(ReferenceError::NoHorizontalField { .. })
         ));
+    }
+
+    #[test]
+    fn a_held_rotation_gives_the_mean_field_and_shows_a_misalignment_whole() {
+        // b_t = Q0^T C_t^T F0 as in the first test: held at Q0 the fit is exact; held at the
+        // identity, every reading is off by the turn Q0, which no longer is absorbed.
+        let attitudes = random_rotations(200, 6);
+        let q0 = mat_mul(&about_x(37.0), &about_z(-121.0));
+        let calibrated: Vec<Vec3> = attitudes
+            .iter()
+            .map(|c| crate::small::mat_t_vec(&q0, crate::small::mat_t_vec(c, FIELD)))
+            .collect();
+        let held = align_fixed(&calibrated, &attitudes, &q0).unwrap();
+        let fitted = align(&calibrated, &attitudes, &AlignSettings::default()).unwrap();
+        let tol = 200.0 * 8.0 * f64::EPSILON;
+        let f = norm(FIELD);
+        for i in 0..3 {
+            assert!((held.field[i] - FIELD[i]).abs() <= tol * f, "F {:?}", held.field);
+        }
+        assert_eq!(held.rotation, q0);
+        assert_eq!((held.iterations, held.newton_steps), (0, 0));
+        let bound = (tol * f / FIELD[0].hypot(FIELD[1])).to_degrees();
+        assert!(held.summary.heading_max_deg <= bound, "{:?}", held.summary);
+        for (a, b) in held.heading_deg.iter().zip(&fitted.heading_deg) {
+            assert!((a - b).abs() <= bound, "{a} {b}");
+        }
+        // Held at I: F = mean_t C_t Q0^T C_t^T F0, each reading's vector C_t Q0^T C_t^T F0.
+        let wrong = align_fixed(&calibrated, &attitudes, &crate::small::Mat3::default()).unwrap_err();
+        assert!(matches!(wrong, ReferenceError::HeldNotARotation { .. }), "{wrong:?}");
+        let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let off = align_fixed(&calibrated, &attitudes, &identity).unwrap();
+        let vectors: Vec<Vec3> = attitudes.iter().zip(&calibrated).map(|(c, b)| mat_vec(c, *b)).collect();
+        let mean: Vec3 = std::array::from_fn(|i| vectors.iter().map(|v| v[i]).sum::<f64>() / 200.0);
+        for i in 0..3 {
+            assert!((off.field[i] - mean[i]).abs() <= tol * f, "{:?} {mean:?}", off.field);
+        }
+        for (t, v) in vectors.iter().enumerate() {
+            let e = signed_angle_about_z(mean, *v).to_degrees();
+            assert!((off.heading_deg[t] - e).abs() <= 1e-9, "{t}");
+        }
+        assert!(off.summary.heading_rms_deg > 10.0, "{:?}", off.summary);
+        // A reflection is refused by name.
+        let mirror = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]];
+        assert!(matches!(
+            align_fixed(&calibrated, &attitudes, &mirror),
+            Err(ReferenceError::HeldNotARotation { determinant, .. }) if determinant < 0.0
+        ));
+    }
+
+    #[test]
+    fn cells_gather_the_errors_of_their_readings_and_say_when_empty() {
+        let attitudes: Vec<Mat3> = (0..36).map(|k| about_z(10.0 * k as f64)).collect();
+        let calibrated: Vec<Vec3> = attitudes
+            .iter()
+            .map(|c| {
+                let u = crate::small::mat_t_vec(c, FIELD);
+                [1.1 * u[0], u[1], u[2]]
+            })
+            .collect();
+        let a = align(&calibrated, &attitudes, &AlignSettings::default()).unwrap();
+        // Cell 0: the first 12 readings; cell 1: none; cell 2: the rest but the last (in none).
+        let cell_of: Vec<Option<usize>> = (0..36)
+            .map(|t| match t {
+                0..12 => Some(0),
+                35 => None,
+                _ => Some(2),
+            })
+            .collect();
+        let cells = cell_summaries(&a, &cell_of, 3);
+        assert_eq!(cells.iter().map(|c| c.0).collect::<Vec<_>>(), [12, 0, 23]);
+        assert!(cells[1].1.is_none());
+        let first = cells[0].1.unwrap();
+        let rms = (a.heading_deg[..12].iter().map(|e| e * e).sum::<f64>() / 12.0).sqrt();
+        let max = a.heading_deg[..12].iter().fold(0.0_f64, |m, e| m.max(e.abs()));
+        let dir = (a.direction_deg[..12].iter().map(|e| e * e).sum::<f64>() / 12.0).sqrt();
+        assert_eq!(first.heading_rms_deg.to_bits(), rms.to_bits());
+        assert_eq!(first.heading_max_deg.to_bits(), max.to_bits());
+        assert_eq!(first.direction_rms_deg.to_bits(), dir.to_bits());
+        assert!(first.heading_max_deg > 1.0, "{first:?}");
+    }
+
+    #[test]
+    fn axis_and_angle_are_those_of_the_rotation_at_every_angle() {
+        let axis = {
+            let a = [0.3, -0.5, 0.8];
+            let n = norm(a);
+            a.map(|x| x / n)
+        };
+        for deg in [0.0, 1e-7, 0.5, 37.0, 90.0, 120.0, 179.9999, 180.0] {
+            let r = exp_so3(axis.map(|x| x * f64::to_radians(deg)));
+            let (got, angle) = axis_angle(&r);
+            assert!(
+                (angle.to_degrees() - deg).abs() <= 1e-9,
+                "{deg}: {}",
+                angle.to_degrees()
+            );
+            if deg > 0.0 {
+                // A half turn about -axis is the same rotation.
+                let sign = if deg >= 180.0 { dot(got, axis).signum() } else { 1.0 };
+                for i in 0..3 {
+                    assert!((sign * got[i] - axis[i]).abs() <= 1e-9, "{deg}: {got:?}");
+                }
+            }
+        }
+        assert_eq!(axis_angle(&about_z(0.0)), ([0.0, 0.0, 1.0], 0.0));
     }
 
     #[test]

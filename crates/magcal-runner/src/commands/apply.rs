@@ -1,12 +1,12 @@
 //! `magcal apply CAL.json LOG`: calibrate every reading of a log.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::Failure;
-use crate::log::calibration::MotorJson;
+use crate::log::calibration::{CalibrationJson, MotorJson};
 use crate::log::calibration::{RadiusMedian, columns_for, read_calibration};
 use crate::log::flight::Format;
 use crate::log::read::{self as log_file, HELD_BYTES_PER_READING};
@@ -78,16 +78,11 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     // A log read whole is read before anything is written: its errors replace nothing.
     let held = match streamable {
         true => None,
-        false => {
-            let mut log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
-            if let Some(m) = &cal.motor {
-                without_interference(&mut log, m).with_context(|| format!("{}: {shown}", args.log.display()))?;
-            }
-            Some(log)
-        }
+        false => Some(read_held(&cal, &shown, &args.log, &input, HELD_BYTES_PER_READING)?),
     };
     let mut radius = RadiusMedian::new(cal.magnitude);
     let mut skipped = Vec::new();
+    let mut filtered = 0;
     out.write(&inputs, |w| {
         let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(w);
         csv.write_record(&output::header::<AppliedRow>()?)?;
@@ -117,13 +112,23 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
         };
         match &held {
             None => {
-                skipped = log_file::stream(&args.log, input.columns.as_deref(), input.skip_bad, 0, &mut row)?.skipped;
+                let s = log_file::stream_with(
+                    &args.log,
+                    input.columns.as_deref(),
+                    &[],
+                    &input.filter,
+                    input.skip_bad,
+                    0,
+                    |line, raw, _| row(line, raw),
+                )?;
+                (skipped, filtered) = (s.skipped, s.filtered);
             }
             Some(log) => {
                 for (&line, &raw) in log.lines.iter().zip(&log.readings) {
                     row(line, raw)?;
                 }
                 skipped.clone_from(&log.skipped);
+                filtered = log.filtered;
             }
         }
         csv.flush()?;
@@ -132,6 +137,9 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     for (line, reason) in &skipped {
         to_stderr!("magcal: skipped line {line}: {reason}");
     }
+    if let Some(note) = source::filter_note(&input.filter, filtered) {
+        to_stderr!("magcal: {}: {note}", args.log.display());
+    }
     if !cal.identifiable {
         to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
     }
@@ -139,6 +147,27 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
         to_stderr!("magcal: warning: {}: {why}", args.log.display());
     }
     Ok(())
+}
+
+/// The log at `path` read whole with `input` (its columns those of the calibration `cal`, as
+/// [`columns_for`] gives them), holding `held_bytes_per_reading` per reading, with the motor
+/// interference `cal` carries removed from its readings. `cal_shown` names the calibration in
+/// errors.
+///
+/// # Errors
+/// A bad log, or one without the input the motor interference needs.
+pub fn read_held(
+    cal: &CalibrationJson,
+    cal_shown: &str,
+    path: &Path,
+    input: &LogArgs,
+    held_bytes_per_reading: u64,
+) -> Result<Log> {
+    let mut log = source::open(path, input, held_bytes_per_reading)?;
+    if let Some(m) = &cal.motor {
+        without_interference(&mut log, m).with_context(|| format!("{}: {cal_shown}", path.display()))?;
+    }
+    Ok(log)
 }
 
 /// Removes the motor interference `m` from the readings of `log`: `raw - d u` with `u` each

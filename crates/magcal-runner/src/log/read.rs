@@ -5,7 +5,8 @@
 //! case), else the first three columns whose first data row is numeric. A first row with a cell
 //! that is not a number is a header. Every row is read; a cell that is not a number is an error
 //! naming its line and column, and so is a row with a non-finite or missing value unless the
-//! caller skips such rows, counting them (`--skip-bad`).
+//! caller skips such rows, counting them (`--skip-bad`). Rows that fail a [`RowFilter`]
+//! (`--where COLUMN=VALUE`) are counted and not read further.
 //!
 //! # Format
 //! - The separator is taken from the first line that is not blank or a comment: `;` if it has
@@ -52,6 +53,8 @@ pub struct Streamed {
     pub readings: usize,
     /// Lines skipped for a non-finite or missing value (only with `skip_bad`), with the reason.
     pub skipped: Vec<(usize, String)>,
+    /// Data rows that failed a [`RowFilter`] (not read further).
+    pub filtered: usize,
     /// The names of the three columns read (`column 4` without a header).
     pub columns: [String; 3],
     /// SHA-256 of the file's bytes as read (lower-case hex).
@@ -84,6 +87,7 @@ where
         path,
         columns,
         &[],
+        &[],
         skip_bad,
         held_bytes_per_reading,
         |line, reading, _| each(line, reading),
@@ -98,16 +102,65 @@ pub struct Extra<'a> {
     pub column: &'a str,
 }
 
-/// [`stream`], also reading the columns `extras`: `each(line, reading, values)` gets one value per
-/// extra, `None` where its cell is empty or not finite (an attitude the capture lost); a cell
-/// that is not a number is an error naming its line and column.
+/// A condition a CSV row must meet to be read (`--where COLUMN=VALUE`): the cell of `column`
+/// (a name in any case, or a 1-based index) equals `value`, as numbers when `value` is one
+/// (`1` matches `1.0`; an empty cell does not match, a cell that is not a number is an error),
+/// else as text (the cell unquoted and trimmed, case kept).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RowFilter {
+    pub column: String,
+    pub value: String,
+}
+
+impl RowFilter {
+    /// `COLUMN=VALUE` (split at the first `=`; both non-empty once trimmed): clap's parser.
+    ///
+    /// # Errors
+    /// Text without `=`, or with nothing before or after it.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        match text.split_once('=') {
+            Some((c, v)) if !c.trim().is_empty() && !v.trim().is_empty() => Ok(Self {
+                column: c.trim().to_string(),
+                value: v.trim().to_string(),
+            }),
+            _ => Err(format!(
+                "{}: give COLUMN=VALUE, such as movement=1",
+                excerpt(text.as_bytes())
+            )),
+        }
+    }
+
+    /// The filter as the user wrote it, cut to an excerpt.
+    pub fn shown(&self) -> String {
+        let text = format!("{}={}", self.column, self.value);
+        let cut: String = text.chars().take(EXCERPT_CHARS).collect();
+        if cut.len() < text.len() {
+            format!("{cut}...")
+        } else {
+            cut
+        }
+    }
+
+    /// The value as a number, when it is one.
+    fn number(&self) -> Option<f64> {
+        self.value.parse::<f64>().ok()
+    }
+}
+
+/// [`stream`], also reading the columns `extras` and keeping only the rows that meet every one
+/// of `filters`: `each(line, reading, values)` gets one value per extra, `None` where its cell
+/// is empty or not finite (an attitude the capture lost); a cell that is not a number is an
+/// error naming its line and column.
 ///
 /// # Errors
-/// As [`stream`]; an extra column that is not in the log, or is one of the field's.
+/// As [`stream`]; an extra or filter column that is not in the log, an extra column that is one
+/// of the field's, a filter's cell that is not a number where its value is one, no row meeting
+/// the filters.
 pub fn stream_with<F>(
     path: &Path,
     columns: Option<&str>,
     extras: &[Extra],
+    filters: &[RowFilter],
     skip_bad: bool,
     held_bytes_per_reading: u64,
     mut each: F,
@@ -129,6 +182,7 @@ where
         Wanted {
             columns,
             extras,
+            filters,
             skip_bad,
         },
         &budget,
@@ -148,6 +202,7 @@ type RowFn<'a> = dyn FnMut(usize, Vec3, &[Option<f64>]) -> Result<()> + 'a;
 struct Wanted<'a> {
     columns: Option<&'a str>,
     extras: &'a [Extra<'a>],
+    filters: &'a [RowFilter],
     skip_bad: bool,
 }
 
@@ -436,6 +491,7 @@ fn read_from<R: Read>(
     let Wanted {
         columns,
         extras,
+        filters,
         skip_bad,
     } = wanted;
     let mut lines = Lines::new(input);
@@ -445,6 +501,8 @@ fn read_from<R: Read>(
     let mut pick: Option<[usize; 3]> = None;
     let mut extra_pick: Vec<usize> = Vec::new();
     let mut extra_values: Vec<Option<f64>> = Vec::new();
+    let mut filter_pick: Vec<usize> = Vec::new();
+    let mut filtered = 0usize;
     let mut first_row = true;
     let mut readings = 0usize;
     let mut skipped: Vec<(usize, String)> = Vec::new();
@@ -483,9 +541,18 @@ fn read_from<R: Read>(
             None => {
                 let (p, e) = pick_columns(s, &names, columns, extras, shown)?;
                 extra_pick = e;
+                filter_pick = filters
+                    .iter()
+                    .map(|f| find_column(&names, "--where", &f.column))
+                    .collect::<Result<_>>()
+                    .with_context(|| shown.to_string())?;
                 *pick.insert(p)
             }
         };
+        if !passes(s, filters, &filter_pick, &names, shown, line)? {
+            filtered += 1;
+            continue;
+        }
         let (value, bad) = row_value(s, pick, &names, shown, line)?;
         extra_values.clear();
         for &c in &extra_pick {
@@ -507,12 +574,20 @@ fn read_from<R: Read>(
     let Some(pick) = pick else {
         bail!("{shown}: the log has a header but no readings");
     };
+    if readings == 0 && skipped.is_empty() && filtered > 0 {
+        let shown_filters: Vec<String> = filters.iter().map(|f| format!("--where {}", f.shown())).collect();
+        bail!(
+            "{shown}: no row meets {} ({filtered} rows)",
+            shown_filters.join(" and ")
+        );
+    }
     if readings == 0 {
         bail!("{shown}: no readings ({} rows skipped)", skipped.len());
     }
     Ok(Streamed {
         readings,
         skipped,
+        filtered,
         columns: pick.map(|i| column_name(&names, i)),
         sha256: String::new(),
         bytes: 0,
@@ -641,16 +716,48 @@ fn extra_value(s: &Splitter, c: usize, names: &[String], shown: &str, line: usiz
     }
 }
 
-/// The column of an extra: by name (any case) or 1-based index; not one of the field's.
-fn choose_extra(names: &[String], extra: &Extra, field: &[usize; 3]) -> Result<usize> {
-    let shown = excerpt(extra.column.as_bytes());
-    let flag = extra.flag;
-    let i = match extra.column.trim().parse::<usize>() {
+/// Whether a data row meets every filter (`at` their columns); a cell that is not a number where
+/// the filter's value is one is an error naming its line and column.
+fn passes(
+    s: &Splitter,
+    filters: &[RowFilter],
+    at: &[usize],
+    names: &[String],
+    shown: &str,
+    line: usize,
+) -> Result<bool> {
+    for (f, &c) in filters.iter().zip(at) {
+        let cell = s.get(c).unwrap_or_default();
+        let meets = match f.number() {
+            None => cell == f.value.as_bytes(),
+            Some(_) if cell.is_empty() => false,
+            Some(want) => match number(cell, s.separator) {
+                Some(v) => v == want,
+                None => bail!(
+                    "{shown}: line {line}, column {} ({}): {} is not a number, and --where {} compares numbers",
+                    c + 1,
+                    names[c],
+                    excerpt(cell),
+                    f.shown()
+                ),
+            },
+        };
+        if !meets {
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
+/// The column `column` names for `flag`: by name (any case) or 1-based index.
+fn find_column(names: &[String], flag: &str, column: &str) -> Result<usize> {
+    let shown = excerpt(column.as_bytes());
+    Ok(match column.trim().parse::<usize>() {
         Ok(i) if (1..=names.len()).contains(&i) => i - 1,
         Ok(i) => bail!("{flag} {shown}: column {i} is not in the log ({} columns)", names.len()),
         Err(_) => {
             let found: Vec<usize> = (0..names.len())
-                .filter(|&i| names[i].eq_ignore_ascii_case(extra.column.trim()))
+                .filter(|&i| names[i].eq_ignore_ascii_case(column.trim()))
                 .collect();
             match found[..] {
                 [i] => i,
@@ -662,7 +769,14 @@ fn choose_extra(names: &[String], extra: &Extra, field: &[usize; 3]) -> Result<u
                 ),
             }
         }
-    };
+    })
+}
+
+/// The column of an extra: by name (any case) or 1-based index; not one of the field's.
+fn choose_extra(names: &[String], extra: &Extra, field: &[usize; 3]) -> Result<usize> {
+    let shown = excerpt(extra.column.as_bytes());
+    let flag = extra.flag;
+    let i = find_column(names, flag, extra.column)?;
     if field.contains(&i) {
         bail!(
             "{flag} {shown}: column {} ({}) is one of the field's columns",
@@ -820,6 +934,7 @@ mod tests {
             Wanted {
                 columns,
                 extras: &[],
+                filters: &[],
                 skip_bad,
             },
             &budget,
@@ -833,6 +948,66 @@ mod tests {
 
     fn error(text: &[u8], columns: Option<&str>) -> String {
         format!("{:#}", parse(text, columns, false).unwrap_err())
+    }
+
+    /// The lines `filters` keep of `text`, and the rows they left out; or the error.
+    fn filtered(text: &[u8], filters: &[&str]) -> Result<(Vec<usize>, usize)> {
+        let filters: Vec<RowFilter> = filters.iter().map(|f| RowFilter::parse(f).unwrap()).collect();
+        let mut lines = Vec::new();
+        let wanted = Wanted {
+            columns: None,
+            extras: &[],
+            filters: &filters,
+            skip_bad: true,
+        };
+        let budget = Budget { held: 32, limit: None };
+        let s = read_from(BufReader::new(text), "t.csv", wanted, &budget, &mut |l, _, _| {
+            lines.push(l);
+            Ok(())
+        })?;
+        Ok((lines, s.filtered))
+    }
+
+    #[test]
+    fn rows_are_kept_where_every_filter_holds_and_the_rest_counted() {
+        let text = b"x,y,z,movement,phase\n1,2,3,1,a\n1,2,3,0,a\n1,2,3,1.0,b\n1,2,3,,a\n1,,3,1,a\n";
+        // Numbers compare as numbers (1.0 is 1); an empty cell meets no number. Line 6 meets the
+        // filter and is skipped for its missing y (skip_bad), not counted as left out.
+        assert_eq!(filtered(text, &["movement=1"]).unwrap(), (vec![2, 4], 2));
+        // Filters combine; by index; text compares as text, case kept.
+        assert_eq!(filtered(text, &["4=1", "phase=a"]).unwrap(), (vec![2], 3));
+        assert_eq!(
+            filtered(text, &["phase=A"]).unwrap_err().to_string(),
+            "t.csv: no row meets --where phase=A (5 rows)"
+        );
+        // A filter's column may be one of the field's.
+        assert_eq!(filtered(text, &["x=1"]).unwrap(), (vec![2, 3, 4, 5], 0));
+        for (filter, want) in [
+            (
+                "moved=1",
+                "t.csv: --where \"moved\": no column of that name (columns: x, y, z, movement, phase)",
+            ),
+            ("9=1", "t.csv: --where \"9\": column 9 is not in the log (5 columns)"),
+            (
+                "phase=1",
+                "t.csv: line 2, column 5 (phase): \"a\" is not a number, and --where phase=1 compares numbers",
+            ),
+        ] {
+            assert_eq!(format!("{:#}", filtered(text, &[filter]).unwrap_err()), want);
+        }
+        for bad in ["movement", "=1", "movement=", " = "] {
+            assert!(
+                RowFilter::parse(bad).unwrap_err().contains("give COLUMN=VALUE"),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            RowFilter::parse(" movement = 1=2 ").unwrap(),
+            RowFilter {
+                column: "movement".into(),
+                value: "1=2".into()
+            }
+        );
     }
 
     #[test]
@@ -852,6 +1027,7 @@ mod tests {
         let wanted = Wanted {
             columns: None,
             extras: &extras,
+            filters: &[],
             skip_bad: false,
         };
         let budget = Budget { held: 32, limit: None };
@@ -1007,6 +1183,7 @@ mod tests {
             Wanted {
                 columns: None,
                 extras: &[],
+                filters: &[],
                 skip_bad: false,
             },
             &budget,

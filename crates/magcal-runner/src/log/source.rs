@@ -23,7 +23,7 @@ use magcal_core::aviation::{NavFrame, dcm_of_euler, dcm_of_quaternion, to_ned};
 use magcal_core::small::Mat3;
 
 use super::flight::{FlightLog, Format, InForce, Selection, Series};
-use super::read::{self, Extra};
+use super::read::{self, Extra, RowFilter};
 use crate::scenario::site::Units;
 
 /// The least gap accepted between a reading and the sample matched to it, seconds.
@@ -96,6 +96,11 @@ pub struct LogArgs {
     /// an error).
     #[arg(long)]
     pub skip_bad: bool,
+    /// CSV: read only the rows whose COLUMN (a name or 1-based index) holds VALUE, compared as
+    /// numbers when VALUE is one (`movement=1`), else as text; repeat for rows that meet every
+    /// one. The rows left out are counted and said.
+    #[arg(long = "where", value_name = "COLUMN=VALUE", value_parser = RowFilter::parse)]
+    pub filter: Vec<RowFilter>,
     /// Flight logs: the magnetometer instance, numbered as the log numbers it (ArduPilot `MAG.I`
     /// and `COMPASS_OFS_*` = 0, `COMPASS_OFS2_*` = 1; PX4 `sensor_mag` instance and `CAL_MAGn`);
     /// default the lowest the log has.
@@ -200,6 +205,8 @@ pub struct Log {
     pub lines: Vec<usize>,
     /// Lines skipped for a non-finite or missing value (CSV with `--skip-bad`), with the reason.
     pub skipped: Vec<(usize, String)>,
+    /// Data rows left out by `--where` (CSV).
+    pub filtered: usize,
     /// The names of the three columns read (`column 4` without a header; `x, y, z` for a flight
     /// log, whose messages [`Origin::messages`] names).
     pub columns: [String; 3],
@@ -352,6 +359,7 @@ fn check_flags(args: &LogArgs, format: Format) -> Result<()> {
     let csv_only = [
         ("--columns", args.columns.is_some()),
         ("--skip-bad", args.skip_bad),
+        ("--where", !args.filter.is_empty()),
         ("--time", args.time.is_some()),
         ("--euler", args.euler.is_some()),
         ("--quaternion", args.quaternion.is_some()),
@@ -487,6 +495,7 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         path,
         args.columns.as_deref(),
         &x.extras,
+        &args.filter,
         args.skip_bad,
         held,
         |line, r, v| {
@@ -529,10 +538,14 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
     }
     let mut origin = Origin::csv(messages, frame);
     origin.span = times.as_deref().and_then(span);
+    if let Some(note) = filter_note(&args.filter, s.filtered) {
+        origin.notes.push(note);
+    }
     Ok(Log {
         readings,
         lines,
         skipped: s.skipped,
+        filtered: s.filtered,
         columns: s.columns,
         sha256: s.sha256,
         bytes: s.bytes,
@@ -542,6 +555,15 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         currents,
         throttles,
     })
+}
+
+/// What `--where` left out, in words: `None` without a filter.
+pub fn filter_note(filters: &[RowFilter], filtered: usize) -> Option<String> {
+    if filters.is_empty() {
+        return None;
+    }
+    let shown: Vec<String> = filters.iter().map(|f| format!("--where {}", f.shown())).collect();
+    Some(format!("{}: {filtered} rows left out", shown.join(" ")))
 }
 
 /// The first and last of `times`.
@@ -605,6 +627,7 @@ fn from_flight(f: FlightLog) -> Log {
         readings: f.samples.iter().map(|s| s.raw).collect(),
         lines: f.samples.iter().map(|s| s.offset as usize).collect(),
         skipped: Vec::new(),
+        filtered: 0,
         columns: ["x", "y", "z"].map(String::from),
         sha256: f.sha256,
         bytes: f.bytes,
