@@ -45,6 +45,7 @@
 //! | eq. (5), (13): the Cramer-Rao floor and identifiability | [`identifiability::CramerRao`] |
 //! | eq. (1)-(2), (5)-(6): heading error of a calibration | [`heading::HeadingProbe`] |
 //! | eq. (6), IV.C: heading against a reference attitude | [`reference::align`] |
+//! | eq. (5)-(6) with reference attitudes: vector calibration, `K^-1 = A P` | [`vector::fit_vector`] |
 //!
 //! ## References
 //! - \[P1\] Z. Wu, X. Hu, M. Wu, P. Liu, "D-Optimal Design Applied to Calibration of Strapdown
@@ -75,6 +76,7 @@ pub mod replay;
 pub mod rng;
 pub mod sensor;
 pub mod small;
+pub mod vector;
 pub mod wmm;
 
 pub use attitude::{AngleRange, Attitude, AttitudeBox};
