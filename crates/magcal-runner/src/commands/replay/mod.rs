@@ -69,7 +69,7 @@ pub struct ReplayArgs {
     #[arg(long, default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
     pub candidates: u64,
     /// The models to calibrate with, comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_values = ["full", "diagonal", "offset", "symmetric"])]
+    #[arg(long, value_enum, value_delimiter = ',', default_values = ["full", "diagonal", "offset", "symmetric", "vector"])]
     pub models: Vec<Model>,
     /// What is known of the sensor (see the values).
     #[arg(long, value_enum, default_value = "none")]

@@ -19,11 +19,15 @@ pub enum Model {
     /// The algebraic ellipsoid fit alone (\[P1\] eq. (11), one linear solve, no refinement):
     /// the form Magneto and MotionCal fit, whose symmetric `A^-1` carries the same `G`.
     Symmetric,
+    /// The vector calibration against the reference attitudes ([`magcal_core::vector`]): full
+    /// `K` and `O` with the field fitted in the reference frame (its magnitude fixed): what
+    /// knowing each held reading's attitude adds.
+    Vector,
 }
 
 impl Model {
     /// Every model, in the order of the outputs.
-    pub const ALL: [Self; 4] = [Self::Full, Self::Diagonal, Self::Offset, Self::Symmetric];
+    pub const ALL: [Self; 5] = [Self::Full, Self::Diagonal, Self::Offset, Self::Symmetric, Self::Vector];
 
     /// The name in the outputs.
     pub fn as_str(self) -> &'static str {
@@ -32,6 +36,7 @@ impl Model {
             Self::Diagonal => "diagonal",
             Self::Offset => "offset",
             Self::Symmetric => "symmetric",
+            Self::Vector => "vector",
         }
     }
 }
@@ -59,7 +64,8 @@ impl Fitted {
     }
 }
 
-/// Calibrates `readings` (nT) to the magnitude `magnitude` (nT) with `model`; `noise` is the
+/// Calibrates `readings` (nT, each with its attitude in `attitudes`, body into a z-up
+/// reference frame) to the magnitude `magnitude` (nT) with `model`; `noise` is the
 /// readings' noise per component (nT), which the verdicts of step 2 and of the log fits rest on.
 /// A calibration that yields no estimate is its status (`failed`, or `not_identifiable` where
 /// the readings do not determine one).
@@ -69,6 +75,7 @@ impl Fitted {
 pub fn calibrate(
     model: Model,
     readings: &[Vec3],
+    attitudes: &[Mat3],
     magnitude: f64,
     noise: f64,
     two_step: &TwoStep,
@@ -111,6 +118,25 @@ pub fn calibrate(
                 bias: f.bias,
                 estimate: f.errors,
                 rms_residual: f.residual_rms,
+            })
+        }
+        Model::Vector => {
+            let f = magcal_core::vector::fit_vector(
+                readings,
+                attitudes,
+                magcal_core::vector::ReferenceField::Fitted { magnitude },
+            )
+            .map_err(|_| CalibrationStatus::RankDeficient)?;
+            Ok(Fitted {
+                status: if f.identifiable {
+                    CalibrationStatus::Ok
+                } else {
+                    CalibrationStatus::NotIdentifiable
+                },
+                p: f.p,
+                bias: f.bias,
+                estimate: f.error_model(),
+                rms_residual: f.rms_residual,
             })
         }
         Model::Symmetric => {

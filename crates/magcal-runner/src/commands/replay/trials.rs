@@ -178,6 +178,11 @@ impl Plan<'_> {
             drawn_max_deg = drawn_max_deg.max(p.angles_deg[k]);
         }
         let readings: Vec<Vec3> = starts.iter().map(|&s| held(&self.log.readings, s, self.hold)).collect();
+        // A held reading's attitude: that of its window's middle reading.
+        let attitudes: Vec<Mat3> = starts
+            .iter()
+            .map(|&s| self.log.attitudes[s + (self.hold - 1) / 2])
+            .collect();
         let scoring: Vec<usize> = self
             .scoring
             .iter()
@@ -189,7 +194,14 @@ impl Plan<'_> {
             .iter()
             .map(|&m| {
                 self.scored(
-                    calibrate(m, &readings, self.log.magnitude, self.held_noise, self.two_step),
+                    calibrate(
+                        m,
+                        &readings,
+                        &attitudes,
+                        self.log.magnitude,
+                        self.held_noise,
+                        self.two_step,
+                    ),
                     &scoring,
                 )
             })
@@ -239,7 +251,14 @@ impl Plan<'_> {
             .iter()
             .map(|&m| {
                 self.scored(
-                    calibrate(m, &self.log.readings, self.log.magnitude, self.log.noise, self.two_step),
+                    calibrate(
+                        m,
+                        &self.log.readings,
+                        &self.log.attitudes,
+                        self.log.magnitude,
+                        self.log.noise,
+                        self.two_step,
+                    ),
                     self.scoring,
                 )
             })
