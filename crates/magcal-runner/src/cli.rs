@@ -35,6 +35,9 @@ enum Command {
     Calibrate(commands::calibrate::CalibrateArgs),
     /// Calibrate every reading of a log with a calibration.json.
     Apply(commands::apply::ApplyArgs),
+    /// How good a calibration is as a compass against the independent attitudes a log carries
+    /// (or, with --raw, the log's raw readings): heading and direction errors, by heading and tilt.
+    Evaluate(commands::evaluate::EvaluateArgs),
     /// The attitudes a vehicle should visit next to most increase the information of its log.
     Next(commands::next::NextArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
@@ -57,7 +60,7 @@ impl Command {
             Self::Replay(a) => !a.common.quiet,
             Self::Design(a) => !a.common.quiet,
             Self::Check(a) => !a.common.quiet,
-            Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) => true,
+            Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) | Self::Evaluate(_) => true,
             Self::Apply(a) => to_stdout(&a.out),
             Self::Simulate(a) => to_stdout(&a.out),
             Self::Export(a) => to_stdout(&a.out),
@@ -128,6 +131,7 @@ pub fn main() -> ExitCode {
         Command::Plot(args) => commands::plot::run(&args),
         Command::Calibrate(args) => commands::calibrate::run(&args),
         Command::Apply(args) => commands::apply::run(&args),
+        Command::Evaluate(args) => commands::evaluate::run(&args),
         Command::Next(args) => commands::next::run(&args),
         Command::Simulate(args) => commands::simulate::run(&args),
         Command::Export(args) => commands::export::run(&args),

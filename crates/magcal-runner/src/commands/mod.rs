@@ -1,7 +1,8 @@
 //! One module per command. The scenario commands: [`run`] and [`design`] (which share
 //! [`run::produce`]), [`check`] and [`plot`]. The log commands: [`calibrate`] fits a log,
 //! [`apply`] calibrates a log's readings with a calibration file, [`next`] picks the attitudes
-//! that add most to a log, [`simulate`] writes a log of a known sensor; what they share (reading
+//! that add most to a log, [`evaluate`] judges a calibration against a log's reference
+//! attitudes, [`simulate`] writes a log of a known sensor; what they share (reading
 //! a log, the site and units, the calibration file, the vehicle's box) is in [`crate::log`].
 //! Every command that reads a scenario starts from [`setup`].
 
@@ -9,6 +10,7 @@ pub mod apply;
 pub mod calibrate;
 pub mod check;
 pub mod design;
+pub mod evaluate;
 pub mod export;
 pub mod next;
 pub mod plot;

@@ -446,11 +446,12 @@ impl<'a> CsvExtras<'a> {
         })
     }
 
-    /// The attitude of a row's values (`C`, NED convention), `None` where a value is missing;
-    /// a quaternion that is not of unit norm is an error naming the line.
+    /// The attitude of a row's values (`C`, NED convention), `None` where every value of it is
+    /// missing (empty or not finite: an attitude the capture lost); some missing and some not,
+    /// or a quaternion that is not of unit norm, is an error naming the line.
     fn attitude(&self, v: &[Option<f64>], frame: NavFrame, shown: &str, line: usize) -> Result<Option<Mat3>> {
         if let Some(at) = self.euler {
-            let Some([r, p, y]) = values::<3>(&v[at..]) else {
+            let Some([r, p, y]) = whole::<3>(&v[at..], "--euler", shown, line)? else {
                 return Ok(None);
             };
             let c = dcm_of_euler(r.to_radians(), p.to_radians(), y.to_radians());
@@ -459,7 +460,7 @@ impl<'a> CsvExtras<'a> {
         let Some(at) = self.quaternion else {
             return Ok(None);
         };
-        let Some(q) = values::<4>(&v[at..]) else {
+        let Some(q) = whole::<4>(&v[at..], "--quaternion", shown, line)? else {
             return Ok(None);
         };
         match dcm_of_quaternion(q) {
@@ -470,6 +471,18 @@ impl<'a> CsvExtras<'a> {
             ),
         }
     }
+}
+
+/// The first `N` values when all are present, `None` when none is; an error naming `flag` and
+/// the line when some are and some are not.
+fn whole<const N: usize>(v: &[Option<f64>], flag: &str, shown: &str, line: usize) -> Result<Option<[f64; N]>> {
+    let present = v[..N].iter().filter(|x| x.is_some()).count();
+    if present == 0 || present == N {
+        return Ok(values(v));
+    }
+    bail!(
+        "{shown}: line {line}: {flag} has a value in {present} of its {N} columns (the others empty or not finite): an attitude needs all of them, or none where it was lost"
+    )
 }
 
 /// The first `N` values, when all are present.

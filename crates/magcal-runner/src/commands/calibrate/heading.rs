@@ -9,6 +9,18 @@ use crate::log::calibration::{HeadingCheckJson, HeadingFiguresJson};
 use crate::log::flight::Format;
 use crate::log::source::Log;
 
+/// What a log's attitudes are as a reference for the heading, in words.
+pub fn against(format: Format) -> &'static str {
+    match format {
+        Format::Csv => {
+            "the log's attitude columns: a truth only where they come from an independent reference (motion capture, a turntable), else a figure of consistency"
+        }
+        _ => {
+            "the autopilot's own attitude estimate, made with the calibration in force when it flew: a figure of consistency, not a truth"
+        }
+    }
+}
+
 /// The heading and direction errors of the calibrated and of the raw readings against the log's
 /// attitudes (`Q` and `F` fitted for each); `None` for a log without attitudes.
 pub fn check(log: &Log, fit: &LogFit) -> Option<HeadingCheckJson> {
@@ -19,14 +31,7 @@ pub fn check(log: &Log, fit: &LogFit) -> Option<HeadingCheckJson> {
         .zip(attitudes)
         .filter_map(|(r, a)| Some((*r, z_up_of_ned(a.as_ref()?))))
         .unzip();
-    let against = match log.origin.format {
-        Format::Csv => {
-            "the log's attitude columns: a truth only where they come from an independent reference (motion capture, a turntable), else a figure of consistency"
-        }
-        _ => {
-            "the autopilot's own attitude estimate, made with the calibration in force when it flew: a figure of consistency, not a truth"
-        }
-    };
+    let against = against(log.origin.format);
     let figures = |readings: &[Vec3]| {
         align(readings, &c, &AlignSettings::default()).map(|a| HeadingFiguresJson {
             heading_rms_deg: a.summary.heading_rms_deg,

@@ -1,6 +1,6 @@
 //! `magcal calibrate LOG`: fit a log (docs/conventions.md "Real data" and its calibration forms).
 
-mod heading;
+pub mod heading;
 mod motor;
 
 use std::collections::BTreeMap;

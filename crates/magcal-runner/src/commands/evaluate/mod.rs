@@ -1,0 +1,298 @@
+//! `magcal evaluate CAL.json LOG` and `magcal evaluate --raw LOG`: how good a calibration is as a
+//! compass against the independent attitudes a log carries (docs/conventions.md "Heading
+//! against a reference attitude").
+//!
+//! The log is read as `apply` reads it ([`super::apply::read_held`]: the calibration's columns,
+//! its motor interference removed), the readings with an attitude are calibrated with `P`
+//! (`b = P (raw - bias)`, \[P1\] eq. (6)), and `Q` and `F` are fitted by
+//! [`magcal_core::reference::align`] twice: for the calibrated readings and for the raw ones
+//! (so that the gain shows). The errors are also gathered by the body's heading (30-degree
+//! sectors) and by its tilt (bands). With `--raw` the raw readings alone are evaluated.
+
+mod report;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use magcal_core::Vec3;
+use magcal_core::aviation::{NavFrame, from_ned, roll_pitch_heading_deg, tilt_deg, z_up_of_ned};
+use magcal_core::reference::{AlignSettings, align};
+use magcal_core::small::Mat3;
+
+use super::Failure;
+use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
+use crate::log::flight::Format;
+use crate::log::source::{self, Log, LogArgs};
+use crate::output::file::{Output, replace_with, to_stdout};
+use crate::output::stderr::to_stderr;
+
+pub use report::{CellJson, ErrorRow, EvaluationJson, FiguresJson, RowsJson};
+
+/// Memory a held reading costs `evaluate`, bytes: the log's reading, line, time and attitude
+/// (120 B), the raw and calibrated readings and z-up attitudes of the readings used (120 B), two
+/// fits' errors with their sorted copies (64 B) and the cells' (64 B); doubled for the growth of
+/// the vectors that hold them.
+pub const EVALUATE_BYTES_PER_READING: u64 = 768;
+
+/// Width of the heading sectors, degrees.
+pub const SECTOR_DEG: f64 = 30.0;
+
+/// Bounds of the tilt bands, degrees: 0-15, 15-30, 30-60, 60-90, 90-180.
+pub const TILT_BANDS_DEG: [f64; 6] = [0.0, 15.0, 30.0, 60.0, 90.0, 180.0];
+
+/// `magcal evaluate`.
+#[derive(Debug, Args)]
+pub struct EvaluateArgs {
+    /// `CAL.json LOG`: a calibration.json written by `magcal calibrate` and the log to judge it
+    /// on; with `--raw`, the log alone.
+    #[arg(value_name = "CAL.json LOG", num_args = 1..=2, required = true)]
+    pub files: Vec<PathBuf>,
+    /// Evaluate the log's raw readings, uncalibrated, without a calibration file.
+    #[arg(long)]
+    pub raw: bool,
+    /// How to read the log, as for `calibrate` (default columns: those the calibration was made
+    /// from); it must carry attitudes (`--quaternion` or `--euler`, or a flight log's own).
+    #[command(flatten)]
+    pub input: LogArgs,
+    /// Print one JSON object with every figure instead of the text report.
+    #[arg(long)]
+    pub json: bool,
+    /// Write one row per reading used (its line, time, attitude, tilt and errors) to this CSV
+    /// file, replaced whole (never an input).
+    #[arg(long, value_name = "FILE.csv")]
+    pub errors: Option<PathBuf>,
+}
+
+/// Runs `evaluate`.
+///
+/// # Errors
+/// A bad calibration file or log, a log without attitudes, too few readings with one or
+/// attitudes that do not determine the heading errors, a reading whose calibrated value is not
+/// finite, an `--errors` path that may not be replaced (exit 2).
+pub fn run(args: &EvaluateArgs) -> Result<(), Failure> {
+    Ok(evaluate(args)?)
+}
+
+/// The calibration (`None` with `--raw`) and the log named on the command line.
+fn files(args: &EvaluateArgs) -> Result<(Option<&Path>, &Path)> {
+    match (args.raw, &args.files[..]) {
+        (true, [log]) => Ok((None, log)),
+        (false, [cal, log]) => Ok((Some(cal), log)),
+        (true, [cal, _]) => bail!(
+            "--raw evaluates the log's readings uncalibrated: give the log alone, not {} (magcal evaluate --raw LOG)",
+            cal.display()
+        ),
+        (false, [log]) => bail!(
+            "give the calibration and the log (magcal evaluate CAL.json LOG), or --raw to evaluate {}'s readings uncalibrated",
+            log.display()
+        ),
+        _ => bail!("give CAL.json LOG, or --raw LOG"),
+    }
+}
+
+fn evaluate(args: &EvaluateArgs) -> Result<()> {
+    let (cal_path, log_path) = files(args)?;
+    let inputs: Vec<&Path> = cal_path.into_iter().chain([log_path]).collect();
+    let errors_out = match &args.errors {
+        Some(p) if p == Path::new("-") => {
+            bail!("--errors -: give a file (standard output carries the report)")
+        }
+        Some(p) => Some(Output::File(p.clone())),
+        None => None,
+    };
+    if let Some(out) = &errors_out {
+        out.check(&inputs)?;
+    }
+    let cal = cal_path.map(read_calibration).transpose()?;
+    let cal_shown = cal_path.map(|p| p.display().to_string());
+    let log = read_log(args, log_path, cal.as_ref().zip(cal_shown.as_deref()))?;
+    let used = Used::of(&log, log_path)?;
+    let log_shown = log_path.display().to_string();
+    let calibrated = match &cal {
+        Some(c) => Some(calibrate(
+            c,
+            &used,
+            &log_shown,
+            cal_shown.as_deref().unwrap_or_default(),
+        )?),
+        None => None,
+    };
+    let fit = |readings: &[Vec3], what: &str| {
+        align(readings, &used.attitudes, &AlignSettings::default())
+            .with_context(|| format!("{log_shown}: {what}: the attitudes do not judge them"))
+    };
+    let raw_fit = fit(&used.raw, "the raw readings")?;
+    let cal_fit = match &calibrated {
+        Some(b) => Some(fit(b, "the calibrated readings")?),
+        None => None,
+    };
+    let json = report::EvaluationJson::new(
+        report::Source {
+            log: &log,
+            log_shown: &log_shown,
+            cal: cal.as_ref(),
+            cal_shown: cal_shown.as_deref(),
+        },
+        &used,
+        cal_fit.as_ref(),
+        &raw_fit,
+    );
+    if let Some(Output::File(path)) = &errors_out {
+        let rows = report::error_rows(&used, cal_fit.as_ref().unwrap_or(&raw_fit), &raw_fit);
+        replace_with(path, &inputs, |w| crate::output::write_csv(rows, w))?;
+    }
+    to_stdout(|w| {
+        if args.json {
+            serde_json::to_writer_pretty(&mut *w, &json)?;
+            writeln!(w)?;
+        } else {
+            report::print(w, &json)?;
+        }
+        Ok(())
+    })?;
+    warn(&log, &log_shown, cal.as_ref().zip(cal_shown.as_deref()));
+    Ok(())
+}
+
+/// The log at `path`, read as `apply` reads it for a calibration `cal` (named `.1`), or as given
+/// for `--raw`; refused without attitudes, naming the flags that give them.
+fn read_log(args: &EvaluateArgs, path: &Path, cal: Option<(&CalibrationJson, &str)>) -> Result<Log> {
+    let log = match cal {
+        Some((cal, shown)) => {
+            let mut input = args.input.clone();
+            input.columns = columns_for(cal, shown, path, &input)?;
+            super::apply::read_held(cal, shown, path, &input, EVALUATE_BYTES_PER_READING)?
+        }
+        None => source::open(path, &args.input, EVALUATE_BYTES_PER_READING)?,
+    };
+    if log.attitudes.is_none() {
+        match log.origin.format {
+            Format::Csv => bail!(
+                "{}: no attitudes to evaluate against: name the log's attitude columns with --quaternion W,X,Y,Z or --euler ROLL,PITCH,YAW (and --attitude-frame enu for body-to-ENU attitudes)",
+                path.display()
+            ),
+            f => bail!(
+                "{}: {} without attitude messages: nothing to evaluate against",
+                path.display(),
+                f.with_article()
+            ),
+        }
+    }
+    Ok(log)
+}
+
+/// The readings of a log that have an attitude, with what the figures need of each.
+pub struct Used {
+    /// Each reading's line (or byte offset) and time.
+    pub lines: Vec<usize>,
+    pub times: Option<Vec<f64>>,
+    /// The raw readings.
+    pub raw: Vec<Vec3>,
+    /// The attitudes as [`align`] takes them: body (in the log's convention: forward-right-down
+    /// for `ned`, forward-left-up for `enu`) into a z-up reference frame.
+    pub attitudes: Vec<Mat3>,
+    /// Roll, pitch and heading (NED convention, degrees; heading clockwise from the reference
+    /// frame's north) and tilt (degrees) of each.
+    pub roll_pitch_heading: Vec<[f64; 3]>,
+    pub tilt: Vec<f64>,
+    /// Readings of the log without an attitude.
+    pub without: usize,
+    /// The log's attitude convention.
+    pub frame: NavFrame,
+}
+
+impl Used {
+    fn of(log: &Log, path: &Path) -> Result<Self> {
+        let Some(attitudes) = &log.attitudes else {
+            bail!("{}: no attitudes", path.display());
+        };
+        let frame = log.origin.attitude_frame;
+        let mut used = Self {
+            lines: Vec::new(),
+            times: log.times.as_ref().map(|_| Vec::new()),
+            raw: Vec::new(),
+            attitudes: Vec::new(),
+            roll_pitch_heading: Vec::new(),
+            tilt: Vec::new(),
+            without: 0,
+            frame,
+        };
+        for (t, c) in attitudes.iter().enumerate() {
+            let Some(c) = c else {
+                used.without += 1;
+                continue;
+            };
+            used.lines.push(log.lines[t]);
+            if let (Some(out), Some(times)) = (&mut used.times, &log.times) {
+                out.push(times[t]);
+            }
+            used.raw.push(log.readings[t]);
+            used.attitudes.push(match frame {
+                NavFrame::Ned => z_up_of_ned(c),
+                NavFrame::Enu => from_ned(c, NavFrame::Enu),
+            });
+            used.roll_pitch_heading.push(roll_pitch_heading_deg(c));
+            used.tilt.push(tilt_deg(c));
+        }
+        Ok(used)
+    }
+
+    /// Each reading's heading sector (`SECTOR_DEG` wide from 0).
+    pub fn sectors(&self) -> Vec<Option<usize>> {
+        let n = (360.0 / SECTOR_DEG) as usize;
+        self.roll_pitch_heading
+            .iter()
+            .map(|a| Some(((a[2] / SECTOR_DEG).floor() as usize).min(n - 1)))
+            .collect()
+    }
+
+    /// Each reading's tilt band ([`TILT_BANDS_DEG`]; a band holds its upper bound, the first its
+    /// lower too).
+    pub fn bands(&self) -> Vec<Option<usize>> {
+        self.tilt
+            .iter()
+            .map(|&t| (1..TILT_BANDS_DEG.len()).position(|i| t <= TILT_BANDS_DEG[i]))
+            .collect()
+    }
+}
+
+/// The calibrated readings `P (raw - bias)` of `used`; a value that is not finite is an error
+/// naming its line.
+fn calibrate(cal: &CalibrationJson, used: &Used, log_shown: &str, cal_shown: &str) -> Result<Vec<Vec3>> {
+    used.raw
+        .iter()
+        .zip(&used.lines)
+        .map(|(raw, line)| {
+            let b = cal.apply(*raw);
+            if !b.iter().all(|v| v.is_finite()) {
+                bail!(
+                    "{log_shown}: line {line}: the reading {raw:?} calibrated by {cal_shown} is {b:?}, not finite (is the calibration for this sensor and units?)"
+                );
+            }
+            Ok(b)
+        })
+        .collect()
+}
+
+/// The warnings of `apply`, after the report: rows skipped, a calibration not marked
+/// identifiable, a log whose calibrated radius is not the calibration's magnitude (other units,
+/// another sensor).
+fn warn(log: &Log, log_shown: &str, cal: Option<(&CalibrationJson, &str)>) {
+    for (line, reason) in &log.skipped {
+        to_stderr!("magcal: skipped line {line}: {reason}");
+    }
+    let Some((cal, shown)) = cal else {
+        return;
+    };
+    if !cal.identifiable {
+        to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
+    }
+    let mut radius = RadiusMedian::new(cal.magnitude);
+    for r in &log.readings {
+        radius.push(cal.apply(*r));
+    }
+    if let Some(why) = cal.radius_mismatch(radius.ratio()) {
+        to_stderr!("magcal: warning: {log_shown}: {why}");
+    }
+}

@@ -1,0 +1,325 @@
+//! What `evaluate` reports: one JSON object ([`EvaluationJson`], `--json`), the text report made
+//! from it, and the per-reading rows of `--errors` ([`ErrorRow`]).
+
+use std::io::Write;
+
+use magcal_core::Vec3;
+use magcal_core::aviation::NavFrame;
+use magcal_core::reference::{Alignment, ErrorSummary, axis_angle, cell_summaries};
+use magcal_core::small::{Mat3, norm};
+use serde::{Deserialize, Serialize};
+
+use super::{SECTOR_DEG, TILT_BANDS_DEG, Used};
+use crate::commands::calibrate::heading::against;
+use crate::log::calibration::CalibrationJson;
+use crate::log::source::Log;
+use crate::output::Real;
+
+/// What was evaluated, for the report's header.
+pub struct Source<'a> {
+    pub log: &'a Log,
+    pub log_shown: &'a str,
+    pub cal: Option<&'a CalibrationJson>,
+    pub cal_shown: Option<&'a str>,
+}
+
+/// `evaluate --json`: every figure the text report prints.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EvaluationJson {
+    pub log: String,
+    /// SHA-256 of the log's bytes as read.
+    pub log_sha256: String,
+    /// The calibration file; `null` with `--raw`.
+    pub calibration: Option<String>,
+    /// The readings' unit where known (the calibration's `--units`, a flight log's own).
+    pub units: Option<String>,
+    /// What the attitudes are, in words.
+    pub against: String,
+    /// The frames of `rotation` and `field`, in words.
+    pub frames: String,
+    pub rows: RowsJson,
+    /// Width of the heading sectors of `by_heading`, degrees.
+    pub sector_deg: f64,
+    /// Bounds of the tilt bands of `by_tilt`, degrees.
+    pub tilt_bands_deg: Vec<f64>,
+    /// The calibrated readings `P (raw - bias)`; `null` with `--raw`.
+    pub calibrated: Option<FiguresJson>,
+    /// The raw readings taken as calibrated.
+    pub uncalibrated: FiguresJson,
+}
+
+/// What was read and what was used.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RowsJson {
+    /// Readings read (after `--where`, `--skip-bad`, `--from`, `--to` and `--rate`).
+    pub readings: usize,
+    /// Readings with an attitude: those evaluated.
+    pub used: usize,
+    /// Readings without an attitude (an empty or non-finite attitude cell, no attitude sample
+    /// near them in time).
+    pub without_attitude: usize,
+    /// Rows skipped for a bad value (`--skip-bad`).
+    pub skipped: usize,
+    /// Rows left out by `--where`.
+    pub left_out_by_where: usize,
+    /// What the reader and the cut say about the log, one sentence each.
+    pub notes: Vec<String>,
+}
+
+/// The figures of one set of readings, degrees unless said.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FiguresJson {
+    pub heading_rms_deg: f64,
+    pub heading_p95_deg: f64,
+    pub heading_max_deg: f64,
+    pub direction_rms_deg: f64,
+    /// `Q`, calibrated frame into body frame (rows).
+    pub rotation: Mat3,
+    /// `Q`'s angle and axis (a unit vector in the body frame).
+    pub rotation_angle_deg: f64,
+    pub rotation_axis: Vec3,
+    /// `F` in the reference frame, the readings' units; its magnitude and dip (positive where
+    /// the field points below the horizontal).
+    pub field: Vec3,
+    pub field_magnitude: f64,
+    pub field_dip_deg: f64,
+    /// The errors per heading sector of the body, from 0 in steps of `sector_deg`.
+    pub by_heading: Vec<CellJson>,
+    /// The errors per tilt band.
+    pub by_tilt: Vec<CellJson>,
+}
+
+/// The errors of the readings in one cell; the figures are `null` in an empty cell.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CellJson {
+    pub from_deg: f64,
+    pub to_deg: f64,
+    pub readings: usize,
+    pub heading_rms_deg: Option<f64>,
+    pub heading_max_deg: Option<f64>,
+    pub direction_rms_deg: Option<f64>,
+}
+
+/// `evaluate --errors`: one row per reading evaluated. The attitude in the NED convention
+/// (heading clockwise from the reference frame's north), the tilt between body up and up, and
+/// the errors of the calibrated readings (of the raw ones with `--raw`) and of the raw ones.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ErrorRow {
+    /// The reading's line in a CSV log, its message's byte offset in a flight log.
+    pub line: usize,
+    /// Seconds on the log's clock; empty where the log has no times.
+    pub time_s: Option<Real>,
+    pub roll_deg: Real,
+    pub pitch_deg: Real,
+    pub heading_deg: Real,
+    pub tilt_deg: Real,
+    pub heading_error_deg: Real,
+    pub direction_error_deg: Real,
+    pub raw_heading_error_deg: Real,
+    pub raw_direction_error_deg: Real,
+}
+
+impl EvaluationJson {
+    /// The report of the fits `calibrated` (none with `--raw`) and `raw` of the readings `used`.
+    pub fn new(source: Source, used: &Used, calibrated: Option<&Alignment>, raw: &Alignment) -> Self {
+        let log = source.log;
+        let units = source.cal.and_then(|c| c.units.clone()).or_else(|| {
+            log.origin
+                .unit
+                .and_then(|u| clap::ValueEnum::to_possible_value(&u))
+                .map(|v| v.get_name().to_string())
+        });
+        let body = match used.frame {
+            NavFrame::Ned => "forward, right, down",
+            NavFrame::Enu => "forward, left, up",
+        };
+        Self {
+            log: source.log_shown.to_string(),
+            log_sha256: log.sha256.clone(),
+            calibration: source.cal_shown.map(str::to_string),
+            units,
+            against: against(log.origin.format).to_string(),
+            frames: format!(
+                "Q turns the calibrated frame into the body frame ({body}); F is in the reference frame with z up (east, north, up for NED attitudes)"
+            ),
+            rows: RowsJson {
+                readings: log.readings.len(),
+                used: used.raw.len(),
+                without_attitude: used.without,
+                skipped: log.skipped.len(),
+                left_out_by_where: log.filtered,
+                notes: log.origin.notes.clone(),
+            },
+            sector_deg: SECTOR_DEG,
+            tilt_bands_deg: TILT_BANDS_DEG.to_vec(),
+            calibrated: calibrated.map(|a| figures(a, used)),
+            uncalibrated: figures(raw, used),
+        }
+    }
+}
+
+/// The figures of one fit.
+fn figures(a: &Alignment, used: &Used) -> FiguresJson {
+    let (axis, angle) = axis_angle(&a.rotation);
+    let f = a.field;
+    let sectors = cell_summaries(a, &used.sectors(), (360.0 / SECTOR_DEG) as usize);
+    let bands = cell_summaries(a, &used.bands(), TILT_BANDS_DEG.len() - 1);
+    FiguresJson {
+        heading_rms_deg: a.summary.heading_rms_deg,
+        heading_p95_deg: a.summary.heading_p95_deg,
+        heading_max_deg: a.summary.heading_max_deg,
+        direction_rms_deg: a.summary.direction_rms_deg,
+        rotation: a.rotation,
+        rotation_angle_deg: angle.to_degrees(),
+        rotation_axis: axis,
+        field: f,
+        field_magnitude: norm(f),
+        field_dip_deg: (-f[2]).atan2(f[0].hypot(f[1])).to_degrees(),
+        by_heading: sectors
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| cell(i as f64 * SECTOR_DEG, (i + 1) as f64 * SECTOR_DEG, c))
+            .collect(),
+        by_tilt: bands
+            .into_iter()
+            .enumerate()
+            .map(|(i, c)| cell(TILT_BANDS_DEG[i], TILT_BANDS_DEG[i + 1], c))
+            .collect(),
+    }
+}
+
+fn cell(from_deg: f64, to_deg: f64, (readings, s): (usize, Option<ErrorSummary>)) -> CellJson {
+    CellJson {
+        from_deg,
+        to_deg,
+        readings,
+        heading_rms_deg: s.map(|s| s.heading_rms_deg),
+        heading_max_deg: s.map(|s| s.heading_max_deg),
+        direction_rms_deg: s.map(|s| s.direction_rms_deg),
+    }
+}
+
+/// The rows of `--errors`: `judged`'s errors (the calibrated readings', or the raw ones' with
+/// `--raw`) beside `raw`'s.
+pub fn error_rows<'a>(
+    used: &'a Used,
+    judged: &'a Alignment,
+    raw: &'a Alignment,
+) -> impl Iterator<Item = ErrorRow> + 'a {
+    (0..used.raw.len()).map(move |t| {
+        let [roll, pitch, heading] = used.roll_pitch_heading[t];
+        ErrorRow {
+            line: used.lines[t],
+            time_s: used.times.as_ref().map(|v| Real(v[t])),
+            roll_deg: Real(roll),
+            pitch_deg: Real(pitch),
+            heading_deg: Real(heading),
+            tilt_deg: Real(used.tilt[t]),
+            heading_error_deg: Real(judged.heading_deg[t]),
+            direction_error_deg: Real(judged.direction_deg[t]),
+            raw_heading_error_deg: Real(raw.heading_deg[t]),
+            raw_direction_error_deg: Real(raw.direction_deg[t]),
+        }
+    })
+}
+
+/// A figure to 4 decimals, `-` for none.
+fn fig(x: Option<f64>) -> String {
+    x.map_or_else(|| "-".to_string(), |v| format!("{v:.4}"))
+}
+
+/// The text report of `j`.
+///
+/// # Errors
+/// A failed write.
+pub fn print(w: &mut dyn Write, j: &EvaluationJson) -> std::io::Result<()> {
+    let r = &j.rows;
+    match &j.calibration {
+        Some(c) => writeln!(w, "{} evaluated with {c}", j.log)?,
+        None => writeln!(w, "{}: raw readings, uncalibrated", j.log)?,
+    }
+    writeln!(
+        w,
+        "  {} readings with an attitude used, {} without one; {} rows skipped, {} left out by --where",
+        r.used, r.without_attitude, r.skipped, r.left_out_by_where
+    )?;
+    for note in &r.notes {
+        writeln!(w, "  note: {note}")?;
+    }
+    writeln!(w, "  attitudes: {}", j.against)?;
+    writeln!(w, "  {}", j.frames)?;
+    writeln!(
+        w,
+        "{:<16}{:>13}{:>13}{:>13}{:>15}   (degrees)",
+        "", "heading rms", "heading p95", "heading max", "direction rms"
+    )?;
+    let sets: Vec<(&str, &FiguresJson)> = j
+        .calibrated
+        .iter()
+        .map(|f| ("calibrated", f))
+        .chain([("uncalibrated", &j.uncalibrated)])
+        .collect();
+    for (name, f) in &sets {
+        writeln!(
+            w,
+            "{name:<16}{:>13.4}{:>13.4}{:>13.4}{:>15.4}",
+            f.heading_rms_deg, f.heading_p95_deg, f.heading_max_deg, f.direction_rms_deg
+        )?;
+    }
+    let units = j.units.as_deref().unwrap_or("the log's units");
+    for (name, f) in &sets {
+        let a = f.rotation_axis;
+        writeln!(
+            w,
+            "{name}: Q {:.4} deg about ({:.4}, {:.4}, {:.4}); F ({:.4}, {:.4}, {:.4}) {units}, |F| {:.4}, dip {:.4} deg",
+            f.rotation_angle_deg,
+            a[0],
+            a[1],
+            a[2],
+            f.field[0],
+            f.field[1],
+            f.field[2],
+            f.field_magnitude,
+            f.field_dip_deg
+        )?;
+    }
+    let main = sets[0].1;
+    let raw = j.calibrated.as_ref().map(|_| &j.uncalibrated);
+    writeln!(
+        w,
+        "by heading of the body (clockwise from the reference frame's north), {}:",
+        sets[0].0
+    )?;
+    cells(w, &main.by_heading, raw.map(|r| &r.by_heading[..]))?;
+    writeln!(w, "by tilt (angle between body up and up), {}:", sets[0].0)?;
+    cells(w, &main.by_tilt, raw.map(|r| &r.by_tilt[..]))
+}
+
+/// A table of cells, with the raw readings' heading rms beside where given.
+fn cells(w: &mut dyn Write, cells: &[CellJson], raw: Option<&[CellJson]>) -> std::io::Result<()> {
+    write!(
+        w,
+        "  {:<10}{:>10}{:>13}{:>13}{:>15}",
+        "degrees", "readings", "heading rms", "heading max", "direction rms"
+    )?;
+    if raw.is_some() {
+        write!(w, "{:>17}", "raw heading rms")?;
+    }
+    writeln!(w)?;
+    for (i, c) in cells.iter().enumerate() {
+        let range = format!("{}-{}", c.from_deg, c.to_deg);
+        write!(
+            w,
+            "  {range:<10}{:>10}{:>13}{:>13}{:>15}",
+            c.readings,
+            fig(c.heading_rms_deg),
+            fig(c.heading_max_deg),
+            fig(c.direction_rms_deg)
+        )?;
+        if let Some(raw) = raw {
+            write!(w, "{:>17}", fig(raw[i].heading_rms_deg))?;
+        }
+        writeln!(w)?;
+    }
+    Ok(())
+}
