@@ -451,7 +451,7 @@ impl Moments {
 
 /// The 24 rotations that map the coordinate axes onto each other (signed permutation matrices
 /// of determinant +1): the starts of the alternation.
-fn axis_rotations() -> impl Iterator<Item = Mat3> {
+pub(crate) fn axis_rotations() -> impl Iterator<Item = Mat3> {
     const PERMUTATIONS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
     PERMUTATIONS.into_iter().flat_map(|p| {
         (0..8).filter_map(move |signs: u32| {

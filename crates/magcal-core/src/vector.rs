@@ -20,6 +20,10 @@
 //! eq. (6), so `psi`, `S` follow from `P^-1` as in [`ErrorModel::from_k`]) and `A` a rotation,
 //! the **alignment**: the body-frame field of a reading is `A P (m - O)`. `A` is the rotation
 //! between \[P1\]'s frame of the sensor (its z axis, then its y-z plane) and the body frame.
+//! A sensor mounted along the body's axes in another orientation (its axes forward, left, up
+//! in a body frame forward, right, down) turns `A` by a whole step `S`, one of the 24
+//! rotations that map the axes onto each other; the **misalignment** is what remains,
+//! `M = A S^T` with `S` the step nearest `A` ([`VectorFit::misalignment_deg`]).
 //!
 //! # Estimation
 //! Given `F`, `K` and `O` enter linearly: 12 unknowns, solved by least squares. Fitted, `F`
@@ -147,7 +151,8 @@ pub struct VectorStdError {
     pub psi_deg: Vec3,
     /// Of `S`.
     pub scale: Vec3,
-    /// Of the components of the alignment's rotation vector (axis times angle), degrees.
+    /// Of the components of the misalignment's rotation vector (axis times angle, body frame;
+    /// [`VectorFit::misalignment_deg`]), degrees.
     pub rotation_vector_deg: Vec3,
     /// Of the misalignment angle, degrees (the delta method: meaningful where the angle is
     /// several times it).
@@ -174,6 +179,11 @@ pub struct VectorFit {
     pub noise: Option<f64>,
     /// Residual degrees of freedom, `3 m - p`.
     pub dof: usize,
+    /// The 95 % interval of the noise (chi-square of `dof` degrees of freedom).
+    pub noise_interval95: Option<(f64, f64)>,
+    /// Student's `t` of `dof` degrees of freedom at 0.975: the multiple of a standard error
+    /// that makes a 95 % confidence interval.
+    pub quantile95: Option<f64>,
     /// Standard errors; `None` where the noise is unknown.
     pub std_error: Option<VectorStdError>,
     /// Whether the readings and attitudes determine the fit (see the module documentation).
@@ -199,16 +209,58 @@ impl VectorFit {
     }
 
     /// The angle of the alignment `A`, degrees in [0, 180].
-    pub fn misalignment_deg(&self) -> f64 {
+    pub fn alignment_angle_deg(&self) -> f64 {
         norm(rotation_vector(&self.alignment)).to_degrees()
     }
 
     /// The axis of the alignment `A`, a unit vector in the body frame (`(0, 0, 1)` for none).
-    pub fn misalignment_axis(&self) -> Vec3 {
-        let v = rotation_vector(&self.alignment);
-        let n = norm(v);
-        if n > 0.0 { v.map(|x| x / n) } else { [0.0, 0.0, 1.0] }
+    pub fn alignment_axis(&self) -> Vec3 {
+        unit_or_z(rotation_vector(&self.alignment))
     }
+
+    /// The whole step `S` nearest the alignment: of the 24 rotations that map the coordinate
+    /// axes onto each other (a sensor mounted along the body's axes, in any orientation: what an
+    /// autopilot's board orientation parameter holds), the one closest to `A`.
+    pub fn whole_step(&self) -> Mat3 {
+        nearest_whole_step(&self.alignment)
+    }
+
+    /// The misalignment: the angle of `M = A S^T` ([`Self::whole_step`]), the turn of the
+    /// sensor beyond the whole step, degrees in [0, 180]. For a sensor mounted along the body's
+    /// axes as [P1]'s frame lies (`S = I`), the angle of `A`.
+    pub fn misalignment_deg(&self) -> f64 {
+        norm(misalignment_vector(&self.alignment, &self.whole_step())).to_degrees()
+    }
+
+    /// The axis of the misalignment `M`, a unit vector in the body frame (`(0, 0, 1)` for
+    /// none).
+    pub fn misalignment_axis(&self) -> Vec3 {
+        unit_or_z(misalignment_vector(&self.alignment, &self.whole_step()))
+    }
+}
+
+/// `v / |v|`, or `(0, 0, 1)` for a zero `v`.
+fn unit_or_z(v: Vec3) -> Vec3 {
+    let n = norm(v);
+    if n > 0.0 { v.map(|x| x / n) } else { [0.0, 0.0, 1.0] }
+}
+
+/// Of the 24 rotations that map the coordinate axes onto each other, the nearest to `a`
+/// (largest `trace(S^T A)`).
+fn nearest_whole_step(a: &Mat3) -> Mat3 {
+    let trace = |s: &Mat3| {
+        (0..3)
+            .map(|i| (0..3).map(|k| s[k][i] * a[k][i]).sum::<f64>())
+            .sum::<f64>()
+    };
+    crate::reference::axis_rotations()
+        .max_by(|x, y| trace(x).total_cmp(&trace(y)))
+        .unwrap_or([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+}
+
+/// The rotation vector (radians, body frame) of `A S^T`.
+fn misalignment_vector(a: &Mat3, step: &Mat3) -> Vec3 {
+    rotation_vector(&mat_mul(a, &transpose(step)))
 }
 
 /// The largest entry of `|C^T C - I|` an attitude may have (as [`crate::reference`]).
@@ -627,10 +679,12 @@ fn gauss_newton(y: &[Vec3], attitudes: &[Mat3], mut unit: Unit) -> Result<(Unit,
             }
             t /= 2.0;
         }
-        // The step's size is the change it makes to the residuals: below 1e-9 of their norm it
-        // moves nothing the noise does not hide, below 1e-13 per reading (noise-free readings)
-        // it is rounding, and a step that lowers nothing leaves the fit at its rounding.
-        if !accepted || size <= 1e-9 * rss.sqrt() || size <= 1e-13 * (y.len() as f64).sqrt() {
+        // The step's size is the change it makes to the residuals. Below 1e-6 of their norm it
+        // moves each unknown by at most 1e-6 sqrt(dof) of its standard error, and lowers the sum
+        // of squares by its square, 1e-12 of the sum: the rounding of a sum over 1e4 to 1e5
+        // readings, where further steps wander. Below 1e-13 per reading (noise-free readings) it
+        // is rounding too; a step that lowers nothing leaves the fit at its rounding.
+        if !accepted || size <= 1e-6 * rss.sqrt() || size <= 1e-13 * (y.len() as f64).sqrt() {
             if det(&unit.k) < 0.0 {
                 unit.k = unit.k.map(|r| r.map(|v| -v));
                 unit.f = unit.f.map(|v| -v);
@@ -696,11 +750,12 @@ fn rotation_vector(r: &Mat3) -> Vec3 {
     col.map(|x| x / n * angle)
 }
 
-/// `(psi_deg, S, rotation vector in degrees)` of `K`: what the delta method differentiates.
-fn derived(k: &Mat3) -> Option<[f64; 9]> {
+/// `(psi_deg, S, misalignment vector in degrees)` of `K` beyond the whole step `step`: what
+/// the delta method differentiates.
+fn derived(k: &Mat3, step: &Mat3) -> Option<[f64; 9]> {
     let (p, a) = decompose(k)?;
     let e = ErrorModel::from_k(&upper_triangular_inverse(&p)?, [0.0; 3]);
-    let (psi, s, w) = (e.psi_deg(), e.scale(), rotation_vector(&a));
+    let (psi, s, w) = (e.psi_deg(), e.scale(), misalignment_vector(&a, step));
     Some([
         psi[0],
         psi[1],
@@ -745,6 +800,10 @@ fn assess(y: &[Vec3], attitudes: &[Mat3], unit: Unit, fitted: bool, scale: f64, 
         alignment,
         noise: noise_unit.is_finite().then_some(noise_unit * scale),
         dof,
+        noise_interval95: noise_unit
+            .is_finite()
+            .then(|| crate::log_fit::chi_square_interval(noise_unit * scale, dof)),
+        quantile95: Some(crate::log_fit::student_quantile(0.975, dof)).filter(|q| q.is_finite()),
         std_error,
         identifiable,
         verdict,
@@ -778,13 +837,14 @@ fn std_errors(unit: &Unit, cov: &[Vec<f64>], fitted: bool, scale: f64) -> Option
     };
     // The delta method on the K block: central differences of `derived`.
     let base = unit.k;
+    let step = nearest_whole_step(&decompose(&base)?.1);
     let h = 1e-6 * base.iter().flatten().fold(0.0_f64, |a, v| a.max(v.abs()));
     let mut jac = [[0.0; 9]; 9];
     for a in 0..9 {
         let (mut plus, mut minus) = (base, base);
         plus[a / 3][a % 3] += h;
         minus[a / 3][a % 3] -= h;
-        let (gp, gm) = (derived(&plus)?, derived(&minus)?);
+        let (gp, gm) = (derived(&plus, &step)?, derived(&minus, &step)?);
         for r in 0..9 {
             jac[r][a] = (gp[r] - gm[r]) / (2.0 * h);
         }
@@ -797,7 +857,7 @@ fn std_errors(unit: &Unit, cov: &[Vec<f64>], fitted: bool, scale: f64) -> Option
     };
     let g: [f64; 9] = std::array::from_fn(|r| var(r).sqrt());
     // The angle |w|: gradient w / |w| through the rotation vector's covariance.
-    let w = derived(&base)?;
+    let w = derived(&base, &step)?;
     let wv = [w[6], w[7], w[8]];
     let angle = norm(wv);
     let misalignment_deg = if angle > 0.0 {

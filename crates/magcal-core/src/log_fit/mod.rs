@@ -661,7 +661,7 @@ fn ellipsoid_test(rms: f64, given: Option<(f64, f64, usize)>) -> EllipsoidTest {
 
 /// The 95 % interval of a noise `value` estimated with `dof` degrees of freedom:
 /// `value sqrt(dof / chi2_q)` at `q` = 0.975 and 0.025.
-fn chi_square_interval(value: f64, dof: usize) -> (f64, f64) {
+pub(crate) fn chi_square_interval(value: f64, dof: usize) -> (f64, f64) {
     use statrs::distribution::{ChiSquared, ContinuousCDF};
     if value == 0.0 {
         // Noise-free readings: nothing scatters, whatever the quantiles.
@@ -686,7 +686,7 @@ fn normal_quantile(q: f64) -> f64 {
 }
 
 /// Student's `t` quantile of `q` with `dof` degrees of freedom.
-fn student_quantile(q: f64, dof: usize) -> f64 {
+pub(crate) fn student_quantile(q: f64, dof: usize) -> f64 {
     use statrs::distribution::{ContinuousCDF, StudentsT};
     StudentsT::new(0.0, 1.0, dof as f64).map_or(f64::NAN, |d| d.inverse_cdf(q))
 }

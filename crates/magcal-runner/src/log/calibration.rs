@@ -70,6 +70,10 @@ pub struct CalibrationJson {
     /// The motor interference fitted with the calibration (`calibrate --motor`), else `null`.
     #[serde(default)]
     pub motor: Option<MotorJson>,
+    /// A vector calibration's alignment (`calibrate --fit vector`), else `null`: the body-frame
+    /// field of a reading is `alignment.rotation P (raw - bias)`.
+    #[serde(default)]
+    pub alignment: Option<AlignmentJson>,
     pub columns: [String; 3],
     pub samples: usize,
     pub skipped: usize,
@@ -138,6 +142,53 @@ pub struct MotorJson {
     pub std_error: Option<[f64; 3]>,
     /// The range of `input` over the readings fitted.
     pub input_range: [f64; 2],
+}
+
+/// A vector calibration against reference attitudes (docs/conventions.md "Vector
+/// calibration"): `raw = K C^T F + bias`, `K^-1 = rotation P`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AlignmentJson {
+    /// `A`: the rotation of \[P1\]'s sensor frame (the frame of `P`) into the body frame
+    /// (forward, right, down); the body-frame field is `A P (raw - bias)`.
+    pub rotation: Mat3,
+    /// The angle of `rotation`, degrees.
+    pub angle_deg: f64,
+    /// Its axis, a unit vector in the body frame.
+    pub axis: [f64; 3],
+    /// `S`: the rotation mapping the axes onto each other nearest `rotation` (the sensor
+    /// mounted along the body's axes in some orientation).
+    pub whole_step: Mat3,
+    /// The angle of `M = rotation S^T`, degrees: the misalignment beyond the whole step, which
+    /// a scalar calibration cannot see.
+    pub misalignment_deg: f64,
+    /// Its axis, a unit vector in the body frame.
+    pub misalignment_axis: [f64; 3],
+    /// Standard error of `misalignment_deg` (delta method), `null` where unknown.
+    pub std_misalignment_deg: Option<f64>,
+    /// Standard errors of the misalignment's rotation vector (axis times angle), degrees.
+    pub std_misalignment_vector_deg: Option<[f64; 3]>,
+    /// The whole `K`: `raw = K C^T F + bias`.
+    pub k_full: Mat3,
+    /// Standard errors of `k_full`.
+    pub std_k_full: Option<Mat3>,
+    /// `F`, the field in the reference frame (z up: east, north, up where the attitudes are
+    /// geographic), the log's units.
+    pub field: [f64; 3],
+    /// Standard errors of `field` (zero where given).
+    pub std_field: Option<[f64; 3]>,
+    /// Where `field` comes from: the WMM, or fitted with its magnitude fixed.
+    pub field_source: String,
+    /// Readings with an attitude, fitted.
+    pub readings: usize,
+    /// RMS of the residual components `raw - K C^T F - bias`, the log's units.
+    pub residual_rms: f64,
+    /// Residual degrees of freedom, `3 readings - unknowns`.
+    pub dof: usize,
+    /// Gauss-Newton iterations.
+    pub iterations: usize,
+    /// Heading and direction errors of `A P (raw - bias)` against the attitudes with the
+    /// alignment held (`Q` = identity) and `F` as fitted or given; `null` where undefined.
+    pub heading_held: Option<HeadingFiguresJson>,
 }
 
 /// The heading a calibration gives against the attitudes a log carries (docs/conventions.md
@@ -242,6 +293,15 @@ impl CalibrationJson {
     pub fn apply(&self, raw: magcal_core::Vec3) -> magcal_core::Vec3 {
         magcal_core::small::mat_vec(&self.p, magcal_core::small::sub(raw, self.bias))
     }
+
+    /// The field of a raw reading in the body frame where the calibration carries an alignment
+    /// (`rotation P (raw - bias)`), else [`Self::apply`].
+    pub fn apply_body(&self, raw: magcal_core::Vec3) -> magcal_core::Vec3 {
+        let b = self.apply(raw);
+        self.alignment
+            .as_ref()
+            .map_or(b, |a| magcal_core::small::mat_vec(&a.rotation, b))
+    }
 }
 
 /// The `format` this magcal writes and reads.
@@ -325,7 +385,30 @@ impl CalibrationJson {
             }
         }
         self.check_p()?;
-        self.check_derived()
+        self.check_derived()?;
+        self.check_alignment()
+    }
+
+    /// `alignment.rotation`, where present, a rotation: finite, orthonormal to rounding,
+    /// determinant +1.
+    fn check_alignment(&self) -> Result<(), String> {
+        use magcal_core::small::{mat_mul, transpose};
+        let Some(a) = &self.alignment else {
+            return Ok(());
+        };
+        let r = &a.rotation;
+        let rtr = mat_mul(&transpose(r), r);
+        let off = frobenius(&std::array::from_fn(|i| {
+            std::array::from_fn(|j| rtr[i][j] - if i == j { 1.0 } else { 0.0 })
+        }));
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        if !(within(off, 1e-9) && det > 0.0) {
+            return Err(format!(
+                "alignment.rotation {r:?}: not a rotation (|R^T R - I| = {off:.3e}, det {det:.6})"
+            ));
+        }
+        Ok(())
     }
 
     /// `p` upper triangular with a positive diagonal, `P^T P` finite, conditioned below

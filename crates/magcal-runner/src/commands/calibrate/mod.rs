@@ -2,6 +2,7 @@
 
 pub mod heading;
 mod motor;
+mod vector;
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -41,6 +42,10 @@ pub enum Fit {
     Offset,
     /// The richest model this log identifies.
     Auto,
+    /// Against the log's reference attitudes (`--quaternion` or `--euler`): the whole `K`, the
+    /// misalignment with the body included, and the bias; the field from `--site` and `--date`,
+    /// else fitted (docs/conventions.md "Vector calibration").
+    Vector,
 }
 
 impl Fit {
@@ -53,7 +58,8 @@ impl Fit {
     ) -> Result<(LogFit, Vec<AutoReason>), magcal_core::CalibrationError> {
         let model = match self {
             Fit::Auto => return log_fit::fit_auto(readings, magnitude, settings),
-            Fit::Full => FitModel::Full,
+            // The vector fit starts from the scalar full fit, whose magnitude it takes.
+            Fit::Full | Fit::Vector => FitModel::Full,
             Fit::Diagonal => FitModel::Diagonal,
             Fit::Offset => FitModel::Offset,
         };
@@ -178,6 +184,13 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     });
     let units = units_of(args, &log)?;
     let (mut fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
+    let vector = match args.fit {
+        Fit::Vector => Some(vector::fit(args, &log, &fit, units, place.as_ref())?),
+        _ => None,
+    };
+    if let Some(v) = &vector {
+        fit = v.as_log_fit(&fit, &log);
+    }
     let joint = match args.motor {
         Some(m) => {
             let (refit, joint) = motor::refit(&mut log, &fit, m, &settings).with_context(|| shown.clone())?;
@@ -187,6 +200,9 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         None => None,
     };
     let mut json = to_json(&args.log, &log, &fit, &why, source);
+    if let Some(v) = &vector {
+        v.record(&mut json);
+    }
     if let Some(joint) = &joint {
         motor::record(&mut json, joint);
     }
@@ -207,7 +223,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     }
     coverage_in_box(&mut json, args, &log, place.as_ref())?;
     if let Some(set) = set {
-        write_out(set, &args.log, rows, &json, &log, &fit)?;
+        write_out(set, &args.log, rows, &json, &log)?;
     }
     to_stdout(|w| {
         if args.json {
@@ -303,6 +319,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         time_span_s: None,
         heading_vs_log: None,
         motor: None,
+        alignment: None,
         columns: log.columns.clone(),
         samples: log.readings.len(),
         skipped: log.skipped.len(),
@@ -403,6 +420,9 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
     }
     writeln!(w, "magnitude {} ({})", significant(j.magnitude, 7), j.magnitude_source)?;
     print_estimates(w, j)?;
+    if let Some(a) = &j.alignment {
+        vector::print(w, a)?;
+    }
     print_residuals_and_noise(w, j)?;
     print_verdicts(w, j)
 }
@@ -647,14 +667,7 @@ fn print_flown(w: &mut dyn Write, f: &Flown, samples: usize, box_from: Option<&s
 /// Writes the calibration set: `calibration.json`, `residuals.csv` (one [`ResidualRow`] per
 /// reading fitted) and `manifest.json` with the log's and every file's SHA-256, into the staging
 /// directory of `set`, and swaps it in. `rows`: the data rows read from the log.
-fn write_out(
-    mut set: ResultSet,
-    path: &Path,
-    rows: usize,
-    json: &CalibrationJson,
-    log: &Log,
-    fit: &LogFit,
-) -> Result<()> {
+fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJson, log: &Log) -> Result<()> {
     let mut files = BTreeMap::new();
     let mut text = serde_json::to_vec_pretty(json).context("JSON")?;
     text.push(b'\n');
@@ -664,7 +677,7 @@ fn write_out(
     set.put_with("residuals.csv", |w| {
         let mut w = Hashing::new(w);
         let residuals = log.readings.iter().zip(&log.lines).map(|(raw, &line)| {
-            let b = fit.apply(*raw);
+            let b = json.apply_body(*raw);
             let norm = magcal_core::small::norm(b);
             ResidualRow {
                 line,
@@ -675,7 +688,7 @@ fn write_out(
                 y: Real(b[1]),
                 z: Real(b[2]),
                 norm: Real(norm),
-                residual: Real(norm - fit.magnitude),
+                residual: Real(norm - json.magnitude),
             }
         });
         output::write_csv(residuals, &mut w)?;

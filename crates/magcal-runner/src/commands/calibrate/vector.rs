@@ -1,0 +1,253 @@
+//! `calibrate --fit vector`: the whole `K` and the bias against the log's reference attitudes
+//! (docs/conventions.md "Vector calibration"), recorded as \[P1\]'s `P` and bias plus the
+//! alignment `A` (`K^-1 = A P`).
+
+use std::io::Write;
+
+use anyhow::{Context, Result, bail};
+use magcal_core::aviation::z_up_of_ned;
+use magcal_core::log_fit::{LogFit, Noise, significant};
+use magcal_core::reference::percentile;
+use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
+use magcal_core::vector::{ReferenceField, VectorFit, fit_vector};
+
+use super::CalibrateArgs;
+use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson};
+use crate::log::source::Log;
+use crate::log::vehicle::Place;
+use crate::scenario::site::{Units, wmm_field};
+
+/// A vector calibration of a log and what it was fitted to.
+pub struct Vector {
+    pub fit: VectorFit,
+    /// The readings with an attitude, and their attitudes (body to z up).
+    readings: Vec<Vec3>,
+    attitudes: Vec<Mat3>,
+    field_source: String,
+}
+
+/// The vector fit of `log`: against the WMM field of `--site` and `--date` (in the log's units,
+/// or scaled to `--magnitude`), else with `F` fitted at the scalar fit's magnitude.
+///
+/// # Errors
+/// A log without attitudes, `--motor` (not fitted jointly), or a fit the core refuses (too few
+/// readings with an attitude, attitudes that do not determine it, a left-handed frame).
+pub fn fit(
+    args: &CalibrateArgs,
+    log: &Log,
+    scalar: &LogFit,
+    units: Option<Units>,
+    place: Option<&Place>,
+) -> Result<Vector> {
+    let shown = args.log.display();
+    if args.motor.is_some() {
+        bail!("--motor with --fit vector: the motor interference is fitted with the scalar models only");
+    }
+    let Some(logged) = &log.attitudes else {
+        bail!(
+            "{shown}: --fit vector needs a reference attitude per reading: name the log's attitude columns with --quaternion or --euler (and --attitude-frame)"
+        );
+    };
+    let (readings, attitudes): (Vec<Vec3>, Vec<Mat3>) = log
+        .readings
+        .iter()
+        .zip(logged)
+        .filter_map(|(r, c)| Some((*r, z_up_of_ned(c.as_ref()?))))
+        .unzip();
+    let (field, field_source) = match place {
+        Some(p) => {
+            let (ned, label) = wmm_field(&p.site, p.date, p.model)?;
+            let enu = [ned[1], ned[0], -ned[2]];
+            let (f, unit) = match (units, args.magnitude) {
+                (_, Some(r)) => (enu.map(|v| v * r / norm(enu)), format!("scaled to --magnitude {r}")),
+                (Some(u), None) => (enu.map(|v| v / u.nt()), "in the log's units".to_string()),
+                (None, None) => bail!("--fit vector with --site: give --units (the log's) or --magnitude"),
+            };
+            (
+                ReferenceField::Given(f),
+                format!("given: {label} (east, north, up; {unit}); the attitudes' frame must be geographic"),
+            )
+        }
+        None => (
+            ReferenceField::Fitted {
+                magnitude: scalar.magnitude,
+            },
+            format!(
+                "fitted; its magnitude fixed to {} (the scalar fit's magnitude, which K shares with F), its direction in the attitudes' frame",
+                significant(scalar.magnitude, 7)
+            ),
+        ),
+    };
+    let fit = fit_vector(&readings, &attitudes, field).with_context(|| {
+        format!(
+            "{shown}: --fit vector ({} of {} readings with an attitude)",
+            readings.len(),
+            log.readings.len()
+        )
+    })?;
+    Ok(Vector {
+        fit,
+        readings,
+        attitudes,
+        field_source,
+    })
+}
+
+impl Vector {
+    /// `scalar` with \[P1\]'s `P`, bias, `psi`, `S`, their standard errors, the noise and the
+    /// verdict of the vector fit; the residuals `|P (raw - bias)| - R` over every reading.
+    pub fn as_log_fit(&self, scalar: &LogFit, log: &Log) -> LogFit {
+        let v = &self.fit;
+        let radii: Vec<f64> = log
+            .readings
+            .iter()
+            .map(|r| norm(mat_vec(&v.p, magcal_core::small::sub(*r, v.bias))) - scalar.magnitude)
+            .collect();
+        let noise = match (v.noise, v.noise_interval95) {
+            (Some(value), Some(interval95)) => Noise::Estimated {
+                value,
+                dof: v.dof,
+                interval95,
+            },
+            _ => Noise::Unknown,
+        };
+        let std = v.std_error.as_ref();
+        let mut f = LogFit {
+            p: v.p,
+            bias: v.bias,
+            errors: v.error_model(),
+            residual_rms: (radii.iter().map(|x| x * x).sum::<f64>() / radii.len() as f64).sqrt(),
+            residual_max: radii.iter().fold(0.0_f64, |a, x| a.max(x.abs())),
+            noise,
+            std_psi_deg: std.map(|s| s.psi_deg),
+            std_scale: std.map(|s| s.scale),
+            std_bias: std.map(|s| s.bias),
+            quantile95: v.quantile95,
+            identifiable: v.identifiable,
+            verdict: v.verdict.clone(),
+            iterations: v.iterations,
+            lack_of_fit: None,
+            ..scalar.clone()
+        };
+        f.reasons.clear();
+        if !v.identifiable {
+            f.reasons.push(format!("not identifiable: {}", v.verdict));
+        }
+        if !scalar.ellipsoid.passed {
+            f.reasons.push(format!("not an ellipsoid: {}", scalar.ellipsoid.words));
+        }
+        f.usable = f.reasons.is_empty();
+        f
+    }
+
+    /// Records the alignment in `json`, and the fit's name.
+    pub fn record(&self, json: &mut CalibrationJson) {
+        let v = &self.fit;
+        let std = v.std_error.as_ref();
+        json.fit = "vector".to_string();
+        json.alignment = Some(AlignmentJson {
+            rotation: v.alignment,
+            angle_deg: v.alignment_angle_deg(),
+            axis: v.alignment_axis(),
+            whole_step: v.whole_step(),
+            misalignment_deg: v.misalignment_deg(),
+            misalignment_axis: v.misalignment_axis(),
+            std_misalignment_deg: std.map(|s| s.misalignment_deg),
+            std_misalignment_vector_deg: std.map(|s| s.rotation_vector_deg),
+            k_full: v.k,
+            std_k_full: std.map(|s| s.k),
+            field: v.field,
+            std_field: std.map(|s| s.field),
+            field_source: self.field_source.clone(),
+            readings: self.readings.len(),
+            residual_rms: v.rms_residual,
+            dof: v.dof,
+            iterations: v.iterations,
+            heading_held: self.heading_held(),
+        });
+    }
+
+    /// The heading and direction errors of `A P (raw - bias)` against the attitudes, with the
+    /// alignment held and `F` the fit's; `None` where `F` has no horizontal part.
+    fn heading_held(&self) -> Option<HeadingFiguresJson> {
+        let f = self.fit.field;
+        if f[0].hypot(f[1]) <= 1e-9 * norm(f) {
+            return None;
+        }
+        let (mut heading, mut direction) = (Vec::new(), Vec::new());
+        for (r, c) in self.readings.iter().zip(&self.attitudes) {
+            let v = mat_vec(c, self.fit.apply(*r));
+            let cross = f[0] * v[1] - f[1] * v[0];
+            heading.push(cross.atan2(f[0] * v[0] + f[1] * v[1]).to_degrees());
+            let dot = magcal_core::small::dot(f, v);
+            let c3 = [
+                f[1] * v[2] - f[2] * v[1],
+                f[2] * v[0] - f[0] * v[2],
+                f[0] * v[1] - f[1] * v[0],
+            ];
+            direction.push(norm(c3).atan2(dot).to_degrees());
+        }
+        let rms = |x: &[f64]| (x.iter().map(|e| e * e).sum::<f64>() / x.len() as f64).sqrt();
+        let abs: Vec<f64> = heading.iter().map(|e| e.abs()).collect();
+        Some(HeadingFiguresJson {
+            heading_rms_deg: rms(&heading),
+            heading_p95_deg: percentile(&abs, 95.0),
+            heading_max_deg: abs.iter().fold(0.0, |a: f64, e| a.max(*e)),
+            direction_rms_deg: rms(&direction),
+        })
+    }
+}
+
+/// A whole step in words: the body axes the sensor's x, y and z (\[P1\]'s frame) lie along.
+fn step_words(s: &Mat3) -> String {
+    let names = ["forward", "right", "down"];
+    let along = |j: usize| {
+        (0..3).find(|&i| s[i][j].abs() > 0.5).map_or("?".to_string(), |i| {
+            format!("{}{}", if s[i][j] < 0.0 { "-" } else { "" }, names[i])
+        })
+    };
+    format!("(sensor x, y, z along body {}, {}, {})", along(0), along(1), along(2))
+}
+
+/// The alignment's lines of the table.
+pub fn print(w: &mut dyn Write, a: &AlignmentJson) -> std::io::Result<()> {
+    let se = |x: Option<f64>| x.map_or("unknown".to_string(), |v| significant(v, 3));
+    let axis = |v: [f64; 3]| v.map(|x| significant(x, 4)).join(", ");
+    writeln!(
+        w,
+        "alignment A (body = A P (raw - bias), body forward, right, down): {} deg about ({})",
+        significant(a.angle_deg, 4),
+        axis(a.axis)
+    )?;
+    writeln!(
+        w,
+        "  misalignment beyond the nearest whole step {}: {} deg (std error {}) about ({})",
+        step_words(&a.whole_step),
+        significant(a.misalignment_deg, 4),
+        se(a.std_misalignment_deg),
+        axis(a.misalignment_axis)
+    )?;
+    writeln!(
+        w,
+        "  F ({}, {}, {}), {}",
+        significant(a.field[0], 6),
+        significant(a.field[1], 6),
+        significant(a.field[2], 6),
+        a.field_source
+    )?;
+    writeln!(
+        w,
+        "  {} readings with an attitude; residual rms per component {} ({} degrees of freedom)",
+        a.readings,
+        significant(a.residual_rms, 4),
+        a.dof
+    )?;
+    if let Some(h) = &a.heading_held {
+        writeln!(
+            w,
+            "  heading with the alignment held: rms {:.3}, p95 {:.3}, max {:.3} deg; direction rms {:.3} deg",
+            h.heading_rms_deg, h.heading_p95_deg, h.heading_max_deg, h.direction_rms_deg
+        )?;
+    }
+    Ok(())
+}
