@@ -126,7 +126,12 @@ pub fn calibrate(
                 attitudes,
                 magcal_core::vector::ReferenceField::Fitted { magnitude },
             )
-            .map_err(|_| CalibrationStatus::RankDeficient)?;
+            .map_err(|e| match e {
+                magcal_core::vector::VectorError::NotConverged { .. } => CalibrationStatus::NotConverged,
+                magcal_core::vector::VectorError::NotDetermined { .. } => CalibrationStatus::NotIdentifiable,
+                magcal_core::vector::VectorError::TooFewReadings { .. } => CalibrationStatus::TooFewReadings,
+                _ => CalibrationStatus::RankDeficient,
+            })?;
             Ok(Fitted {
                 status: if f.identifiable {
                     CalibrationStatus::Ok
