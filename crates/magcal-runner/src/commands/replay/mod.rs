@@ -202,41 +202,8 @@ fn replay(
     }
     let starts = windows(n, prepared.times.as_deref(), hold);
     let directions = window_directions(&prepared.directions, hold);
-    let map = (args.orient == Orient::Fit).then(|| {
-        let valid: Vec<_> = starts.iter().flatten().filter_map(|&s| directions[s]).collect();
-        let every = valid.len().div_ceil(4000).max(1);
-        CoverageMap::new(&valid.into_iter().step_by(every).collect::<Vec<_>>())
-    });
-    let (realised, turned_deg): (Vec<Vec<Realised>>, Vec<f64>) = built
-        .designs
-        .iter()
-        .enumerate()
-        .map(|(d, design)| {
-            let targets: Vec<_> = scenario
-                .field
-                .body_fields(&design.attitudes)
-                .iter()
-                .map(|b| body_of_paper(scale(1.0 / norm(*b), *b)))
-                .collect();
-            let turn = map.as_ref().map_or(IDENTITY, |map| {
-                let mut rng = stream_rng(scenario.seed, stream_id(&[ORIENT_STREAM, d as u64]));
-                orient(&targets, map, ORIENT_STARTS, &mut rng).0
-            });
-            let points = targets
-                .iter()
-                .map(|t| {
-                    realise(
-                        mat_vec(&turn, *t),
-                        &starts,
-                        &directions,
-                        args.within_deg,
-                        args.candidates as usize,
-                    )
-                })
-                .collect();
-            (points, prepare::rotation_angle_deg(&turn))
-        })
-        .unzip();
+    let map = coverage(args, &starts, &directions);
+    let (realised, turned_deg) = realise_designs(args, scenario, &built.designs, map.as_ref(), &starts, &directions);
     let valid: Vec<usize> = starts.iter().flatten().copied().collect();
     let measured = prepare::held_error(&prepared, &valid, hold);
     let white = prepared.noise / (hold as f64).sqrt();
@@ -312,6 +279,61 @@ fn replay(
         prepared,
         trials_per_design: scenario.trials,
     })
+}
+
+/// The log's coverage of directions for `--orient fit` (at most 4000 windows' directions).
+fn coverage(
+    args: &ReplayArgs,
+    starts: &[Option<usize>],
+    directions: &[Option<magcal_core::Vec3>],
+) -> Option<CoverageMap> {
+    (args.orient == Orient::Fit).then(|| {
+        let valid: Vec<_> = starts.iter().flatten().filter_map(|&s| directions[s]).collect();
+        let every = valid.len().div_ceil(4000).max(1);
+        CoverageMap::new(&valid.into_iter().step_by(every).collect::<Vec<_>>())
+    })
+}
+
+/// Each design's attitudes realised on the log (turned to its coverage where `map` is given),
+/// and the angle each design was turned by.
+fn realise_designs(
+    args: &ReplayArgs,
+    scenario: &Scenario,
+    designs: &[BuiltDesign],
+    map: Option<&CoverageMap>,
+    starts: &[Option<usize>],
+    directions: &[Option<magcal_core::Vec3>],
+) -> (Vec<Vec<Realised>>, Vec<f64>) {
+    let (realised, turned_deg): (Vec<Vec<Realised>>, Vec<f64>) = designs
+        .iter()
+        .enumerate()
+        .map(|(d, design)| {
+            let targets: Vec<_> = scenario
+                .field
+                .body_fields(&design.attitudes)
+                .iter()
+                .map(|b| body_of_paper(scale(1.0 / norm(*b), *b)))
+                .collect();
+            let turn = map.map_or(IDENTITY, |map| {
+                let mut rng = stream_rng(scenario.seed, stream_id(&[ORIENT_STREAM, d as u64]));
+                orient(&targets, map, ORIENT_STARTS, &mut rng).0
+            });
+            let points = targets
+                .iter()
+                .map(|t| {
+                    realise(
+                        mat_vec(&turn, *t),
+                        &starts,
+                        &directions,
+                        args.within_deg,
+                        args.candidates as usize,
+                    )
+                })
+                .collect();
+            (points, prepare::rotation_angle_deg(&turn))
+        })
+        .unzip();
+    (realised, turned_deg)
 }
 
 fn bars_stage(bars: &crate::output::progress::Bars, total: usize) -> indicatif::ProgressBar {
