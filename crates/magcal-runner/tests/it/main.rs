@@ -19,4 +19,5 @@ mod reference;
 mod result_set;
 mod tlog;
 mod ulog;
+mod vector;
 mod verdict;

@@ -183,14 +183,8 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         model: args.wmm,
     });
     let units = units_of(args, &log)?;
-    let (mut fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
-    let vector = match args.fit {
-        Fit::Vector => Some(vector::fit(args, &log, &fit, units, place.as_ref())?),
-        _ => None,
-    };
-    if let Some(v) = &vector {
-        fit = v.as_log_fit(&fit, &log);
-    }
+    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
+    let (mut fit, vector) = vector::instead(args, &log, fit, units, place.as_ref())?;
     let joint = match args.motor {
         Some(m) => {
             let (refit, joint) = motor::refit(&mut log, &fit, m, &settings).with_context(|| shown.clone())?;
@@ -200,9 +194,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         None => None,
     };
     let mut json = to_json(&args.log, &log, &fit, &why, source);
-    if let Some(v) = &vector {
-        v.record(&mut json);
-    }
+    vector.iter().for_each(|v| v.record(&mut json));
     if let Some(joint) = &joint {
         motor::record(&mut json, joint);
     }

@@ -26,6 +26,25 @@ pub struct Vector {
     field_source: String,
 }
 
+/// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
+/// ([`Vector::as_log_fit`]); else `scalar` as it is.
+///
+/// # Errors
+/// As [`fit`].
+pub fn instead(
+    args: &CalibrateArgs,
+    log: &Log,
+    scalar: LogFit,
+    units: Option<Units>,
+    place: Option<&Place>,
+) -> Result<(LogFit, Option<Vector>)> {
+    if args.fit != super::Fit::Vector {
+        return Ok((scalar, None));
+    }
+    let v = fit(args, log, &scalar, units, place)?;
+    Ok((v.as_log_fit(&scalar, log), Some(v)))
+}
+
 /// The vector fit of `log`: against the WMM field of `--site` and `--date` (in the log's units,
 /// or scaled to `--magnitude`), else with `F` fitted at the scalar fit's magnitude.
 ///
