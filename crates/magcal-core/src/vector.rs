@@ -227,7 +227,7 @@ impl VectorFit {
 
     /// The misalignment: the angle of `M = A S^T` ([`Self::whole_step`]), the turn of the
     /// sensor beyond the whole step, degrees in [0, 180]. For a sensor mounted along the body's
-    /// axes as [P1]'s frame lies (`S = I`), the angle of `A`.
+    /// axes as \[P1\]'s frame lies (`S = I`), the angle of `A`.
     pub fn misalignment_deg(&self) -> f64 {
         norm(misalignment_vector(&self.alignment, &self.whole_step())).to_degrees()
     }
@@ -1054,6 +1054,34 @@ mod tests {
             }
             assert!(fit.rms_residual <= tol * magnitude);
         }
+    }
+
+    #[test]
+    #[allow(clippy::float_cmp)] // a signed permutation matrix: exact
+    fn a_sensor_mounted_in_another_whole_step_keeps_its_misalignment() {
+        // The sensor's axes forward, left, up in a body frame forward, right, down: A turned by
+        // a half turn about forward, the misalignment beyond it still 2 degrees.
+        let (model, a, _) = truth();
+        let half = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]];
+        let mounted = mat_mul(&a, &half);
+        let k = mat_mul(&model.K(), &transpose(&mounted));
+        let mut rng = stream_rng(22, 4);
+        let c = attitudes(40, &mut rng);
+        let m = readings(&k, model.bias_nt(), &c, 0.0, &mut rng);
+        let fit = fit_vector(&m, &c, ReferenceField::Given(FIELD_ENU)).unwrap();
+        assert_eq!(fit.whole_step(), half);
+        assert!(
+            (fit.misalignment_deg() - 2.0).abs() <= 1e-9,
+            "{}",
+            fit.misalignment_deg()
+        );
+        assert!((fit.alignment_angle_deg() - 180.0).abs() <= 2.0 + 1e-9);
+        // M = A S^T = the 2-degree turn about (1, 2, 2) / 3 in the body frame.
+        let axis = fit.misalignment_axis();
+        assert!(
+            (dot(axis, [1.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0]) - 1.0).abs() <= 1e-9,
+            "{axis:?}"
+        );
     }
 
     #[test]

@@ -721,7 +721,8 @@ fn magnitude_of(args: &CalibrateArgs, units: Option<Units>, place: Option<&Place
         (Some(_), None) if args.magnitude.is_none() => {
             bail!("--site: give --units (the log's) for the WMM magnitude, or --magnitude");
         }
-        (Some(_), None) if !args.attitude.any() => {
+        // A vector fit takes the site's field direction, scaled to --magnitude.
+        (Some(_), None) if !args.attitude.any() && args.fit != Fit::Vector => {
             bail!(
                 "--site with --magnitude: the site would give only the box flags' field direction; add --roll and --pitch, or drop --site"
             );
