@@ -51,6 +51,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::identifiability::PhysicalScales;
+use crate::reference::det;
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, dot, mat_mul, mat_t_vec, mat_vec, norm, sub, transpose, upper_triangular_inverse};
 
@@ -366,12 +367,6 @@ fn validate(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) -> Res
         }
     }
     Ok((scale, given))
-}
-
-/// `det A`.
-fn det(a: &Mat3) -> f64 {
-    a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
 }
 
 /// The unknowns in units of the field magnitude: `K`, `o = O / |F|`, `f = F / |F|`.

@@ -290,29 +290,11 @@ fn vector_fits_without_attitudes_or_with_degenerate_ones_are_refused_naming_why(
 fn broad_trial_02_gives_its_misalignment_and_a_heading_no_worse_than_the_scalar_fit() {
     // The capture room's z is up and its north unknown: F is fitted. Rows with movement and an
     // attitude, as tests/it/attitudes.rs takes them.
-    let Some(path) = crate::common::data("broad/02_undisturbed_slow_rotation_B.csv") else {
+    let tmp = TempDir::new().unwrap();
+    let Some(log) = crate::common::broad_02_moving(tmp.path()) else {
         return;
     };
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let mut moving = format!("{}\n", lines.next().unwrap());
-    for line in lines.filter(|l| l.ends_with(",1") && !l.contains(",,")) {
-        moving.push_str(line);
-        moving.push('\n');
-    }
-    let tmp = TempDir::new().unwrap();
-    let log = tmp.path().join("moving.csv");
-    std::fs::write(&log, moving).unwrap();
-    let args = [
-        "--columns",
-        "mx,my,mz",
-        "--quaternion",
-        "qw,qx,qy,qz",
-        "--attitude-frame",
-        "enu",
-        "--units",
-        "uT",
-    ];
+    let args = crate::common::BROAD_ARGS;
     let (code, full, stderr) = calibrate_json(&log, &[&args[..], &["--fit", "full"]].concat());
     assert_eq!(code, Some(0), "{stderr}");
     let (code, vector, stderr) = calibrate_json(&log, &[&args[..], &["--fit", "vector"]].concat());
