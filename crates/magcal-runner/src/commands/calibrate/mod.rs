@@ -412,7 +412,7 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
     }
     writeln!(w, "magnitude {} ({})", significant(j.magnitude, 7), j.magnitude_source)?;
     print_estimates(w, j)?;
-    if let Some(a) = &j.alignment {
+    if let Some(a) = j.alignment.as_ref().filter(|_| j.usable) {
         vector::print(w, a)?;
     }
     print_residuals_and_noise(w, j)?;
