@@ -406,7 +406,7 @@ fn validate_each(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), Referenc
 }
 
 /// `det A`.
-fn det(a: &Mat3) -> f64 {
+pub(crate) fn det(a: &Mat3) -> f64 {
     a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
         + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
 }

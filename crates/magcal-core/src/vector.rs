@@ -51,6 +51,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::identifiability::PhysicalScales;
+use crate::reference::det;
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, dot, mat_mul, mat_t_vec, mat_vec, norm, sub, transpose, upper_triangular_inverse};
 
@@ -227,7 +228,7 @@ impl VectorFit {
 
     /// The misalignment: the angle of `M = A S^T` ([`Self::whole_step`]), the turn of the
     /// sensor beyond the whole step, degrees in [0, 180]. For a sensor mounted along the body's
-    /// axes as [P1]'s frame lies (`S = I`), the angle of `A`.
+    /// axes as \[P1\]'s frame lies (`S = I`), the angle of `A`.
     pub fn misalignment_deg(&self) -> f64 {
         norm(misalignment_vector(&self.alignment, &self.whole_step())).to_degrees()
     }
@@ -286,7 +287,11 @@ const MAX_ITERATIONS: usize = 200;
 /// given field), a fit that does not settle.
 pub fn fit_vector(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) -> Result<VectorFit, VectorError> {
     let (scale, given) = validate(readings, attitudes, field)?;
-    let y: Vec<Vec3> = readings.iter().map(|r| r.map(|v| v / scale)).collect();
+    let data = Data {
+        readings,
+        attitudes,
+        scale,
+    };
     let (fit, iterations) = match given {
         Some(f) => {
             let mut unit = Unit {
@@ -297,7 +302,7 @@ pub fn fit_vector(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) 
             // Linear: one step from zero solves it; a second removes the rounding of the first.
             let mut iterations = 0;
             for _ in 0..2 {
-                let n = NormalEquations::of(&y, attitudes, &unit, false);
+                let n = NormalEquations::of(&data, &unit, false);
                 let step = n.solve()?;
                 unit.step(&step, 1.0, false);
                 iterations += 1;
@@ -308,9 +313,9 @@ pub fn fit_vector(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) 
             }
             (unit, iterations)
         }
-        None => gauss_newton(&y, attitudes, start(&y, attitudes))?,
+        None => gauss_newton(&data, start(&data))?,
     };
-    Ok(assess(&y, attitudes, fit, given.is_none(), scale, iterations))
+    Ok(assess(&data, fit, given.is_none(), scale, iterations))
 }
 
 /// Checks the inputs; the magnitude the readings are divided by and a given field's direction.
@@ -368,10 +373,21 @@ fn validate(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) -> Res
     Ok((scale, given))
 }
 
-/// `det A`.
-fn det(a: &Mat3) -> f64 {
-    a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+/// The readings in units of the field magnitude (`m / |F|`, made as they are used: nothing per
+/// reading is copied) and their attitudes.
+struct Data<'a> {
+    readings: &'a [Vec3],
+    attitudes: &'a [Mat3],
+    scale: f64,
+}
+
+impl Data<'_> {
+    fn iter(&self) -> impl Iterator<Item = (Vec3, &Mat3)> {
+        self.readings
+            .iter()
+            .map(|r| r.map(|v| v / self.scale))
+            .zip(self.attitudes)
+    }
 }
 
 /// The unknowns in units of the field magnitude: `K`, `o = O / |F|`, `f = F / |F|`.
@@ -399,12 +415,11 @@ impl Unit {
         }
     }
 
-    /// `sum_t |y_t - K C_t^T f - o|^2`.
-    fn rss(&self, y: &[Vec3], attitudes: &[Mat3]) -> f64 {
-        y.iter()
-            .zip(attitudes)
+    /// `sum_t |m_t / |F| - K C_t^T f - o|^2`.
+    fn rss(&self, data: &Data) -> f64 {
+        data.iter()
             .map(|(m, c)| {
-                let r = sub(*m, crate::small::add(mat_vec(&self.k, mat_t_vec(c, self.f)), self.o));
+                let r = sub(m, crate::small::add(mat_vec(&self.k, mat_t_vec(c, self.f)), self.o));
                 dot(r, r)
             })
             .sum()
@@ -456,15 +471,15 @@ const NAMES: [&str; 14] = [
 ];
 
 impl NormalEquations {
-    fn of(y: &[Vec3], attitudes: &[Mat3], unit: &Unit, fitted: bool) -> Self {
+    fn of(data: &Data, unit: &Unit, fitted: bool) -> Self {
         let p = if fitted { 14 } else { 12 };
         let mut jtj = vec![vec![0.0; p]; p];
         let mut jtr = vec![0.0; p];
         let [u, v] = tangent(unit.f);
         let mut rows = [[0.0; 14]; 3];
-        for (m, c) in y.iter().zip(attitudes) {
+        for (m, c) in data.iter() {
             let b = mat_t_vec(c, unit.f);
-            let r = sub(*m, crate::small::add(mat_vec(&unit.k, b), unit.o));
+            let r = sub(m, crate::small::add(mat_vec(&unit.k, b), unit.o));
             let (ku, kv) = (mat_vec(&unit.k, mat_t_vec(c, u)), mat_vec(&unit.k, mat_t_vec(c, v)));
             for i in 0..3 {
                 let row = &mut rows[i];
@@ -582,11 +597,11 @@ fn weakest(v: &[f64]) -> String {
 /// The start of a fitted field's Gauss-Newton: the rank-one part of the 30-unknown linear model
 /// (see the module documentation), its least squares by the pseudo-inverse (eigenvalues of the
 /// correlation form above [`SINGULAR`] of the largest).
-fn start(y: &[Vec3], attitudes: &[Mat3]) -> Unit {
+fn start(data: &Data) -> Unit {
     // Design row: the 9 entries of C (row-major: C_kj at 3 k + j) and 1.
     let mut ztz = [[0.0; 10]; 10];
     let mut zty = [[0.0; 3]; 10];
-    for (m, c) in y.iter().zip(attitudes) {
+    for (m, c) in data.iter() {
         let z: [f64; 10] = std::array::from_fn(|a| if a < 9 { c[a / 3][a % 3] } else { 1.0 });
         for a in 0..10 {
             for b in 0..10 {
@@ -657,10 +672,10 @@ fn leading_eigenvector(a: &Mat3) -> Vec3 {
 }
 
 /// Gauss-Newton from `unit` with the field fitted; the fit and its iterations.
-fn gauss_newton(y: &[Vec3], attitudes: &[Mat3], mut unit: Unit) -> Result<(Unit, usize), VectorError> {
-    let mut rss = unit.rss(y, attitudes);
+fn gauss_newton(data: &Data, mut unit: Unit) -> Result<(Unit, usize), VectorError> {
+    let mut rss = unit.rss(data);
     for iteration in 1..=MAX_ITERATIONS {
-        let n = NormalEquations::of(y, attitudes, &unit, true);
+        let n = NormalEquations::of(data, &unit, true);
         let step = n.solve()?;
         // The step in correlation units: each unknown times the square root of its information.
         let size = (0..14)
@@ -672,7 +687,7 @@ fn gauss_newton(y: &[Vec3], attitudes: &[Mat3], mut unit: Unit) -> Result<(Unit,
         for _ in 0..40 {
             let mut next = unit;
             next.step(&step, t, true);
-            let r = next.rss(y, attitudes);
+            let r = next.rss(data);
             if r <= rss {
                 (unit, rss, accepted) = (next, r, true);
                 break;
@@ -684,7 +699,7 @@ fn gauss_newton(y: &[Vec3], attitudes: &[Mat3], mut unit: Unit) -> Result<(Unit,
         // of squares by its square, 1e-12 of the sum: the rounding of a sum over 1e4 to 1e5
         // readings, where further steps wander. Below 1e-13 per reading (noise-free readings) it
         // is rounding too; a step that lowers nothing leaves the fit at its rounding.
-        if !accepted || size <= 1e-6 * rss.sqrt() || size <= 1e-13 * (y.len() as f64).sqrt() {
+        if !accepted || size <= 1e-6 * rss.sqrt() || size <= 1e-13 * (data.readings.len() as f64).sqrt() {
             if det(&unit.k) < 0.0 {
                 unit.k = unit.k.map(|r| r.map(|v| -v));
                 unit.f = unit.f.map(|v| -v);
@@ -770,21 +785,18 @@ fn derived(k: &Mat3, step: &Mat3) -> Option<[f64; 9]> {
 }
 
 /// The fit's statistics and verdict.
-fn assess(y: &[Vec3], attitudes: &[Mat3], unit: Unit, fitted: bool, scale: f64, iterations: usize) -> VectorFit {
-    let m = y.len();
+fn assess(data: &Data, unit: Unit, fitted: bool, scale: f64, iterations: usize) -> VectorFit {
+    let m = data.readings.len();
     let p_count = if fitted { 14 } else { 12 };
-    let rss = unit.rss(y, attitudes);
+    let rss = unit.rss(data);
     let dof = 3 * m - p_count;
     let noise_unit = (rss / dof as f64).sqrt();
     let (p, alignment) = decompose(&unit.k).unwrap_or(([[f64::NAN; 3]; 3], [[f64::NAN; 3]; 3]));
-    let covariance = NormalEquations::of(y, attitudes, &unit, fitted)
-        .inverse()
-        .ok()
-        .map(|inv| {
-            inv.into_iter()
-                .map(|row| row.into_iter().map(|v| v * noise_unit * noise_unit).collect::<Vec<_>>())
-                .collect::<Vec<_>>()
-        });
+    let covariance = NormalEquations::of(data, &unit, fitted).inverse().ok().map(|inv| {
+        inv.into_iter()
+            .map(|row| row.into_iter().map(|v| v * noise_unit * noise_unit).collect::<Vec<_>>())
+            .collect::<Vec<_>>()
+    });
     let std_error = covariance
         .as_ref()
         .filter(|_| noise_unit.is_finite())
@@ -1054,6 +1066,34 @@ mod tests {
             }
             assert!(fit.rms_residual <= tol * magnitude);
         }
+    }
+
+    #[test]
+    #[allow(clippy::float_cmp)] // a signed permutation matrix: exact
+    fn a_sensor_mounted_in_another_whole_step_keeps_its_misalignment() {
+        // The sensor's axes forward, left, up in a body frame forward, right, down: A turned by
+        // a half turn about forward, the misalignment beyond it still 2 degrees.
+        let (model, a, _) = truth();
+        let half = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]];
+        let mounted = mat_mul(&a, &half);
+        let k = mat_mul(&model.K(), &transpose(&mounted));
+        let mut rng = stream_rng(22, 4);
+        let c = attitudes(40, &mut rng);
+        let m = readings(&k, model.bias_nt(), &c, 0.0, &mut rng);
+        let fit = fit_vector(&m, &c, ReferenceField::Given(FIELD_ENU)).unwrap();
+        assert_eq!(fit.whole_step(), half);
+        assert!(
+            (fit.misalignment_deg() - 2.0).abs() <= 1e-9,
+            "{}",
+            fit.misalignment_deg()
+        );
+        assert!((fit.alignment_angle_deg() - 180.0).abs() <= 2.0 + 1e-9);
+        // M = A S^T = the 2-degree turn about (1, 2, 2) / 3 in the body frame.
+        let axis = fit.misalignment_axis();
+        assert!(
+            (dot(axis, [1.0 / 3.0, 2.0 / 3.0, 2.0 / 3.0]) - 1.0).abs() <= 1e-9,
+            "{axis:?}"
+        );
     }
 
     #[test]

@@ -27,9 +27,10 @@ pub struct ApplyArgs {
     /// from; rows dropped by `--skip-bad` are named on stderr).
     #[command(flatten)]
     pub input: LogArgs,
-    /// The matrix to calibrate with: `triangular`, the paper's `P` (`b = P (raw - bias)`), or
-    /// `symmetric`, `A^-1` (`b = A^-1 (raw - bias)`, as `export` writes it for the autopilots).
-    /// The two give the same `|b|` and differ by a rotation.
+    /// The matrix to calibrate with: `triangular`, the paper's `P` (`b = P (raw - bias)`, turned
+    /// into the body frame by the alignment of a vector calibration), or `symmetric`, `A^-1`
+    /// (`b = A^-1 (raw - bias)`, as `export` writes it for the autopilots). The two give the
+    /// same `|b|` and differ by a rotation.
     #[arg(long, value_enum, default_value_t = Matrix::Triangular)]
     pub matrix: Matrix,
     /// Write the calibrated readings to this file, replaced whole (default, or `-`: standard
@@ -41,7 +42,8 @@ pub struct ApplyArgs {
 /// `apply --matrix`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Matrix {
-    /// `p`, upper triangular (\[P1\] eq. (6)).
+    /// `p`, upper triangular (\[P1\] eq. (6)), then `alignment.rotation` where the calibration
+    /// carries one.
     #[default]
     Triangular,
     /// `soft_iron_inverse`, symmetric.
@@ -88,7 +90,7 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
         csv.write_record(&output::header::<AppliedRow>()?)?;
         let mut row = |line: usize, raw: magcal_core::Vec3| -> Result<()> {
             let b = match args.matrix {
-                Matrix::Triangular => cal.apply(raw),
+                Matrix::Triangular => cal.apply_body(raw),
                 Matrix::Symmetric => magcal_core::small::mat_vec(&cal.soft_iron_inverse, magcal_core::small::sub(raw, cal.bias)),
             };
             // |b| through hypot: its squares overflow for components above 1e154, whose length
@@ -139,6 +141,18 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     }
     if let Some(note) = source::filter_note(&input.filter, filtered) {
         to_stderr!("magcal: {}: {note}", args.log.display());
+    }
+    if let Some(a) = &cal.alignment {
+        to_stderr!(
+            "magcal: note: {shown} carries an alignment (a vector calibration, misalignment {:.3} deg): {}",
+            a.misalignment_deg,
+            match args.matrix {
+                Matrix::Triangular =>
+                    "x, y, z are the body-frame field alignment P (raw - bias), body forward, right, down",
+                Matrix::Symmetric =>
+                    "--matrix symmetric leaves it out: x, y, z are A^-1 (raw - bias), not the body frame",
+            }
+        );
     }
     if !cal.identifiable {
         to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);

@@ -200,6 +200,13 @@ fn export_inner(args: &ExportArgs) -> Result<CalibrationJson> {
     }
     out.write(&inputs, |w| Ok(w.write_all(&made.text)?))?;
     to_stderr!("magcal: note: {}", made.keep);
+    if let Some(a) = &cal.alignment {
+        to_stderr!(
+            "magcal: warning: {shown}: the vector calibration's alignment ({:.3} deg, misalignment {:.3} deg beyond the nearest whole step) is not kept: the autopilots' board orientation parameters take only whole steps; the bias and soft-iron matrix are written",
+            a.angle_deg,
+            a.misalignment_deg
+        );
+    }
     for note in &made.notes {
         to_stderr!("magcal: note: {note}");
     }

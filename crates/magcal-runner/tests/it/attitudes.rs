@@ -292,32 +292,11 @@ fn the_heading_against_broad_attitudes_reproduces_the_check_values_through_the_c
     // movement and an attitude, raw readings as the calibrated ones: rms 3.1267, p95 6.2666,
     // max 17.3922, direction rms 1.9601 degrees. Here through calibrate's own reading of the
     // quaternion columns in the ENU convention.
-    let Some(path) = crate::common::data("broad/02_undisturbed_slow_rotation_B.csv") else {
+    let tmp = TempDir::new().unwrap();
+    let Some(log) = crate::common::broad_02_moving(tmp.path()) else {
         return;
     };
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines();
-    let mut moving = format!("{}\n", lines.next().unwrap());
-    for line in lines.filter(|l| l.ends_with(",1") && !l.contains(",,")) {
-        moving.push_str(line);
-        moving.push('\n');
-    }
-    let tmp = TempDir::new().unwrap();
-    let log = tmp.path().join("moving.csv");
-    std::fs::write(&log, moving).unwrap();
-    let c = calibrate_json(
-        &log,
-        &[
-            "--columns",
-            "mx,my,mz",
-            "--quaternion",
-            "qw,qx,qy,qz",
-            "--attitude-frame",
-            "enu",
-            "--units",
-            "uT",
-        ],
-    );
+    let c = calibrate_json(&log, &crate::common::BROAD_ARGS);
     // Units without a site are recorded, for export.
     assert_eq!(c.units.as_deref(), Some("uT"));
     let h = c.heading_vs_log.unwrap();

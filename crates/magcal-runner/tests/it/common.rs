@@ -145,6 +145,34 @@ pub fn data(path: &str) -> Option<PathBuf> {
     }
 }
 
+/// How calibrate reads a BROAD trial: the field in uT, the ENU quaternion of the capture room.
+pub const BROAD_ARGS: [&str; 8] = [
+    "--columns",
+    "mx,my,mz",
+    "--quaternion",
+    "qw,qx,qy,qz",
+    "--attitude-frame",
+    "enu",
+    "--units",
+    "uT",
+];
+
+/// BROAD trial 02's rows with movement and an attitude (32,280), written to `dir/moving.csv`;
+/// `None` where the public log is absent.
+pub fn broad_02_moving(dir: &Path) -> Option<PathBuf> {
+    let path = data("broad/02_undisturbed_slow_rotation_B.csv")?;
+    let text = fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let mut moving = format!("{}\n", lines.next().unwrap());
+    for line in lines.filter(|l| l.ends_with(",1") && !l.contains(",,")) {
+        moving.push_str(line);
+        moving.push('\n');
+    }
+    let log = dir.join("moving.csv");
+    fs::write(&log, moving).unwrap();
+    Some(log)
+}
+
 /// Exit 2 with one line on stderr that starts with `magcal: error: ` and holds every `needle`,
 /// and nothing on stdout.
 pub fn assert_refused((code, stdout, stderr): &(i32, String, String), needles: &[&str]) {

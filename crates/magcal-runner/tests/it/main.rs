@@ -20,4 +20,5 @@ mod replay;
 mod result_set;
 mod tlog;
 mod ulog;
+mod vector;
 mod verdict;

@@ -183,14 +183,8 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         model: args.wmm,
     });
     let units = units_of(args, &log)?;
-    let (mut fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
-    let vector = match args.fit {
-        Fit::Vector => Some(vector::fit(args, &log, &fit, units, place.as_ref())?),
-        _ => None,
-    };
-    if let Some(v) = &vector {
-        fit = v.as_log_fit(&fit, &log);
-    }
+    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
+    let (mut fit, vector) = vector::instead(args, &log, fit, units, place.as_ref())?;
     let joint = match args.motor {
         Some(m) => {
             let (refit, joint) = motor::refit(&mut log, &fit, m, &settings).with_context(|| shown.clone())?;
@@ -200,9 +194,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         None => None,
     };
     let mut json = to_json(&args.log, &log, &fit, &why, source);
-    if let Some(v) = &vector {
-        v.record(&mut json);
-    }
+    vector.iter().for_each(|v| v.record(&mut json));
     if let Some(joint) = &joint {
         motor::record(&mut json, joint);
     }
@@ -420,7 +412,7 @@ fn print_table(w: &mut dyn Write, j: &CalibrationJson, why: &[AutoReason]) -> st
     }
     writeln!(w, "magnitude {} ({})", significant(j.magnitude, 7), j.magnitude_source)?;
     print_estimates(w, j)?;
-    if let Some(a) = &j.alignment {
+    if let Some(a) = j.alignment.as_ref().filter(|_| j.usable) {
         vector::print(w, a)?;
     }
     print_residuals_and_noise(w, j)?;
@@ -729,7 +721,8 @@ fn magnitude_of(args: &CalibrateArgs, units: Option<Units>, place: Option<&Place
         (Some(_), None) if args.magnitude.is_none() => {
             bail!("--site: give --units (the log's) for the WMM magnitude, or --magnitude");
         }
-        (Some(_), None) if !args.attitude.any() => {
+        // A vector fit takes the site's field direction, scaled to --magnitude.
+        (Some(_), None) if !args.attitude.any() && args.fit != Fit::Vector => {
             bail!(
                 "--site with --magnitude: the site would give only the box flags' field direction; add --roll and --pitch, or drop --site"
             );

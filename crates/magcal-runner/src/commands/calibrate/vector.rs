@@ -26,6 +26,25 @@ pub struct Vector {
     field_source: String,
 }
 
+/// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
+/// ([`Vector::as_log_fit`]); else `scalar` as it is.
+///
+/// # Errors
+/// As [`fit`].
+pub fn instead(
+    args: &CalibrateArgs,
+    log: &Log,
+    scalar: LogFit,
+    units: Option<Units>,
+    place: Option<&Place>,
+) -> Result<(LogFit, Option<Vector>)> {
+    if args.fit != super::Fit::Vector {
+        return Ok((scalar, None));
+    }
+    let v = fit(args, log, &scalar, units, place)?;
+    Ok((v.as_log_fit(&scalar, log), Some(v)))
+}
+
 /// The vector fit of `log`: against the WMM field of `--site` and `--date` (in the log's units,
 /// or scaled to `--magnitude`), else with `F` fitted at the scalar fit's magnitude.
 ///
@@ -48,12 +67,15 @@ pub fn fit(
             "{shown}: --fit vector needs a reference attitude per reading: name the log's attitude columns with --quaternion or --euler (and --attitude-frame)"
         );
     };
-    let (readings, attitudes): (Vec<Vec3>, Vec<Mat3>) = log
-        .readings
-        .iter()
-        .zip(logged)
-        .filter_map(|(r, c)| Some((*r, z_up_of_ned(c.as_ref()?))))
-        .unzip();
+    // Sized once: the copies cost 96 bytes per reading, within the held reading's budget.
+    let with = logged.iter().filter(|c| c.is_some()).count();
+    let (mut readings, mut attitudes) = (Vec::with_capacity(with), Vec::with_capacity(with));
+    for (r, c) in log.readings.iter().zip(logged) {
+        if let Some(c) = c {
+            readings.push(*r);
+            attitudes.push(z_up_of_ned(c));
+        }
+    }
     let (field, field_source) = match place {
         Some(p) => {
             let (ned, label) = wmm_field(&p.site, p.date, p.model)?;
