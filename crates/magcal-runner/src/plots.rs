@@ -665,3 +665,135 @@ mod tests {
         assert!((lo - 0.2).abs() < 1e-15 && (hi - 2.0).abs() < 1e-15);
     }
 }
+
+/// One design and model of a replay (`replay`'s `summary.csv`) for [`draw_replay`]: the outcome
+/// trials (0 where the log could not realise the design) and the 5th percentile, median and 95th
+/// percentile of a metric over the `ok` trials (`None` without any).
+#[derive(Debug, Clone)]
+pub struct ReplayCell {
+    pub design: String,
+    pub model: String,
+    pub trials: usize,
+    pub band: Option<[f64; 3]>,
+}
+
+/// The figures of a replay set, one per metric with a value (`metrics`: file stem, axis label
+/// and its cells, design-major): per design a group of bars, one per model in its colour, from
+/// the 5th to the 95th percentile with the median in white, on a log axis (the tails are heavy, as
+/// in \[P1\] Figs. 1-3). A design the log could not realise keeps its place, labelled. Returns the
+/// stems drawn.
+///
+/// # Errors
+/// A figure that cannot be rendered or stored.
+pub fn draw_replay(
+    set: &mut ResultSet,
+    prefix: &str,
+    title: &str,
+    metrics: &[(&str, &str, Vec<ReplayCell>)],
+) -> Result<Vec<String>> {
+    register();
+    let mut drawn = Vec::new();
+    for (stem, label, cells) in metrics {
+        if cells.iter().all(|c| c.band.is_none()) {
+            continue;
+        }
+        render!(set, prefix, stem, |root| draw_replay_metric(&root, title, label, cells));
+        drawn.push((*stem).to_string());
+    }
+    Ok(drawn)
+}
+
+fn draw_replay_metric<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    title: &str,
+    label: &str,
+    cells: &[ReplayCell],
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(err)?;
+    let mut designs: Vec<&str> = Vec::new();
+    let mut models: Vec<&str> = Vec::new();
+    for c in cells {
+        if !designs.contains(&c.design.as_str()) {
+            designs.push(&c.design);
+        }
+        if !models.contains(&c.model.as_str()) {
+            models.push(&c.model);
+        }
+    }
+    let (lo, hi) = log_range(cells.iter().filter_map(|c| c.band).flatten()).unwrap_or((0.1, 10.0));
+    let (lo, hi) = (lo / 1.5, hi * 1.5);
+    let n = designs.len().max(1);
+    let mut chart = ChartBuilder::on(root)
+        .caption(format!("{title}: {label}"), (FONT, 20))
+        .margin(16)
+        .x_label_area_size(60)
+        .y_label_area_size(80)
+        .build_cartesian_2d(-0.5f64..(n as f64 - 0.5), (lo..hi).log_scale())
+        .map_err(err)?;
+    let names: Vec<String> = designs
+        .iter()
+        .map(|d| {
+            let replayed = cells.iter().any(|c| c.design == *d && c.trials > 0);
+            if replayed {
+                (*d).to_string()
+            } else {
+                format!("{d} (not realised)")
+            }
+        })
+        .collect();
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(n)
+        .x_label_formatter(&|x| {
+            let i = x.round();
+            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < names.len() {
+                names[i as usize].clone()
+            } else {
+                String::new()
+            }
+        })
+        .y_desc(format!("{label} (log scale)"))
+        .label_style((FONT, 16))
+        .axis_desc_style((FONT, 18))
+        .draw()
+        .map_err(err)?;
+    let clip = |v: f64| v.clamp(lo, hi);
+    let width = 0.8 / models.len().max(1) as f64;
+    for (k, model) in models.iter().enumerate() {
+        let color = palette(k);
+        let bars: Vec<_> = cells
+            .iter()
+            .filter(|c| c.model == *model)
+            .filter_map(|c| {
+                let i = designs.iter().position(|d| *d == c.design)?;
+                let [p05, median, p95] = c.band?;
+                let x = i as f64 - 0.4 + width * (k as f64 + 0.5);
+                Some((x, clip(p05), clip(median), clip(p95)))
+            })
+            .collect();
+        chart
+            .draw_series(bars.iter().map(|&(x, a, _, b)| {
+                Rectangle::new([(x - width * 0.4, a), (x + width * 0.4, b)], color.mix(0.6).filled())
+            }))
+            .map_err(err)?
+            .label(model.to_string())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], color.filled()));
+        chart
+            .draw_series(bars.iter().map(|&(x, _, m, _)| {
+                PathElement::new(vec![(x - width * 0.4, m), (x + width * 0.4, m)], WHITE.stroke_width(3))
+            }))
+            .map_err(err)?;
+    }
+    legend(&mut chart, SeriesLabelPosition::UpperRight)?;
+    root.draw(&Text::new(
+        "bar: 5th-95th percentile over the ok trials   white: median   no bar: no ok trial (see summary.csv)",
+        (100, (SIZE.1 - 20) as i32),
+        (FONT, 15).into_font(),
+    ))
+    .map_err(err)?;
+    Ok(())
+}

@@ -323,8 +323,8 @@ fn realise_designs(
                 .map(|t| {
                     realise(
                         mat_vec(&turn, *t),
-                        &starts,
-                        &directions,
+                        starts,
+                        directions,
                         args.within_deg,
                         args.candidates as usize,
                     )

@@ -55,6 +55,9 @@ pub struct Fitted {
     pub estimate: ErrorModel,
     /// RMS of `|P (raw - bias)| - R` over the readings it was fitted to, nT.
     pub rms_residual: f64,
+    /// The rotation of `P (raw - bias)` into the body frame where the model estimates it (the
+    /// vector calibration).
+    pub alignment: Option<Mat3>,
 }
 
 impl Fitted {
@@ -94,6 +97,7 @@ pub fn calibrate(
                 bias: e.bias_nt,
                 estimate: e.model,
                 rms_residual: e.rms_residual_nt,
+                alignment: None,
             })
         }
         Model::Diagonal | Model::Offset => {
@@ -118,6 +122,7 @@ pub fn calibrate(
                 bias: f.bias,
                 estimate: f.errors,
                 rms_residual: f.residual_rms,
+                alignment: None,
             })
         }
         Model::Vector => {
@@ -142,6 +147,7 @@ pub fn calibrate(
                 bias: f.bias,
                 estimate: f.error_model(),
                 rms_residual: f.rms_residual,
+                alignment: Some(f.alignment),
             })
         }
         Model::Symmetric => {
@@ -152,6 +158,7 @@ pub fn calibrate(
                 bias: e.bias_nt,
                 estimate: e.model,
                 rms_residual: e.rms_residual_nt,
+                alignment: None,
             })
         }
     }

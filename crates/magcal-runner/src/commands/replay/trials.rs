@@ -2,7 +2,7 @@
 //! every model calibrated from the same draw (paired), each calibration scored on the log's other
 //! readings against the reference attitudes.
 
-use magcal_core::reference::{AlignSettings, align};
+use magcal_core::reference::{AlignSettings, align, align_fixed};
 use magcal_core::replay::{CoverageMap, Realised, body_of_paper, held, orient, realise};
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::small::{Mat3, mat_vec, norm, scale};
@@ -33,6 +33,9 @@ pub struct Scored {
     /// Against the reference attitudes; `None` without an estimate, or where the alignment
     /// failed.
     pub figures: Option<Figures>,
+    /// Against the reference with the calibration's own alignment held (only `F` fitted), for a
+    /// model that estimates the alignment.
+    pub held: Option<Figures>,
     /// Against the truth, where known and there is an estimate.
     pub eta: Option<RelativeErrors>,
     /// RMS of `|calibrated| - R` over the readings calibrated, nT.
@@ -45,6 +48,7 @@ impl Scored {
         Self {
             status: CalibrationStatus::RankDeficient,
             figures: None,
+            held: None,
             eta: None,
             rms_residual: None,
         }
@@ -217,6 +221,7 @@ impl Plan<'_> {
                 return Scored {
                     status,
                     figures: None,
+                    held: None,
                     eta: None,
                     rms_residual: None,
                 };
@@ -224,17 +229,23 @@ impl Plan<'_> {
         };
         let calibrated: Vec<Vec3> = scoring.iter().map(|&i| fitted.apply(self.log.readings[i])).collect();
         let attitudes: Vec<_> = scoring.iter().map(|&i| self.log.attitudes[i]).collect();
+        let figures_of = |a: magcal_core::reference::Alignment| Figures {
+            heading_rms: a.summary.heading_rms_deg,
+            heading_p95: a.summary.heading_p95_deg,
+            heading_max: a.summary.heading_max_deg,
+            direction_rms: a.summary.direction_rms_deg,
+        };
         let figures = align(&calibrated, &attitudes, &AlignSettings::default())
             .ok()
-            .map(|a| Figures {
-                heading_rms: a.summary.heading_rms_deg,
-                heading_p95: a.summary.heading_p95_deg,
-                heading_max: a.summary.heading_max_deg,
-                direction_rms: a.summary.direction_rms_deg,
-            });
+            .map(figures_of);
+        let held = fitted
+            .alignment
+            .and_then(|q| align_fixed(&calibrated, &attitudes, &q).ok())
+            .map(figures_of);
         Scored {
             status: fitted.status,
             figures,
+            held,
             eta: self
                 .log
                 .truth

@@ -51,6 +51,9 @@ pub struct ReplayTrialRow {
     pub heading_p95_deg: Option<Real>,
     pub heading_max_deg: Option<Real>,
     pub direction_rms_deg: Option<Real>,
+    /// With the calibration's own alignment held (the vector model); empty for the others.
+    pub heading_rms_held_deg: Option<Real>,
+    pub direction_rms_held_deg: Option<Real>,
     pub eta_psi: Option<Real>,
     pub eta_s: Option<Real>,
     pub eta_o: Option<Real>,
@@ -91,6 +94,9 @@ pub struct WholeLogRow {
     pub heading_p95_deg: Option<Real>,
     pub heading_max_deg: Option<Real>,
     pub direction_rms_deg: Option<Real>,
+    /// With the calibration's own alignment held (the vector model); empty for the others.
+    pub heading_rms_held_deg: Option<Real>,
+    pub direction_rms_held_deg: Option<Real>,
     pub eta_psi: Option<Real>,
     pub eta_s: Option<Real>,
     pub eta_o: Option<Real>,
@@ -101,11 +107,13 @@ pub struct WholeLogRow {
 type MetricOf = fn(&Scored) -> Option<f64>;
 
 /// The metrics of `summary.csv`, in order, and how each is read from an outcome.
-const METRICS: [(&str, MetricOf); 7] = [
+const METRICS: [(&str, MetricOf); 9] = [
     ("heading_rms_deg", |s| s.figures.map(|f| f.heading_rms)),
     ("heading_p95_deg", |s| s.figures.map(|f| f.heading_p95)),
     ("heading_max_deg", |s| s.figures.map(|f| f.heading_max)),
     ("direction_rms_deg", |s| s.figures.map(|f| f.direction_rms)),
+    ("heading_rms_held_deg", |s| s.held.map(|f| f.heading_rms)),
+    ("direction_rms_held_deg", |s| s.held.map(|f| f.direction_rms)),
     ("eta_psi", |s| s.eta.and_then(|e| e.psi)),
     ("eta_s", |s| s.eta.and_then(|e| e.scale)),
     ("eta_o", |s| s.eta.and_then(|e| e.bias)),
@@ -142,7 +150,7 @@ fn realisation_rows(r: &Replay) -> Vec<RealisationRow> {
     rows
 }
 
-fn scored_fields(s: &Scored) -> [Option<Real>; 8] {
+fn scored_fields(s: &Scored) -> [Option<Real>; 10] {
     let f = s.figures;
     let e = s.eta;
     [
@@ -150,6 +158,8 @@ fn scored_fields(s: &Scored) -> [Option<Real>; 8] {
         real(f.map(|f| f.heading_p95)),
         real(f.map(|f| f.heading_max)),
         real(f.map(|f| f.direction_rms)),
+        real(s.held.map(|f| f.heading_rms)),
+        real(s.held.map(|f| f.direction_rms)),
         real(e.and_then(|e| e.psi)),
         real(e.and_then(|e| e.scale)),
         real(e.and_then(|e| e.bias)),
@@ -161,7 +171,7 @@ fn trial_rows(r: &Replay) -> impl Iterator<Item = ReplayTrialRow> + '_ {
     r.designs.iter().zip(&r.trials).flat_map(move |(d, trials)| {
         trials.iter().enumerate().flat_map(move |(t, trial): (usize, &Trial)| {
             trial.scored.iter().zip(&r.models).map(move |(s, m)| {
-                let [h, h95, hmax, dir, psi, sc, o, res] = scored_fields(s);
+                let [h, h95, hmax, dir, hh, dh, psi, sc, o, res] = scored_fields(s);
                 ReplayTrialRow {
                     design: d.name.clone(),
                     trial: t,
@@ -171,6 +181,8 @@ fn trial_rows(r: &Replay) -> impl Iterator<Item = ReplayTrialRow> + '_ {
                     heading_p95_deg: h95,
                     heading_max_deg: hmax,
                     direction_rms_deg: dir,
+                    heading_rms_held_deg: hh,
+                    direction_rms_held_deg: dh,
                     eta_psi: psi,
                     eta_s: sc,
                     eta_o: o,
@@ -223,7 +235,7 @@ fn whole_log_rows(r: &Replay) -> Vec<WholeLogRow> {
         .iter()
         .zip(&r.models)
         .map(|(s, m)| {
-            let [h, h95, hmax, dir, psi, sc, o, res] = scored_fields(s);
+            let [h, h95, hmax, dir, hh, dh, psi, sc, o, res] = scored_fields(s);
             WholeLogRow {
                 model: m.as_str().into(),
                 readings: r.prepared.readings.len(),
@@ -232,6 +244,8 @@ fn whole_log_rows(r: &Replay) -> Vec<WholeLogRow> {
                 heading_p95_deg: h95,
                 heading_max_deg: hmax,
                 direction_rms_deg: dir,
+                heading_rms_held_deg: hh,
+                direction_rms_held_deg: dh,
                 eta_psi: psi,
                 eta_s: sc,
                 eta_o: o,
@@ -297,6 +311,39 @@ pub fn write_set(
     put("summary.csv", output::csv_bytes(summary_rows(r))?)?;
     put("whole_log.csv", output::csv_bytes(whole_log_rows(r))?)?;
     put("trials.csv", output::csv_bytes(trial_rows(r))?)?;
+    let summary = summary_rows(r);
+    let cells = |metric: &str| -> Vec<crate::plots::ReplayCell> {
+        summary
+            .iter()
+            .filter(|s| s.metric == metric)
+            .map(|s| crate::plots::ReplayCell {
+                design: s.design.clone(),
+                model: s.model.clone(),
+                trials: s.trials,
+                band: match (s.p05, s.median, s.p95) {
+                    (Some(a), Some(m), Some(b)) => Some([a.0, m.0, b.0]),
+                    _ => None,
+                },
+            })
+            .collect()
+    };
+    let title = format!("{} on {}", scenario.name, file_name(&args.log));
+    let metrics = [
+        (
+            "heading_rms",
+            "heading rms against the reference, deg",
+            cells("heading_rms_deg"),
+        ),
+        (
+            "direction_rms",
+            "direction rms against the reference, deg",
+            cells("direction_rms_deg"),
+        ),
+        ("eta_psi", "eta_psi, %", cells("eta_psi")),
+        ("eta_s", "eta_S, %", cells("eta_s")),
+        ("eta_o", "eta_O, %", cells("eta_o")),
+    ];
+    crate::plots::draw_replay(set, "plots/", &title, &metrics)?;
     let manifest = ReplayManifest {
         kind: SetKind::Replay,
         command: std::env::args().collect(),
@@ -318,6 +365,12 @@ pub fn write_set(
         manifest_sha256: None,
     };
     set.put("manifest.json", &manifest.to_bytes()?)
+}
+
+/// The file name of `path` (the whole path where it has none).
+fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
 }
 
 /// The table printed: per design and model, the outcomes and the median (5th-95th percentile)
