@@ -102,7 +102,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         None => None,
     };
     if let Some(out) = &errors_out {
-        out.check(&inputs)?;
+        out.check(&inputs).context("--errors")?;
     }
     let cal = cal_path.map(read_calibration).transpose()?;
     let cal_shown = cal_path.map(|p| p.display().to_string());
@@ -140,7 +140,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
     );
     if let Some(Output::File(path)) = &errors_out {
         let rows = report::error_rows(&used, cal_fit.as_ref().unwrap_or(&raw_fit), &raw_fit);
-        replace_with(path, &inputs, |w| crate::output::write_csv(rows, w))?;
+        replace_with(path, &inputs, |w| crate::output::write_csv(rows, w)).context("--errors")?;
     }
     to_stdout(|w| {
         if args.json {
