@@ -704,16 +704,23 @@ mod tests {
 
     const FIELD: Vec3 = [-0.25, 15.3, -41.9];
 
+    /// 200 attitudes `C_t` drawn from `seed`, a rotation `Q0` and the fields
+    /// `b_t = Q0^T C_t^T F0` of a calibrated frame turned from the body by `Q0^T`.
+    fn turned(seed: u64) -> (Vec<Mat3>, Mat3, Vec<Vec3>) {
+        let attitudes = random_rotations(200, seed);
+        let q0 = mat_mul(&about_x(37.0), &about_z(-121.0));
+        let calibrated = attitudes
+            .iter()
+            .map(|c| crate::small::mat_t_vec(&q0, crate::small::mat_t_vec(c, FIELD)))
+            .collect();
+        (attitudes, q0, calibrated)
+    }
+
     #[test]
     fn a_calibrated_frame_turned_by_a_constant_rotation_is_recovered_exactly() {
         // b_t = Q0^T C_t^T F0: the calibrated frame is the body frame turned by Q0^T, which a
         // scalar calibration cannot see. The fit must absorb it whole.
-        let attitudes = random_rotations(200, 1);
-        let q0 = mat_mul(&about_x(37.0), &about_z(-121.0));
-        let calibrated: Vec<Vec3> = attitudes
-            .iter()
-            .map(|c| crate::small::mat_t_vec(&q0, crate::small::mat_t_vec(c, FIELD)))
-            .collect();
+        let (attitudes, q0, calibrated) = turned(1);
         let a = align(&calibrated, &attitudes, &AlignSettings::default()).unwrap();
         let f = norm(FIELD);
         // Rounding of sums of 200 products of size |F|.
@@ -924,12 +931,7 @@ mod tests {
     fn a_held_rotation_gives_the_mean_field_and_shows_a_misalignment_whole() {
         // b_t = Q0^T C_t^T F0 as in the first test: held at Q0 the fit is exact; held at the
         // identity, every reading is off by the turn Q0, which no longer is absorbed.
-        let attitudes = random_rotations(200, 6);
-        let q0 = mat_mul(&about_x(37.0), &about_z(-121.0));
-        let calibrated: Vec<Vec3> = attitudes
-            .iter()
-            .map(|c| crate::small::mat_t_vec(&q0, crate::small::mat_t_vec(c, FIELD)))
-            .collect();
+        let (attitudes, q0, calibrated) = turned(6);
         let held = align_fixed(&calibrated, &attitudes, &q0).unwrap();
         let fitted = align(&calibrated, &attitudes, &AlignSettings::default()).unwrap();
         let tol = 200.0 * 8.0 * f64::EPSILON;

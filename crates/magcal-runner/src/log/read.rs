@@ -539,13 +539,8 @@ fn read_from<R: Read>(
         let pick = match pick {
             Some(p) => p,
             None => {
-                let (p, e) = pick_columns(s, &names, columns, extras, shown)?;
-                extra_pick = e;
-                filter_pick = filters
-                    .iter()
-                    .map(|f| find_column(&names, "--where", &f.column))
-                    .collect::<Result<_>>()
-                    .with_context(|| shown.to_string())?;
+                let (p, e, f) = pick_columns(s, &names, columns, (extras, filters), shown)?;
+                (extra_pick, filter_pick) = (e, f);
                 *pick.insert(p)
             }
         };
@@ -574,15 +569,8 @@ fn read_from<R: Read>(
     let Some(pick) = pick else {
         bail!("{shown}: the log has a header but no readings");
     };
-    if readings == 0 && skipped.is_empty() && filtered > 0 {
-        let shown_filters: Vec<String> = filters.iter().map(|f| format!("--where {}", f.shown())).collect();
-        bail!(
-            "{shown}: no row meets {} ({filtered} rows)",
-            shown_filters.join(" and ")
-        );
-    }
     if readings == 0 {
-        bail!("{shown}: no readings ({} rows skipped)", skipped.len());
+        bail!("{shown}: {}", no_readings(filters, filtered, skipped.len()));
     }
     Ok(Streamed {
         readings,
@@ -594,15 +582,25 @@ fn read_from<R: Read>(
     })
 }
 
-/// The field's three columns and the extras' columns, from the first data row (which decides
-/// which columns are numeric).
+/// Why a log gave no readings: every row left out by `filters`, or skipped.
+fn no_readings(filters: &[RowFilter], filtered: usize, skipped: usize) -> String {
+    if skipped == 0 && filtered > 0 {
+        let shown: Vec<String> = filters.iter().map(|f| format!("--where {}", f.shown())).collect();
+        format!("no row meets {} ({filtered} rows)", shown.join(" and "))
+    } else {
+        format!("no readings ({skipped} rows skipped)")
+    }
+}
+
+/// The field's three columns, the extras' columns and the filters' columns, from the first data
+/// row (which decides which columns are numeric).
 fn pick_columns(
     s: &Splitter,
     names: &[String],
     columns: Option<&str>,
-    extras: &[Extra],
+    (extras, filters): (&[Extra], &[RowFilter]),
     shown: &str,
-) -> Result<([usize; 3], Vec<usize>)> {
+) -> Result<([usize; 3], Vec<usize>, Vec<usize>)> {
     let separator = s.separator;
     let numeric: Vec<bool> = (0..names.len())
         .map(|i| s.get(i).is_some_and(|c| number(c, separator).is_some()))
@@ -613,7 +611,12 @@ fn pick_columns(
         .map(|e| choose_extra(names, e, &p))
         .collect::<Result<_>>()
         .with_context(|| shown.to_string())?;
-    Ok((p, e))
+    let f = filters
+        .iter()
+        .map(|f| find_column(names, "--where", &f.column))
+        .collect::<Result<_>>()
+        .with_context(|| shown.to_string())?;
+    Ok((p, e, f))
 }
 
 /// Line `line` of the log in `buf` as text: a UTF-8 byte order mark on line 1 removed; UTF-16 text

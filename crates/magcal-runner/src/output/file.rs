@@ -294,7 +294,7 @@ fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
             for input in inputs {
                 if same_file(path, input) {
                     bail!(
-                        "{shown}: is the input {} (the same file); writing it would destroy it: give another --out",
+                        "{shown}: is the input {} (the same file); writing it would destroy it: give another path",
                         input.display()
                     );
                 }

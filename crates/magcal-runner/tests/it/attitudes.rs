@@ -31,7 +31,7 @@ fn usv_log(dir: &Path) -> (PathBuf, PathBuf) {
 }
 
 /// Hamilton product.
-fn mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+pub fn mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
     [
         a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
         a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
@@ -41,7 +41,7 @@ fn mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
 }
 
 /// The rotation by `deg` about unit axis `axis`.
-fn about(axis: [f64; 3], deg: f64) -> [f64; 4] {
+pub fn about(axis: [f64; 3], deg: f64) -> [f64; 4] {
     let (s, c) = (deg.to_radians() / 2.0).sin_cos();
     [c, s * axis[0], s * axis[1], s * axis[2]]
 }
@@ -141,7 +141,7 @@ fn the_attitudes_a_log_flew_are_reported_the_same_from_euler_angles_and_enu_quat
 }
 
 /// The rotation matrix of `q`.
-fn dcm(q: [f64; 4]) -> [[f64; 3]; 3] {
+pub fn dcm(q: [f64; 4]) -> [[f64; 3]; 3] {
     let [w, x, y, z] = q;
     [
         [

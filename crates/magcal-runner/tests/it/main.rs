@@ -11,6 +11,7 @@ mod bad_logs;
 mod calibrate;
 mod cli;
 mod dataflash;
+mod evaluate;
 mod export;
 mod fuzz;
 mod log_outputs;

@@ -17,8 +17,8 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use magcal_core::Vec3;
 use magcal_core::aviation::{NavFrame, from_ned, roll_pitch_heading_deg, tilt_deg, z_up_of_ned};
-use magcal_core::reference::{AlignSettings, align};
-use magcal_core::small::Mat3;
+use magcal_core::reference::{AlignSettings, Alignment, align, align_fixed};
+use magcal_core::small::{Mat3, mat_mul};
 
 use super::Failure;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
@@ -44,10 +44,13 @@ pub const TILT_BANDS_DEG: [f64; 6] = [0.0, 15.0, 30.0, 60.0, 90.0, 180.0];
 /// `magcal evaluate`.
 #[derive(Debug, Args)]
 pub struct EvaluateArgs {
-    /// `CAL.json LOG`: a calibration.json written by `magcal calibrate` and the log to judge it
-    /// on; with `--raw`, the log alone.
-    #[arg(value_name = "CAL.json LOG", num_args = 1..=2, required = true)]
-    pub files: Vec<PathBuf>,
+    /// A calibration.json written by `magcal calibrate`; with `--raw`, the log (`magcal evaluate
+    /// --raw LOG`).
+    #[arg(value_name = "CAL.json")]
+    pub calibration: PathBuf,
+    /// The log to judge the calibration on.
+    #[arg(value_name = "LOG")]
+    pub log: Option<PathBuf>,
     /// Evaluate the log's raw readings, uncalibrated, without a calibration file.
     #[arg(long)]
     pub raw: bool,
@@ -76,18 +79,17 @@ pub fn run(args: &EvaluateArgs) -> Result<(), Failure> {
 
 /// The calibration (`None` with `--raw`) and the log named on the command line.
 fn files(args: &EvaluateArgs) -> Result<(Option<&Path>, &Path)> {
-    match (args.raw, &args.files[..]) {
-        (true, [log]) => Ok((None, log)),
-        (false, [cal, log]) => Ok((Some(cal), log)),
-        (true, [cal, _]) => bail!(
+    match (args.raw, &args.log) {
+        (true, None) => Ok((None, &args.calibration)),
+        (false, Some(log)) => Ok((Some(&args.calibration), log)),
+        (true, Some(_)) => bail!(
             "--raw evaluates the log's readings uncalibrated: give the log alone, not {} (magcal evaluate --raw LOG)",
-            cal.display()
+            args.calibration.display()
         ),
-        (false, [log]) => bail!(
+        (false, None) => bail!(
             "give the calibration and the log (magcal evaluate CAL.json LOG), or --raw to evaluate {}'s readings uncalibrated",
-            log.display()
+            args.calibration.display()
         ),
-        _ => bail!("give CAL.json LOG, or --raw LOG"),
     }
 }
 
@@ -102,7 +104,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         None => None,
     };
     if let Some(out) = &errors_out {
-        out.check(&inputs)?;
+        out.check(&inputs).context("--errors")?;
     }
     let cal = cal_path.map(read_calibration).transpose()?;
     let cal_shown = cal_path.map(|p| p.display().to_string());
@@ -118,15 +120,8 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         )?),
         None => None,
     };
-    let fit = |readings: &[Vec3], what: &str| {
-        align(readings, &used.attitudes, &AlignSettings::default())
-            .with_context(|| format!("{log_shown}: {what}: the attitudes do not judge them"))
-    };
-    let raw_fit = fit(&used.raw, "the raw readings")?;
-    let cal_fit = match &calibrated {
-        Some(b) => Some(fit(b, "the calibrated readings")?),
-        None => None,
-    };
+    // A calibration.json carries no alignment of its calibrated frame to the body: Q is fitted.
+    let fits = Fits::of(&used, calibrated.as_deref(), None).with_context(|| log_shown.clone())?;
     let json = report::EvaluationJson::new(
         report::Source {
             log: &log,
@@ -135,12 +130,11 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
             cal_shown: cal_shown.as_deref(),
         },
         &used,
-        cal_fit.as_ref(),
-        &raw_fit,
+        &fits,
     );
     if let Some(Output::File(path)) = &errors_out {
-        let rows = report::error_rows(&used, cal_fit.as_ref().unwrap_or(&raw_fit), &raw_fit);
-        replace_with(path, &inputs, |w| crate::output::write_csv(rows, w))?;
+        let rows = report::error_rows(&used, fits.calibrated.as_ref().unwrap_or(&fits.raw), &fits.raw);
+        replace_with(path, &inputs, |w| crate::output::write_csv(rows, w)).context("--errors")?;
     }
     to_stdout(|w| {
         if args.json {
@@ -257,6 +251,60 @@ impl Used {
     }
 }
 
+/// The fits of one evaluation.
+pub struct Fits {
+    /// `Q` and `F` fitted to the calibrated readings; `None` with `--raw`.
+    pub calibrated: Option<Alignment>,
+    /// `Q` held at the calibration's alignment and `F` fitted, where it carries one.
+    pub aligned: Option<Alignment>,
+    /// `Q` and `F` fitted to the raw readings.
+    pub raw: Alignment,
+}
+
+impl Fits {
+    /// The fits of the raw readings of `used`, of their calibrated values `calibrated`, and of
+    /// those with `Q` held at `alignment`: the rotation of the calibrated frame into the body
+    /// frame forward, right, down (as a vector calibration records it), turned here into the
+    /// body frame of the log's attitudes ([`in_log_body`]).
+    ///
+    /// # Errors
+    /// Attitudes that do not judge a set of readings ([`align`], [`align_fixed`]).
+    pub fn of(used: &Used, calibrated: Option<&[Vec3]>, alignment: Option<&Mat3>) -> Result<Self> {
+        let fit = |readings: &[Vec3], what: &str| {
+            align(readings, &used.attitudes, &AlignSettings::default())
+                .with_context(|| format!("{what}: the attitudes do not judge them"))
+        };
+        let raw = fit(&used.raw, "the raw readings")?;
+        let (calibrated, aligned) = match calibrated {
+            Some(b) => {
+                let aligned = match alignment {
+                    Some(a) => Some(
+                        align_fixed(b, &used.attitudes, &in_log_body(a, used.frame))
+                            .context("the calibrated readings with the alignment held")?,
+                    ),
+                    None => None,
+                };
+                (Some(fit(b, "the calibrated readings")?), aligned)
+            }
+            None => (None, None),
+        };
+        Ok(Self {
+            calibrated,
+            aligned,
+            raw,
+        })
+    }
+}
+
+/// A rotation into the body frame forward, right, down as a rotation into the body frame of
+/// attitudes in the convention `frame` (forward, left, up for ENU: a half turn about forward).
+pub fn in_log_body(rotation: &Mat3, frame: NavFrame) -> Mat3 {
+    match frame {
+        NavFrame::Ned => *rotation,
+        NavFrame::Enu => mat_mul(&[[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], rotation),
+    }
+}
+
 /// The calibrated readings `P (raw - bias)` of `used`; a value that is not finite is an error
 /// naming its line.
 fn calibrate(cal: &CalibrationJson, used: &Used, log_shown: &str, cal_shown: &str) -> Result<Vec<Vec3>> {
@@ -294,5 +342,74 @@ fn warn(log: &Log, log_shown: &str, cal: Option<(&CalibrationJson, &str)>) {
     }
     if let Some(why) = cal.radius_mismatch(radius.ratio()) {
         to_stderr!("magcal: warning: {log_shown}: {why}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use magcal_core::aviation::dcm_of_quaternion;
+    use magcal_core::small::{mat_t_vec, mat_vec};
+
+    use super::*;
+
+    /// The readings of [`Used`] with ENU attitudes `C` (body forward-left-up into east, north,
+    /// up) drawn from `seed`, the field `F` and the calibrated fields `A^T v` of a calibration
+    /// whose frame turns into the body frame forward, right, down by `A`: `v = H C^T F` with `H`
+    /// the half turn about forward between the two body frames.
+    fn used_and_calibrated(a: &Mat3, seed: u64) -> (Used, Vec<Vec3>) {
+        use rand::RngExt;
+        let f = [-0.25, 15.3, -41.9];
+        let mut rng = magcal_core::rng::stream_rng(seed, 0);
+        let (mut attitudes, mut calibrated) = (Vec::new(), Vec::new());
+        for _ in 0..100 {
+            let q: [f64; 4] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let c = dcm_of_quaternion(q.map(|v| v / n)).unwrap();
+            let flu = mat_t_vec(&c, f);
+            calibrated.push(mat_t_vec(a, [flu[0], -flu[1], -flu[2]]));
+            attitudes.push(c);
+        }
+        let used = Used {
+            lines: (1..=100).collect(),
+            times: None,
+            raw: calibrated.clone(),
+            attitudes,
+            roll_pitch_heading: vec![[0.0; 3]; 100],
+            tilt: vec![0.0; 100],
+            without: 0,
+            frame: NavFrame::Enu,
+        };
+        (used, calibrated)
+    }
+
+    #[test]
+    fn an_alignment_into_the_forward_right_down_body_is_held_in_the_logs_own_body_frame() {
+        let a = magcal_core::aviation::dcm_of_euler(0.3, -0.2, 1.1);
+        let (used, calibrated) = used_and_calibrated(&a, 31);
+        let fits = Fits::of(&used, Some(&calibrated), Some(&a)).unwrap();
+        let held = fits.aligned.unwrap();
+        // Exact to rounding: 100 readings of 16 eps of the field each, as a heading of its
+        // horizontal part.
+        let f = [-0.25_f64, 15.3, -41.9];
+        let bound = (1600.0 * f64::EPSILON * magcal_core::small::norm(f) / f[0].hypot(f[1])).to_degrees();
+        assert!(held.summary.heading_max_deg <= bound, "{:?}", held.summary);
+        for (got, want) in held.field.iter().zip(f) {
+            assert!((got - want).abs() <= 1e-12, "{:?}", held.field);
+        }
+        // The fitted Q is the same rotation, in the log's body frame.
+        let fitted = fits.calibrated.unwrap();
+        let want = in_log_body(&a, NavFrame::Enu);
+        for (r, w) in fitted.rotation.iter().zip(&want) {
+            for (x, y) in r.iter().zip(w) {
+                assert!((x - y).abs() <= 1e-12, "{:?} {want:?}", fitted.rotation);
+            }
+        }
+        // Held without the half turn, every reading is off: the frames matter.
+        let wrong = Fits::of(&used, Some(&calibrated), Some(&in_log_body(&a, NavFrame::Enu))).unwrap();
+        assert!(wrong.aligned.unwrap().summary.direction_rms_deg > 10.0);
+        // A NED log's body is forward, right, down: the rotation as it is.
+        assert_eq!(in_log_body(&a, NavFrame::Ned), a);
+        let v = [1.0, 2.0, 3.0];
+        assert_eq!(mat_vec(&in_log_body(&a, NavFrame::Enu), v)[0], mat_vec(&a, v)[0]);
     }
 }

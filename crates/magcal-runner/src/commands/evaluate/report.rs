@@ -9,7 +9,7 @@ use magcal_core::reference::{Alignment, ErrorSummary, axis_angle, cell_summaries
 use magcal_core::small::{Mat3, norm};
 use serde::{Deserialize, Serialize};
 
-use super::{SECTOR_DEG, TILT_BANDS_DEG, Used};
+use super::{Fits, SECTOR_DEG, TILT_BANDS_DEG, Used};
 use crate::commands::calibrate::heading::against;
 use crate::log::calibration::CalibrationJson;
 use crate::log::source::Log;
@@ -44,6 +44,9 @@ pub struct EvaluationJson {
     pub tilt_bands_deg: Vec<f64>,
     /// The calibrated readings `P (raw - bias)`; `null` with `--raw`.
     pub calibrated: Option<FiguresJson>,
+    /// The calibrated readings with `Q` held at the calibration's alignment (a vector
+    /// calibration's) and only `F` fitted; `null` without one.
+    pub calibrated_aligned: Option<FiguresJson>,
     /// The raw readings taken as calibrated.
     pub uncalibrated: FiguresJson,
 }
@@ -120,8 +123,8 @@ pub struct ErrorRow {
 }
 
 impl EvaluationJson {
-    /// The report of the fits `calibrated` (none with `--raw`) and `raw` of the readings `used`.
-    pub fn new(source: Source, used: &Used, calibrated: Option<&Alignment>, raw: &Alignment) -> Self {
+    /// The report of the fits of the readings `used`.
+    pub fn new(source: Source, used: &Used, fits: &Fits) -> Self {
         let log = source.log;
         let units = source.cal.and_then(|c| c.units.clone()).or_else(|| {
             log.origin
@@ -152,8 +155,9 @@ impl EvaluationJson {
             },
             sector_deg: SECTOR_DEG,
             tilt_bands_deg: TILT_BANDS_DEG.to_vec(),
-            calibrated: calibrated.map(|a| figures(a, used)),
-            uncalibrated: figures(raw, used),
+            calibrated: fits.calibrated.as_ref().map(|a| figures(a, used)),
+            calibrated_aligned: fits.aligned.as_ref().map(|a| figures(a, used)),
+            uncalibrated: figures(&fits.raw, used),
         }
     }
 }
@@ -253,10 +257,9 @@ pub fn print(w: &mut dyn Write, j: &EvaluationJson) -> std::io::Result<()> {
         "{:<16}{:>13}{:>13}{:>13}{:>15}   (degrees)",
         "", "heading rms", "heading p95", "heading max", "direction rms"
     )?;
-    let sets: Vec<(&str, &FiguresJson)> = j
-        .calibrated
-        .iter()
-        .map(|f| ("calibrated", f))
+    let sets: Vec<(&str, &FiguresJson)> = [("calibrated", &j.calibrated), ("aligned", &j.calibrated_aligned)]
+        .into_iter()
+        .filter_map(|(name, f)| Some((name, f.as_ref()?)))
         .chain([("uncalibrated", &j.uncalibrated)])
         .collect();
     for (name, f) in &sets {
@@ -264,6 +267,12 @@ pub fn print(w: &mut dyn Write, j: &EvaluationJson) -> std::io::Result<()> {
             w,
             "{name:<16}{:>13.4}{:>13.4}{:>13.4}{:>15.4}",
             f.heading_rms_deg, f.heading_p95_deg, f.heading_max_deg, f.direction_rms_deg
+        )?;
+    }
+    if j.calibrated_aligned.is_some() {
+        writeln!(
+            w,
+            "aligned: the calibrated readings with Q held at the calibration's alignment, only F fitted"
         )?;
     }
     let units = j.units.as_deref().unwrap_or("the log's units");
