@@ -120,8 +120,10 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         )?),
         None => None,
     };
-    // A calibration.json carries no alignment of its calibrated frame to the body: Q is fitted.
-    let fits = Fits::of(&used, calibrated.as_deref(), None).with_context(|| log_shown.clone())?;
+    // A vector calibration carries the alignment of its calibrated frame `P (raw - bias)` to the
+    // body: its figures are also given with Q held there. Q is fitted in every case.
+    let held = cal.as_ref().and_then(|c| c.alignment.as_ref()).map(|a| &a.rotation);
+    let fits = Fits::of(&used, calibrated.as_deref(), held).with_context(|| log_shown.clone())?;
     let json = report::EvaluationJson::new(
         report::Source {
             log: &log,
