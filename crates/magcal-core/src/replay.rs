@@ -211,27 +211,11 @@ fn cell_centre(cell: usize) -> Vec3 {
     [r * a.cos(), r * a.sin(), z]
 }
 
-/// The rotation of a unit quaternion `(w, x, y, z)`.
+/// The rotation of the quaternion `q` normalised (`q` drawn from a normal distribution: a uniform
+/// random rotation); the identity for a zero or non-finite `q`.
 fn rotation_of(q: [f64; 4]) -> Mat3 {
     let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let [w, x, y, z] = q.map(|v| v / n);
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
+    crate::aviation::dcm_of_quaternion(q.map(|v| v / n)).unwrap_or([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 }
 
 /// How far a turned design lies from the log: its farthest direction's distance, then the sum.

@@ -14,6 +14,8 @@ use std::sync::Once;
 use anyhow::{Context, Result};
 use magcal_core::{Attitude, ReferenceField};
 use plotters::coord::Shift;
+use plotters::coord::combinators::LogCoord;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -315,6 +317,34 @@ fn palette(i: usize) -> RGBColor {
 /// \[P1\] Figs. 1-3: per design, the p05-p95 range (bar), the median (white line), and the mean with
 /// +- one standard deviation (black marker and whisker). Logarithmic axis: the tails are heavy. A
 /// design without values (no successful trial) keeps its place, labelled, with nothing drawn.
+/// The mesh of a chart with one category per integer x (`names`) and a log y axis of `label`.
+fn category_mesh<DB: DrawingBackend>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, LogCoord<f64>>>,
+    names: &[String],
+    label: &str,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(names.len().max(1))
+        .x_label_formatter(&|x| {
+            let i = x.round();
+            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < names.len() {
+                names[i as usize].clone()
+            } else {
+                String::new()
+            }
+        })
+        .y_desc(format!("{label} (log scale)"))
+        .label_style((FONT, 16))
+        .axis_desc_style((FONT, 18))
+        .draw()
+        .map_err(err)
+}
+
 fn draw_errors<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     scenario: &str,
@@ -350,23 +380,7 @@ where
         .build_cartesian_2d(-0.5f64..(n as f64 - 0.5), (lo..hi).log_scale())
         .map_err(err)?;
     let names: Vec<String> = rows.iter().map(|s| s.label()).collect();
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(n)
-        .x_label_formatter(&|x| {
-            let i = x.round();
-            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < names.len() {
-                names[i as usize].clone()
-            } else {
-                String::new()
-            }
-        })
-        .y_desc(format!("{label} (log scale)"))
-        .label_style((FONT, 16))
-        .axis_desc_style((FONT, 18))
-        .draw()
-        .map_err(err)?;
+    category_mesh(&mut chart, &names, label)?;
     let clip = |v: f64| v.clamp(lo, hi);
     for (i, s) in rows.iter().enumerate() {
         let Some(v) = s.values else { continue };
@@ -744,23 +758,7 @@ where
             }
         })
         .collect();
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(n)
-        .x_label_formatter(&|x| {
-            let i = x.round();
-            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < names.len() {
-                names[i as usize].clone()
-            } else {
-                String::new()
-            }
-        })
-        .y_desc(format!("{label} (log scale)"))
-        .label_style((FONT, 16))
-        .axis_desc_style((FONT, 18))
-        .draw()
-        .map_err(err)?;
+    category_mesh(&mut chart, &names, label)?;
     let clip = |v: f64| v.clamp(lo, hi);
     let width = 0.8 / models.len().max(1) as f64;
     for (k, model) in models.iter().enumerate() {

@@ -11,17 +11,7 @@ use tempfile::TempDir;
 use crate::common::magcal;
 
 /// [P1] Table II's Uniformity design (yaw_offset_deg = 90, as the paper's figures read it).
-const UNIFORM: [[f64; 3]; 9] = [
-    [-5.0, -60.0, -20.0],
-    [-5.0, 60.0, -20.0],
-    [-5.0, 180.0, -20.0],
-    [0.0, -90.0, 0.0],
-    [0.0, 0.0, 0.0],
-    [0.0, 90.0, 0.0],
-    [0.0, 180.0, 0.0],
-    [5.0, -60.0, 20.0],
-    [5.0, 60.0, 20.0],
-];
+const UNIFORM: [[f64; 3]; 9] = magcal_core::paper::UNIFORMITY_DESIGN_DEG;
 
 /// Readings of the repeated design per attitude.
 const REPEATS: usize = 200;
