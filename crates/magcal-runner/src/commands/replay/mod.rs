@@ -132,7 +132,8 @@ pub struct Replay {
     pub models: Vec<Model>,
     pub hold: usize,
     /// The noise of a held reading the verdicts rest on, nT: the measured error of a held
-    /// reading ([`prepare::held_error`]) or, where larger, white noise averaged over the hold.
+    /// reading (the rms of `|P (h - O)| - R` over the windows under the whole log's calibration) or,
+    /// where larger, white noise averaged over the hold.
     pub held_noise: f64,
     /// White noise averaged over the hold, nT.
     pub white_held_noise: f64,
