@@ -438,9 +438,9 @@ fn a_lost_attitude_is_counted_and_a_partly_lost_one_is_refused_naming_its_line()
 }
 
 #[test]
-fn a_calibration_of_other_units_is_warned_of_and_its_figures_given() {
-    // The calibration was fitted in uT; the log gives the same field in nT. apply's warning,
-    // and the figures all the same (the radius says why they are bad).
+fn a_calibration_of_other_units_is_refused_naming_why() {
+    // The calibration was fitted in uT; the log gives the same field in nT: its figures would
+    // mean nothing, so evaluate refuses, as next does, and prints nothing.
     let tmp = TempDir::new().unwrap();
     let (cal, _) = calibration(tmp.path());
     let log = tmp.path().join("nt.csv");
@@ -450,15 +450,19 @@ fn a_calibration_of_other_units_is_warned_of_and_its_figures_given() {
         .map(|q| (sensor.measure(mat_t_vec(&dcm(q), FIELD)).map(|v| v * 1000.0), q))
         .collect();
     write_log(&log, &rows);
-    let (j, stderr) = evaluate_json(&[&[s(&cal), s(&log)][..], &ATTITUDE].concat());
+    let out = magcal()
+        .arg("evaluate")
+        .args([&[s(&cal), s(&log)][..], &ATTITUDE].concat())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(
-        stderr.contains("magcal: warning: ")
-            && stderr.contains("which no site on Earth explains")
-            && stderr.contains("other units"),
+        stderr.contains("which no site on Earth explains") && stderr.contains("other units"),
         "{stderr}"
     );
-    assert_eq!(j.rows.used, 60);
-    assert!(j.calibrated.is_some());
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(out.stdout.is_empty());
 }
 
 #[test]

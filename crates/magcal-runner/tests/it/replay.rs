@@ -291,3 +291,26 @@ fn replay_refuses_what_it_cannot_replay_before_replacing_anything() {
     assert_eq!(o.status.code(), Some(2));
     assert!(log.is_file());
 }
+
+#[test]
+fn truth_scenario_is_refused_for_a_log_that_is_not_of_the_scenarios_sensor() {
+    // BROAD 02 is a maker-calibrated IMU, not [P1]'s sensor: eta against that truth would be a
+    // comparison with a sensor the readings never had.
+    let Some(path) = crate::common::data("broad/02_undisturbed_slow_rotation_B.csv") else {
+        return;
+    };
+    let tmp = TempDir::new().unwrap();
+    let o = magcal()
+        .arg("replay")
+        .arg(crate::common::scenarios().join("replay-handheld.toml"))
+        .arg(&path)
+        .args(crate::common::BROAD_ARGS)
+        .args(["--where", "movement=1", "--truth", "scenario", "--trials", "2", "--out"])
+        .arg(tmp.path().join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("is not the scenario's sensor"), "{stderr}");
+    assert!(!tmp.path().join("out").exists());
+}

@@ -364,3 +364,35 @@ fn broad_trial_02_gives_its_misalignment_and_a_heading_no_worse_than_the_scalar_
         .to_degrees();
     assert!(angle <= 0.1, "{angle}");
 }
+
+#[test]
+fn a_vector_fit_whose_magnitude_or_sensor_is_not_believable_is_not_usable() {
+    // BROAD 10 (translation, narrow attitudes): the scalar fit does not determine the
+    // magnitude the fitted field must share, and the vector fit on it gives psi_x 34 degrees
+    // and scale factors near 7. BROAD 33 (a magnet on the board): the readings lie 20 % off
+    // the vector calibration's sphere. Neither may be called usable (exit 3, reasons named).
+    for (trial, words) in [
+        (
+            "broad/10_undisturbed_slow_translation_A.csv",
+            "the field magnitude is not determined",
+        ),
+        ("broad/33_disturbed_attached_magnet_2cm.csv", "not an ellipsoid"),
+    ] {
+        let Some(path) = crate::common::data(trial) else {
+            return;
+        };
+        let out = crate::common::magcal()
+            .arg("calibrate")
+            .arg(&path)
+            .args(crate::common::BROAD_ARGS)
+            .args(["--where", "movement=1", "--fit", "vector", "--json"])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(3), "{trial}: {stderr}");
+        let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(j["usable"], serde_json::Value::Bool(false), "{trial}");
+        let reasons = j["reasons"].to_string();
+        assert!(reasons.contains(words), "{trial}: {reasons}");
+    }
+}

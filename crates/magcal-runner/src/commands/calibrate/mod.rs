@@ -2,7 +2,7 @@
 
 pub mod heading;
 mod motor;
-mod vector;
+pub mod vector;
 
 use std::collections::BTreeMap;
 use std::io::Write;

@@ -6,7 +6,7 @@ use std::io::Write;
 
 use anyhow::{Context, Result, bail};
 use magcal_core::aviation::z_up_of_ned;
-use magcal_core::log_fit::{LogFit, Noise, significant};
+use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
 use magcal_core::vector::{ReferenceField, VectorFit, fit_vector};
@@ -24,6 +24,8 @@ pub struct Vector {
     readings: Vec<Vec3>,
     attitudes: Vec<Mat3>,
     field_source: String,
+    /// Whether `--magnitude` gave the field magnitude (else the scalar fit's, or the WMM's).
+    magnitude_given: bool,
 }
 
 /// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
@@ -112,6 +114,7 @@ pub fn fit(
         readings,
         attitudes,
         field_source,
+        magnitude_given: args.magnitude.is_some(),
     })
 }
 
@@ -155,8 +158,32 @@ impl Vector {
         if !v.identifiable {
             f.reasons.push(format!("not identifiable: {}", v.verdict));
         }
-        if !scalar.ellipsoid.passed {
-            f.reasons.push(format!("not an ellipsoid: {}", scalar.ellipsoid.words));
+        // The magnitude that K shares with a fitted F comes from the scalar fit: only a scalar
+        // fit that determines it may give it.
+        if v.field_fitted && !self.magnitude_given && !scalar.identifiable {
+            f.reasons.push(format!(
+                "the field magnitude is not determined: the scalar fit it comes from is not identifiable ({}); give --magnitude, or --site and --date",
+                scalar.verdict
+            ));
+        }
+        // The readings must lie near the vector calibration's own sphere, as a scalar fit's must
+        // lie near its ellipsoid.
+        let percent = 100.0 * f.residual_rms / scalar.magnitude;
+        let within = percent <= ELLIPSOID_LIMIT_PERCENT;
+        f.ellipsoid = EllipsoidTest {
+            residual_percent: percent,
+            chi_square_p: None,
+            passed: within,
+            words: format!(
+                "the vector calibration's residual rms {} % of the magnitude (limit {ELLIPSOID_LIMIT_PERCENT} %)",
+                significant(percent, 4)
+            ),
+        };
+        if !within {
+            f.reasons.push(format!("not an ellipsoid: {}", f.ellipsoid.words));
+        }
+        if let Some(why) = implausible(&v.error_model()) {
+            f.reasons.push(why);
         }
         f.usable = f.reasons.is_empty();
         f
@@ -272,4 +299,25 @@ pub fn print(w: &mut dyn Write, a: &AlignmentJson) -> std::io::Result<()> {
         )?;
     }
     Ok(())
+}
+
+/// Largest non-orthogonality and scale factors outside which a sensor is not believed: a
+/// magnetometer's axes are within a few degrees of orthogonal, and its scale factors within a
+/// factor of two of the field's (a wrong magnitude shows here first).
+const PLAUSIBLE_PSI_DEG: f64 = 10.0;
+const PLAUSIBLE_SCALE: [f64; 2] = [0.5, 2.0];
+
+/// Why the sensor a vector fit gives is not a believable magnetometer, if it is not.
+pub fn implausible(e: &magcal_core::ErrorModel) -> Option<String> {
+    let (psi, scale) = (e.psi_deg(), e.scale());
+    let bad_psi = psi.iter().any(|p| p.abs() > PLAUSIBLE_PSI_DEG);
+    let bad_scale = scale
+        .iter()
+        .any(|s| !(PLAUSIBLE_SCALE[0]..=PLAUSIBLE_SCALE[1]).contains(s));
+    (bad_psi || bad_scale).then(|| {
+        format!(
+            "not a believable sensor: psi ({:.2}, {:.2}, {:.2}) deg, scale factors ({:.4}, {:.4}, {:.4}) (at most {PLAUSIBLE_PSI_DEG} deg and {} to {}): a wrong field magnitude or attitudes that are not the readings'",
+            psi[0], psi[1], psi[2], scale[0], scale[1], scale[2], PLAUSIBLE_SCALE[0], PLAUSIBLE_SCALE[1]
+        )
+    })
 }

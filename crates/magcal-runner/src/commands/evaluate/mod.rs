@@ -120,6 +120,20 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         )?),
         None => None,
     };
+    // A calibration of other units or of another sensor gives figures that mean nothing: refused,
+    // as `next` refuses it.
+    if let (Some(c), Some(b)) = (&cal, &calibrated) {
+        let mut radius = RadiusMedian::new(c.magnitude);
+        for v in b {
+            radius.push(*v);
+        }
+        if let Some(why) = c.radius_mismatch(radius.ratio()) {
+            bail!(
+                "{log_shown}: {why} (evaluated with {})",
+                cal_shown.as_deref().unwrap_or_default()
+            );
+        }
+    }
     // A vector calibration carries the alignment of its calibrated frame `P (raw - bias)` to the
     // body: its figures are also given with Q held there. Q is fitted in every case.
     let held = cal.as_ref().and_then(|c| c.alignment.as_ref()).map(|a| &a.rotation);
@@ -147,7 +161,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         }
         Ok(())
     })?;
-    warn(&log, &log_shown, cal.as_ref().zip(cal_shown.as_deref()));
+    warn(&log, cal.as_ref().zip(cal_shown.as_deref()));
     Ok(())
 }
 
@@ -326,9 +340,8 @@ fn calibrate(cal: &CalibrationJson, used: &Used, log_shown: &str, cal_shown: &st
 }
 
 /// The warnings of `apply`, after the report: rows skipped, a calibration not marked
-/// identifiable, a log whose calibrated radius is not the calibration's magnitude (other units,
-/// another sensor).
-fn warn(log: &Log, log_shown: &str, cal: Option<(&CalibrationJson, &str)>) {
+/// identifiable.
+fn warn(log: &Log, cal: Option<(&CalibrationJson, &str)>) {
     for (line, reason) in &log.skipped {
         to_stderr!("magcal: skipped line {line}: {reason}");
     }
@@ -337,13 +350,6 @@ fn warn(log: &Log, log_shown: &str, cal: Option<(&CalibrationJson, &str)>) {
     };
     if !cal.identifiable {
         to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
-    }
-    let mut radius = RadiusMedian::new(cal.magnitude);
-    for r in &log.readings {
-        radius.push(cal.apply(*r));
-    }
-    if let Some(why) = cal.radius_mismatch(radius.ratio()) {
-        to_stderr!("magcal: warning: {log_shown}: {why}");
     }
 }
 

@@ -137,8 +137,10 @@ pub fn calibrate(
                 magcal_core::vector::VectorError::TooFewReadings { .. } => CalibrationStatus::TooFewReadings,
                 _ => CalibrationStatus::RankDeficient,
             })?;
+            // As `calibrate --fit vector` judges it: identifiable, and a believable sensor.
+            let believable = crate::commands::calibrate::vector::implausible(&f.error_model()).is_none();
             Ok(Fitted {
-                status: if f.identifiable {
+                status: if f.identifiable && believable {
                     CalibrationStatus::Ok
                 } else {
                     CalibrationStatus::NotIdentifiable

@@ -118,6 +118,19 @@ pub fn prepare(
             scale(1.0 / norm(d), d)
         })
         .collect();
+    if truth == Truth::Scenario {
+        let eta = magcal_core::RelativeErrors::between(&base.errors, &scenario.truth);
+        let off = |e: Option<f64>, limit: f64| e.is_none_or(|e| e > limit);
+        if off(eta.scale, 5.0) || off(eta.bias, 20.0) {
+            bail!(
+                "--truth scenario: the whole log's calibration (scale factors {:.4?}, bias {:.1?} nT) is not the scenario's sensor (eta S {:.1} %, eta O {:.1} %): --truth scenario is for logs of that sensor (magcal simulate); --truth impose puts it on a real log",
+                base.errors.scale(),
+                base.errors.bias_nt(),
+                eta.scale.unwrap_or(f64::NAN),
+                eta.bias.unwrap_or(f64::NAN)
+            );
+        }
+    }
     let (readings, truth_model) = match truth {
         Truth::None => (clean, None),
         Truth::Scenario => (clean, Some(scenario.truth)),
