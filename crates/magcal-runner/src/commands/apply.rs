@@ -148,7 +148,7 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
             a.misalignment_deg,
             match args.matrix {
                 Matrix::Triangular =>
-                    "x, y, z are the body-frame field alignment P (raw - bias), body forward, right, down",
+                    "x, y, z are the body-frame field, the alignment times P (raw - bias), body forward, right, down",
                 Matrix::Symmetric =>
                     "--matrix symmetric leaves it out: x, y, z are A^-1 (raw - bias), not the body frame",
             }

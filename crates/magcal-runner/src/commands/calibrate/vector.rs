@@ -194,6 +194,14 @@ impl Vector {
         let v = &self.fit;
         let std = v.std_error.as_ref();
         json.fit = "vector".to_string();
+        // The scalar fit's magnitude, but the vector fit's own scale factors: their product is
+        // not 1 in general, and the source must not say it is.
+        let product: f64 = v.error_model().scale().iter().product();
+        json.magnitude_source = format!(
+            "{}; the vector fit's scale factors are relative to it, product {}",
+            json.magnitude_source.replace(", product 1", ""),
+            significant(product, 5)
+        );
         json.alignment = Some(AlignmentJson {
             rotation: v.alignment,
             angle_deg: v.alignment_angle_deg(),
