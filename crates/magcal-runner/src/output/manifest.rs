@@ -156,16 +156,7 @@ impl CalibrationManifest {
     /// # Errors
     /// Only a failure of serde_json.
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
-        sealed(
-            self.clone(),
-            |m, seal| m.manifest_sha256 = seal,
-            |m| {
-                let mut bytes = serde_json::to_vec_pretty(m)?;
-                bytes.push(b'\n');
-                Ok(bytes)
-            },
-        )
-        .map(|(bytes, _)| bytes)
+        pretty_sealed(self.clone(), |m, seal| m.manifest_sha256 = seal)
     }
 }
 
@@ -211,16 +202,7 @@ impl ReplayManifest {
     /// # Errors
     /// Only a failure of serde_json.
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
-        sealed(
-            self.clone(),
-            |m, seal| m.manifest_sha256 = seal,
-            |m| {
-                let mut bytes = serde_json::to_vec_pretty(m)?;
-                bytes.push(b'\n');
-                Ok(bytes)
-            },
-        )
-        .map(|(bytes, _)| bytes)
+        pretty_sealed(self.clone(), |m, seal| m.manifest_sha256 = seal)
     }
 }
 
@@ -385,6 +367,20 @@ pub enum Seal {
 
 /// The name of the manifest's own hash.
 const SELF_HASH: &str = "manifest_sha256";
+
+/// Pretty JSON of `manifest` with a final newline, sealed with its own hash through `set` (see
+/// [`sealed`]).
+fn pretty_sealed<M>(manifest: M, set: impl Fn(&mut M, Option<String>)) -> Result<Vec<u8>>
+where
+    M: Serialize,
+{
+    sealed(manifest, set, |m| {
+        let mut bytes = serde_json::to_vec_pretty(m)?;
+        bytes.push(b'\n');
+        Ok(bytes)
+    })
+    .map(|(bytes, _)| bytes)
+}
 
 /// Serialises `manifest` (through `set` and `to_bytes`) with its own hash: once with an empty
 /// hash, whose bytes are hashed, then with that hash. Serialisation is deterministic, so the two
