@@ -117,7 +117,8 @@ pub struct LogArgs {
     /// lies at least 1/HZ after the last one kept).
     #[arg(long, value_name = "HZ")]
     pub rate: Option<f64>,
-    /// CSV: the column of each reading's time.
+    /// CSV: the column of each reading's time, in order (a time earlier than the row before it is
+    /// refused: windows, holds, `--from`/`--to` and `--rate` read the log in time order).
     #[arg(long, value_name = "COLUMN")]
     pub time: Option<String>,
     /// CSV: the unit of the `--time` column.
@@ -504,6 +505,7 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
     let mut currents = x.current.map(|_| Vec::new());
     let mut throttles = x.throttle.map(|_| Vec::new());
     let mut missing_time = None;
+    let mut previous: Option<(usize, f64)> = None;
     let s = read::stream_with(
         path,
         args.columns.as_deref(),
@@ -514,7 +516,16 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         |line, r, v| {
             if let (Some(t), Some(at)) = (&mut times, x.time) {
                 match v[at] {
-                    Some(s) => t.push(s * args.time_unit.seconds()),
+                    Some(s) => {
+                        let now = s * args.time_unit.seconds();
+                        if let Some((before, then)) = previous.filter(|&(_, then)| now < then) {
+                            bail!(
+                                "{shown}: line {line}: time {now} s is earlier than line {before}'s {then} s: the --time column must not go backwards (holds, --from/--to and --rate read the log in time order; sort or split the log)"
+                            );
+                        }
+                        previous = Some((line, now));
+                        t.push(now);
+                    }
                     None => {
                         missing_time.get_or_insert(line);
                         t.push(f64::NAN);

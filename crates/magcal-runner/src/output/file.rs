@@ -280,7 +280,7 @@ fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
             let kind = meta.file_type();
             if kind.is_symlink() {
                 bail!(
-                    "{shown}: is a symbolic link; magcal replaces only regular files: give the file it points to, or --out - and redirect"
+                    "{shown}: is a symbolic link; magcal replaces only regular files: give the file it points to (or, where the flag takes -, write to standard output and redirect it)"
                 );
             }
             if kind.is_dir() {
@@ -288,7 +288,7 @@ fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
             }
             if !kind.is_file() {
                 bail!(
-                    "{shown}: is not a regular file (a device, FIFO or socket); magcal replaces only regular files: use --out - and redirect standard output to it"
+                    "{shown}: is not a regular file (a device, FIFO or socket); magcal replaces only regular files: where the flag takes -, write to standard output and redirect it there"
                 );
             }
             for input in inputs {

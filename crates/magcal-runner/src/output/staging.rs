@@ -226,6 +226,12 @@ fn check_replaceable(target: &Path, want: SetKind) -> Result<()> {
     let Ok(meta) = std::fs::symlink_metadata(target) else {
         return Ok(());
     };
+    if meta.file_type().is_symlink() {
+        bail!(
+            "{}: is a symbolic link; magcal replaces only a real directory (a result set is swapped in whole): give the directory it points to",
+            target.display()
+        );
+    }
     if !meta.is_dir() {
         bail!("{}: exists and is not a directory", target.display());
     }
@@ -505,6 +511,7 @@ mod tests {
 
         make(&at("foreign"), &[("notes.txt", "mine")]);
         std::fs::write(at("file"), "a file").unwrap();
+        std::os::unix::fs::symlink(at("run"), at("link")).unwrap();
         make(&at("run"), &[("manifest.json", RUN_MANIFEST)]);
         make(&at("cal"), &[("manifest.json", r#"{"kind":"calibration"}"#)]);
         let before: Vec<_> = ["foreign", "run", "cal"].iter().map(|n| files(&at(n))).collect();
@@ -520,6 +527,11 @@ mod tests {
                 "exists and is not a magcal results directory (no magcal manifest.json); give another --out, or remove it",
             ),
             ("file", Target::Results, "exists and is not a directory"),
+            (
+                "link",
+                Target::Results,
+                "is a symbolic link; magcal replaces only a real directory (a result set is swapped in whole): give the directory it points to",
+            ),
             (
                 "run",
                 Target::Calibration,
@@ -537,7 +549,7 @@ mod tests {
         let after: Vec<_> = ["foreign", "run", "cal"].iter().map(|n| files(&at(n))).collect();
         assert_eq!(before, after);
         assert_eq!(std::fs::read_to_string(at("file")).unwrap(), "a file");
-        assert_eq!(names(tmp.path()), ["cal", "empty", "file", "foreign", "run"]);
+        assert_eq!(names(tmp.path()), ["cal", "empty", "file", "foreign", "link", "run"]);
 
         // A set inside another, a directory holding an input, and no directory name of its own.
         let e = ResultSet::begin(&at("run").join("inner"), Target::Results, &[]).unwrap_err();

@@ -284,6 +284,21 @@ fn bad_attitude_columns_and_windows_are_refused_naming_the_flag() {
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
         assert_eq!(stderr.lines().count(), 1, "{stderr}");
     }
+    // Times that go backwards would make windows, holds and --rate read the log out of order.
+    let back = tmp.path().join("back.csv");
+    std::fs::write(&back, "t,mx,my,mz\n0,1,2,3\n1,2,3,4\n1,2,3,5\n0.5,3,4,5\n").unwrap();
+    let out = magcal()
+        .arg("calibrate")
+        .arg(&back)
+        .args(["--time", "t"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("back.csv: line 5: time 0.5 s is earlier than line 4's 1 s"),
+        "{stderr}"
+    );
 }
 
 #[test]

@@ -108,8 +108,18 @@ pub fn prepare(
     let base = log_fit::fit(&clean, magnitude, FitModel::Full)
         .map_err(|e| anyhow::anyhow!("the whole log does not calibrate (full model): {e}"))?;
     let calibrated: Vec<Vec3> = clean.iter().map(|r| base.apply(*r)).collect();
-    let alignment = align(&calibrated, &c, &AlignSettings::default())
-        .map_err(|e| anyhow::anyhow!("the whole log's calibration does not align with its attitudes: {e}"))?;
+    let alignment = align(&calibrated, &c, &AlignSettings::default()).map_err(|e| {
+        let fit = if base.identifiable {
+            String::new()
+        } else {
+            format!(
+                " (the full fit of its {} readings is not identifiable: {})",
+                clean.len(),
+                base.verdict
+            )
+        };
+        anyhow::anyhow!("the whole log's calibration does not align with its attitudes: {e}{fit}")
+    })?;
     let f = scale(1.0 / norm(alignment.field), alignment.field);
     let directions = c
         .iter()
