@@ -857,7 +857,7 @@ fn an_output_that_would_destroy_an_input_or_a_set_is_refused() {
         ),
         (
             vec!["calibrate", "x.csv", "--out", "linkdir"],
-            vec!["linkdir: exists and is not a directory"],
+            vec!["linkdir: is a symbolic link; magcal replaces only a real directory"],
         ),
         // Single files: never a directory or a symbolic link.
         (
