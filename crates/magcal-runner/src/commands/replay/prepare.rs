@@ -84,17 +84,7 @@ pub fn prepare(
             "the log has no attitudes: give its attitude columns (--quaternion W,X,Y,Z or --euler ROLL,PITCH,YAW, with --attitude-frame)"
         );
     };
-    let mut clean = Vec::new();
-    let mut c = Vec::new();
-    let mut times = log.times.as_ref().map(|_| Vec::new());
-    for (i, (r, a)) in log.readings.iter().zip(attitudes).enumerate() {
-        let Some(a) = a else { continue };
-        clean.push(scale(nt_per_unit, *r));
-        c.push(z_up_of_ned(a));
-        if let (Some(t), Some(all)) = (times.as_mut(), log.times.as_ref()) {
-            t.push(all[i]);
-        }
-    }
+    let (clean, c, times) = with_attitude(log, attitudes, nt_per_unit);
     if clean.len() < 100 {
         bail!(
             "{} readings with an attitude: replay needs at least 100 (the designs' attitudes are drawn among them)",
@@ -178,6 +168,22 @@ pub fn prepare(
         whole,
         alignment,
     })
+}
+
+/// The readings of `log` that have an attitude (in nT), their attitudes (z up) and their times.
+fn with_attitude(log: &Log, attitudes: &[Option<Mat3>], nt_per_unit: f64) -> (Vec<Vec3>, Vec<Mat3>, Option<Vec<f64>>) {
+    let mut clean = Vec::new();
+    let mut c = Vec::new();
+    let mut times = log.times.as_ref().map(|_| Vec::new());
+    for (i, (r, a)) in log.readings.iter().zip(attitudes).enumerate() {
+        let Some(a) = a else { continue };
+        clean.push(scale(nt_per_unit, *r));
+        c.push(z_up_of_ned(a));
+        if let (Some(t), Some(all)) = (times.as_mut(), log.times.as_ref()) {
+            t.push(all[i]);
+        }
+    }
+    (clean, c, times)
 }
 
 /// The error a held reading carries, measured: the rms of `|P (h - O)| - R` over the held
