@@ -49,6 +49,8 @@ enum Command {
     /// (MotionCal, Magneto, a C header); exit 3 when the calibration is not marked usable (the
     /// output is written all the same).
     Export(commands::export::ExportArgs),
+    /// One self-contained HTML page of a result, to turn and hover in a browser, offline.
+    Report(commands::report::ReportArgs),
 }
 
 impl Command {
@@ -60,7 +62,7 @@ impl Command {
             Self::Replay(a) => !a.common.quiet,
             Self::Design(a) => !a.common.quiet,
             Self::Check(a) => !a.common.quiet,
-            Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) | Self::Evaluate(_) => true,
+            Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) | Self::Evaluate(_) | Self::Report(_) => true,
             Self::Apply(a) => to_stdout(&a.out),
             Self::Simulate(a) => to_stdout(&a.out),
             Self::Export(a) => to_stdout(&a.out),
@@ -135,6 +137,7 @@ pub fn main() -> ExitCode {
         Command::Next(args) => commands::next::run(&args),
         Command::Simulate(args) => commands::simulate::run(&args),
         Command::Export(args) => commands::export::run(&args),
+        Command::Report(args) => commands::report::run(&args),
         Command::Replay(args) => commands::replay::run(&args),
     };
     match result {

@@ -22,4 +22,5 @@ pub mod log;
 pub mod output;
 pub mod pipeline;
 pub mod plots;
+pub mod report;
 pub mod scenario;

@@ -10,7 +10,7 @@ use crate::small::{Vec3, norm};
 /// 0.01 with two (PJRC MotionCal, `quality.c`). 0 is full coverage, 100 none. Latitude is taken
 /// from the third component.
 pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
-    region_counts(fields)
+    motioncal_region_counts(fields)
         .iter()
         .map(|&c| match c {
             0 => 1.0,
@@ -50,8 +50,43 @@ pub fn microstrain_coverage_percent(fields: &[Vec3]) -> f64 {
     100.0 * occupied.iter().filter(|&&o| o).count() as f64 / (LATITUDE_BINS * LONGITUDE_BINS) as f64
 }
 
-/// Directions per region of the 100 equal-area regions of [`motioncal_gaps`].
-fn region_counts(fields: &[Vec3]) -> [usize; 100] {
+/// One of the 100 regions of [`motioncal_gaps`]: the bounds of `sin(latitude)` (third component)
+/// and of the longitude as a fraction of a turn from the first axis towards the second.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionCalRegion {
+    /// Lower and upper `sin(latitude)`.
+    pub sin_latitude: [f64; 2],
+    /// First and last longitude, fractions of a turn in `[0, 1]`.
+    pub turn: [f64; 2],
+}
+
+/// The bounds of region `index` (0 to 99, numbered as [`motioncal_region_counts`] counts them).
+///
+/// # Panics
+/// If `index` is 100 or more (a caller bug).
+pub fn motioncal_region(index: usize) -> MotionCalRegion {
+    assert!(index < 100, "motioncal_region: index {index} of 100 regions");
+    // (first index, regions in the band, sin(latitude) from, to), north to south.
+    const BANDS: [(usize, usize, f64, f64); 6] = [
+        (0, 1, 0.98, 1.0),
+        (1, 15, 0.68, 0.98),
+        (16, 34, 0.0, 0.68),
+        (50, 34, -0.68, 0.0),
+        (84, 15, -0.98, -0.68),
+        (99, 1, -1.0, -0.98),
+    ];
+    let &(first, regions, lo, hi) = BANDS.iter().rev().find(|b| b.0 <= index).expect("band 0 starts at 0");
+    let k = (index - first) as f64;
+    MotionCalRegion {
+        sin_latitude: [lo, hi],
+        turn: [k / regions as f64, (k + 1.0) / regions as f64],
+    }
+}
+
+/// Directions per region of the 100 equal-area regions of [`motioncal_gaps`] (region 0 the north
+/// cap, 1-15 the northern band, 16-49 and 50-83 the equatorial bands, 84-98 the southern band, 99
+/// the south cap; see [`motioncal_region`]).
+pub fn motioncal_region_counts(fields: &[Vec3]) -> [usize; 100] {
     let mut counts = [0usize; 100];
     for b in fields {
         let n = norm(*b);
@@ -84,6 +119,26 @@ fn region_counts(fields: &[Vec3]) -> [usize; 100] {
 mod tests {
     use super::*;
     use crate::rng::stream_rng;
+
+    #[test]
+    fn every_region_holds_its_own_centre_and_the_regions_have_equal_area() {
+        for index in 0..100 {
+            let r = motioncal_region(index);
+            let s = (r.sin_latitude[0] + r.sin_latitude[1]) / 2.0;
+            let lon = std::f64::consts::TAU * (r.turn[0] + r.turn[1]) / 2.0;
+            let c = (1.0 - s * s).sqrt();
+            let counts = motioncal_region_counts(&[[c * lon.cos(), c * lon.sin(), s]]);
+            assert_eq!(counts[index], 1, "region {index}: {r:?}");
+            // Area on the unit sphere: 2 pi (delta sin latitude) (delta turn) = 4 pi / 100.
+            let area = std::f64::consts::TAU * (r.sin_latitude[1] - r.sin_latitude[0]) * (r.turn[1] - r.turn[0]);
+            let equal = 4.0 * std::f64::consts::PI / 100.0;
+            // 0.02 / 1 = 0.30 / 15 = 0.68 / 34: equal to rounding.
+            assert!(
+                (area / equal - 1.0).abs() < 1e-12,
+                "region {index}: area {area} against {equal}"
+            );
+        }
+    }
 
     #[test]
     fn motioncal_gaps_count_empty_regions_of_equal_area() {

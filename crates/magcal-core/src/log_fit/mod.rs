@@ -59,7 +59,9 @@ mod lack_of_fit;
 pub mod motor;
 mod reject;
 
-pub use coverage::{microstrain_coverage_percent, motioncal_gaps};
+pub use coverage::{
+    MotionCalRegion, microstrain_coverage_percent, motioncal_gaps, motioncal_region, motioncal_region_counts,
+};
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 

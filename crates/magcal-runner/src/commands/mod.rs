@@ -15,6 +15,7 @@ pub mod export;
 pub mod next;
 pub mod plot;
 pub mod replay;
+pub mod report;
 pub mod run;
 pub mod simulate;
 

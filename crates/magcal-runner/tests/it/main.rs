@@ -2,6 +2,7 @@
 //! temporary directories (every run through [`common::magcal`] and its memory limit), and the
 //! fuzzers of the scenario parser and the log commands.
 
+mod browser;
 mod common;
 
 mod apply_next;
@@ -18,6 +19,7 @@ mod log_outputs;
 mod motor;
 mod reference;
 mod replay;
+mod report;
 mod result_set;
 mod tlog;
 mod ulog;

@@ -1,0 +1,418 @@
+//! The page of a calibration set (`calibrate --out DIR`): the verdict and the numbers of
+//! `calibration.json`, the raw readings with the fitted ellipsoid and the calibrated readings on
+//! the sphere in 3D, the residual over the sphere of directions, and MotionCal's coverage
+//! regions coloured by count.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use magcal_core::log_fit::{motioncal_region, motioncal_region_counts};
+use plotly::common::{ColorBar, ColorScale, ColorScalePalette, Marker, Mode, Title};
+use plotly::layout::{AspectMode, Axis, LayoutScene};
+use plotly::{HeatMap, Layout, Mesh3D, Plot, Scatter3D};
+use serde_json::json;
+
+use super::{Cell, Page, Table, drawn, thin, thinned_note};
+use crate::log::calibration::{CalibrationJson, read_calibration};
+use crate::output::log_rows::ResidualRow;
+use crate::output::read_csv;
+
+/// Readings drawn in each 3D figure at most: more add megabytes and nothing a person sees.
+pub const MAX_DRAWN: usize = 4000;
+
+/// The page of the calibration set in `dir`.
+///
+/// # Errors
+/// A set without its calibration.json or residuals.csv, or whose files disagree.
+pub fn page(dir: &Path) -> Result<Page> {
+    let cal = read_calibration(&dir.join("calibration.json"))?;
+    let residuals_path = dir.join("residuals.csv");
+    let rows: Vec<ResidualRow> = read_csv(&residuals_path)?;
+    if rows.len() != cal.samples {
+        bail!(
+            "{}: {} rows, but calibration.json says {} readings were fitted",
+            residuals_path.display(),
+            rows.len(),
+            cal.samples
+        );
+    }
+    let units = cal.units.clone().unwrap_or_else(|| "log units".to_string());
+    let mut page = Page::new(
+        format!("Calibration of {}", file_name(&cal.log)),
+        format!(
+            "{} model, {} readings, magcal {}",
+            cal.fit,
+            cal.samples,
+            cal.magcal_version.as_deref().unwrap_or("?")
+        ),
+    );
+    verdict(&mut page, &cal);
+    parameters(&mut page, &cal, &units);
+    summary(&mut page, &cal, &units);
+    let shown = thin(rows.len(), MAX_DRAWN);
+    if let Some(note) = thinned_note("The 3D figures", shown.len(), rows.len()) {
+        page.note(note);
+    }
+    page.heading("Raw readings and the fitted ellipsoid");
+    page.plot("raw", raw_plot(&cal, &rows, &shown, &units), 620, format!(
+        "Raw readings ({units}) as logged, and the ellipsoid raw = K b + O on which calibrated readings b of magnitude {} lie. Drag to turn, scroll to zoom, hover for a reading's line.",
+        super::significant(cal.magnitude, 5)
+    ));
+    page.heading("Calibrated readings on the sphere");
+    page.plot("calibrated", calibrated_plot(&cal, &rows, &shown, &units), 620, "Calibrated readings b = P (raw - O), coloured by their residual |b| - R; a good calibration puts them on the sphere of radius R (drawn as a wire frame).");
+    page.heading("Residual over the sphere of directions");
+    page.plot("residual-map", residual_map(&rows), 460, "RMS residual |b| - R of the readings whose calibrated direction falls in each 10-degree cell of longitude (from the sensor's x axis towards y) and latitude (towards z); empty cells were never visited. All readings counted.");
+    page.heading("Coverage of field directions (MotionCal's 100 regions)");
+    let counts = coverage_counts(&rows);
+    page.plot("coverage", coverage_plot(&counts), 560, format!(
+        "The sphere of calibrated field directions cut into MotionCal's 100 regions of equal area, coloured by the readings in each: red none, orange one, yellow two, green three or more (MotionCal's gap error counts 1, 0.2, 0.01 and 0 for them). {} regions empty; MotionCal gaps {} %.",
+        counts.iter().filter(|&&c| c == 0).count(),
+        super::significant(cal.coverage.motioncal_gap_percent, 3)
+    ));
+    page.data("calibration", serde_json::to_value(&cal).context("calibration.json")?);
+    page.data("readings", json!(rows.len()));
+    page.data("drawn", json!(shown.len()));
+    page.data("region_counts", json!(counts.to_vec()));
+    Ok(page)
+}
+
+/// The last part of a path as written in calibration.json.
+fn file_name(log: &str) -> &str {
+    log.rsplit(['/', '\\']).next().unwrap_or(log)
+}
+
+fn verdict(page: &mut Page, cal: &CalibrationJson) {
+    let text = if cal.usable {
+        format!("USABLE: {}", cal.verdict)
+    } else {
+        format!(
+            "NOT USABLE: {}",
+            if cal.reasons.is_empty() {
+                cal.verdict.clone()
+            } else {
+                cal.reasons.join("; ")
+            }
+        )
+    };
+    page.push(super::Block::Verdict { good: cal.usable, text });
+}
+
+/// Estimate, standard error and 95 % interval of every parameter.
+fn parameters(page: &mut Page, cal: &CalibrationJson, units: &str) {
+    let se = &cal.std_error;
+    let ci = cal.interval95.as_ref();
+    let mut rows = Vec::new();
+    let axes = ["x", "y", "z"];
+    let mut add = |name: String, value: f64, se: Option<f64>, half: Option<f64>| {
+        rows.push(vec![
+            Cell::text(name),
+            Cell::number(value, 6),
+            Cell::maybe(se, 3),
+            Cell::maybe(half, 3),
+        ]);
+    };
+    for i in 0..3 {
+        add(
+            format!("bias O_{} ({units})", axes[i]),
+            cal.bias[i],
+            se.bias.map(|s| s[i]),
+            ci.map(|c| c.bias[i]),
+        );
+    }
+    for i in 0..3 {
+        add(
+            format!("scale factor S_{}", axes[i]),
+            cal.scale[i],
+            se.scale.map(|s| s[i]),
+            ci.map(|c| c.scale[i]),
+        );
+    }
+    for i in 0..3 {
+        add(
+            format!("non-orthogonality psi_{} (degrees)", i + 1),
+            cal.psi_deg[i],
+            se.psi_deg.map(|s| s[i]),
+            ci.map(|c| c.psi_deg[i]),
+        );
+    }
+    page.heading("Parameters");
+    page.table(Table {
+        id: "parameters".into(),
+        caption:
+            "The fitted sensor ([P1] eq. (5)-(7)): estimate, standard error, and the half-width of the 95 % interval"
+                .into(),
+        header: ["parameter", "estimate", "standard error", "95 % half-width"]
+            .map(String::from)
+            .to_vec(),
+        rows,
+    });
+}
+
+/// The fit's figures: residual, noise, coverage, verdicts.
+fn summary(page: &mut Page, cal: &CalibrationJson, units: &str) {
+    let mut rows = vec![
+        vec![Cell::text("readings fitted"), Cell::count(cal.samples)],
+        vec![
+            Cell::text("rows skipped / rejected as outliers"),
+            Cell::text(format!("{} / {}", cal.skipped, cal.rejected)),
+        ],
+        vec![
+            Cell::text(format!("magnitude R ({units})")),
+            Cell::number(cal.magnitude, 6),
+        ],
+        vec![Cell::text("magnitude from"), Cell::text(&cal.magnitude_source)],
+        vec![
+            Cell::text(format!("residual rms ({units})")),
+            Cell::number(cal.residual_rms, 4),
+        ],
+        vec![
+            Cell::text("residual rms (% of R)"),
+            Cell::number(cal.residual_rms_percent, 4),
+        ],
+        vec![
+            Cell::text(format!("residual max ({units})")),
+            Cell::number(cal.residual_max, 4),
+        ],
+        vec![
+            Cell::text(format!("noise per component ({units})")),
+            Cell::maybe(cal.noise, 4),
+        ],
+        vec![
+            Cell::text("identifiable"),
+            Cell::text(if cal.identifiable { "yes" } else { "no" }),
+        ],
+        vec![Cell::text("verdict"), Cell::text(&cal.verdict)],
+        vec![Cell::text("status"), Cell::text(&cal.status)],
+        vec![
+            Cell::text("MotionCal gaps (%)"),
+            Cell::number(cal.coverage.motioncal_gap_percent, 4),
+        ],
+        vec![
+            Cell::text("MicroStrain spatial coverage (%)"),
+            Cell::number(cal.coverage.microstrain_coverage_percent, 4),
+        ],
+        vec![
+            Cell::text("certified D-efficiency per reading"),
+            Cell::maybe(cal.coverage.d_efficiency_per_reading, 4),
+        ],
+    ];
+    if let Some(e) = &cal.ellipsoid {
+        rows.push(vec![Cell::text("on an ellipsoid"), Cell::text(&e.words)]);
+    }
+    if let Some(l) = &cal.lack_of_fit {
+        rows.push(vec![Cell::text("lack of fit"), Cell::text(&l.words)]);
+    }
+    page.heading("Fit");
+    page.table(Table {
+        id: "fit".into(),
+        caption: "The fit and its verdicts, as calibration.json holds them".into(),
+        header: ["figure", "value"].map(String::from).to_vec(),
+        rows,
+    });
+}
+
+/// A 3D scene with equal scales on its axes, labelled in `units`.
+fn scene(units: &str, what: &str) -> Layout {
+    let axis = |name: &str| Axis::new().title(Title::with_text(format!("{what} {name} ({units})")));
+    Layout::new()
+        .scene(
+            LayoutScene::new()
+                .aspect_mode(AspectMode::Data)
+                .x_axis(axis("x"))
+                .y_axis(axis("y"))
+                .z_axis(axis("z")),
+        )
+        .margin(plotly::layout::Margin::new().left(0).right(0).top(30).bottom(0))
+}
+
+/// Points on the unit sphere, `lat` bands by `lon` sectors, and the triangles between them.
+fn unit_sphere(lat: usize, lon: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
+    let mut points = Vec::new();
+    for a in 0..=lat {
+        let theta = std::f64::consts::PI * a as f64 / lat as f64;
+        for b in 0..lon {
+            let phi = std::f64::consts::TAU * b as f64 / lon as f64;
+            points.push([theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()]);
+        }
+    }
+    let mut triangles = Vec::new();
+    for a in 0..lat {
+        for b in 0..lon {
+            let (p, q) = (a * lon + b, a * lon + (b + 1) % lon);
+            triangles.push([p, q, p + lon]);
+            triangles.push([q, q + lon, p + lon]);
+        }
+    }
+    (points, triangles)
+}
+
+/// The columns of `points` and of `triangles`, as plotly's mesh takes them.
+fn mesh(points: &[[f64; 3]], triangles: &[[usize; 3]]) -> Box<Mesh3D<f64, f64, f64>> {
+    let col = |i: usize| points.iter().map(|p| drawn(p[i])).collect::<Vec<f64>>();
+    let tri = |i: usize| Some(triangles.iter().map(|t| t[i]).collect::<Vec<usize>>());
+    Mesh3D::new(col(0), col(1), col(2), tri(0), tri(1), tri(2))
+}
+
+fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], shown: &[usize], units: &str) -> Plot {
+    let pick = |f: fn(&ResidualRow) -> f64| shown.iter().map(|&i| drawn(f(&rows[i]))).collect::<Vec<f64>>();
+    let lines: Vec<String> = shown.iter().map(|&i| format!("line {}", rows[i].line)).collect();
+    let readings = Scatter3D::new(pick(|r| r.raw_x.0), pick(|r| r.raw_y.0), pick(|r| r.raw_z.0))
+        .mode(Mode::Markers)
+        .name("raw readings")
+        .text_array(lines)
+        .marker(Marker::new().size(2).color("#1f77b4"));
+    let (unit, triangles) = unit_sphere(24, 48);
+    let ellipsoid: Vec<[f64; 3]> = unit
+        .iter()
+        .map(|u| {
+            let b = u.map(|c| c * cal.magnitude);
+            std::array::from_fn(|r| cal.k[r][0] * b[0] + cal.k[r][1] * b[1] + cal.k[r][2] * b[2] + cal.bias[r])
+        })
+        .collect();
+    let surface = mesh(&ellipsoid, &triangles)
+        .name("fitted ellipsoid")
+        .opacity(0.25)
+        .color("#ff7f0e");
+    let mut plot = Plot::new();
+    plot.add_trace(readings);
+    plot.add_trace(surface);
+    plot.set_layout(scene(units, "raw"));
+    plot
+}
+
+fn calibrated_plot(cal: &CalibrationJson, rows: &[ResidualRow], shown: &[usize], units: &str) -> Plot {
+    let pick = |f: fn(&ResidualRow) -> f64| shown.iter().map(|&i| drawn(f(&rows[i]))).collect::<Vec<f64>>();
+    let lines: Vec<String> = shown.iter().map(|&i| format!("line {}", rows[i].line)).collect();
+    let readings = Scatter3D::new(pick(|r| r.x.0), pick(|r| r.y.0), pick(|r| r.z.0))
+        .mode(Mode::Markers)
+        .name("calibrated readings")
+        .text_array(lines)
+        .marker(
+            Marker::new()
+                .size(2)
+                .color_array(pick(|r| r.residual.0))
+                .color_scale(ColorScale::Palette(ColorScalePalette::RdBu))
+                .cmid(0.0)
+                .show_scale(true)
+                .color_bar(ColorBar::new().title(format!("residual ({units})"))),
+        );
+    let (unit, triangles) = unit_sphere(12, 24);
+    let sphere: Vec<[f64; 3]> = unit.iter().map(|u| u.map(|c| c * cal.magnitude)).collect();
+    let frame = mesh(&sphere, &triangles)
+        .name("sphere of radius R")
+        .opacity(0.08)
+        .color("#888888");
+    let mut plot = Plot::new();
+    plot.add_trace(readings);
+    plot.add_trace(frame);
+    plot.set_layout(scene(units, "calibrated"));
+    plot
+}
+
+/// Longitude and latitude of a calibrated reading's direction, degrees.
+fn lon_lat(r: &ResidualRow) -> Option<(f64, f64)> {
+    let n = (r.x.0 * r.x.0 + r.y.0 * r.y.0 + r.z.0 * r.z.0).sqrt();
+    (n > 0.0 && n.is_finite()).then(|| {
+        (
+            r.y.0.atan2(r.x.0).to_degrees(),
+            (r.z.0 / n).clamp(-1.0, 1.0).asin().to_degrees(),
+        )
+    })
+}
+
+fn residual_map(rows: &[ResidualRow]) -> Plot {
+    const LON: usize = 36;
+    const LAT: usize = 18;
+    let mut sum = vec![[0.0f64; LON]; LAT];
+    let mut count = vec![[0usize; LON]; LAT];
+    for r in rows {
+        let Some((lon, lat)) = lon_lat(r) else { continue };
+        let i = (((lat + 90.0) / 10.0) as usize).min(LAT - 1);
+        let j = (((lon + 180.0) / 10.0) as usize).min(LON - 1);
+        sum[i][j] += r.residual.0 * r.residual.0;
+        count[i][j] += 1;
+    }
+    let z: Vec<Vec<Option<f64>>> = (0..LAT)
+        .map(|i| {
+            (0..LON)
+                .map(|j| (count[i][j] > 0).then(|| drawn((sum[i][j] / count[i][j] as f64).sqrt())))
+                .collect()
+        })
+        .collect();
+    let text: Vec<Vec<String>> = (0..LAT)
+        .map(|i| (0..LON).map(|j| format!("{} readings", count[i][j])).collect())
+        .collect();
+    let x: Vec<f64> = (0..LON).map(|j| -175.0 + 10.0 * j as f64).collect();
+    let y: Vec<f64> = (0..LAT).map(|i| -85.0 + 10.0 * i as f64).collect();
+    let map = HeatMap::new(x, y, z)
+        .hover_text_matrix(text)
+        .color_scale(ColorScale::Palette(ColorScalePalette::Viridis))
+        .color_bar(ColorBar::new().title("rms residual"));
+    let mut plot = Plot::new();
+    plot.add_trace(map);
+    plot.set_layout(
+        Layout::new()
+            .x_axis(
+                Axis::new()
+                    .title(Title::with_text("longitude of the calibrated direction (degrees)"))
+                    .range(vec![-180.0, 180.0]),
+            )
+            .y_axis(
+                Axis::new()
+                    .title(Title::with_text("latitude (degrees)"))
+                    .range(vec![-90.0, 90.0]),
+            ),
+    );
+    plot
+}
+
+/// Readings per MotionCal region, of the calibrated directions.
+fn coverage_counts(rows: &[ResidualRow]) -> [usize; 100] {
+    let fields: Vec<[f64; 3]> = rows.iter().map(|r| [r.x.0, r.y.0, r.z.0]).collect();
+    motioncal_region_counts(&fields)
+}
+
+fn coverage_plot(counts: &[usize; 100]) -> Plot {
+    let mut plot = Plot::new();
+    for (index, &count) in counts.iter().enumerate() {
+        let region = motioncal_region(index);
+        let (lats, lons) = (4usize, 6usize);
+        let mut points = Vec::new();
+        for a in 0..=lats {
+            let s = region.sin_latitude[0] + (region.sin_latitude[1] - region.sin_latitude[0]) * a as f64 / lats as f64;
+            let c = (1.0 - s * s).max(0.0).sqrt();
+            for b in 0..=lons {
+                let t = region.turn[0] + (region.turn[1] - region.turn[0]) * b as f64 / lons as f64;
+                let phi = std::f64::consts::TAU * t;
+                points.push([c * phi.cos(), c * phi.sin(), s]);
+            }
+        }
+        let mut triangles = Vec::new();
+        for a in 0..lats {
+            for b in 0..lons {
+                let p = a * (lons + 1) + b;
+                triangles.push([p, p + 1, p + lons + 1]);
+                triangles.push([p + 1, p + lons + 2, p + lons + 1]);
+            }
+        }
+        let colour = match count {
+            0 => "#d62728",
+            1 => "#ff7f0e",
+            2 => "#f2c94c",
+            _ => "#2ca02c",
+        };
+        let patch = mesh(&points, &triangles)
+            .color(colour)
+            .name(format!("region {index}: {count} readings"))
+            .hover_text(format!("region {index}: {count} readings"))
+            .flat_shading(true);
+        plot.add_trace(patch);
+    }
+    plot.set_layout(
+        Layout::new()
+            .show_legend(false)
+            .scene(LayoutScene::new().aspect_mode(AspectMode::Data))
+            .margin(plotly::layout::Margin::new().left(0).right(0).top(30).bottom(0)),
+    );
+    plot
+}

@@ -1,0 +1,333 @@
+//! Self-contained HTML pages of a result (`magcal report`): one file that opens offline, with
+//! plotly.js embedded as its only script (nothing is fetched), 3D views a person rotates and
+//! hovers, and the result's numbers in tables.
+//!
+//! A page is a list of [`Block`]s rendered by one askama template (`templates/page.html`), which
+//! escapes every text. A number in a table keeps its full value in the cell's `data-value`, and
+//! the page carries the figures it was made from in `<script id="magcal-data"
+//! type="application/json">`, so that a test can hold what is shown against the result's own
+//! files. What is drawn may be thinned ([`thin`]) and rounded ([`drawn`]); what is computed and
+//! tabled never is, and the page says so where it thins.
+
+pub mod calibration;
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use askama::Template;
+use plotly::Plot;
+use plotly::configuration::Configuration;
+use serde_json::Value;
+
+use crate::output::manifest::SetKind;
+
+/// One part of a page, in order.
+#[derive(Debug, Clone)]
+pub enum Block {
+    /// A section heading.
+    Heading(String),
+    /// A paragraph.
+    Text(String),
+    /// A paragraph in small grey type (how a figure was drawn, what was thinned).
+    Note(String),
+    /// The result's verdict, green when it is a result to use.
+    Verdict { good: bool, text: String },
+    /// A table.
+    Table(Table),
+    /// An interactive plotly figure: its div and script, the height in pixels, a caption.
+    Plot {
+        id: String,
+        html: String,
+        height: u32,
+        caption: String,
+    },
+    /// A static figure (SVG text, inlined) with a caption.
+    Image { id: String, svg: String, caption: String },
+}
+
+/// A table with an id (the tests find it by it), a caption, a header and rows.
+#[derive(Debug, Clone, Default)]
+pub struct Table {
+    pub id: String,
+    pub caption: String,
+    pub header: Vec<String>,
+    pub rows: Vec<Vec<Cell>>,
+}
+
+/// A table cell: its text, and for a number its full value.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cell {
+    pub text: String,
+    pub value: Option<f64>,
+}
+
+impl Cell {
+    /// A cell of text.
+    pub fn text(text: impl Into<String>) -> Self {
+        Self {
+            text: text.into(),
+            value: None,
+        }
+    }
+
+    /// A number shown with `digits` significant digits, its full value kept; a value that is
+    /// not finite is shown as a dash and keeps no value.
+    pub fn number(value: f64, digits: usize) -> Self {
+        if !value.is_finite() {
+            return Self::text("-");
+        }
+        Self {
+            text: significant(value, digits),
+            value: Some(value),
+        }
+    }
+
+    /// A count, shown whole.
+    pub fn count(value: usize) -> Self {
+        Self {
+            text: value.to_string(),
+            value: Some(value as f64),
+        }
+    }
+
+    /// A number, or a dash where there is none.
+    pub fn maybe(value: Option<f64>, digits: usize) -> Self {
+        value.map_or_else(|| Self::text("-"), |v| Self::number(v, digits))
+    }
+}
+
+/// `value` with `digits` significant digits (at least 1), in plain notation for magnitudes from
+/// 1e-4 to 1e9, else in scientific notation.
+pub fn significant(value: f64, digits: usize) -> String {
+    let digits = digits.max(1);
+    if value == 0.0 {
+        return format!("{:.*}", digits.saturating_sub(1), 0.0);
+    }
+    let magnitude = value.abs().log10().floor() as i32;
+    if !(-4..9).contains(&magnitude) {
+        return format!("{:.*e}", digits - 1, value);
+    }
+    let decimals = (digits as i32 - 1 - magnitude).max(0) as usize;
+    format!("{value:.decimals$}")
+}
+
+/// A page under construction.
+#[derive(Debug, Clone)]
+pub struct Page {
+    title: String,
+    subtitle: String,
+    blocks: Vec<Block>,
+    data: serde_json::Map<String, Value>,
+}
+
+#[derive(Template)]
+#[template(path = "page.html")]
+struct PageTemplate<'a> {
+    version: &'a str,
+    title: &'a str,
+    subtitle: &'a str,
+    blocks: &'a [Block],
+    plotly_js: &'a str,
+    data: &'a Value,
+}
+
+impl Page {
+    /// An empty page with a title and a line under it (what it shows, from which files).
+    pub fn new(title: impl Into<String>, subtitle: impl Into<String>) -> Self {
+        Self {
+            title: title.into(),
+            subtitle: subtitle.into(),
+            blocks: Vec::new(),
+            data: serde_json::Map::new(),
+        }
+    }
+
+    /// Adds a block.
+    pub fn push(&mut self, block: Block) {
+        self.blocks.push(block);
+    }
+
+    /// Adds a section heading.
+    pub fn heading(&mut self, text: impl Into<String>) {
+        self.push(Block::Heading(text.into()));
+    }
+
+    /// Adds a paragraph.
+    pub fn text(&mut self, text: impl Into<String>) {
+        self.push(Block::Text(text.into()));
+    }
+
+    /// Adds a note.
+    pub fn note(&mut self, text: impl Into<String>) {
+        self.push(Block::Note(text.into()));
+    }
+
+    /// Adds a table.
+    pub fn table(&mut self, table: Table) {
+        self.push(Block::Table(table));
+    }
+
+    /// Adds a plotly figure as `id` (a DOM id), `height` pixels high, its modebar without the
+    /// plotly logo and its size following the window.
+    pub fn plot(&mut self, id: &str, mut plot: Plot, height: u32, caption: impl Into<String>) {
+        plot.set_configuration(Configuration::new().display_logo(false).responsive(true));
+        let html = plot.to_inline_html(Some(id));
+        self.push(Block::Plot {
+            id: id.to_string(),
+            html,
+            height,
+            caption: caption.into(),
+        });
+    }
+
+    /// Records `value` under `key` in the page's data block.
+    pub fn data(&mut self, key: &str, value: Value) {
+        self.data.insert(key.to_string(), value);
+    }
+
+    /// The page as one HTML document.
+    ///
+    /// # Errors
+    /// A template that fails to render (a bug).
+    pub fn render(&self) -> Result<String> {
+        let data = Value::Object(self.data.clone());
+        let js = plotly_js();
+        let page = PageTemplate {
+            version: env!("CARGO_PKG_VERSION"),
+            title: &self.title,
+            subtitle: &self.subtitle,
+            blocks: &self.blocks,
+            plotly_js: &js,
+            data: &data,
+        };
+        page.render().context("the report page does not render")
+    }
+}
+
+/// plotly.js, as the plotly crate embeds it, without the MathJax it embeds beside it (the pages
+/// set no TeX, and MathJax would add 2.1 MB).
+fn plotly_js() -> String {
+    let sources = Plot::offline_js_sources();
+    let open = "<script type=\"text/javascript\">";
+    let body = sources.strip_prefix(open).unwrap_or(&sources);
+    let end = body.find("</script>").unwrap_or(body.len());
+    body[..end].to_string()
+}
+
+/// At most `max` indices of `0..n`, evenly spaced, first included: the readings a figure draws.
+pub fn thin(n: usize, max: usize) -> Vec<usize> {
+    if n <= max {
+        return (0..n).collect();
+    }
+    (0..max).map(|k| k * n / max).collect()
+}
+
+/// The note a thinned figure carries: how many of how many readings it draws.
+pub fn thinned_note(what: &str, drawn: usize, of: usize) -> Option<String> {
+    (drawn < of).then(|| {
+        format!("{what}: {drawn} of the {of} readings drawn, evenly through the log; every number on this page is computed from all {of}.")
+    })
+}
+
+/// A coordinate as drawn: 5 significant digits, which a figure cannot tell from more and which
+/// keeps a page of many points small.
+pub fn drawn(value: f64) -> f64 {
+    if value == 0.0 || !value.is_finite() {
+        return value;
+    }
+    let scale = 10f64.powi(4 - value.abs().log10().floor() as i32);
+    (value * scale).round() / scale
+}
+
+/// What a report is made from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    /// A `calibrate --out` set.
+    Calibration,
+}
+
+impl Source {
+    /// The kind of result at `path`.
+    ///
+    /// # Errors
+    /// A path that holds no result magcal can draw.
+    pub fn of(path: &Path) -> Result<Self> {
+        if path.is_dir() {
+            return match SetKind::of(path)? {
+                Some(SetKind::Calibration) => Ok(Self::Calibration),
+                Some(kind) => bail!(
+                    "{}: a magcal {} set; its page is not drawn yet",
+                    path.display(),
+                    kind.as_str()
+                ),
+                None => bail!("{}: not a magcal result set (no magcal manifest.json)", path.display()),
+            };
+        }
+        bail!("{}: not a magcal result set directory", path.display())
+    }
+}
+
+/// The page of the result at `path`.
+///
+/// # Errors
+/// A result that cannot be read, or whose files disagree.
+pub fn page_of(path: &Path) -> Result<Page> {
+    match Source::of(path)? {
+        Source::Calibration => calibration::page(path),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_show_their_significant_digits() {
+        assert_eq!(significant(4.56789, 3), "4.57");
+        assert_eq!(significant(-0.000123456, 3), "-0.000123");
+        assert_eq!(significant(12345.6, 3), "12346");
+        assert_eq!(significant(0.0, 3), "0.00");
+        assert_eq!(significant(1.5e-7, 2), "1.5e-7");
+        assert_eq!(significant(49_000.0, 4), "49000");
+        assert_eq!(Cell::number(f64::NAN, 3), Cell::text("-"));
+    }
+
+    #[test]
+    fn thinning_keeps_at_most_max_evenly_spaced_readings() {
+        assert_eq!(thin(5, 10), vec![0, 1, 2, 3, 4]);
+        assert_eq!(thin(10, 5), vec![0, 2, 4, 6, 8]);
+        let t = thin(12_001, 4000);
+        assert_eq!(t.len(), 4000);
+        assert!(t.windows(2).all(|w| w[1] > w[0] && w[1] - w[0] <= 4));
+        assert_eq!(drawn(123.456789), 123.46);
+        assert_eq!(drawn(-0.000987654321), -0.00098765);
+    }
+
+    #[test]
+    fn a_page_escapes_text_and_embeds_plotly_once_and_nothing_remote() {
+        let mut page = Page::new("a <b> & \"c\"", "sub");
+        page.text("x < y");
+        page.table(Table {
+            id: "t".into(),
+            caption: "cap".into(),
+            header: vec!["h".into()],
+            rows: vec![vec![Cell::number(1.0 / 3.0, 3)]],
+        });
+        page.data("k", serde_json::json!({"v": "</script>"}));
+        let html = page.render().unwrap();
+        assert!(
+            html.contains("<title>a &#60;b&#62; &#38; &#34;c&#34;</title>"),
+            "{}",
+            &html[..400]
+        );
+        assert!(html.contains("<p>x &#60; y</p>"));
+        assert!(html.contains("data-value=\"0.3333333333333333\">0.333</td>"));
+        assert!(
+            !html.contains("\"</script>\""),
+            "the data block must not close its script"
+        );
+        assert_eq!(html.matches("<script").count(), 2, "plotly.js and the data block");
+        assert!(!html.contains("<script src"), "no script from elsewhere");
+        assert!(!html.contains("<link"), "no stylesheet from elsewhere");
+    }
+}

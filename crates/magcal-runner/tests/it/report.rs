@@ -1,0 +1,238 @@
+//! `magcal report`: the pages built from real results and looked at in a real browser
+//! ([`crate::browser`]): no console error, no request leaving the file, every 3D view drawn (pixel
+//! statistics of its screenshot), and the numbers in the tables equal to the result's JSON.
+
+use std::fs;
+use std::path::Path;
+use std::time::Duration;
+
+use tempfile::TempDir;
+
+use crate::browser::{Opened, chromium, open, pixel_statistics};
+use crate::common::{BROAD_ARGS, broad_02_moving, data, magcal};
+
+/// Largest page of a 12,000-reading log (the bound), bytes.
+const MAX_PAGE_BYTES: u64 = 10_000_000;
+
+/// `magcal report RESULT --out OUT`, which must succeed.
+fn report(result: &Path, out: &Path) -> String {
+    let o = magcal()
+        .arg("report")
+        .arg(result)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// `magcal calibrate LOG ARGS --out DIR`; exit 0 or 3 (a set is written either way).
+fn calibrate(log: &Path, args: &[&str], dir: &Path) {
+    let o = magcal()
+        .arg("calibrate")
+        .arg(log)
+        .args(args)
+        .arg("--out")
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(
+        matches!(o.status.code(), Some(0 | 3)),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// The 3D view in `box_id` is drawn: WebGL, no fallback message, and a screenshot that is not
+/// blank (at least 3 % of its pixels off the background, and 40 colours).
+fn assert_drawn_3d(page: &Opened, box_id: &str) {
+    let canvases = page.eval(&format!("document.querySelectorAll('#{box_id} canvas').length"));
+    assert!(canvases.as_u64().unwrap_or(0) > 0, "{box_id}: no canvas");
+    let text = page.eval(&format!("document.querySelector('#{box_id}').innerText"));
+    assert!(
+        !text.as_str().unwrap_or("").contains("WebGL is not supported"),
+        "{box_id}: {text}"
+    );
+    let shot = page.screenshot(&format!("#{box_id}"));
+    let (share, colours) = pixel_statistics(&shot);
+    if share <= 0.03 || colours <= 40 {
+        let kept = std::env::temp_dir().join(format!("magcal-report-{box_id}.png"));
+        let _ = shot.save(&kept);
+        panic!(
+            "{box_id}: {share:.3} of the pixels drawn, {colours} colours (the screenshot: {})",
+            kept.display()
+        );
+    }
+}
+
+/// The cells of table `id`: per row, each cell's text and `data-value`.
+fn table(page: &Opened, id: &str) -> Vec<Vec<(String, Option<f64>)>> {
+    let rows = page.eval(&format!(
+        "Array.from(document.querySelectorAll('#{id} tbody tr')).map(r => Array.from(r.cells).map(c => [c.innerText, c.dataset.value ?? null]))"
+    ));
+    rows.as_array()
+        .unwrap_or_else(|| panic!("table {id}: {rows}"))
+        .iter()
+        .map(|r| {
+            r.as_array()
+                .unwrap()
+                .iter()
+                .map(|c| {
+                    (
+                        c[0].as_str().unwrap().to_string(),
+                        c[1].as_str().map(|v| v.parse().unwrap()),
+                    )
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// A cell shows `value`: its `data-value` is the JSON's number exactly, and its text is that
+/// number rounded (within half a unit of its last digit).
+fn assert_shows(cell: &(String, Option<f64>), value: f64) {
+    assert_eq!(cell.1, Some(value), "{cell:?}");
+    let shown: f64 = cell.0.parse().unwrap_or_else(|_| panic!("{cell:?}"));
+    let decimals = cell.0.split('.').nth(1).map_or(0, |d| d.len() as i32);
+    assert!(
+        (shown - value).abs() <= 0.5 * 10f64.powi(-decimals) * (1.0 + 1e-9),
+        "{cell:?} against {value}"
+    );
+}
+
+#[test]
+fn a_calibration_page_draws_its_views_offline_and_shows_the_json_numbers() {
+    let Some(browser) = chromium() else { return };
+    let tmp = TempDir::new().unwrap();
+    let Some(log) = data("hamagure/data-set_1.csv") else {
+        return;
+    };
+    let set = tmp.path().join("cal");
+    calibrate(&log, &[], &set);
+    let page_path = tmp.path().join("cal.html");
+    report(&set, &page_path);
+    let page = open(&browser, &page_path, Duration::from_secs(60));
+    assert!(page.errors.is_empty(), "{:?}", page.errors);
+    assert!(
+        page.remote_requests(&page_path.canonicalize().unwrap()).is_empty(),
+        "{:?}",
+        page.requests
+    );
+    for view in ["raw-box", "calibrated-box", "coverage-box"] {
+        assert_drawn_3d(&page, view);
+    }
+    let (share, _) = pixel_statistics(&page.screenshot("#residual-map-box"));
+    assert!(share > 0.03, "the residual map is blank: {share:.3}");
+
+    let cal: serde_json::Value = serde_json::from_slice(&fs::read(set.join("calibration.json")).unwrap()).unwrap();
+    let num = |v: &serde_json::Value| v.as_f64().unwrap();
+    let rows = table(&page, "parameters");
+    assert_eq!(rows.len(), 9);
+    for i in 0..3 {
+        assert_shows(&rows[i][1], num(&cal["bias"][i]));
+        assert_shows(&rows[i][2], num(&cal["std_error"]["bias"][i]));
+        assert_shows(&rows[3 + i][1], num(&cal["scale"][i]));
+        assert_shows(&rows[3 + i][2], num(&cal["std_error"]["scale"][i]));
+        assert_shows(&rows[6 + i][1], num(&cal["psi_deg"][i]));
+        assert_shows(&rows[6 + i][3], num(&cal["interval95"]["psi_deg"][i]));
+    }
+    let fit = table(&page, "fit");
+    assert_eq!(fit[0][1].1, Some(num(&cal["samples"])));
+    let verdict = page.eval("document.querySelector('#verdict').innerText");
+    assert!(verdict.as_str().unwrap().starts_with("USABLE"), "{verdict}");
+    // The regions drawn are the ones the calibration's MotionCal figure counts: its weights of
+    // 1, 0.2 and 0.01 for regions of 0, 1 and 2 readings add up to the JSON's gap percentage.
+    let counts = page.eval("JSON.parse(document.getElementById('magcal-data').textContent).region_counts");
+    let gaps: f64 = counts
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| match c.as_u64().unwrap() {
+            0 => 1.0,
+            1 => 0.2,
+            2 => 0.01,
+            _ => 0.0,
+        })
+        .sum();
+    assert!(
+        (gaps - num(&cal["coverage"]["motioncal_gap_percent"])).abs() < 1e-9,
+        "{gaps}"
+    );
+    eprintln!("calibration page: drawn in {:.2} s", page.seconds);
+}
+
+#[test]
+fn the_page_of_a_12000_reading_log_stays_under_10_mb_and_says_what_it_thinned() {
+    let tmp = TempDir::new().unwrap();
+    let Some(moving) = broad_02_moving(tmp.path()) else {
+        return;
+    };
+    let text = fs::read_to_string(&moving).unwrap();
+    let cut: String = text.lines().take(12_001).map(|l| format!("{l}\n")).collect();
+    let log = tmp.path().join("cut.csv");
+    fs::write(&log, cut).unwrap();
+    let set = tmp.path().join("cal");
+    calibrate(&log, &BROAD_ARGS, &set);
+    let page_path = tmp.path().join("cal.html");
+    report(&set, &page_path);
+    let bytes = fs::metadata(&page_path).unwrap().len();
+    assert!(bytes < MAX_PAGE_BYTES, "{bytes} bytes");
+    let html = fs::read_to_string(&page_path).unwrap();
+    assert!(
+        html.contains("4000 of the 12000 readings drawn"),
+        "the thinning is said"
+    );
+    let Some(browser) = chromium() else { return };
+    let page = open(&browser, &page_path, Duration::from_secs(60));
+    assert!(page.errors.is_empty(), "{:?}", page.errors);
+    assert_drawn_3d(&page, "raw-box");
+    eprintln!(
+        "12,000-reading calibration page: {bytes} bytes, drawn in {:.2} s",
+        page.seconds
+    );
+}
+
+#[test]
+fn a_page_is_not_written_into_its_result_or_from_what_is_not_a_result() {
+    let tmp = TempDir::new().unwrap();
+    let Some(log) = data("hamagure/data-set_1.csv") else {
+        return;
+    };
+    let set = tmp.path().join("cal");
+    calibrate(&log, &[], &set);
+    let before = crate::common::snapshot(&set);
+    for (result, out, needle) in [
+        (set.clone(), set.join("page.html"), "inside the result"),
+        (set.clone(), set.join("calibration.json"), "calibration.json"),
+        (
+            tmp.path().join("missing"),
+            tmp.path().join("p.html"),
+            "not a magcal result set",
+        ),
+        (log.clone(), tmp.path().join("p.html"), "not a magcal result set"),
+        (set.clone(), "-".into(), "--out -: give a file"),
+    ] {
+        let o = magcal()
+            .arg("report")
+            .arg(&result)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(needle), "{needle:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    }
+    assert_eq!(crate::common::snapshot(&set), before, "the result is untouched");
+    // The same result gives the same page, byte for byte.
+    let (a, b) = (tmp.path().join("a.html"), tmp.path().join("b.html"));
+    report(&set, &a);
+    report(&set, &b);
+    assert!(
+        fs::read(&a).unwrap() == fs::read(&b).unwrap(),
+        "two pages of one result differ"
+    );
+}
