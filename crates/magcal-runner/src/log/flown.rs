@@ -24,6 +24,19 @@ pub struct Flown {
     pub heading_sectors: Vec<usize>,
     /// Readings whose attitude lies inside the vehicle's box, where one is given.
     pub in_box: Option<usize>,
+    /// The vehicle's box in the same terms, where one is given.
+    #[serde(default)]
+    pub box_deg: Option<BoxDeg>,
+}
+
+/// A vehicle's box in the terms of [`Flown`], degrees: roll and pitch `[min, max]`, and the
+/// headings from `heading_deg[0]` clockwise to `heading_deg[1]` (`[0, 360]` for every heading;
+/// the second may exceed 360 where the range crosses north).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BoxDeg {
+    pub roll_deg: [f64; 2],
+    pub pitch_deg: [f64; 2],
+    pub heading_deg: [f64; 2],
 }
 
 /// The vehicle's box as the coverage reads it: \[P1\]'s box, and the yaw offset that turns a
@@ -57,6 +70,27 @@ impl Bounds<'_> {
             yaw_off(a.yaw, b.yaw.min(), b.yaw.max()),
         ];
         off.iter().all(|o| *o <= EDGE_DEG.to_radians())
+    }
+}
+
+impl Bounds<'_> {
+    /// The box in degrees, its yaws turned into headings (docs/conventions.md "Sense of the
+    /// angles": heading = -(yaw + yaw offset)).
+    pub fn degrees(&self) -> BoxDeg {
+        let b = self.bounds;
+        let range = |min: f64, max: f64| [min.to_degrees(), max.to_degrees()];
+        let (ymin, ymax) = (b.yaw.min().to_degrees(), b.yaw.max().to_degrees());
+        let heading_deg = if ymax - ymin >= 360.0 - EDGE_DEG {
+            [0.0, 360.0]
+        } else {
+            let start = (-ymax - self.yaw_offset_deg).rem_euclid(360.0);
+            [start, start + (ymax - ymin)]
+        };
+        BoxDeg {
+            roll_deg: range(b.roll.min(), b.roll.max()),
+            pitch_deg: range(b.pitch.min(), b.pitch.max()),
+            heading_deg,
+        }
     }
 }
 
@@ -101,6 +135,7 @@ pub fn flown(attitudes: &[Option<Mat3>], bounds: Option<Bounds>) -> Option<Flown
         pitch_deg: spread(&mut pitch),
         heading_sectors: sectors,
         in_box: bounds.map(|b| angles.iter().filter(|a| b.contains(**a)).count()),
+        box_deg: bounds.map(|b| b.degrees()),
     })
 }
 
@@ -160,5 +195,24 @@ mod tests {
         // On the edge, written to 1e-9 degree and read back: inside; 1e-5 degree out: outside.
         assert!(b.contains([5.000_000_001, -5.000_000_001, 270.000_000_001]));
         assert!(!b.contains([5.000_01, 0.0, 200.0]));
+        // The same range in degrees: from 180 clockwise to 270; the roll and pitch as given.
+        let d = b.degrees();
+        assert_eq!((d.roll_deg, d.pitch_deg), ([-5.0, 5.0], [-5.0, 5.0]));
+        assert!((d.heading_deg[0] - 180.0).abs() < 1e-12 && (d.heading_deg[1] - 270.0).abs() < 1e-12);
+        // A range across north keeps its width; a whole turn is every heading.
+        let across = AttitudeBox::from_degrees([-5.0, 5.0], [-20.0, 30.0], [-5.0, 5.0]).unwrap();
+        let d = Bounds {
+            bounds: &across,
+            yaw_offset_deg: 0.0,
+        }
+        .degrees();
+        assert!((d.heading_deg[0] - 330.0).abs() < 1e-12 && (d.heading_deg[1] - 380.0).abs() < 1e-12);
+        let all = AttitudeBox::from_degrees([-5.0, 5.0], [-180.0, 180.0], [-5.0, 5.0]).unwrap();
+        let d = Bounds {
+            bounds: &all,
+            yaw_offset_deg: 37.0,
+        }
+        .degrees();
+        assert_eq!(d.heading_deg, [0.0, 360.0]);
     }
 }

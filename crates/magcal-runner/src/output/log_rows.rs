@@ -7,7 +7,8 @@ use super::Real;
 
 /// `residuals.csv` of `calibrate --out`: one row per reading fitted, with its 1-based line in the
 /// log, the raw reading, the calibrated field `b = P (raw - bias)`, its norm and `norm - R`, in
-/// the log's units.
+/// the log's units; with the log's attitude, where it has one, as roll, pitch and compass heading
+/// in degrees (empty cells where it has none).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ResidualRow {
     pub line: usize,
@@ -19,6 +20,9 @@ pub struct ResidualRow {
     pub z: Real,
     pub norm: Real,
     pub residual: Real,
+    pub roll_deg: Option<Real>,
+    pub pitch_deg: Option<Real>,
+    pub heading_deg: Option<Real>,
 }
 
 /// The output of `apply`: one row per reading of the log, its 1-based line, the calibrated field
@@ -56,7 +60,20 @@ mod tests {
     fn headers_are_the_documented_columns() {
         assert_eq!(
             header::<ResidualRow>().unwrap().iter().collect::<Vec<_>>(),
-            ["line", "raw_x", "raw_y", "raw_z", "x", "y", "z", "norm", "residual"]
+            [
+                "line",
+                "raw_x",
+                "raw_y",
+                "raw_z",
+                "x",
+                "y",
+                "z",
+                "norm",
+                "residual",
+                "roll_deg",
+                "pitch_deg",
+                "heading_deg"
+            ]
         );
         assert_eq!(
             header::<AppliedRow>().unwrap().iter().collect::<Vec<_>>(),

@@ -69,6 +69,13 @@ pub fn page(dir: &Path) -> Result<Page> {
         counts.iter().filter(|&&c| c == 0).count(),
         super::significant(cal.coverage.motioncal_gap_percent, 3)
     ));
+    super::attitudes::section(
+        &mut page,
+        &rows,
+        cal.coverage.flown.as_ref(),
+        cal.coverage.box_from.as_deref(),
+        &shown,
+    );
     page.data("calibration", serde_json::to_value(&cal).context("calibration.json")?);
     page.data("readings", json!(rows.len()));
     page.data("drawn", json!(shown.len()));
@@ -372,42 +379,56 @@ fn coverage_counts(rows: &[ResidualRow]) -> [usize; 100] {
     motioncal_region_counts(&fields)
 }
 
+/// The colour of a MotionCal region of `count` readings: red none, orange one, yellow two, green
+/// three or more.
+pub fn region_colour(count: usize) -> &'static str {
+    match count {
+        0 => "#d62728",
+        1 => "#ff7f0e",
+        2 => "#f2c94c",
+        _ => "#2ca02c",
+    }
+}
+
+/// The 100 regions as one mesh (one WebGL draw, not a hundred): each region a patch of 4 x 6
+/// cells of its own vertices, every triangle coloured by the region's count, every vertex
+/// hovering its region.
 fn coverage_plot(counts: &[usize; 100]) -> Plot {
-    let mut plot = Plot::new();
+    let (lats, lons) = (4usize, 6usize);
+    let mut points = Vec::new();
+    let mut triangles = Vec::new();
+    let mut colours = Vec::new();
+    let mut hover = Vec::new();
     for (index, &count) in counts.iter().enumerate() {
         let region = motioncal_region(index);
-        let (lats, lons) = (4usize, 6usize);
-        let mut points = Vec::new();
+        let first = points.len();
         for a in 0..=lats {
             let s = region.sin_latitude[0] + (region.sin_latitude[1] - region.sin_latitude[0]) * a as f64 / lats as f64;
             let c = (1.0 - s * s).max(0.0).sqrt();
             for b in 0..=lons {
                 let t = region.turn[0] + (region.turn[1] - region.turn[0]) * b as f64 / lons as f64;
                 let phi = std::f64::consts::TAU * t;
-                points.push([c * phi.cos(), c * phi.sin(), s]);
+                points.push([drawn(c * phi.cos()), drawn(c * phi.sin()), drawn(s)]);
+                hover.push(format!("region {index}: {count} readings"));
             }
         }
-        let mut triangles = Vec::new();
         for a in 0..lats {
             for b in 0..lons {
-                let p = a * (lons + 1) + b;
+                let p = first + a * (lons + 1) + b;
                 triangles.push([p, p + 1, p + lons + 1]);
                 triangles.push([p + 1, p + lons + 2, p + lons + 1]);
+                colours.extend([region_colour(count); 2]);
             }
         }
-        let colour = match count {
-            0 => "#d62728",
-            1 => "#ff7f0e",
-            2 => "#f2c94c",
-            _ => "#2ca02c",
-        };
-        let patch = mesh(&points, &triangles)
-            .color(colour)
-            .name(format!("region {index}: {count} readings"))
-            .hover_text(format!("region {index}: {count} readings"))
-            .flat_shading(true);
-        plot.add_trace(patch);
     }
+    let patches = mesh(&points, &triangles)
+        .face_color(colours)
+        .hover_text_array(hover)
+        .hover_info(plotly::common::HoverInfo::Text)
+        .name("regions")
+        .flat_shading(true);
+    let mut plot = Plot::new();
+    plot.add_trace(patches);
     plot.set_layout(
         Layout::new()
             .show_legend(false)

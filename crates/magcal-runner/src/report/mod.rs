@@ -9,6 +9,7 @@
 //! files. What is drawn may be thinned ([`thin`]) and rounded ([`drawn`]); what is computed and
 //! tabled never is, and the page says so where it thins.
 
+pub mod attitudes;
 pub mod calibration;
 
 use std::path::Path;

@@ -142,24 +142,35 @@ fn a_calibration_page_draws_its_views_offline_and_shows_the_json_numbers() {
     assert_eq!(fit[0][1].1, Some(num(&cal["samples"])));
     let verdict = page.eval("document.querySelector('#verdict').innerText");
     assert!(verdict.as_str().unwrap().starts_with("USABLE"), "{verdict}");
-    // The regions drawn are the ones the calibration's MotionCal figure counts: its weights of
-    // 1, 0.2 and 0.01 for regions of 0, 1 and 2 readings add up to the JSON's gap percentage.
-    let counts = page.eval("JSON.parse(document.getElementById('magcal-data').textContent).region_counts");
-    let gaps: f64 = counts
+    // The regions drawn are the ones the calibration's MotionCal figure counts: each region's 48
+    // triangles take its colour, and the weights of 1, 0.2 and 0.01 that MotionCal gives regions
+    // of 0, 1 and 2 readings add up, over the colours drawn, to the JSON's gap percentage.
+    let colours = page.eval("document.querySelector('#coverage-box .plotly-graph-div').data[0].facecolor");
+    let colours: Vec<&str> = colours
         .as_array()
         .unwrap()
         .iter()
-        .map(|c| match c.as_u64().unwrap() {
-            0 => 1.0,
-            1 => 0.2,
-            2 => 0.01,
-            _ => 0.0,
+        .map(|c| c.as_str().unwrap())
+        .collect();
+    assert_eq!(colours.len(), 100 * 48);
+    let gaps: f64 = colours
+        .chunks(48)
+        .map(|region| {
+            assert!(region.iter().all(|c| *c == region[0]), "one colour per region");
+            let weight = [0.0, 1.0, 0.2, 0.01]
+                .into_iter()
+                .zip(["#2ca02c", "#d62728", "#ff7f0e", "#f2c94c"])
+                .find(|(_, c)| *c == region[0])
+                .unwrap_or_else(|| panic!("colour {}", region[0]));
+            weight.0
         })
         .sum();
     assert!(
         (gaps - num(&cal["coverage"]["motioncal_gap_percent"])).abs() < 1e-9,
         "{gaps}"
     );
+    // A log without attitudes draws none.
+    assert_eq!(page.eval("document.querySelectorAll('#roll-pitch-box').length"), 0);
     eprintln!("calibration page: drawn in {:.2} s", page.seconds);
 }
 
@@ -174,7 +185,13 @@ fn the_page_of_a_12000_reading_log_stays_under_10_mb_and_says_what_it_thinned() 
     let log = tmp.path().join("cut.csv");
     fs::write(&log, cut).unwrap();
     let set = tmp.path().join("cal");
-    calibrate(&log, &BROAD_ARGS, &set);
+    let wu2014 = crate::common::scenarios().join("wu2014.toml");
+    let args: Vec<&str> = BROAD_ARGS
+        .iter()
+        .copied()
+        .chain(["--scenario", wu2014.to_str().unwrap()])
+        .collect();
+    calibrate(&log, &args, &set);
     let page_path = tmp.path().join("cal.html");
     report(&set, &page_path);
     let bytes = fs::metadata(&page_path).unwrap().len();
@@ -188,10 +205,50 @@ fn the_page_of_a_12000_reading_log_stays_under_10_mb_and_says_what_it_thinned() 
     let page = open(&browser, &page_path, Duration::from_secs(60));
     assert!(page.errors.is_empty(), "{:?}", page.errors);
     assert_drawn_3d(&page, "raw-box");
+    attitudes_against_the_box(&page, &set);
     eprintln!(
         "12,000-reading calibration page: {bytes} bytes, drawn in {:.2} s",
         page.seconds
     );
+}
+
+/// The attitude figures of the calibration set `set` (of a log with attitudes and a box): the
+/// readings counted inside the box over the whole log are the JSON's, and the points drawn green
+/// and grey are the thinned readings that the box holds and does not.
+fn attitudes_against_the_box(page: &Opened, set: &Path) {
+    use magcal_runner::log::calibration::read_calibration;
+    use magcal_runner::output::log_rows::ResidualRow;
+    let cal = read_calibration(&set.join("calibration.json")).unwrap();
+    let flown = cal.coverage.flown.expect("the log has attitudes");
+    let b = flown.box_deg.expect("the scenario gave a box");
+    let rows: Vec<ResidualRow> = magcal_runner::output::read_csv(&set.join("residuals.csv")).unwrap();
+    let angles = |r: &ResidualRow| Some([r.roll_deg?.0, r.pitch_deg?.0, r.heading_deg?.0]);
+    let all: Vec<[f64; 3]> = rows.iter().filter_map(angles).collect();
+    assert_eq!(all.len(), flown.with_attitude);
+    assert_eq!(Some(all.iter().filter(|a| b.contains(**a)).count()), flown.in_box);
+    let shown = magcal_runner::report::thin(rows.len(), magcal_runner::report::calibration::MAX_DRAWN);
+    let drawn: Vec<[f64; 3]> = shown.iter().filter_map(|&i| angles(&rows[i])).collect();
+    let inside = drawn.iter().filter(|a| b.contains(**a)).count();
+    for view in ["roll-pitch-box", "heading-pitch-box"] {
+        let lengths = page.eval(&format!(
+            "Object.fromEntries(document.querySelector('#{view} .plotly-graph-div').data.map(t => [t.name, t.x.length]))"
+        ));
+        // A trace with no point is left out of the figure.
+        let count = |name: &str| lengths[name].as_u64().unwrap_or(0);
+        assert_eq!(count("inside the box"), inside as u64, "{view}: {lengths}");
+        assert_eq!(
+            count("outside the box"),
+            (drawn.len() - inside) as u64,
+            "{view}: {lengths}"
+        );
+        let (share, _) = pixel_statistics(&page.screenshot(&format!("#{view}")));
+        assert!(share > 0.01, "{view} is blank: {share:.3}");
+    }
+    let flown_rows = table(page, "flown");
+    assert_eq!(flown_rows.last().unwrap()[1].1, flown.in_box.map(|n| n as f64));
+    for (k, v) in flown.roll_deg.iter().enumerate() {
+        assert_shows(&flown_rows[0][1 + k], *v);
+    }
 }
 
 #[test]

@@ -30,6 +30,7 @@ use crate::output::staging::{ResultSet, Target};
 use crate::output::stderr::to_stderr;
 use crate::output::{self, Real};
 use crate::scenario::site::{Date, Site, Units, parse_model, wmm_magnitude};
+use magcal_core::aviation::roll_pitch_heading_deg;
 
 /// `--fit`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -668,21 +669,32 @@ fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJso
     let mut hex = String::new();
     set.put_with("residuals.csv", |w| {
         let mut w = Hashing::new(w);
-        let residuals = log.readings.iter().zip(&log.lines).map(|(raw, &line)| {
-            let b = json.apply_body(*raw);
-            let norm = magcal_core::small::norm(b);
-            ResidualRow {
-                line,
-                raw_x: Real(raw[0]),
-                raw_y: Real(raw[1]),
-                raw_z: Real(raw[2]),
-                x: Real(b[0]),
-                y: Real(b[1]),
-                z: Real(b[2]),
-                norm: Real(norm),
-                residual: Real(norm - json.magnitude),
-            }
-        });
+        let attitudes = log.attitudes.as_deref();
+        let residuals = log
+            .readings
+            .iter()
+            .zip(&log.lines)
+            .enumerate()
+            .map(|(i, (raw, &line))| {
+                let b = json.apply_body(*raw);
+                let norm = magcal_core::small::norm(b);
+                let angles = attitudes.and_then(|a| a[i].as_ref()).map(roll_pitch_heading_deg);
+                let angle = |k: usize| angles.map(|a| Real(a[k]));
+                ResidualRow {
+                    line,
+                    raw_x: Real(raw[0]),
+                    raw_y: Real(raw[1]),
+                    raw_z: Real(raw[2]),
+                    x: Real(b[0]),
+                    y: Real(b[1]),
+                    z: Real(b[2]),
+                    norm: Real(norm),
+                    residual: Real(norm - json.magnitude),
+                    roll_deg: angle(0),
+                    pitch_deg: angle(1),
+                    heading_deg: angle(2),
+                }
+            });
         output::write_csv(residuals, &mut w)?;
         hex = w.hex();
         Ok(())
