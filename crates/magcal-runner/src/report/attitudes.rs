@@ -105,7 +105,6 @@ fn scatter(
                 .mode(Mode::Markers)
                 .name(name)
                 .text_array(text)
-                .web_gl_mode(true)
                 .marker(Marker::new().size(3).color(colour).opacity(0.6)),
         );
     }

@@ -172,7 +172,14 @@ impl Page {
     /// plotly logo and its size following the window.
     pub fn plot(&mut self, id: &str, mut plot: Plot, height: u32, caption: impl Into<String>) {
         plot.set_configuration(Configuration::new().display_logo(false).responsive(true));
-        let html = plot.to_inline_html(Some(id));
+        // The figure waits in a JSON block for the page's loader (templates/page.html), which
+        // draws it when it comes near the screen: a page of many WebGL views opens at once
+        // instead of building every view before it shows anything. `</` cannot occur outside a
+        // JSON string, and inside one `<\/` is the same text, so no figure can end its block.
+        let figure = plot.to_json().replace("</", "<\\/");
+        let html = format!(
+            "<div id=\"{id}\" class=\"plotly-graph-div\" style=\"height:100%; width:100%;\"></div>\n<script type=\"application/json\" class=\"magcal-figure\" data-for=\"{id}\">{figure}</script>"
+        );
         self.push(Block::Plot {
             id: id.to_string(),
             html,
@@ -315,6 +322,9 @@ mod tests {
             rows: vec![vec![Cell::number(1.0 / 3.0, 3)]],
         });
         page.data("k", serde_json::json!({"v": "</script>"}));
+        let mut plot = Plot::new();
+        plot.add_trace(plotly::Scatter::new(vec![1.0], vec![2.0]).name("</script><b>"));
+        page.plot("p", plot, 300, "c");
         let html = page.render().unwrap();
         assert!(
             html.contains("<title>a &#60;b&#62; &#38; &#34;c&#34;</title>"),
@@ -327,7 +337,16 @@ mod tests {
             !html.contains("\"</script>\""),
             "the data block must not close its script"
         );
-        assert_eq!(html.matches("<script").count(), 2, "plotly.js and the data block");
+        assert_eq!(
+            html.matches("<script type=\"text/javascript\">").count(),
+            2,
+            "plotly.js and the loader of the figures run; nothing else"
+        );
+        assert_eq!(html.matches("<script").count(), 4, "and the data and figure blocks");
+        assert!(
+            html.contains(r#""name":"<\/script><b>""#),
+            "a figure cannot end its block"
+        );
         assert!(!html.contains("<script src"), "no script from elsewhere");
         assert!(!html.contains("<link"), "no stylesheet from elsewhere");
     }
