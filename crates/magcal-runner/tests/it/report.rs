@@ -171,7 +171,10 @@ fn a_calibration_page_draws_its_views_offline_and_shows_the_json_numbers() {
     );
     // A log without attitudes draws none.
     assert_eq!(page.eval("document.querySelectorAll('#roll-pitch-box').length"), 0);
-    eprintln!("calibration page: drawn in {:.2} s", page.seconds);
+    eprintln!(
+        "calibration page: first screen in {:.2} s, every figure in {:.2} s",
+        page.first_screen, page.seconds
+    );
 }
 
 #[test]
@@ -207,8 +210,8 @@ fn the_page_of_a_12000_reading_log_stays_under_10_mb_and_says_what_it_thinned() 
     assert_drawn_3d(&page, "raw-box");
     attitudes_against_the_box(&page, &set);
     eprintln!(
-        "12,000-reading calibration page: {bytes} bytes, drawn in {:.2} s",
-        page.seconds
+        "12,000-reading calibration page: {bytes} bytes, first screen in {:.2} s, every figure in {:.2} s",
+        page.first_screen, page.seconds
     );
 }
 
