@@ -10,6 +10,7 @@
 //! tabled never is, and the page says so where it thins.
 
 pub mod calibration;
+pub mod replay;
 
 use std::path::Path;
 
@@ -244,6 +245,8 @@ pub fn drawn(value: f64) -> f64 {
 pub enum Source {
     /// A `calibrate --out` set.
     Calibration,
+    /// A `replay` set.
+    Replay,
 }
 
 impl Source {
@@ -255,6 +258,7 @@ impl Source {
         if path.is_dir() {
             return match SetKind::of(path)? {
                 Some(SetKind::Calibration) => Ok(Self::Calibration),
+                Some(SetKind::Replay) => Ok(Self::Replay),
                 Some(kind) => bail!(
                     "{}: a magcal {} set; its page is not drawn yet",
                     path.display(),
@@ -274,6 +278,7 @@ impl Source {
 pub fn page_of(path: &Path) -> Result<Page> {
     match Source::of(path)? {
         Source::Calibration => calibration::page(path),
+        Source::Replay => replay::page(path),
     }
 }
 
