@@ -492,6 +492,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
     let log = non_positive == 0 && !values_all.is_empty();
     let mut categories: Vec<String> = designs.into_iter().map(|(d, _)| d).collect();
     categories.push(WHOLE_LOG.to_string());
+    let span = vec![-0.5, categories.len() as f64 - 0.5];
     plot.set_layout(
         Layout::new()
             .box_mode(BoxMode::Group)
@@ -499,7 +500,8 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
                 Axis::new()
                     .title(Title::with_text("design"))
                     .category_order(CategoryOrder::Array)
-                    .category_array(categories),
+                    .category_array(categories)
+                    .range(span),
             )
             .y_axis(
                 Axis::new()
@@ -651,7 +653,7 @@ fn realisation(page: &mut Page, set: &ReplaySet) {
                 Marker::new()
                     .size(9)
                     .color("#000000")
-                    .symbol(plotly::common::MarkerSymbol::X),
+                    .symbol(plotly::common::MarkerSymbol::DiamondOpen),
             ),
         );
     }
