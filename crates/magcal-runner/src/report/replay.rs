@@ -776,3 +776,105 @@ fn summary_table(page: &mut Page, set: &ReplaySet) {
         rows,
     });
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::report::Block;
+
+    /// A copy of the shipped `results/replay-handheld-10` in a temporary directory, with `edit`
+    /// applied to its manifest and files and the manifest sealed again over the edited files.
+    fn resealed(edit: impl FnOnce(&mut ReplayManifest, &mut BTreeMap<String, String>)) -> tempfile::TempDir {
+        let from = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../results/replay-handheld-10");
+        let tmp = tempfile::TempDir::new().unwrap();
+        let bytes = std::fs::read(from.join("manifest.json")).unwrap();
+        let mut manifest: ReplayManifest = serde_json::from_slice(&bytes).unwrap();
+        let mut files: BTreeMap<String, String> = manifest
+            .files
+            .iter()
+            .map(|f| (f.clone(), std::fs::read_to_string(from.join(f)).unwrap()))
+            .collect();
+        edit(&mut manifest, &mut files);
+        for (name, text) in &files {
+            std::fs::write(tmp.path().join(name), text).unwrap();
+            manifest.file_sha256.insert(name.clone(), sha256_hex(text.as_bytes()));
+        }
+        manifest.manifest_sha256 = None;
+        std::fs::write(tmp.path().join("manifest.json"), manifest.to_bytes().unwrap()).unwrap();
+        tmp
+    }
+
+    #[test]
+    fn a_ring_lies_at_its_angle_around_its_direction() {
+        let u = [0.6, -0.48, 0.64];
+        for angle in [0.5, 10.0, 90.0] {
+            for p in ring(u, angle, 36) {
+                let dot = p[0] * u[0] + p[1] * u[1] + p[2] * u[2];
+                let norm = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                assert!((norm - 1.0).abs() < 8.0 * f64::EPSILON, "{norm}");
+                assert!(
+                    (dot - angle.to_radians().cos()).abs() < 8.0 * f64::EPSILON,
+                    "{dot} at {angle}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_shipped_set_reads_and_its_counts_agree() {
+        let dir = resealed(|_, _| {});
+        let page = page(dir.path()).unwrap();
+        let plots: Vec<&str> = page
+            .blocks
+            .iter()
+            .filter_map(|b| match b {
+                Block::Plot { id, .. } => Some(id.as_str()),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(
+            plots,
+            [
+                "dist-heading-rms-deg",
+                "dist-eta-psi",
+                "dist-eta-s",
+                "dist-eta-o",
+                "realisation"
+            ]
+        );
+    }
+
+    #[test]
+    fn without_the_truth_the_page_draws_no_eta_and_says_why() {
+        let dir = resealed(|m, _| {
+            m.settings.insert("truth".into(), "none".into());
+        });
+        let page = page(dir.path()).unwrap();
+        let plots = page
+            .blocks
+            .iter()
+            .filter(|b| matches!(b, Block::Plot { id, .. } if id.starts_with("dist-eta")))
+            .count();
+        assert_eq!(plots, 0);
+        let said = page
+            .blocks
+            .iter()
+            .filter(|b| matches!(b, Block::Note(t) if t.contains("the truth is not known (--truth none)")))
+            .count();
+        assert_eq!(said, 3, "one note per eta");
+    }
+
+    #[test]
+    fn a_summary_that_does_not_count_what_trials_csv_holds_is_refused() {
+        let dir = resealed(|_, files| {
+            let summary = files.get_mut("summary.csv").unwrap();
+            *summary = summary.replacen("random9,9,symmetric,200,12,", "random9,9,symmetric,200,13,", 1);
+        });
+        let e = format!("{:#}", page(dir.path()).unwrap_err());
+        assert!(e.contains("summary.csv"), "{e}");
+        assert!(
+            e.contains("random9 model symmetric metric heading_rms_deg: ok = 13, but trials.csv has 12"),
+            "{e}"
+        );
+    }
+}
