@@ -11,6 +11,7 @@ pub mod log_rows;
 pub mod manifest;
 pub mod print;
 pub mod progress;
+pub mod replay_rows;
 pub mod staging;
 pub mod stderr;
 

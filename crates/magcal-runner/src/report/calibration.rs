@@ -233,7 +233,7 @@ fn scene(units: &str, what: &str) -> Layout {
 }
 
 /// Points on the unit sphere, `lat` bands by `lon` sectors, and the triangles between them.
-fn unit_sphere(lat: usize, lon: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
+pub(super) fn unit_sphere(lat: usize, lon: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
     let mut points = Vec::new();
     for a in 0..=lat {
         let theta = std::f64::consts::PI * a as f64 / lat as f64;

@@ -11,6 +11,7 @@
 
 pub mod attitudes;
 pub mod calibration;
+pub mod replay;
 
 use std::path::Path;
 
@@ -252,6 +253,8 @@ pub fn drawn(value: f64) -> f64 {
 pub enum Source {
     /// A `calibrate --out` set.
     Calibration,
+    /// A `replay` set.
+    Replay,
 }
 
 impl Source {
@@ -263,6 +266,7 @@ impl Source {
         if path.is_dir() {
             return match SetKind::of(path)? {
                 Some(SetKind::Calibration) => Ok(Self::Calibration),
+                Some(SetKind::Replay) => Ok(Self::Replay),
                 Some(kind) => bail!(
                     "{}: a magcal {} set; its page is not drawn yet",
                     path.display(),
@@ -282,6 +286,7 @@ impl Source {
 pub fn page_of(path: &Path) -> Result<Page> {
     match Source::of(path)? {
         Source::Calibration => calibration::page(path),
+        Source::Replay => replay::page(path),
     }
 }
 
