@@ -10,6 +10,8 @@
 //! tabled never is, and the page says so where it thins.
 
 pub mod calibration;
+pub mod plan;
+pub mod run;
 
 use std::path::Path;
 
@@ -244,6 +246,8 @@ pub fn drawn(value: f64) -> f64 {
 pub enum Source {
     /// A `calibrate --out` set.
     Calibration,
+    /// A `design` or `run` set.
+    Run,
 }
 
 impl Source {
@@ -255,6 +259,7 @@ impl Source {
         if path.is_dir() {
             return match SetKind::of(path)? {
                 Some(SetKind::Calibration) => Ok(Self::Calibration),
+                Some(SetKind::Run) => Ok(Self::Run),
                 Some(kind) => bail!(
                     "{}: a magcal {} set; its page is not drawn yet",
                     path.display(),
@@ -274,6 +279,7 @@ impl Source {
 pub fn page_of(path: &Path) -> Result<Page> {
     match Source::of(path)? {
         Source::Calibration => calibration::page(path),
+        Source::Run => run::page(path),
     }
 }
 

@@ -20,6 +20,7 @@ mod motor;
 mod reference;
 mod replay;
 mod report;
+mod report_run;
 mod result_set;
 mod tlog;
 mod ulog;
