@@ -12,6 +12,8 @@
 pub mod attitudes;
 pub mod calibration;
 pub mod replay;
+pub mod plan;
+pub mod run;
 
 use std::path::Path;
 
@@ -255,6 +257,8 @@ pub enum Source {
     Calibration,
     /// A `replay` set.
     Replay,
+    /// A `design` or `run` set.
+    Run,
 }
 
 impl Source {
@@ -267,11 +271,7 @@ impl Source {
             return match SetKind::of(path)? {
                 Some(SetKind::Calibration) => Ok(Self::Calibration),
                 Some(SetKind::Replay) => Ok(Self::Replay),
-                Some(kind) => bail!(
-                    "{}: a magcal {} set; its page is not drawn yet",
-                    path.display(),
-                    kind.as_str()
-                ),
+                Some(SetKind::Run) => Ok(Self::Run),
                 None => bail!("{}: not a magcal result set (no magcal manifest.json)", path.display()),
             };
         }
@@ -287,6 +287,7 @@ pub fn page_of(path: &Path) -> Result<Page> {
     match Source::of(path)? {
         Source::Calibration => calibration::page(path),
         Source::Replay => replay::page(path),
+        Source::Run => run::page(path),
     }
 }
 

@@ -21,6 +21,7 @@ mod reference;
 mod replay;
 mod report;
 mod report_replay;
+mod report_run;
 mod result_set;
 mod tlog;
 mod ulog;
