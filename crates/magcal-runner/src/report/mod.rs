@@ -10,6 +10,9 @@
 //! tabled never is, and the page says so where it thins.
 
 pub mod calibration;
+pub mod evaluate;
+pub mod next;
+pub mod sphere;
 
 use std::path::Path;
 
