@@ -20,6 +20,8 @@ mod motor;
 mod reference;
 mod replay;
 mod report;
+mod report_evaluate;
+mod report_next;
 mod result_set;
 mod tlog;
 mod ulog;

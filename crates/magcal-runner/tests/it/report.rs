@@ -47,7 +47,7 @@ fn calibrate(log: &Path, args: &[&str], dir: &Path) {
 
 /// The 3D view in `box_id` is drawn: WebGL, no fallback message, and a screenshot that is not
 /// blank (at least 3 % of its pixels off the background, and 40 colours).
-fn assert_drawn_3d(page: &Opened, box_id: &str) {
+pub fn assert_drawn_3d(page: &Opened, box_id: &str) {
     let canvases = page.eval(&format!("document.querySelectorAll('#{box_id} canvas').length"));
     assert!(canvases.as_u64().unwrap_or(0) > 0, "{box_id}: no canvas");
     let text = page.eval(&format!("document.querySelector('#{box_id}').innerText"));
@@ -68,7 +68,7 @@ fn assert_drawn_3d(page: &Opened, box_id: &str) {
 }
 
 /// The cells of table `id`: per row, each cell's text and `data-value`.
-fn table(page: &Opened, id: &str) -> Vec<Vec<(String, Option<f64>)>> {
+pub fn table(page: &Opened, id: &str) -> Vec<Vec<(String, Option<f64>)>> {
     let rows = page.eval(&format!(
         "Array.from(document.querySelectorAll('#{id} tbody tr')).map(r => Array.from(r.cells).map(c => [c.innerText, c.dataset.value ?? null]))"
     ));
@@ -90,10 +90,12 @@ fn table(page: &Opened, id: &str) -> Vec<Vec<(String, Option<f64>)>> {
         .collect()
 }
 
-/// A cell shows `value`: its `data-value` is the JSON's number exactly, and its text is that
-/// number rounded (within half a unit of its last digit).
-fn assert_shows(cell: &(String, Option<f64>), value: f64) {
-    assert_eq!(cell.1, Some(value), "{cell:?}");
+/// A cell shows `value`: its `data-value` is the JSON's number to within f64 formatting (serde_json
+/// parses a decimal to within an ulp: relative 1e-12), and its text is that number rounded
+/// (within half a unit of its last digit).
+pub fn assert_shows(cell: &(String, Option<f64>), value: f64) {
+    let kept = cell.1.unwrap_or_else(|| panic!("{cell:?} keeps no value"));
+    assert!((kept - value).abs() <= 1e-12 * value.abs(), "{cell:?} against {value}");
     let shown: f64 = cell.0.parse().unwrap_or_else(|_| panic!("{cell:?}"));
     let decimals = cell.0.split('.').nth(1).map_or(0, |d| d.len() as i32);
     assert!(
