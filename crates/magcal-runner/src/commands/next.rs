@@ -1,7 +1,7 @@
 //! `magcal next CAL.json LOG`: the attitudes to visit next.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -14,8 +14,9 @@ use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_c
 use crate::log::read::HELD_BYTES_PER_READING;
 use crate::log::source::{self, Log, LogArgs};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
-use crate::output::file::to_stdout;
+use crate::output::file::{Output, replace, to_stdout};
 use crate::output::stderr::to_stderr;
+use crate::report::next::{AttitudeJson, NextJson, ParameterJson, RelativeJson};
 use crate::scenario::site::{Date, Site, parse_model};
 
 /// `magcal next`.
@@ -45,6 +46,14 @@ pub struct NextArgs {
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub count: u64,
+    /// Print one JSON object with every figure instead of the text report.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write one self-contained HTML page to this file (replaced whole; never an input):
+    /// the attitudes to add as a table a pilot follows and where each falls on the sphere of
+    /// MotionCal's coverage regions, the standard errors and the coverage before and after.
+    #[arg(long, value_name = "FILE.html")]
+    pub report: Option<PathBuf>,
     /// How to read the log, as for `calibrate` (default columns: those the calibration was made
     /// from).
     #[command(flatten)]
@@ -95,8 +104,67 @@ fn identifiable_before(cal: &CalibrationJson, same_readings: bool, readings: &[m
 }
 
 fn next_inner(args: &NextArgs) -> Result<()> {
+    let page = page_output(args)?;
+    let (json, counts) = suggest(args)?;
+    // The report is formatted in memory (a few kilobytes) and written at the end, so that a
+    // failed write is one error.
+    let mut w = Vec::new();
+    if args.json {
+        serde_json::to_writer_pretty(&mut w, &json)?;
+        writeln!(w)?;
+    } else {
+        write_text(&mut w, &json)?;
+    }
+    if let Some(path) = page {
+        let html = crate::report::next::page(&json, &counts[0], &counts[1])?.render()?;
+        replace(path, &inputs(args), html.as_bytes()).context("--report")?;
+    }
+    to_stdout(|out| Ok(out.write_all(&w)?))
+}
+
+/// The files `next` reads: the calibration, the log and the scenario.
+fn inputs(args: &NextArgs) -> Vec<&Path> {
+    [args.calibration.as_path(), args.log.as_path()]
+        .into_iter()
+        .chain(args.scenario.as_deref())
+        .collect()
+}
+
+/// The path of `--report`, checked before any work: a file (not `-`) that may be replaced and is
+/// none of the inputs.
+fn page_output(args: &NextArgs) -> Result<Option<&Path>> {
+    let Some(path) = args.report.as_deref() else {
+        return Ok(None);
+    };
+    if path == Path::new("-") {
+        bail!("--report -: give a file (standard output carries the report)");
+    }
+    Output::File(path.to_path_buf())
+        .check(&inputs(args))
+        .context("--report")?;
+    Ok(Some(path))
+}
+
+/// What the augmentation gives, before it is put into words.
+struct Augmented {
+    /// The readings of the log.
+    m: usize,
+    /// The attitudes chosen, with the variance at each when chosen.
+    chosen: Vec<(magcal_core::Attitude, f64)>,
+    /// The body fields (nT): the log's calibrated readings, then the added attitudes'.
+    body: Vec<Vec3>,
+    /// The Cramer-Rao bounds before and after.
+    crb: [CramerRao; 2],
+    /// The certified D-efficiency per reading before and after.
+    efficiency: [Option<f64>; 2],
+    /// The full fit of the log with the suggested readings simulated.
+    after_fit: Result<log_fit::LogFit, magcal_core::CalibrationError>,
+}
+
+/// The attitudes to add and every figure of them, with the readings per MotionCal region of the
+/// log's calibrated field directions before and after.
+fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
     let shown = args.calibration.display().to_string();
-    let log_shown = args.log.display().to_string();
     let cal = read_calibration(&args.calibration)?;
     let place = args.site.zip(args.date).map(|(site, date)| Place {
         site,
@@ -107,31 +175,77 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         .context("next needs --scenario, or the box as flags with --site and --date")?;
     check_box(&vehicle)?;
     let (problem, factor) = fitted_problem(&cal, &vehicle).with_context(|| shown.clone())?;
-    let LogRead {
-        readings: mut log_readings,
-        flown,
-        before: (before_identifiable, before_source),
-    } = read_log(args, &cal)?;
-    let m = log_readings.len();
+    let log = read_log(args, &cal)?;
     if !cal.identifiable {
         to_stderr!(
             "magcal: warning: {shown} is not identifiable ({}); the suggestions assume its fitted sensor",
             cal.verdict
         );
     }
+    let a = augment(args, &cal, &vehicle, &problem, factor, log.readings)?;
+    let (body_log, body_all) = (&a.body[..a.m], &a.body[..]);
+    let counts = [
+        log_fit::motioncal_region_counts(body_log),
+        log_fit::motioncal_region_counts(body_all),
+    ];
+    let (identifiable_before, identifiable_before_source) = log.before;
+    let json = NextJson {
+        log: args.log.display().to_string(),
+        calibration: shown,
+        readings: a.m,
+        count: args.count as usize,
+        attitude_box: vehicle.label.clone(),
+        declination_deg: vehicle.field.declination_deg(),
+        field_source: vehicle.field_source.clone(),
+        attitudes: attitude_rows(&a.chosen, &vehicle.field),
+        relative_to_log: log
+            .flown
+            .as_ref()
+            .map(|f| relative(&a.chosen, vehicle.field.yaw_offset_deg(), f)),
+        parameters: parameters(&a.crb, factor),
+        d_efficiency_before: a.efficiency[0],
+        d_efficiency_after: a.efficiency[1],
+        motioncal_gap_percent_before: log_fit::motioncal_gaps(body_log),
+        motioncal_gap_percent_after: log_fit::motioncal_gaps(body_all),
+        microstrain_coverage_percent_before: log_fit::microstrain_coverage_percent(body_log),
+        microstrain_coverage_percent_after: log_fit::microstrain_coverage_percent(body_all),
+        identifiable_before,
+        identifiable_before_source,
+        identifiable_after: a.after_fit.as_ref().is_ok_and(|f| f.identifiable),
+        identifiable_after_why_not: match &a.after_fit {
+            Ok(f) if !f.identifiable => Some(f.verdict.clone()),
+            Ok(_) => None,
+            Err(e) => Some(e.to_string()),
+        },
+    };
+    Ok((json, counts))
+}
+
+/// The D-optimal augmentation of the log's `readings` (its units) under the fitted sensor, and
+/// what it gives.
+fn augment(
+    args: &NextArgs,
+    cal: &CalibrationJson,
+    vehicle: &Vehicle,
+    problem: &magcal_core::design::DesignProblem,
+    factor: f64,
+    log_readings: Vec<Vec3>,
+) -> Result<Augmented> {
+    let shown = args.calibration.display().to_string();
+    let m = log_readings.len();
     let field = vehicle.field;
     let model = *problem.model();
     let r = field.magnitude();
     // The log's units to the vehicle field's (nT): only the field's direction comes from the site.
-    for s in log_readings.iter_mut() {
+    let mut readings = log_readings;
+    for s in readings.iter_mut() {
         *s = s.map(|v| v * factor);
     }
-    let mut readings = log_readings;
     let before = InformationMatrix::from_readings(&readings, r);
     let chosen = vehicle
         .certificate
-        .augment(&problem, before.matrix(), args.count as usize)
-        .with_context(|| format!("{log_shown}: the log's information is singular"))?;
+        .augment(problem, before.matrix(), args.count as usize)
+        .with_context(|| format!("{}: the log's information is singular", args.log.display()))?;
     let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
     let added_fields = field.body_fields(&attitudes);
     let noise = cal
@@ -162,37 +276,69 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         *s = magcal_core::small::mat_vec(&cal.p, magcal_core::small::sub(*s, bias_nt));
     }
     readings.extend(added_fields);
-    let (body_log, body_all) = (&readings[..m], &readings[..]);
-    let certificate = vehicle.certificate(&problem);
+    let certificate = vehicle.certificate(problem);
     let efficiency =
         |info: &InformationMatrix, m: usize| certificate.as_ref().map(|c| c.efficiency_bound(info.ln_det_nt(), m));
     // Standard errors under the fitted model, noise from the residuals.
     let scales = PhysicalScales::default();
-    let (crb_before, crb_after) = (
-        CramerRao::new(&model, body_log, sigma, &scales),
-        CramerRao::new(&model, body_all, sigma, &scales),
-    );
-    // The table is formatted in memory (a few kilobytes) and written at the end, so that a
-    // failed write is one error.
-    let mut w = Vec::new();
+    let crb = [
+        CramerRao::new(&model, &readings[..m], sigma, &scales),
+        CramerRao::new(&model, &readings, sigma, &scales),
+    ];
+    Ok(Augmented {
+        m,
+        efficiency: [efficiency(&before, m), efficiency(&after, m + attitudes.len())],
+        chosen,
+        body: readings,
+        crb,
+        after_fit,
+    })
+}
+
+/// The text report of `j`.
+fn write_text(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
     writeln!(
         w,
-        "{m} readings of {log_shown}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
-        args.count, vehicle.label
+        "{} readings of {}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
+        j.readings, j.log, j.count, j.attitude_box
     )?;
-    write_attitudes(&mut w, &chosen, &field, &vehicle.field_source)?;
-    if let Some(flown) = &flown {
-        write_relative(&mut w, &chosen, field.yaw_offset_deg(), flown)?;
+    write_attitudes(w, j)?;
+    if let Some(r) = &j.relative_to_log {
+        writeln!(
+            w,
+            "  relative to the log's {} attitudes (heading clockwise from north, degrees):",
+            r.flown
+        )?;
+        for tilt in &r.tilts {
+            writeln!(w, "    {tilt}")?;
+        }
+        if let Some(enu) = &r.as_logged {
+            writeln!(
+                w,
+                "  as the log gives attitudes (ENU, body forward-left-up: roll, pitch, yaw counter-clockwise from east), in the table's order: {enu}"
+            )?;
+        }
     }
-    let (e_before, e_after) = (efficiency(&before, m), efficiency(&after, m + attitudes.len()));
-    write_information(&mut w, [&crb_before, &crb_after], factor, [e_before, e_after])?;
-    write_coverage_and_verdict(
-        &mut w,
-        [body_log, body_all],
-        (before_identifiable, &before_source),
-        &after_fit,
+    write_information(w, j)?;
+    writeln!(
+        w,
+        "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
+        j.motioncal_gap_percent_before,
+        j.motioncal_gap_percent_after,
+        j.microstrain_coverage_percent_before,
+        j.microstrain_coverage_percent_after
     )?;
-    to_stdout(|out| Ok(out.write_all(&w)?))
+    writeln!(
+        w,
+        "identifiable: before {}, after {} (full model; before: {}; after: the full fit of the log with the suggested readings simulated from the fitted sensor{})",
+        j.identifiable_before,
+        j.identifiable_after,
+        j.identifiable_before_source,
+        j.identifiable_after_why_not
+            .as_ref()
+            .map_or(String::new(), |why| format!(": {why}"))
+    )?;
+    Ok(())
 }
 
 /// The log's readings (in its units), the rows skipped, and whether the log was identifiable
@@ -277,41 +423,57 @@ fn table_rows(chosen: &[(magcal_core::Attitude, f64)]) -> Vec<(magcal_core::Atti
 }
 
 /// The attitudes to add as a pilot reads them: roll, pitch, true and magnetic heading, readings,
-/// and the variance of the linear model's prediction there; the same attitude chosen again is one
-/// row with its readings.
-fn write_attitudes(
-    w: &mut Vec<u8>,
-    chosen: &[(magcal_core::Attitude, f64)],
-    field: &magcal_core::ReferenceField,
-    field_source: &str,
-) -> Result<()> {
-    let rows = table_rows(chosen);
+/// the variance of the linear model's prediction there, and the direction of the field the
+/// sensor reads there; the same attitude chosen again is one row with its readings.
+fn attitude_rows(chosen: &[(magcal_core::Attitude, f64)], field: &magcal_core::ReferenceField) -> Vec<AttitudeJson> {
     // The headings a pilot reads: true, and magnetic from the declination of the vehicle's field.
     let headings = crate::output::Headings::of(field);
+    let rows = table_rows(chosen);
+    let attitudes: Vec<magcal_core::Attitude> = rows.iter().map(|r| r.0).collect();
+    let fields = field.body_fields(&attitudes);
+    rows.iter()
+        .zip(fields)
+        .enumerate()
+        .map(|(k, ((a, n, d), f))| {
+            let [roll, _, pitch] = a.to_degrees();
+            let length = magcal_core::small::norm(f);
+            AttitudeJson {
+                k: k + 1,
+                roll_deg: roll,
+                pitch_deg: pitch,
+                true_heading_deg: headings.true_heading(a).0,
+                magnetic_heading_deg: headings.magnetic_heading(a).map(|h| h.0),
+                readings: *n,
+                variance: *d,
+                field_direction: f.map(|c| c / length),
+            }
+        })
+        .collect()
+}
+
+/// The table of attitudes to add, under the line naming the declination.
+fn write_attitudes(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
     writeln!(
         w,
         "  {}",
-        crate::output::print::declination_line(headings.declination_deg, field_source)
+        crate::output::print::declination_line(j.declination_deg, &j.field_source)
     )?;
     writeln!(
         w,
         "  {:>4} {:>9} {:>9} {:>9} {:>9} {:>8} {:>12}",
         "k", "roll_deg", "pitch_deg", "true_hdg", "mag_hdg", "readings", "variance d"
     )?;
-    for (k, (a, n, d)) in rows.iter().enumerate() {
-        let [roll, _, pitch] = a.to_degrees();
+    for a in &j.attitudes {
         writeln!(
             w,
             "  {:>4} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>8} {:>12.4}",
-            k + 1,
-            roll,
-            pitch,
-            headings.true_heading(a).0,
-            headings
-                .magnetic_heading(a)
-                .map_or("-".to_string(), |h| format!("{:.2}", h.0)),
-            n,
-            d
+            a.k,
+            a.roll_deg,
+            a.pitch_deg,
+            a.true_heading_deg,
+            a.magnetic_heading_deg.map_or("-".to_string(), |h| format!("{h:.2}")),
+            a.readings,
+            a.variance
         )?;
     }
     Ok(())
@@ -362,12 +524,7 @@ fn tilt_words(roll: f64, pitch: f64) -> String {
 /// The attitudes to add relative to what the log flew: each as a tilt at headings, how far the
 /// nearest attitude the log flew lies, and (for a log in the ENU convention) the roll, pitch and
 /// yaw the log itself would show.
-fn write_relative(
-    w: &mut Vec<u8>,
-    chosen: &[(magcal_core::Attitude, f64)],
-    yaw_offset_deg: f64,
-    flown: &Flown,
-) -> Result<()> {
+fn relative(chosen: &[(magcal_core::Attitude, f64)], yaw_offset_deg: f64, flown: &Flown) -> RelativeJson {
     // Tilts rounded to a degree, each with its headings, in the order first chosen.
     let mut tilts: Vec<(String, Vec<String>, f64)> = Vec::new();
     let mut enu = Vec::new();
@@ -394,46 +551,58 @@ fn write_relative(
             enu.push(format!("({r:.1}, {p:.1}, {y:.1})"));
         }
     }
-    writeln!(
-        w,
-        "  relative to the log's {} attitudes (heading clockwise from north, degrees):",
-        flown.attitudes.len()
-    )?;
-    for (tilt, headings, nearest) in &tilts {
-        writeln!(
-            w,
-            "    {tilt} at heading{} {}: the log came within {nearest:.0} degrees of {}",
-            if headings.len() > 1 { "s" } else { "" },
-            headings.join(", "),
-            if headings.len() > 1 { "each" } else { "it" }
-        )?;
+    RelativeJson {
+        flown: flown.attitudes.len(),
+        tilts: tilts
+            .iter()
+            .map(|(tilt, headings, nearest)| {
+                format!(
+                    "{tilt} at heading{} {}: the log came within {nearest:.0} degrees of {}",
+                    if headings.len() > 1 { "s" } else { "" },
+                    headings.join(", "),
+                    if headings.len() > 1 { "each" } else { "it" }
+                )
+            })
+            .collect(),
+        as_logged: (!enu.is_empty()).then(|| enu.join(", ")),
     }
-    if !enu.is_empty() {
-        writeln!(
-            w,
-            "  as the log gives attitudes (ENU, body forward-left-up: roll, pitch, yaw counter-clockwise from east), in the table's order: {}",
-            enu.join(", ")
-        )?;
-    }
-    Ok(())
+}
+
+/// The standard error of each parameter before and after the added readings, the bias in the
+/// log's units (`factor` turns those into nT).
+fn parameters(crb: &[CramerRao; 2], factor: f64) -> Vec<ParameterJson> {
+    let names = magcal_core::identifiability::PARAMETERS;
+    (0..9)
+        .map(|i| {
+            let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
+            let std = |c: &CramerRao| c.std.map(|s| s[i] * unit);
+            ParameterJson {
+                name: names[i].trim_end_matches("_nt").to_string(),
+                std_before: std(&crb[0]),
+                std_after: std(&crb[1]),
+            }
+        })
+        .collect()
 }
 
 /// The standard error of each parameter before and after the added readings, and the certified
 /// D-efficiency of the log before and after.
-fn write_information(w: &mut Vec<u8>, crb: [&CramerRao; 2], factor: f64, efficiency: [Option<f64>; 2]) -> Result<()> {
-    let [crb_before, crb_after] = crb;
-    let [e_before, e_after] = efficiency;
-    let names = magcal_core::identifiability::PARAMETERS;
+fn write_information(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
+    let (e_before, e_after) = (j.d_efficiency_before, j.d_efficiency_after);
     writeln!(
         w,
         "\n  {:<10} {:>14} {:>14}  (bias in the log's units)",
         "parameter", "std before", "std after"
     )?;
-    for i in 0..9 {
-        let unit = if i >= 6 { 1.0 / factor } else { 1.0 };
-        let show = |c: &CramerRao| c.std.map_or("singular".to_string(), |s| format!("{:.4e}", s[i] * unit));
-        let name = names[i].trim_end_matches("_nt");
-        writeln!(w, "  {name:<10} {:>14} {:>14}", show(crb_before), show(crb_after))?;
+    for p in &j.parameters {
+        let show = |s: Option<f64>| s.map_or("singular".to_string(), |s| format!("{s:.4e}"));
+        writeln!(
+            w,
+            "  {:<10} {:>14} {:>14}",
+            p.name,
+            show(p.std_before),
+            show(p.std_after)
+        )?;
     }
     writeln!(
         w,
@@ -452,36 +621,5 @@ fn write_information(w: &mut Vec<u8>, crb: [&CramerRao; 2], factor: f64, efficie
             "  above 1 is no efficiency: the certificate bounds designs inside the box, and these readings hold more information per reading than any of them, so they come from attitudes outside it"
         )?;
     }
-    Ok(())
-}
-
-/// The coverage of field directions before and after, and whether the full model is identifiable
-/// before (and on what that rests) and after (the full fit of the log with the added readings).
-fn write_coverage_and_verdict(
-    w: &mut Vec<u8>,
-    body: [&[Vec3]; 2],
-    before: (bool, &str),
-    after_fit: &Result<log_fit::LogFit, magcal_core::CalibrationError>,
-) -> Result<()> {
-    let [body_log, body_all] = body;
-    let (before_identifiable, before_source) = before;
-    writeln!(
-        w,
-        "coverage: MotionCal gaps before {:.1} %, after {:.1} %; MicroStrain spatial coverage before {:.1} %, after {:.1} %",
-        log_fit::motioncal_gaps(body_log),
-        log_fit::motioncal_gaps(body_all),
-        log_fit::microstrain_coverage_percent(body_log),
-        log_fit::microstrain_coverage_percent(body_all)
-    )?;
-    let after_identifiable = after_fit.as_ref().is_ok_and(|f| f.identifiable);
-    writeln!(
-        w,
-        "identifiable: before {before_identifiable}, after {after_identifiable} (full model; before: {before_source}; after: the full fit of the log with the suggested readings simulated from the fitted sensor{})",
-        match after_fit {
-            Ok(f) if !f.identifiable => format!(": {}", f.verdict),
-            Ok(_) => String::new(),
-            Err(e) => format!(": {e}"),
-        }
-    )?;
     Ok(())
 }

@@ -318,6 +318,16 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
+/// Whether two outputs name one file: the same file, or the same name in the same directory
+/// (where the file does not exist yet).
+pub fn one_output(a: &Path, b: &Path) -> bool {
+    let place = |p: &Path| -> Option<(PathBuf, std::ffi::OsString)> {
+        let (parent, name) = split(p).ok()?;
+        Some((parent.canonicalize().ok()?, name.into()))
+    };
+    same_file(a, b) || matches!((place(a), place(b)), (Some(x), Some(y)) if x == y)
+}
+
 /// Removes the temporaries of `name` that processes no longer running left in `parent`.
 fn remove_stale_temporaries(parent: &Path, name: &str) {
     let Ok(entries) = std::fs::read_dir(parent) else {

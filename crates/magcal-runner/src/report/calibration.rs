@@ -6,12 +6,13 @@
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-use magcal_core::log_fit::{motioncal_region, motioncal_region_counts};
+use magcal_core::log_fit::motioncal_region_counts;
 use plotly::common::{ColorBar, ColorScale, ColorScalePalette, Marker, Mode, Title};
 use plotly::layout::{AspectMode, Axis, LayoutScene};
-use plotly::{HeatMap, Layout, Mesh3D, Plot, Scatter3D};
+use plotly::{HeatMap, Layout, Plot, Scatter3D};
 use serde_json::json;
 
+use super::sphere::{coverage_plot, mesh};
 use super::{Cell, Page, Table, drawn, thin, thinned_note};
 use crate::log::calibration::{CalibrationJson, read_calibration};
 use crate::output::log_rows::ResidualRow;
@@ -253,13 +254,6 @@ pub(super) fn unit_sphere(lat: usize, lon: usize) -> (Vec<[f64; 3]>, Vec<[usize;
     (points, triangles)
 }
 
-/// The columns of `points` and of `triangles`, as plotly's mesh takes them.
-fn mesh(points: &[[f64; 3]], triangles: &[[usize; 3]]) -> Box<Mesh3D<f64, f64, f64>> {
-    let col = |i: usize| points.iter().map(|p| drawn(p[i])).collect::<Vec<f64>>();
-    let tri = |i: usize| Some(triangles.iter().map(|t| t[i]).collect::<Vec<usize>>());
-    Mesh3D::new(col(0), col(1), col(2), tri(0), tri(1), tri(2))
-}
-
 fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], shown: &[usize], units: &str) -> Plot {
     let pick = |f: fn(&ResidualRow) -> f64| shown.iter().map(|&i| drawn(f(&rows[i]))).collect::<Vec<f64>>();
     let lines: Vec<String> = shown.iter().map(|&i| format!("line {}", rows[i].line)).collect();
@@ -377,63 +371,4 @@ fn residual_map(rows: &[ResidualRow]) -> Plot {
 fn coverage_counts(rows: &[ResidualRow]) -> [usize; 100] {
     let fields: Vec<[f64; 3]> = rows.iter().map(|r| [r.x.0, r.y.0, r.z.0]).collect();
     motioncal_region_counts(&fields)
-}
-
-/// The colour of a MotionCal region of `count` readings: red none, orange one, yellow two, green
-/// three or more.
-pub fn region_colour(count: usize) -> &'static str {
-    match count {
-        0 => "#d62728",
-        1 => "#ff7f0e",
-        2 => "#f2c94c",
-        _ => "#2ca02c",
-    }
-}
-
-/// The 100 regions as one mesh (one WebGL draw, not a hundred): each region a patch of 4 x 6
-/// cells of its own vertices, every triangle coloured by the region's count, every vertex
-/// hovering its region.
-fn coverage_plot(counts: &[usize; 100]) -> Plot {
-    let (lats, lons) = (4usize, 6usize);
-    let mut points = Vec::new();
-    let mut triangles = Vec::new();
-    let mut colours = Vec::new();
-    let mut hover = Vec::new();
-    for (index, &count) in counts.iter().enumerate() {
-        let region = motioncal_region(index);
-        let first = points.len();
-        for a in 0..=lats {
-            let s = region.sin_latitude[0] + (region.sin_latitude[1] - region.sin_latitude[0]) * a as f64 / lats as f64;
-            let c = (1.0 - s * s).max(0.0).sqrt();
-            for b in 0..=lons {
-                let t = region.turn[0] + (region.turn[1] - region.turn[0]) * b as f64 / lons as f64;
-                let phi = std::f64::consts::TAU * t;
-                points.push([drawn(c * phi.cos()), drawn(c * phi.sin()), drawn(s)]);
-                hover.push(format!("region {index}: {count} readings"));
-            }
-        }
-        for a in 0..lats {
-            for b in 0..lons {
-                let p = first + a * (lons + 1) + b;
-                triangles.push([p, p + 1, p + lons + 1]);
-                triangles.push([p + 1, p + lons + 2, p + lons + 1]);
-                colours.extend([region_colour(count); 2]);
-            }
-        }
-    }
-    let patches = mesh(&points, &triangles)
-        .face_color(colours)
-        .hover_text_array(hover)
-        .hover_info(plotly::common::HoverInfo::Text)
-        .name("regions")
-        .flat_shading(true);
-    let mut plot = Plot::new();
-    plot.add_trace(patches);
-    plot.set_layout(
-        Layout::new()
-            .show_legend(false)
-            .scene(LayoutScene::new().aspect_mode(AspectMode::Data))
-            .margin(plotly::layout::Margin::new().left(0).right(0).top(30).bottom(0)),
-    );
-    plot
 }

@@ -14,6 +14,9 @@ pub mod calibration;
 pub mod replay;
 pub mod plan;
 pub mod run;
+pub mod evaluate;
+pub mod next;
+pub mod sphere;
 
 use std::path::Path;
 

@@ -22,6 +22,8 @@ mod replay;
 mod report;
 mod report_replay;
 mod report_run;
+mod report_evaluate;
+mod report_next;
 mod result_set;
 mod tlog;
 mod ulog;

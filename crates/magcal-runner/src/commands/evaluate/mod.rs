@@ -24,7 +24,7 @@ use super::Failure;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
 use crate::log::flight::Format;
 use crate::log::source::{self, Log, LogArgs};
-use crate::output::file::{Output, replace_with, to_stdout};
+use crate::output::file::{Output, replace, replace_with, to_stdout};
 use crate::output::stderr::to_stderr;
 
 pub use report::{CellJson, ErrorRow, EvaluationJson, FiguresJson, RowsJson};
@@ -65,6 +65,11 @@ pub struct EvaluateArgs {
     /// file, replaced whole (never an input).
     #[arg(long, value_name = "FILE.csv")]
     pub errors: Option<PathBuf>,
+    /// Also write one self-contained HTML page of the evaluation to this file (replaced whole;
+    /// never an input nor the `--errors` file): heading error against time, heading and tilt,
+    /// its histogram, the errors per heading sector and tilt band, and the figures in tables.
+    #[arg(long, value_name = "FILE.html")]
+    pub report: Option<PathBuf>,
 }
 
 /// Runs `evaluate`.
@@ -103,6 +108,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         Some(p) => Some(Output::File(p.clone())),
         None => None,
     };
+    let report_out = page_output(args.report.as_deref(), &inputs, args.errors.as_deref())?;
     if let Some(out) = &errors_out {
         out.check(&inputs).context("--errors")?;
     }
@@ -152,6 +158,12 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         let rows = report::error_rows(&used, fits.calibrated.as_ref().unwrap_or(&fits.raw), &fits.raw);
         replace_with(path, &inputs, |w| crate::output::write_csv(rows, w)).context("--errors")?;
     }
+    if let Some(path) = &report_out {
+        let html = page_html(&json, &used, &fits)?;
+        let mut others = inputs.clone();
+        others.extend(args.errors.as_deref());
+        replace(path, &others, html.as_bytes()).context("--report")?;
+    }
     to_stdout(|w| {
         if args.json {
             serde_json::to_writer_pretty(&mut *w, &json)?;
@@ -163,6 +175,45 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
     })?;
     warn(&log, cal.as_ref().zip(cal_shown.as_deref()));
     Ok(())
+}
+
+/// The path of `--report`, checked before any work: a file (not `-`) that may be replaced and is
+/// none of `inputs` nor the `--errors` file.
+fn page_output(report: Option<&Path>, inputs: &[&Path], errors: Option<&Path>) -> Result<Option<PathBuf>> {
+    let Some(path) = report else {
+        return Ok(None);
+    };
+    if path == Path::new("-") {
+        bail!("--report -: give a file (standard output carries the report)");
+    }
+    if let Some(errors) = errors
+        && crate::output::file::one_output(path, errors)
+    {
+        bail!(
+            "--report {}: the same file as --errors {}: give the page another path",
+            path.display(),
+            errors.display()
+        );
+    }
+    Output::File(path.to_path_buf()).check(inputs).context("--report")?;
+    Ok(Some(path.to_path_buf()))
+}
+
+/// The page of `--report`: the evaluation `json`, every reading's heading error counted and
+/// at most [`crate::report::evaluate::MAX_DRAWN`] of them drawn.
+fn page_html(json: &EvaluationJson, used: &Used, fits: &Fits) -> Result<String> {
+    let judged = fits.calibrated.as_ref().unwrap_or(&fits.raw);
+    let shown = crate::report::thin(used.raw.len(), crate::report::evaluate::MAX_DRAWN);
+    let drawn: Vec<ErrorRow> = shown
+        .into_iter()
+        .map(|t| report::error_row(used, judged, &fits.raw, t))
+        .collect();
+    let readings = crate::report::evaluate::Readings {
+        drawn: &drawn,
+        heading_error_deg: &judged.heading_deg,
+        raw_heading_error_deg: fits.calibrated.as_ref().map(|_| &fits.raw.heading_deg[..]),
+    };
+    crate::report::evaluate::page(json, &readings)?.render()
 }
 
 /// The log at `path`, read as `apply` reads it for a calibration `cal` (named `.1`), or as given

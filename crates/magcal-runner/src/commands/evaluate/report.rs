@@ -1,19 +1,19 @@
-//! What `evaluate` reports: one JSON object ([`EvaluationJson`], `--json`), the text report made
-//! from it, and the per-reading rows of `--errors` ([`ErrorRow`]).
+//! What `evaluate` reports, made from its fits: one JSON object ([`EvaluationJson`], `--json`),
+//! the text report made from it, and the per-reading rows of `--errors` ([`ErrorRow`]); the
+//! types, and the page of `--report`, are in [`crate::report::evaluate`].
 
 use std::io::Write;
 
-use magcal_core::Vec3;
 use magcal_core::aviation::NavFrame;
 use magcal_core::reference::{Alignment, ErrorSummary, axis_angle, cell_summaries};
-use magcal_core::small::{Mat3, norm};
-use serde::{Deserialize, Serialize};
+use magcal_core::small::norm;
 
 use super::{Fits, SECTOR_DEG, TILT_BANDS_DEG, Used};
 use crate::commands::calibrate::heading::against;
 use crate::log::calibration::CalibrationJson;
 use crate::log::source::Log;
 use crate::output::Real;
+pub use crate::report::evaluate::{CellJson, ErrorRow, EvaluationJson, FiguresJson, RowsJson};
 
 /// What was evaluated, for the report's header.
 pub struct Source<'a> {
@@ -21,105 +21,6 @@ pub struct Source<'a> {
     pub log_shown: &'a str,
     pub cal: Option<&'a CalibrationJson>,
     pub cal_shown: Option<&'a str>,
-}
-
-/// `evaluate --json`: every figure the text report prints.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct EvaluationJson {
-    pub log: String,
-    /// SHA-256 of the log's bytes as read.
-    pub log_sha256: String,
-    /// The calibration file; `null` with `--raw`.
-    pub calibration: Option<String>,
-    /// The readings' unit where known (the calibration's `--units`, a flight log's own).
-    pub units: Option<String>,
-    /// What the attitudes are, in words.
-    pub against: String,
-    /// The frames of `rotation` and `field`, in words.
-    pub frames: String,
-    pub rows: RowsJson,
-    /// Width of the heading sectors of `by_heading`, degrees.
-    pub sector_deg: f64,
-    /// Bounds of the tilt bands of `by_tilt`, degrees.
-    pub tilt_bands_deg: Vec<f64>,
-    /// The calibrated readings `P (raw - bias)`; `null` with `--raw`.
-    pub calibrated: Option<FiguresJson>,
-    /// The calibrated readings with `Q` held at the calibration's alignment (a vector
-    /// calibration's) and only `F` fitted; `null` without one.
-    pub calibrated_aligned: Option<FiguresJson>,
-    /// The raw readings taken as calibrated.
-    pub uncalibrated: FiguresJson,
-}
-
-/// What was read and what was used.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct RowsJson {
-    /// Readings read (after `--where`, `--skip-bad`, `--from`, `--to` and `--rate`).
-    pub readings: usize,
-    /// Readings with an attitude: those evaluated.
-    pub used: usize,
-    /// Readings without an attitude (an empty or non-finite attitude cell, no attitude sample
-    /// near them in time).
-    pub without_attitude: usize,
-    /// Rows skipped for a bad value (`--skip-bad`).
-    pub skipped: usize,
-    /// Rows left out by `--where`.
-    pub left_out_by_where: usize,
-    /// What the reader and the cut say about the log, one sentence each.
-    pub notes: Vec<String>,
-}
-
-/// The figures of one set of readings, degrees unless said.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct FiguresJson {
-    pub heading_rms_deg: f64,
-    pub heading_p95_deg: f64,
-    pub heading_max_deg: f64,
-    pub direction_rms_deg: f64,
-    /// `Q`, calibrated frame into body frame (rows).
-    pub rotation: Mat3,
-    /// `Q`'s angle and axis (a unit vector in the body frame).
-    pub rotation_angle_deg: f64,
-    pub rotation_axis: Vec3,
-    /// `F` in the reference frame, the readings' units; its magnitude and dip (positive where
-    /// the field points below the horizontal).
-    pub field: Vec3,
-    pub field_magnitude: f64,
-    pub field_dip_deg: f64,
-    /// The errors per heading sector of the body, from 0 in steps of `sector_deg`.
-    pub by_heading: Vec<CellJson>,
-    /// The errors per tilt band.
-    pub by_tilt: Vec<CellJson>,
-}
-
-/// The errors of the readings in one cell; the figures are `null` in an empty cell.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct CellJson {
-    pub from_deg: f64,
-    pub to_deg: f64,
-    pub readings: usize,
-    pub heading_rms_deg: Option<f64>,
-    pub heading_max_deg: Option<f64>,
-    pub direction_rms_deg: Option<f64>,
-}
-
-/// `evaluate --errors`: one row per reading evaluated. The attitude in the NED convention
-/// (heading clockwise from the reference frame's north), the tilt between body up and up, and
-/// the errors of the calibrated readings (of the raw ones with `--raw`) and of the raw ones.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-pub struct ErrorRow {
-    /// The reading's line in a CSV log, its message's byte offset in a flight log.
-    pub line: usize,
-    /// Seconds on the log's clock; empty where the log has no times.
-    pub time_s: Option<Real>,
-    pub roll_deg: Real,
-    pub pitch_deg: Real,
-    pub heading_deg: Real,
-    pub tilt_deg: Real,
-    pub heading_error_deg: Real,
-    pub direction_error_deg: Real,
-    pub raw_heading_error_deg: Real,
-    pub raw_direction_error_deg: Real,
 }
 
 impl EvaluationJson {
@@ -210,21 +111,24 @@ pub fn error_rows<'a>(
     judged: &'a Alignment,
     raw: &'a Alignment,
 ) -> impl Iterator<Item = ErrorRow> + 'a {
-    (0..used.raw.len()).map(move |t| {
-        let [roll, pitch, heading] = used.roll_pitch_heading[t];
-        ErrorRow {
-            line: used.lines[t],
-            time_s: used.times.as_ref().map(|v| Real(v[t])),
-            roll_deg: Real(roll),
-            pitch_deg: Real(pitch),
-            heading_deg: Real(heading),
-            tilt_deg: Real(used.tilt[t]),
-            heading_error_deg: Real(judged.heading_deg[t]),
-            direction_error_deg: Real(judged.direction_deg[t]),
-            raw_heading_error_deg: Real(raw.heading_deg[t]),
-            raw_direction_error_deg: Real(raw.direction_deg[t]),
-        }
-    })
+    (0..used.raw.len()).map(move |t| error_row(used, judged, raw, t))
+}
+
+/// The row of `--errors` of reading `t` of `used`.
+pub fn error_row(used: &Used, judged: &Alignment, raw: &Alignment, t: usize) -> ErrorRow {
+    let [roll, pitch, heading] = used.roll_pitch_heading[t];
+    ErrorRow {
+        line: used.lines[t],
+        time_s: used.times.as_ref().map(|v| Real(v[t])),
+        roll_deg: Real(roll),
+        pitch_deg: Real(pitch),
+        heading_deg: Real(heading),
+        tilt_deg: Real(used.tilt[t]),
+        heading_error_deg: Real(judged.heading_deg[t]),
+        direction_error_deg: Real(judged.direction_deg[t]),
+        raw_heading_error_deg: Real(raw.heading_deg[t]),
+        raw_direction_error_deg: Real(raw.direction_deg[t]),
+    }
 }
 
 /// A figure to 4 decimals, `-` for none.
@@ -257,11 +161,7 @@ pub fn print(w: &mut dyn Write, j: &EvaluationJson) -> std::io::Result<()> {
         "{:<16}{:>13}{:>13}{:>13}{:>15}   (degrees)",
         "", "heading rms", "heading p95", "heading max", "direction rms"
     )?;
-    let sets: Vec<(&str, &FiguresJson)> = [("calibrated", &j.calibrated), ("aligned", &j.calibrated_aligned)]
-        .into_iter()
-        .filter_map(|(name, f)| Some((name, f.as_ref()?)))
-        .chain([("uncalibrated", &j.uncalibrated)])
-        .collect();
+    let sets = j.sets();
     for (name, f) in &sets {
         writeln!(
             w,
