@@ -13,7 +13,8 @@ use crate::output::file::{replace, to_stdout};
 /// `magcal report`.
 #[derive(Debug, Args)]
 pub struct ReportArgs {
-    /// A result: a `calibrate --out` directory.
+    /// A result set: a `calibrate --out`, `replay`, `design` or `run` directory (the pages of
+    /// `next` and `evaluate` come from their own `--report FILE.html`).
     pub result: PathBuf,
     /// The HTML file to write (replaced whole; not inside a result set).
     #[arg(long, value_name = "FILE.html")]

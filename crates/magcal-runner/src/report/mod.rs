@@ -11,11 +11,11 @@
 
 pub mod attitudes;
 pub mod calibration;
-pub mod replay;
-pub mod plan;
-pub mod run;
 pub mod evaluate;
 pub mod next;
+pub mod plan;
+pub mod replay;
+pub mod run;
 pub mod sphere;
 
 use std::path::Path;

@@ -8,7 +8,7 @@
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use headless_chrome::protocol::cdp::Network;
@@ -16,8 +16,25 @@ use headless_chrome::protocol::cdp::Page::CaptureScreenshotFormatOption;
 use headless_chrome::protocol::cdp::types::Event;
 use headless_chrome::{Browser, LaunchOptions, Tab};
 
-/// The browser, or `None` (with a note) where it is not installed and CI is not set.
-pub fn chromium() -> Option<Browser> {
+/// The browser of one test at a time: Chromium drawing WebGL in software takes both cores of a
+/// CI machine, and two at once miss their time limits.
+pub struct Chromium {
+    browser: Browser,
+    _turn: MutexGuard<'static, ()>,
+}
+
+impl std::ops::Deref for Chromium {
+    type Target = Browser;
+    fn deref(&self) -> &Browser {
+        &self.browser
+    }
+}
+
+static TURN: Mutex<()> = Mutex::new(());
+
+/// The browser, or `None` (with a note) where it is not installed and CI is not set; it waits
+/// while another test holds one.
+pub fn chromium() -> Option<Chromium> {
     let path = std::env::var_os("MAGCAL_CHROMIUM").map_or_else(|| PathBuf::from("/usr/bin/chromium"), PathBuf::from);
     if !path.exists() {
         assert!(
@@ -28,6 +45,8 @@ pub fn chromium() -> Option<Browser> {
         eprintln!("skipped: no browser at {} (apt-get install chromium)", path.display());
         return None;
     }
+    // A test that failed while holding the browser poisons the lock; the next may still go.
+    let turn = TURN.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     let args: Vec<&OsStr> = [
         "--use-angle=swiftshader",
         "--enable-unsafe-swiftshader",
@@ -49,7 +68,10 @@ pub fn chromium() -> Option<Browser> {
         .args(args)
         .build()
         .expect("launch options");
-    Some(Browser::new(options).expect("Chromium starts"))
+    Some(Chromium {
+        browser: Browser::new(options).expect("Chromium starts"),
+        _turn: turn,
+    })
 }
 
 /// A page opened in the browser, and what it did while loading.
