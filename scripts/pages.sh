@@ -35,12 +35,22 @@ if [ -f "$data/hamagure/data-set_1.csv" ]; then
   $magcal report "$work/cal-hamagure" --out "$out/calibration-hamagure.html"
 fi
 broad="$data/broad/02_undisturbed_slow_rotation_B.csv"
+# BROAD trial 02 while it moves, attitudes from the motion capture.
+read_broad=(--where movement=1 --columns mx,my,mz --time t_s --quaternion qw,qx,qy,qz --attitude-frame enu)
 if [ -f "$broad" ]; then
-  # The moving readings with an attitude (the trial's `movement` flag, a capture quaternion).
-  awk -F, 'NR == 1 || ($NF == 1 && $11 != "")' "$broad" > "$work/broad02.csv"
-  $magcal calibrate "$work/broad02.csv" --columns mx,my,mz --quaternion qw,qx,qy,qz \
-    --attitude-frame enu --units uT --scenario scenarios/wu2014.toml --out "$work/cal-broad02" >/dev/null || [ $? -eq 3 ]
+  $magcal calibrate "$broad" "${read_broad[@]}" --units uT --scenario scenarios/wu2014.toml --out "$work/cal-broad02" >/dev/null || [ $? -eq 3 ]
   $magcal report "$work/cal-broad02" --out "$out/calibration-broad02.html"
+fi
+
+echo "== next and evaluate"
+if [ -f "$data/hamagure/data-set_2.csv" ]; then
+  $magcal calibrate "$data/hamagure/data-set_2.csv" --out "$work/cal-hamagure-2" >/dev/null || [ $? -eq 3 ]
+  $magcal next "$work/cal-hamagure-2/calibration.json" "$data/hamagure/data-set_2.csv" \
+    --scenario scenarios/drone.toml --report "$out/next-hamagure-2.html" >/dev/null 2>&1
+fi
+if [ -f "$broad" ]; then
+  $magcal evaluate "$work/cal-broad02/calibration.json" "$broad" "${read_broad[@]}" \
+    --report "$out/evaluate-broad02.html" >/dev/null
 fi
 
 if [ "$shots" = 1 ]; then
@@ -54,5 +64,11 @@ if [ "$shots" = 1 ]; then
   shot calibration-broad02.html raw-box calibration-raw
   shot calibration-broad02.html coverage-box calibration-coverage
   shot calibration-broad02.html roll-pitch-box calibration-attitudes
+  shot next-hamagure-2.html coverage-box next-coverage
+  shot next-hamagure-2.html attitudes next-attitudes
+  shot evaluate-broad02.html error-heading-box evaluate-heading
+  shot replay-handheld-02.html dist-heading-rms-deg-box replay-heading-rms
+  shot wu2014.html plan-box design-plan
+  shot noise-sweep.html sweep-box run-noise-sweep
 fi
 ls -l "$out"
