@@ -1,10 +1,14 @@
-//! How long a report page takes to open in the headless Chromium of the browser tests, from the
-//! navigation to the first screen drawn (the target: 2 s) and to every figure drawn: a calibration of a public CSV log,
-//! the calibration of 12,000 readings of BROAD trial 02 with attitudes against the AUV box, and
-//! the pages of the shipped result sets. Without Chromium (`/usr/bin/chromium` or
-//! `MAGCAL_CHROMIUM`) it says so and measures nothing.
+//! How long a report page takes to open in the headless Chromium of the browser tests, on the
+//! page's own clock from the navigation: to its text painted, to its first screen shown whole
+//! (text and the figures on it; the target: 2 s), to its first figure drawn wherever it is, and to
+//! every figure drawn, scrolled through.
+//! Pages: a calibration of a public CSV log, the calibration of 12,000 readings of BROAD trial 02
+//! with attitudes against the AUV box, and three shipped result sets (a run, a design, a
+//! replay). Without Chromium (`/usr/bin/chromium` or `MAGCAL_CHROMIUM`) it says so and measures
+//! nothing.
 //!
-//! `cargo bench -p magcal-runner --bench pages`
+//! `cargo bench -p magcal-runner --bench pages [ID...]` prints the medians and ranges of 10 opens
+//! of each page (criterion would open each page again for every quantity).
 
 #[path = "../tests/it/browser.rs"]
 #[allow(dead_code)]
@@ -14,8 +18,6 @@ use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
-
-use criterion::{Criterion, criterion_group, criterion_main};
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -100,41 +102,78 @@ fn pages(dir: &Path) -> Vec<(String, PathBuf)> {
         run(&args);
         report("calibration_broad02_12000", &set);
     }
+    // The shipped sets: the paper's run (its SVG figures inlined), a design set's flight plans and
+    // a replay of BROAD trial 02.
+    for (id, set) in [
+        ("run_wu2014", "wu2014"),
+        ("design_ship", "ship"),
+        ("replay_auv_02", "replay-auv-02"),
+    ] {
+        report(id, &root().join("results").join(set));
+    }
     pages
 }
 
-fn open_pages(c: &mut Criterion) {
+/// Opens of each page; every open gives all three times, so one pass measures them together.
+const OPENS: usize = 10;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn main() {
+    // `cargo bench` passes `--bench`; a filter word selects pages by id.
+    let filter: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
     let Some(chrome) = browser::chromium() else { return };
     let tmp = std::env::temp_dir().join(format!("magcal-bench-pages-{}", std::process::id()));
     std::fs::create_dir_all(&tmp).unwrap();
-    let pages = pages(&tmp);
-    // A page draws its figures as they come near the screen: "first_screen" is the time a reader
-    // waits before the page shows, "every_figure" the time to scroll through all of it.
-    for (group_name, all) in [("first_screen", false), ("every_figure", true)] {
-        let mut group = c.benchmark_group(group_name);
-        group.sample_size(10);
-        for (id, page) in &pages {
-            if !all {
-                let bytes = std::fs::metadata(page).map_or(0, |m| m.len());
-                eprintln!("{id}: {:.1} MB", bytes as f64 / 1e6);
-            }
-            group.bench_function(id.as_str(), |b| {
-                b.iter_custom(|iters| {
-                    (0..iters)
-                        .map(|_| {
-                            let opened = browser::open(&chrome, page, Duration::from_secs(120));
-                            assert!(opened.errors.is_empty(), "{:?}", opened.errors);
-                            let _ = opened.tab.close(true);
-                            Duration::from_secs_f64(if all { opened.seconds } else { opened.first_screen })
-                        })
-                        .sum()
-                });
-            });
+    println!(
+        "{:<26} {:>4} | medians of {OPENS} opens, seconds from the navigation (min-max)",
+        "page", "MB"
+    );
+    println!(
+        "{:<26} {:>4} | {:<17} {:<17} {:<17} {:<17}",
+        "", "", "text painted", "first screen", "first figure", "every figure"
+    );
+    for (id, page) in pages(&tmp) {
+        if !filter.is_empty() && !filter.iter().any(|f| id.contains(f.as_str())) {
+            continue;
         }
-        group.finish();
+        let mb = std::fs::metadata(&page).map_or(0, |m| m.len()) as f64 / 1e6;
+        let mut times = [Vec::new(), Vec::new(), Vec::new(), Vec::new()];
+        for _ in 0..OPENS {
+            let opened = browser::open(&chrome, &page, Duration::from_secs(120));
+            assert!(opened.errors.is_empty(), "{id}: {:?}", opened.errors);
+            let _ = opened.tab.close(true);
+            for (t, v) in times.iter_mut().zip([
+                opened.painted,
+                opened.first_screen,
+                opened.first_figure.unwrap_or(f64::NAN),
+                opened.seconds,
+            ]) {
+                t.push(v);
+            }
+        }
+        let cell = |v: &Vec<f64>| {
+            let (lo, hi) = (
+                v.iter().copied().fold(f64::INFINITY, f64::min),
+                v.iter().copied().fold(0.0, f64::max),
+            );
+            format!("{:.2} ({:.2}-{:.2})", median(v.clone()), lo, hi)
+        };
+        println!(
+            "{id:<26} {mb:>4.1} | {:<17} {:<17} {:<17} {:<17}",
+            cell(&times[0]),
+            cell(&times[1]),
+            cell(&times[2]),
+            cell(&times[3])
+        );
     }
     let _ = std::fs::remove_dir_all(&tmp);
 }
-
-criterion_group!(benches, open_pages);
-criterion_main!(benches);

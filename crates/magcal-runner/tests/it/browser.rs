@@ -81,9 +81,16 @@ pub struct Opened {
     pub errors: Vec<String>,
     /// Every URL the page asked for, the page's own file included.
     pub requests: Vec<String>,
-    /// From the navigation to the page loaded and the figures of its first screen drawn, seconds.
+    /// From the navigation to the page's text first painted, on the page's clock, seconds.
+    pub painted: f64,
+    /// From the navigation to the first screen shown whole (its text painted and its figures
+    /// drawn), on the page's clock, seconds.
     pub first_screen: f64,
-    /// From the navigation to every figure drawn, scrolled to one after another, seconds.
+    /// From the navigation to the first figure drawn, wherever it is on the page, on the page's
+    /// clock, seconds (`None` for a page without figures).
+    pub first_figure: Option<f64>,
+    /// From the navigation to every figure drawn, scrolled to one after another, on the page's
+    /// clock, seconds.
     pub seconds: f64,
 }
 
@@ -199,9 +206,35 @@ pub fn open(browser: &Browser, page: &Path, limit: Duration) -> Opened {
         }
     };
     within(
-        "document.readyState === 'complete' && Array.from(document.querySelectorAll('.plotly-graph-div')).filter(d => d.getBoundingClientRect().top < window.innerHeight).every(d => d._fullLayout !== undefined)",
+        "document.readyState === 'complete' && Array.from(document.querySelectorAll('.plotly-graph-div')).filter(d => d.getBoundingClientRect().top < window.innerHeight).every(d => performance.getEntriesByName('magcal-drawn ' + d.id).length > 0)",
     );
-    let first_screen = started.elapsed().as_secs_f64();
+    // The page's own clock, from the navigation: the first contentful paint, and the drawing of
+    // each figure of the first screen (the page marks it); the later of them is when a reader
+    // sees the first screen whole. The tab's set-up over the DevTools protocol is not counted.
+    let clock = tab
+        .evaluate(
+            "(() => { const fcp = performance.getEntriesByName('first-contentful-paint')[0]; \
+             const drawn = Array.from(document.querySelectorAll('.plotly-graph-div')) \
+               .filter(d => d.getBoundingClientRect().top < window.innerHeight) \
+               .map(d => performance.getEntriesByName('magcal-drawn ' + d.id)[0]); \
+             if (!fcp || drawn.some(m => !m)) { return null; } \
+             return JSON.stringify([fcp.startTime / 1000, \
+               Math.max(fcp.startTime, ...drawn.map(m => m.startTime)) / 1000]); })()",
+            false,
+        )
+        .ok()
+        .and_then(|r| r.value)
+        .and_then(|v| serde_json::from_str::<serde_json::Value>(v.as_str()?).ok());
+    let Some([painted, first_screen]) = clock
+        .as_ref()
+        .and_then(|v| v.as_array())
+        .and_then(|a| Some([a.first()?.as_f64()?, a.get(1)?.as_f64()?]))
+    else {
+        panic!(
+            "{}: no first contentful paint, or a figure of the first screen without its mark",
+            page.display()
+        )
+    };
     let figures = tab
         .evaluate("document.querySelectorAll('.plotly-graph-div').length", false)
         .ok()
@@ -214,11 +247,25 @@ pub fn open(browser: &Browser, page: &Path, limit: Duration) -> Opened {
             false,
         );
         within(&format!(
-            "document.querySelectorAll('.plotly-graph-div')[{k}]._fullLayout !== undefined"
+            "performance.getEntriesByName('magcal-drawn ' + document.querySelectorAll('.plotly-graph-div')[{k}].id).length > 0"
         ));
     }
+    let seconds = tab
+        .evaluate("performance.now() / 1000", false)
+        .ok()
+        .and_then(|r| r.value)
+        .and_then(|v| v.as_f64())
+        .expect("the page's clock");
+    let first_figure = tab
+        .evaluate(
+            "Math.min(...performance.getEntriesByType('mark').filter(m => m.name.startsWith('magcal-drawn ')).map(m => m.startTime)) / 1000",
+            false,
+        )
+        .ok()
+        .and_then(|r| r.value)
+        .and_then(|v| v.as_f64())
+        .filter(|t| t.is_finite());
     let _ = tab.evaluate("window.scrollTo(0, 0)", false);
-    let seconds = started.elapsed().as_secs_f64();
     // Let WebGL finish its first frame before anyone looks.
     std::thread::sleep(Duration::from_millis(300));
     let errors = errors.lock().unwrap().clone();
@@ -227,7 +274,9 @@ pub fn open(browser: &Browser, page: &Path, limit: Duration) -> Opened {
         tab,
         errors,
         requests,
+        painted,
         first_screen,
+        first_figure,
         seconds,
     }
 }

@@ -211,9 +211,12 @@ fn the_page_of_a_12000_reading_log_stays_under_10_mb_and_says_what_it_thinned() 
     assert!(page.errors.is_empty(), "{:?}", page.errors);
     assert_drawn_3d(&page, "raw-box");
     attitudes_against_the_box(&page, &set);
+    // Every figure marks its drawing on the page's clock, and the clocks agree on the order.
+    let first_figure = page.first_figure.expect("the figures are marked");
+    assert!(page.painted <= page.first_screen && first_figure <= page.seconds);
     eprintln!(
-        "12,000-reading calibration page: {bytes} bytes, first screen in {:.2} s, every figure in {:.2} s",
-        page.first_screen, page.seconds
+        "12,000-reading calibration page: {bytes} bytes, text painted at {:.2} s, first screen at {:.2} s, first figure at {first_figure:.2} s, every figure at {:.2} s",
+        page.painted, page.first_screen, page.seconds
     );
 }
 
