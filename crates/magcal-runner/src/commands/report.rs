@@ -33,6 +33,7 @@ pub fn run(args: &ReportArgs) -> Result<(), Failure> {
         )));
     }
     check_not_inside(&args.out, &args.result)?;
+    check_not_an_input(&args.out, &args.result)?;
     let page = crate::report::page_of(&args.result)?;
     let html = page.render()?;
     let inputs = [args.result.as_path()];
@@ -61,6 +62,48 @@ fn check_not_inside(out: &std::path::Path, result: &std::path::Path) -> Result<(
     {
         bail!(
             "{}: inside the result {} it draws; write the page elsewhere",
+            out.display(),
+            result.display()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses a page onto a file the set was made from (its log or scenario), told by the SHA-256
+/// the set's manifest recorded for it, wherever the file now is and whatever its name.
+fn check_not_an_input(out: &std::path::Path, result: &std::path::Path) -> Result<()> {
+    let Ok(meta) = std::fs::metadata(out) else {
+        return Ok(());
+    };
+    if !meta.is_file() {
+        return Ok(());
+    }
+    let path = result.join("manifest.json");
+    let Ok(bytes) = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES) else {
+        return Ok(());
+    };
+    let Ok(manifest) = serde_json::from_slice::<serde_json::Value>(&bytes) else {
+        return Ok(());
+    };
+    let inputs: Vec<(&str, &str)> = [("log", "log_sha256"), ("scenario", "scenario_sha256")]
+        .into_iter()
+        .filter_map(|(what, key)| Some((what, manifest.get(key)?.as_str()?)))
+        .collect();
+    if inputs.is_empty() {
+        return Ok(());
+    }
+    let mut hashing = crate::digest::Hashing::new(std::io::sink());
+    let Ok(mut file) = std::fs::File::open(out) else {
+        return Ok(());
+    };
+    if std::io::copy(&mut file, &mut hashing).is_err() {
+        return Ok(());
+    }
+    let hash = hashing.hex();
+    if let Some((what, _)) = inputs.iter().find(|(_, h)| *h == hash) {
+        let named = manifest.get(*what).and_then(|v| v.as_str()).unwrap_or("?");
+        bail!(
+            "{}: is the {what} {named} the set {} was made from (the SHA-256 its manifest records); writing it would destroy it: give another path",
             out.display(),
             result.display()
         );

@@ -284,6 +284,16 @@ pub struct PsoRunRow {
     pub evaluations: usize,
 }
 
+/// A compass heading in degrees `[0, 360)` shown with `decimals` digits: a value that rounds up
+/// to 360 is shown as 0, as a compass reads it.
+pub fn compass_text(degrees: f64, decimals: usize) -> String {
+    let text = format!("{degrees:.decimals$}");
+    match text.parse::<f64>() {
+        Ok(v) if v >= 360.0 => format!("{:.decimals$}", v - 360.0),
+        _ => text,
+    }
+}
+
 /// The header of a row type: its field names, in order, taken from serialising a default row (so
 /// that the struct is the only place that lists them).
 pub fn header<T: Serialize + Default>() -> Result<csv::StringRecord> {
@@ -708,6 +718,15 @@ pub fn pso_run_rows(out: &RunOutput) -> impl Iterator<Item = PsoRunRow> + '_ {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_heading_that_rounds_up_to_360_reads_0() {
+        assert_eq!(compass_text(359.995, 1), "0.0");
+        assert_eq!(compass_text(359.94, 1), "359.9");
+        assert_eq!(compass_text(359.996, 2), "0.00");
+        assert_eq!(compass_text(0.04, 1), "0.0");
+        assert_eq!(compass_text(180.26, 1), "180.3");
+    }
 
     #[test]
     fn headings_are_named_wrapped_and_empty_without_a_declination() {

@@ -58,13 +58,13 @@ pub fn flight_plans(
         for r in plan.iter().take(FLIGHT_PLAN_ROWS) {
             writeln!(
                 w,
-                "  {:>5} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>8} {:>9}",
+                "  {:>5} {:>9.2} {:>9.2} {:>9} {:>9} {:>8} {:>9}",
                 r.visit,
                 r.roll_deg.0,
                 r.pitch_deg.0,
-                r.true_heading_deg.0,
+                crate::output::compass_text(r.true_heading_deg.0, 2),
                 r.magnetic_heading_deg
-                    .map_or("-".to_string(), |h| format!("{:.2}", h.0)),
+                    .map_or("-".to_string(), |h| crate::output::compass_text(h.0, 2)),
                 r.readings,
                 r.turn_deg.map_or("-".to_string(), |t| format!("{:.1}", t.0))
             )?;

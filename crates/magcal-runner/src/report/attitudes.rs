@@ -65,6 +65,7 @@ pub fn section(page: &mut Page, rows: &[ResidualRow], flown: Option<&Flown>, box
         "Compass heading (clockwise from north) against pitch, degrees, the same readings and box.",
     );
     page.table(flown_table(flown));
+    page.table(sectors_table(flown));
 }
 
 /// The readings `shown` as points of (angle `x` of roll/pitch/heading, pitch), or of (roll, pitch)
@@ -141,6 +142,24 @@ fn scatter(
     plot
 }
 
+/// The readings of `coverage.flown` per heading sector, a column each.
+fn sectors_table(f: &Flown) -> Table {
+    let mut header = vec!["heading (degrees)".to_string()];
+    header.extend(
+        (0..f.heading_sectors.len())
+            .map(|i| format!("{:.0}-{:.0}", i as f64 * SECTOR_DEG, (i + 1) as f64 * SECTOR_DEG)),
+    );
+    let mut row = vec![Cell::text("readings")];
+    row.extend(f.heading_sectors.iter().map(|n| Cell::count(*n)));
+    Table {
+        id: "flown-sectors".into(),
+        caption: "Readings with an attitude per heading sector of the nose, from 0 (north of the log's attitude frame)"
+            .into(),
+        header,
+        rows: vec![row],
+    }
+}
+
 /// `coverage.flown` of calibration.json as a table.
 fn flown_table(f: &Flown) -> Table {
     let spread = |name: &str, v: &[f64; 5]| {
@@ -149,14 +168,6 @@ fn flown_table(f: &Flown) -> Table {
         row
     };
     let mut rows = vec![spread("roll", &f.roll_deg), spread("pitch", &f.pitch_deg)];
-    let sectors = f
-        .heading_sectors
-        .iter()
-        .enumerate()
-        .map(|(i, n)| format!("{:.0}-{:.0}: {n}", i as f64 * SECTOR_DEG, (i + 1) as f64 * SECTOR_DEG))
-        .collect::<Vec<_>>()
-        .join(", ");
-    rows.push(vec![Cell::text("readings per heading sector"), Cell::text(sectors)]);
     rows.push(vec![
         Cell::text("readings with an attitude"),
         Cell::count(f.with_attitude),

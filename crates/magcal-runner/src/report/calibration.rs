@@ -16,6 +16,7 @@ use super::sphere::{coverage_plot, mesh};
 use super::{Cell, Page, Table, drawn, thin, thinned_note};
 use crate::log::calibration::{CalibrationJson, read_calibration};
 use crate::output::log_rows::ResidualRow;
+use crate::output::manifest::{CalibrationManifest, verify};
 use crate::output::read_csv;
 
 /// Readings drawn in each 3D figure at most: more add megabytes and nothing a person sees.
@@ -26,6 +27,11 @@ pub const MAX_DRAWN: usize = 4000;
 /// # Errors
 /// A set without its calibration.json or residuals.csv, or whose files disagree.
 pub fn page(dir: &Path) -> Result<Page> {
+    let manifest = read_manifest(dir)?;
+    // A page never shows a file edited after calibrate wrote it.
+    for name in ["calibration.json", "residuals.csv"] {
+        super::check_sealed(dir, name, manifest.file_sha256.get(name), "calibrate")?;
+    }
     let cal = read_calibration(&dir.join("calibration.json"))?;
     let residuals_path = dir.join("residuals.csv");
     let rows: Vec<ResidualRow> = read_csv(&residuals_path)?;
@@ -82,6 +88,37 @@ pub fn page(dir: &Path) -> Result<Page> {
     page.data("drawn", json!(shown.len()));
     page.data("region_counts", json!(counts.to_vec()));
     Ok(page)
+}
+
+/// The certified D-efficiency per reading in the scenario's box, as `calibrate` says it: above 1
+/// the log's attitudes lie outside the box, and the ratio is no efficiency.
+fn d_efficiency_row(cal: &CalibrationJson) -> Vec<Cell> {
+    let box_from = cal.coverage.box_from.as_deref().unwrap_or("the scenario");
+    match cal.coverage.d_efficiency_per_reading {
+        Some(e) if e > 1.0 => vec![
+            Cell::text(format!("certified D-efficiency per reading in the box of {box_from}")),
+            Cell::text(format!(
+                "none: the log holds {} times the information per reading of the best design in the box (its attitudes lie outside it)",
+                super::significant(e, 4)
+            )),
+        ],
+        Some(e) => vec![
+            Cell::text(format!("certified D-efficiency per reading in the box of {box_from}")),
+            Cell::number(e, 4),
+        ],
+        None => vec![
+            Cell::text("certified D-efficiency per reading"),
+            Cell::text("- (no --scenario or box given to calibrate)"),
+        ],
+    }
+}
+
+/// The set's manifest, its own hash checked.
+fn read_manifest(dir: &Path) -> Result<CalibrationManifest> {
+    let path = dir.join("manifest.json");
+    let bytes = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES)?;
+    verify(&path, &bytes)?;
+    serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal calibration manifest", path.display()))
 }
 
 /// The last part of a path as written in calibration.json.
@@ -199,10 +236,7 @@ fn summary(page: &mut Page, cal: &CalibrationJson, units: &str) {
             Cell::text("MicroStrain spatial coverage (%)"),
             Cell::number(cal.coverage.microstrain_coverage_percent, 4),
         ],
-        vec![
-            Cell::text("certified D-efficiency per reading"),
-            Cell::maybe(cal.coverage.d_efficiency_per_reading, 4),
-        ],
+        d_efficiency_row(cal),
     ];
     if let Some(e) = &cal.ellipsoid {
         rows.push(vec![Cell::text("on an ellipsoid"), Cell::text(&e.words)]);

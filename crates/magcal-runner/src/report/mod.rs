@@ -253,6 +253,30 @@ pub fn drawn(value: f64) -> f64 {
     (value * scale).round() / scale
 }
 
+/// Checks that the set's file `name` holds the bytes its manifest recorded (`recorded`), so that
+/// a page never shows a file edited after `command` wrote the set.
+///
+/// # Errors
+/// A manifest that records no hash for the file, a file that is not a plain member of the set,
+/// or one whose bytes changed, named.
+pub(crate) fn check_sealed(dir: &Path, name: &str, recorded: Option<&String>, command: &str) -> Result<()> {
+    let Some(want) = recorded else {
+        bail!(
+            "{}: records no SHA-256 of {name}, which a {command} set holds",
+            dir.join("manifest.json").display()
+        );
+    };
+    let member = crate::limits::set_member(dir, name)?;
+    let bytes = crate::limits::read_bounded(&member, crate::limits::max_result_file_bytes())?;
+    if crate::digest::sha256_hex(&bytes) != *want {
+        bail!(
+            "{}: edited since {command} wrote it (its SHA-256 is not the one manifest.json records); run {command} again",
+            member.display()
+        );
+    }
+    Ok(())
+}
+
 /// What a report is made from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Source {
@@ -275,8 +299,15 @@ impl Source {
                 Some(SetKind::Calibration) => Ok(Self::Calibration),
                 Some(SetKind::Replay) => Ok(Self::Replay),
                 Some(SetKind::Run) => Ok(Self::Run),
-                None => bail!("{}: not a magcal result set (no magcal manifest.json)", path.display()),
+                None if path.join("manifest.json").exists() => bail!(
+                    "{}: not a magcal manifest (unreadable, not JSON, or not one magcal wrote)",
+                    path.join("manifest.json").display()
+                ),
+                None => bail!("{}: not a magcal result set (no manifest.json)", path.display()),
             };
+        }
+        if !path.exists() {
+            bail!("{}: no such directory", path.display());
         }
         bail!("{}: not a magcal result set directory", path.display())
     }

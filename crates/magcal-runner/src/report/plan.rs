@@ -245,6 +245,10 @@ fn attitude_table(page: &mut Page, index: usize, plan: &Plan) {
         text: format!("{v:.1}"),
         value: Some(v),
     };
+    let heading = |v: f64| Cell {
+        text: crate::output::compass_text(v, 1),
+        value: Some(v),
+    };
     let rows = plan
         .rows
         .iter()
@@ -254,8 +258,8 @@ fn attitude_table(page: &mut Page, index: usize, plan: &Plan) {
                 angle(r.roll_deg.0),
                 angle(r.pitch_deg.0),
                 angle(r.yaw_deg.0),
-                angle(r.true_heading_deg.0),
-                r.magnetic_heading_deg.map_or_else(|| Cell::text("-"), |h| angle(h.0)),
+                heading(r.true_heading_deg.0),
+                r.magnetic_heading_deg.map_or_else(|| Cell::text("-"), |h| heading(h.0)),
                 Cell::count(r.readings),
                 r.turn_deg.map_or_else(|| Cell::text("-"), |t| angle(t.0)),
             ]

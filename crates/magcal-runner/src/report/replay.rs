@@ -275,7 +275,18 @@ fn file_name(log: &str) -> &str {
 
 /// A setting as a number where it is one, else as text.
 fn setting_cell(value: &str) -> Cell {
+    // Whole numbers (counts, seeds) in full; others with 6 significant digits.
+    if let Ok(n) = value.parse::<i64>() {
+        return Cell {
+            text: n.to_string(),
+            value: Some(n as f64),
+        };
+    }
     match value.parse::<f64>() {
+        Ok(v) if v.is_finite() && v.fract() == 0.0 && v.abs() < 1e15 => Cell {
+            text: format!("{v:.0}"),
+            value: Some(v),
+        },
         Ok(v) if v.is_finite() && !value.is_empty() => Cell {
             text: significant(v, 6),
             value: Some(v),
@@ -290,7 +301,7 @@ fn settings(page: &mut Page, set: &ReplaySet) {
         vec![Cell::text("scenario"), Cell::text(&m.scenario_path)],
         vec![Cell::text("log"), Cell::text(&m.log)],
         vec![Cell::text("log SHA-256"), Cell::text(&m.log_sha256)],
-        vec![Cell::text("seed"), Cell::number(m.seed as f64, 20)],
+        vec![Cell::text("seed"), Cell::text(m.seed.to_string())],
         vec![Cell::text("trials per design"), Cell::count(m.trials)],
     ];
     for (key, value) in &m.settings {

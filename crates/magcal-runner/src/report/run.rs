@@ -60,7 +60,7 @@ pub fn page(dir: &Path) -> Result<Page> {
     let trials = if summary.is_some() {
         format!("{} trials per design and noise level", manifest.trials)
     } else {
-        "designs only, no trials".to_string()
+        "a design set: each design checked by its own noisy trials (the verdicts), no statistics of the scenario's trials".to_string()
     };
     let mut page = Page::new(
         format!("Designs of {}", manifest.name),

@@ -90,12 +90,12 @@ pub fn table(page: &Opened, id: &str) -> Vec<Vec<(String, Option<f64>)>> {
         .collect()
 }
 
-/// A cell shows `value`: its `data-value` is the JSON's number to within f64 formatting (serde_json
-/// parses a decimal to within an ulp: relative 1e-12), and its text is that number rounded
-/// (within half a unit of its last digit).
+/// A cell shows `value`: its `data-value` is the JSON's number, bit for bit (the page writes the
+/// shortest text that reads back as the number, and both sides parse it correctly rounded), and
+/// its text is that number rounded (within half a unit of its last digit).
 pub fn assert_shows(cell: &(String, Option<f64>), value: f64) {
     let kept = cell.1.unwrap_or_else(|| panic!("{cell:?} keeps no value"));
-    assert!((kept - value).abs() <= 1e-12 * value.abs(), "{cell:?} against {value}");
+    assert_eq!(kept.to_bits(), value.to_bits(), "{cell:?} against {value}");
     let shown: f64 = cell.0.parse().unwrap_or_else(|_| panic!("{cell:?}"));
     let decimals = cell.0.split('.').nth(1).map_or(0, |d| d.len() as i32);
     assert!(
@@ -274,7 +274,7 @@ fn a_page_is_not_written_into_its_result_or_from_what_is_not_a_result() {
         (
             tmp.path().join("missing"),
             tmp.path().join("p.html"),
-            "not a magcal result set",
+            "no such directory",
         ),
         (log.clone(), tmp.path().join("p.html"), "not a magcal result set"),
         (set.clone(), "-".into(), "--out -: give a file"),
@@ -292,6 +292,56 @@ fn a_page_is_not_written_into_its_result_or_from_what_is_not_a_result() {
         assert_eq!(stderr.lines().count(), 1, "{stderr}");
     }
     assert_eq!(crate::common::snapshot(&set), before, "the result is untouched");
+    // The log the set was made from, under another name, is told by its SHA-256 and kept.
+    let copy = tmp.path().join("log copy.csv");
+    fs::copy(&log, &copy).unwrap();
+    let o = magcal()
+        .arg("report")
+        .arg(&set)
+        .arg("--out")
+        .arg(&copy)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("is the log") && stderr.contains("writing it would destroy it"),
+        "{stderr}"
+    );
+    assert!(
+        fs::read(&copy).unwrap() == fs::read(&log).unwrap(),
+        "the log is untouched"
+    );
+    // A file of the set edited after calibrate wrote it is named, and no page is written.
+    for (name, from, to) in [
+        ("calibration.json", "\"usable\"", "\"usable\" "),
+        ("residuals.csv", "\n", "\n\n"),
+    ] {
+        let edited = tmp.path().join(format!("edited-{name}"));
+        fs::create_dir(&edited).unwrap();
+        for entry in fs::read_dir(&set).unwrap() {
+            let entry = entry.unwrap().path();
+            fs::copy(&entry, edited.join(entry.file_name().unwrap())).unwrap();
+        }
+        let path = edited.join(name);
+        let text = fs::read_to_string(&path).unwrap().replacen(from, to, 1);
+        fs::write(&path, text).unwrap();
+        let page = tmp.path().join("edited.html");
+        let o = magcal()
+            .arg("report")
+            .arg(&edited)
+            .arg("--out")
+            .arg(&page)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains(name) && stderr.contains("edited since calibrate wrote it"),
+            "{stderr}"
+        );
+        assert!(!page.exists(), "no page of an edited set");
+    }
     // The same result gives the same page, byte for byte.
     let (a, b) = (tmp.path().join("a.html"), tmp.path().join("b.html"));
     report(&set, &a);
