@@ -101,7 +101,13 @@ fn check_not_an_input(out: &std::path::Path, result: &std::path::Path) -> Result
     }
     let hash = hashing.hex();
     if let Some((what, _)) = inputs.iter().find(|(_, h)| *h == hash) {
-        let named = manifest.get(*what).and_then(|v| v.as_str()).unwrap_or("?");
+        // A replay's manifest names its scenario file `scenario_path` (`scenario` is its name).
+        let keys: &[&str] = if *what == "log" {
+            &["log"]
+        } else {
+            &["scenario_path", "scenario"]
+        };
+        let named = keys.iter().find_map(|k| manifest.get(*k)?.as_str()).unwrap_or("?");
         bail!(
             "{}: is the {what} {named} the set {} was made from (the SHA-256 its manifest records); writing it would destroy it: give another path",
             out.display(),

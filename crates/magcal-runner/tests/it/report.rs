@@ -351,3 +351,30 @@ fn a_page_is_not_written_into_its_result_or_from_what_is_not_a_result() {
         "two pages of one result differ"
     );
 }
+
+#[test]
+fn a_page_is_not_written_onto_the_scenario_a_set_was_made_from() {
+    let tmp = TempDir::new().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    for (set, scenario) in [
+        ("results/ship", "scenarios/ship.toml"),
+        ("results/replay-auv-02", "scenarios/replay-auv.toml"),
+    ] {
+        let copy = tmp.path().join("a copy.toml");
+        fs::copy(root.join(scenario), &copy).unwrap();
+        let o = magcal()
+            .arg("report")
+            .arg(root.join(set))
+            .arg("--out")
+            .arg(&copy)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(&format!("is the scenario {scenario}")), "{stderr}");
+        assert!(
+            fs::read(&copy).unwrap() == fs::read(root.join(scenario)).unwrap(),
+            "the scenario is untouched"
+        );
+    }
+}
