@@ -46,6 +46,19 @@ pub fn plans(rows: Vec<DesignPointRow>, path: &Path) -> Result<Vec<Plan>> {
         if !angles.iter().all(|v| v.is_finite()) {
             bail!("{}: line {line}: an attitude angle is not finite", path.display());
         }
+        let named = !row.design.is_empty()
+            && row.design.len() <= 64
+            && row
+                .design
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
+        if !named {
+            bail!(
+                "{}: line {line}: design {:?} is not a scenario's design name (letters, digits, _ - .)",
+                path.display(),
+                short(&row.design)
+            );
+        }
         let q = [row.qw.0, row.qx.0, row.qy.0, row.qz.0];
         let norm = q.iter().map(|c| c * c).sum::<f64>().sqrt();
         if !norm.is_finite() || (norm - 1.0).abs() > 1e-9 {
@@ -576,6 +589,10 @@ mod tests {
         split[last].design = rows[0].design.clone();
         let e = plans(split, &path).unwrap_err().to_string();
         assert!(e.contains("again after other designs"), "{e}");
+        let mut odd = rows.clone();
+        odd[2].design = "</script>".into();
+        let e = plans(odd, &path).unwrap_err().to_string();
+        assert!(e.contains("line 4: design \"</script>\" is not"), "{e}");
         let mut bad = rows;
         bad[4].qw.0 = 2.0;
         let e = plans(bad, &path).unwrap_err().to_string();

@@ -410,13 +410,20 @@ fn sweep(page: &mut Page, summary: &[SummaryRow]) {
 /// The set's SVG figures, by name, each checked to be a plain SVG drawing.
 fn figures(dir: &Path) -> Result<Vec<(String, String)>> {
     let plots = dir.join("plots");
-    let Ok(entries) = std::fs::read_dir(&plots) else {
-        return Ok(Vec::new());
+    let entries = match std::fs::read_dir(&plots) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => bail!("{}: cannot list: {e}", plots.display()),
     };
-    let mut paths: Vec<std::path::PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "svg"))
-        .collect();
+    let mut paths = Vec::new();
+    for entry in entries {
+        let path = entry
+            .with_context(|| format!("{}: cannot list", plots.display()))?
+            .path();
+        if path.extension().is_some_and(|e| e == "svg") {
+            paths.push(path);
+        }
+    }
     paths.sort_by_key(|p| (rank(&stem(p)), stem(p)));
     let mut figures = Vec::new();
     for path in paths {

@@ -80,6 +80,14 @@ fn assert_plans(page: &Opened, set: &Path) {
     let names = column(&metrics, "design");
     let buttons = page.eval("document.getElementById('plan').layout.updatemenus[0].buttons.map(b => b.label)");
     assert_eq!(buttons, serde_json::json!(names), "one dropdown entry per design");
+    // Choosing a design in the dropdown shows its attitudes and no other design's.
+    for (i, name) in names.iter().enumerate() {
+        let shown = page.eval(&format!(
+            "(() => {{ const d = document.getElementById('plan'); Plotly.restyle(d, d.layout.updatemenus[0].buttons[{i}].args[0]); return d.data.filter(t => t.visible !== false && t.mode === 'markers').map(t => [t.name, t.x.length]); }})()"
+        ));
+        let attitudes = designs[1..].iter().filter(|r| r[0] == *name).count();
+        assert_eq!(shown, serde_json::json!([[format!("{name} attitudes"), attitudes]]));
+    }
     for (i, name) in names.iter().enumerate() {
         let rows: Vec<Vec<String>> = designs[1..].iter().filter(|r| r[0] == *name).cloned().collect();
         let shown = table(page, &format!("attitudes-{}", i + 1));
@@ -271,6 +279,13 @@ fn report_run_the_noise_sweep_is_drawn_from_summary_csv() {
         serde_json::json!(["log", "log"]),
         "sigma from 1 to 300 nT and eta over decades"
     );
+    // The dropdown's last metric, as a person picks it: its traces only, its own y axis.
+    let picked = page.eval(
+        "(() => { const d = document.getElementById('sweep'); const b = d.layout.updatemenus[0].buttons; const last = b[b.length - 1]; Plotly.update(d, last.args[0], last.args[1]); return [last.label, d.layout.yaxis.title.text, d.data.filter(t => t.visible !== false && t.name.endsWith(': median')).length]; })()",
+    );
+    assert_eq!(picked[0], "heading_max_deg");
+    assert_eq!(picked[1], "largest heading error over level yaws (deg)");
+    assert_eq!(picked[2].as_u64(), Some(designs as u64));
     eprintln!("noise-sweep page: {} bytes, drawn in {:.2} s", html.len(), page.seconds);
 }
 
