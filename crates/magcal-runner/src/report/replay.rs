@@ -94,11 +94,10 @@ impl ReplaySet {
             }
             Ok((bytes, member.display().to_string()))
         };
-        let rows = |name: &str| file(name);
-        let (summary, s) = rows("summary.csv")?;
-        let (trials, t) = rows("trials.csv")?;
-        let (realisation, r) = rows("realisation.csv")?;
-        let (whole_log, w) = rows("whole_log.csv")?;
+        let (summary, s) = file("summary.csv")?;
+        let (trials, t) = file("trials.csv")?;
+        let (realisation, r) = file("realisation.csv")?;
+        let (whole_log, w) = file("whole_log.csv")?;
         Ok(Self {
             summary: parse_csv(&summary, &s)?,
             trials: parse_csv(&trials, &t)?,
@@ -223,9 +222,9 @@ fn outcomes(set: &ReplaySet, dir: &Path) -> Result<BTreeMap<(String, String), Ou
                 bail!(
                     "{}: design {} model {} metric {}: {column} = {said}, but trials.csv has {found}",
                     summary_csv.display(),
-                    row.design,
-                    row.model,
-                    row.metric
+                    excerpt(&row.design, 40),
+                    excerpt(&row.model, 40),
+                    excerpt(&row.metric, 40)
                 );
             }
         }
@@ -525,7 +524,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
             .margin(Margin::new().top(30).bottom(60)),
     );
     let caption = format!(
-        "{name} ({unit}) of every ok trial, per design (one box per model: median, quartiles and whiskers, every trial a point; hover for its trial), as [P1] Figs. 1-3 draw eta per design; at the right the whole log's own calibration by each model. Trials that are not ok are counted in the table above, not drawn; summary.csv's statistics are over the same ok trials."
+        "{name} ({unit}) of every ok trial, per design (one box per model: median, quartiles and whiskers, every trial a point; hover for its trial), as [P1] Figs. 1-3 draw eta per design; at the right the whole log's own calibration by each model (its status in the table of the whole log below). Trials that are not ok are counted in the table above, not drawn; summary.csv's statistics are over the same ok trials."
     );
     let note = (non_finite > 0)
         .then(|| format!("{non_finite} ok trials have a {name} that is not a finite number; not drawn."));
