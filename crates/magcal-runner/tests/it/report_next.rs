@@ -195,3 +195,63 @@ fn a_next_page_onto_an_input_is_refused_and_the_same_inputs_give_the_same_page()
         "two pages of the same inputs differ"
     );
 }
+
+/// Text as the page's template escapes it.
+fn escaped(text: &str) -> String {
+    text.replace('&', "&#38;")
+        .replace('<', "&#60;")
+        .replace('>', "&#62;")
+        .replace('"', "&#34;")
+        .replace('\'', "&#39;")
+}
+
+#[test]
+fn a_next_page_of_a_log_with_attitudes_says_each_attitude_relative_to_what_was_flown() {
+    let tmp = TempDir::new().unwrap();
+    let Some(log) = crate::common::broad_02_moving(tmp.path()) else {
+        return;
+    };
+    let cal = tmp.path().join("cal");
+    let o = magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(crate::common::BROAD_ARGS)
+        .arg("--out")
+        .arg(&cal)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let page_path = tmp.path().join("next.html");
+    // `next` reads the log as calibrate did; the units come from calibration.json.
+    let (code, stdout, stderr) = next(
+        &cal.join("calibration.json"),
+        &log,
+        &[
+            "--columns",
+            "mx,my,mz",
+            "--quaternion",
+            "qw,qx,qy,qz",
+            "--attitude-frame",
+            "enu",
+            "--json",
+            "--report",
+        ]
+        .map(std::ffi::OsStr::new)
+        .into_iter()
+        .chain([page_path.as_os_str()])
+        .collect::<Vec<_>>(),
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let json: NextJson = serde_json::from_str(&stdout).unwrap();
+    let relative = json.relative_to_log.expect("the log has attitudes");
+    assert_eq!(relative.flown, 32_280);
+    // One sentence per tilt, the attitudes of one tilt at their headings together.
+    assert!(!relative.tilts.is_empty() && relative.tilts.len() <= json.attitudes.len());
+    let html = fs::read_to_string(&page_path).unwrap();
+    assert!(html.contains(&format!("<p>Relative to the log&#39;s {} attitudes", relative.flown)));
+    for tilt in &relative.tilts {
+        assert!(html.contains(&format!("<p>{}</p>", escaped(tilt))), "{tilt}");
+    }
+    let enu = relative.as_logged.expect("an ENU log's own attitudes");
+    assert!(html.contains(&escaped(&enu)), "{enu}");
+}
