@@ -543,10 +543,18 @@ impl CalibrationJson {
 /// A file that cannot be read, is larger than [`crate::limits::MAX_CALIBRATION_BYTES`], is not a calibration, or fails
 /// a check; one line naming the file and the field.
 pub fn read_calibration(path: &Path) -> Result<CalibrationJson> {
-    let shown = path.display().to_string();
     let text = crate::limits::read_bounded(path, crate::limits::MAX_CALIBRATION_BYTES)?;
+    parse_calibration(&text, &path.display().to_string())
+}
+
+/// A calibration file's bytes, read as [`read_calibration`] reads them; `shown` names the file in
+/// messages.
+///
+/// # Errors
+/// As [`read_calibration`].
+pub fn parse_calibration(text: &[u8], shown: &str) -> Result<CalibrationJson> {
     // A byte-order mark, as editors on Windows write it, is not part of the JSON.
-    let text = text.strip_prefix(b"\xef\xbb\xbf").unwrap_or(&text);
+    let text = text.strip_prefix(b"\xef\xbb\xbf").unwrap_or(text);
     let cal: CalibrationJson = serde_json::from_slice(text)
         .map_err(|e| anyhow::anyhow!("{shown}: not a magcal calibration: {}", excerpt(&e.to_string(), 160)))?;
     cal.check().map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;

@@ -14,10 +14,10 @@ use serde_json::json;
 
 use super::sphere::{coverage_plot, mesh};
 use super::{Cell, Page, Table, drawn, thin, thinned_note};
-use crate::log::calibration::{CalibrationJson, read_calibration};
+use crate::log::calibration::{CalibrationJson, parse_calibration};
 use crate::output::log_rows::ResidualRow;
 use crate::output::manifest::{CalibrationManifest, verify};
-use crate::output::read_csv;
+use crate::output::parse_csv;
 
 /// Readings drawn in each 3D figure at most: more add megabytes and nothing a person sees.
 pub const MAX_DRAWN: usize = 4000;
@@ -29,16 +29,15 @@ pub const MAX_DRAWN: usize = 4000;
 pub fn page(dir: &Path) -> Result<Page> {
     let manifest = read_manifest(dir)?;
     // A page never shows a file edited after calibrate wrote it.
-    for name in ["calibration.json", "residuals.csv"] {
-        super::check_sealed(dir, name, manifest.file_sha256.get(name), "calibrate")?;
-    }
-    let cal = read_calibration(&dir.join("calibration.json"))?;
-    let residuals_path = dir.join("residuals.csv");
-    let rows: Vec<ResidualRow> = read_csv(&residuals_path)?;
+    let sealed = |name: &str| super::sealed_bytes(dir, name, manifest.file_sha256.get(name), "calibrate");
+    let (bytes, shown) = sealed("calibration.json")?;
+    let cal = parse_calibration(&bytes, &shown)?;
+    let (bytes, residuals_shown) = sealed("residuals.csv")?;
+    let rows: Vec<ResidualRow> = parse_csv(&bytes, &residuals_shown)?;
     if rows.len() != cal.samples {
         bail!(
             "{}: {} rows, but calibration.json says {} readings were fitted",
-            residuals_path.display(),
+            residuals_shown,
             rows.len(),
             cal.samples
         );

@@ -253,16 +253,22 @@ pub fn drawn(value: f64) -> f64 {
     (value * scale).round() / scale
 }
 
-/// Checks that the set's file `name` holds the bytes its manifest recorded (`recorded`), so that
-/// a page never shows a file edited after `command` wrote the set.
+/// The bytes of the set's file `name`, after checking that they are the ones its manifest
+/// recorded (`recorded`), so that a page never shows a file edited after `command` wrote the set;
+/// with the path, as messages name it.
 ///
 /// # Errors
 /// A manifest that records no hash for the file, a file that is not a plain member of the set,
 /// or one whose bytes changed, named.
-pub(crate) fn check_sealed(dir: &Path, name: &str, recorded: Option<&String>, command: &str) -> Result<()> {
+pub(crate) fn sealed_bytes(
+    dir: &Path,
+    name: &str,
+    recorded: Option<&String>,
+    command: &str,
+) -> Result<(Vec<u8>, String)> {
     let Some(want) = recorded else {
         bail!(
-            "{}: records no SHA-256 of {name}, which a {command} set holds",
+            "{}: records no {name}, which a {command} set holds",
             dir.join("manifest.json").display()
         );
     };
@@ -274,7 +280,7 @@ pub(crate) fn check_sealed(dir: &Path, name: &str, recorded: Option<&String>, co
             member.display()
         );
     }
-    Ok(())
+    Ok((bytes, member.display().to_string()))
 }
 
 /// What a report is made from.

@@ -20,7 +20,6 @@ use plotly::{BoxPlot, Layout, Mesh3D, Plot, Scatter3D};
 use serde_json::json;
 
 use super::{Cell, Page, Table, drawn, significant};
-use crate::digest::sha256_hex;
 use crate::limits::{self, excerpt};
 use crate::output::manifest::{ReplayManifest, verify};
 use crate::output::parse_csv;
@@ -80,20 +79,7 @@ impl ReplaySet {
                 excerpt(&e.to_string(), 160)
             )
         })?;
-        let file = |name: &str| -> Result<(Vec<u8>, String)> {
-            let Some(want) = manifest.file_sha256.get(name) else {
-                bail!("{}: records no {name}, which a replay set holds", path.display());
-            };
-            let member = limits::set_member(dir, name)?;
-            let bytes = limits::read_bounded(&member, limits::max_result_file_bytes())?;
-            if sha256_hex(&bytes) != *want {
-                bail!(
-                    "{}: edited since replay wrote it (its SHA-256 is not the one manifest.json records); run replay again",
-                    member.display()
-                );
-            }
-            Ok((bytes, member.display().to_string()))
-        };
+        let file = |name: &str| super::sealed_bytes(dir, name, manifest.file_sha256.get(name), "replay");
         let (summary, s) = file("summary.csv")?;
         let (trials, t) = file("trials.csv")?;
         let (realisation, r) = file("realisation.csv")?;
@@ -790,6 +776,7 @@ fn summary_table(page: &mut Page, set: &ReplaySet) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::digest::sha256_hex;
     use crate::report::Block;
 
     /// A copy of the shipped `results/replay-handheld-10` in a temporary directory, with `edit`
