@@ -290,11 +290,18 @@ pub(crate) fn reading_residual_and_gradient(y: &[f64; PARAMETERS], d: Vec3) -> (
 }
 
 /// Half the sum of squared [`Residual::Readings`] residuals of the readings `d` about `m` at
-/// `y = (P, c)`.
+/// `y = (P, c)`: the residual of [`reading_residual_and_gradient`] without its gradient, which
+/// the loop evaluates at every trial step.
 fn reading_cost(y: &[f64; PARAMETERS], d: &[Vec3]) -> f64 {
+    let (P, c) = unpack(y);
     0.5 * d
         .iter()
-        .map(|&di| reading_residual_and_gradient(y, di).0.powi(2))
+        .map(|&di| {
+            let v = add(mat_vec(&P, di), c);
+            let nv = norm(v);
+            let g = mat_t_vec(&P, scale(1.0 / nv, v));
+            (nv - 1.0).powi(2) / dot(g, g)
+        })
         .sum::<f64>()
 }
 
@@ -303,26 +310,29 @@ fn reading_normal_equations(y: &[f64; PARAMETERS], d: &[Vec3]) -> (Normal, [f64;
     accumulate(y, d, reading_residual_and_gradient)
 }
 
-/// `J^T J` (lower triangle filled) of [`Residual::Readings`] with respect to `x = (P, o)`, by the
-/// chain rule through `c = -P o` (`m = 0`): `de/do = -P^T de/dc`, `de/dP_jk |o = de/dP_jk |c - o_k
-/// de/dc_j`.
-fn reading_information(x: &[f64; PARAMETERS], u: &[Vec3]) -> Normal {
+/// The residual of [`Residual::Readings`] of the reading `u` at `x = (P, o)` and its gradient
+/// with respect to `x`, by the chain rule through `c = -P o` (`m = 0`): `de/do = -P^T de/dc`,
+/// `de/dP_jk |o = de/dP_jk |c - o_k de/dc_j`.
+pub(crate) fn reading_residual_at(x: &[f64; PARAMETERS], u: Vec3) -> (f64, [f64; PARAMETERS]) {
+    const ENTRIES: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
     let (P, o) = unpack(x);
     let y = pack(&P, scale(-1.0, mat_vec(&P, o)));
-    let entries = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
-    let in_p_and_o = |y: &[f64; PARAMETERS], ui: Vec3| {
-        let (e, mut g) = reading_residual_and_gradient(y, ui);
-        let dc = [g[6], g[7], g[8]];
-        for (i, &(j, k)) in entries.iter().enumerate() {
-            g[i] -= o[k] * dc[j];
-        }
-        let go = mat_t_vec(&P, dc);
-        for a in 0..3 {
-            g[6 + a] = -go[a];
-        }
-        (e, g)
-    };
-    accumulate(&y, u, in_p_and_o).0
+    let (e, mut g) = reading_residual_and_gradient(&y, u);
+    let dc = [g[6], g[7], g[8]];
+    for (i, &(j, k)) in ENTRIES.iter().enumerate() {
+        g[i] -= o[k] * dc[j];
+    }
+    let go = mat_t_vec(&P, dc);
+    for a in 0..3 {
+        g[6 + a] = -go[a];
+    }
+    (e, g)
+}
+
+/// `J^T J` (lower triangle filled) of [`Residual::Readings`] with respect to `x = (P, o)`
+/// ([`reading_residual_at`]).
+fn reading_information(x: &[f64; PARAMETERS], u: &[Vec3]) -> Normal {
+    accumulate(x, u, reading_residual_at).0
 }
 
 /// `(P, c)` with `c = P (m - o)` from `(P, o)`: the unknowns of [`Residual::Readings`] about the
@@ -437,6 +447,139 @@ pub(crate) fn refine_holding(
         termination,
         identifiable,
     })
+}
+
+/// Step 2 on [`Residual::Readings`] for a model whose unknowns `z` (`N` of them) give the
+/// centred unknowns linearly, `y = (P, c) = T z` (`c = P (m - o)` about the mean reading `m`):
+/// the reduced models of [`crate::log_fit`] (diagonal: `P` diagonal, `z = (P11, P22, P33, c)`;
+/// offset: `P = p I`, `z = (p, c)`). Started from `start` (which must be of the model: its `P`
+/// is read at the first nonzero entry of each column of `T`), through the one
+/// [`levenberg_marquardt`] loop; no local check (`identifiable` is `None`: the caller's statistics
+/// judge the model).
+pub(crate) fn refine_linear<const N: usize>(
+    settings: &TwoStep,
+    start: &Estimate,
+    readings: &[Vec3],
+    field_magnitude_nt: f64,
+    T: &[[f64; N]; PARAMETERS],
+) -> Result<Refined, CalibrationError> {
+    let R = field_magnitude_nt;
+    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
+    let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
+    let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
+    let y0 = to_centred(&pack(&start.p, scale(1.0 / R, start.bias_nt)), m);
+    let z0: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).find(|&i| T[i][j] != 0.0).map_or(0.0, |i| y0[i] / T[i][j]));
+    let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
+    let normal = |z: &[f64; N]| {
+        let y = y_of(z);
+        let mut jtj = [[0.0; N]; N];
+        let mut g = [0.0; N];
+        for &di in &d {
+            let (e, gy) = reading_residual_and_gradient(&y, di);
+            let gz: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).map(|i| T[i][j] * gy[i]).sum());
+            for a in 0..N {
+                g[a] += gz[a] * e;
+                for b in 0..=a {
+                    jtj[a][b] += gz[a] * gz[b];
+                }
+            }
+        }
+        (jtj, g)
+    };
+    let fit = levenberg_marquardt(settings, z0, |z| reading_cost(&y_of(z), &d), normal, |_, _, _| None, false);
+    let x = from_centred(&y_of(&fit.x), m).ok_or(CalibrationError::NotPositiveDefinite {
+        reason: "estimated P is singular",
+    })?;
+    let (mut P, o) = unpack(&x);
+    for row in P.iter_mut() {
+        let diag_sign = row.iter().find(|v| **v != 0.0).copied().unwrap_or(1.0).signum();
+        *row = row.map(|v| v * diag_sign);
+    }
+    Ok(Refined {
+        estimate: Estimate::checked(P, scale(R, o), readings, R)?,
+        iterations: fit.iterations,
+        termination: fit.termination,
+        identifiable: None,
+    })
+}
+
+/// How far the cost of [`Residual::Readings`] rises along a scale of `P` (see
+/// [`crate::log_fit`]'s "Nonlinearity"): for each diagonal entry of `P` among the unknowns `z`
+/// of `y = (P, c) = T z` (`scales`: their indices in `z`), the entry moved by 3 of its standard
+/// errors `sqrt(C_kk)` (`C = var (J^T J)^-1` at `estimate`, `var` the variance of one scaled
+/// residual) each way, the other unknowns re-fitted from the linear profile path
+/// `z + t C e_k / C_kk` with it held. Returns the smallest rise of the cost, in units of `var`
+/// times 2 (the chi-square's), and the index in `scales` and the side where it is; a straight
+/// problem rises by 9. `None` where `J^T J` is singular.
+pub(crate) fn profile_rise<const N: usize>(
+    settings: &TwoStep,
+    estimate: &Estimate,
+    readings: &[Vec3],
+    field_magnitude_nt: f64,
+    T: &[[f64; N]; PARAMETERS],
+    scales: &[usize],
+    var: f64,
+) -> Option<(f64, usize, f64)> {
+    let R = field_magnitude_nt;
+    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
+    let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
+    let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
+    let y0 = to_centred(&pack(&estimate.p, scale(1.0 / R, estimate.bias_nt)), m);
+    let z0: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).find(|&i| T[i][j] != 0.0).map_or(0.0, |i| y0[i] / T[i][j]));
+    let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
+    let normal = |z: &[f64; N], held: Option<usize>| {
+        let y = y_of(z);
+        let mut jtj = [[0.0; N]; N];
+        let mut g = [0.0; N];
+        for &di in &d {
+            let (e, gy) = reading_residual_and_gradient(&y, di);
+            let gz: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).map(|i| T[i][j] * gy[i]).sum());
+            for a in 0..N {
+                g[a] += gz[a] * e;
+                for b in 0..=a {
+                    jtj[a][b] += gz[a] * gz[b];
+                }
+            }
+        }
+        if let Some(k) = held {
+            g[k] = 0.0;
+            for j in 0..N {
+                jtj[k][j] = 0.0;
+                jtj[j][k] = 0.0;
+            }
+            jtj[k][k] = 1.0;
+        }
+        (jtj, g)
+    };
+    let cost = |z: &[f64; N]| reading_cost(&y_of(z), &d);
+    let f0 = cost(&z0);
+    let (mut l, _) = normal(&z0, None);
+    for i in 0..N {
+        for j in i + 1..N {
+            l[i][j] = l[j][i];
+        }
+    }
+    if !cholesky_in_place(&mut l) {
+        return None;
+    }
+    let inv = crate::small::cholesky_inverse(&l);
+    let mut least: Option<(f64, usize, f64)> = None;
+    for (which, &k) in scales.iter().enumerate() {
+        let ckk = var * inv[k][k];
+        if !(ckk > 0.0 && ckk.is_finite()) {
+            return None;
+        }
+        for side in [-1.0, 1.0] {
+            let t = side * 3.0 * ckk.sqrt();
+            let start: [f64; N] = std::array::from_fn(|j| z0[j] + t * var * inv[j][k] / ckk);
+            let fit = levenberg_marquardt(settings, start, cost, |z| normal(z, Some(k)), |_, _, _| None, false);
+            let rise = 2.0 * (cost(&fit.x) - f0) / var;
+            if least.is_none_or(|(r, _, _)| rise < r) {
+                least = Some((rise, which, side));
+            }
+        }
+    }
+    least
 }
 
 /// `J^T J`, lower triangle filled.

@@ -26,8 +26,10 @@
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
 
+use super::serial::Serial;
+use super::statistics::std_errors;
 use super::{
-    FitModel, FitSettings, Frame, Noise, chi_square_interval, fit_unit, normal_quantile, prepare, sandwich_std,
+    FitModel, FitSettings, Frame, Noise, Order, Residual, chi_square_interval, fit_unit, normal_quantile, prepare,
     significant, student_quantile, truncated_variance_factor, unit_settings, untruncated,
 };
 use crate::calibration::{CalibrationError, CalibrationStatus, TwoStep, step2};
@@ -230,9 +232,15 @@ fn embed<const N: usize>(t: &[[f64; N]; 12], x: &[f64; N]) -> [f64; 12] {
 
 /// Residual `|P (u - o - delta w)| - 1` and its gradient in the 12 embedded values:
 /// `d/dP_jk = v_j e_k / |v|`, `d/do = -P^T v / |v|`, `d/d delta = -w P^T v / |v|`, with
-/// `e = u - o - delta w`, `v = P e`.
-fn residual(x12: &[f64; 12], u: Vec3, w: f64) -> (f64, [f64; 12]) {
+/// `e = u - o - delta w`, `v = P e`; with [`Residual::Readings`], that residual divided by
+/// `|P^T v / |v||` (step 2's, at the bias `o + delta w`), and its gradient.
+fn residual(kind: Residual, x12: &[f64; 12], u: Vec3, w: f64) -> (f64, [f64; 12]) {
     let (p, o, delta) = split(x12);
+    if kind == Residual::Readings {
+        let o_w = [0, 1, 2].map(|i| o[i] + delta[i] * w);
+        let (e, g9) = step2::reading_residual_at(&step2::pack(&p, o_w), u);
+        return (e, std::array::from_fn(|i| if i < 9 { g9[i] } else { w * g9[i - 3] }));
+    }
     let e = [0, 1, 2].map(|i| u[i] - o[i] - delta[i] * w);
     let v = mat_vec(&p, e);
     let n = norm(v);
@@ -268,7 +276,7 @@ fn joint<const N: usize>(u: &[Vec3], w: &[f64], model: FitModel, settings: &FitS
         0.5 * u
             .iter()
             .zip(w)
-            .map(|(&ui, &wi)| residual(&x12, ui, wi).0.powi(2))
+            .map(|(&ui, &wi)| residual(settings.residual, &x12, ui, wi).0.powi(2))
             .sum::<f64>()
     };
     let normal = |x: &[f64; N]| {
@@ -276,7 +284,7 @@ fn joint<const N: usize>(u: &[Vec3], w: &[f64], model: FitModel, settings: &FitS
         let mut jtj = [[0.0; N]; N];
         let mut g = [0.0; N];
         for (&ui, &wi) in u.iter().zip(w) {
-            let (r, g12) = residual(&x12, ui, wi);
+            let (r, g12) = residual(settings.residual, &x12, ui, wi);
             let gn = project(&g12);
             for i in 0..N {
                 g[i] += gn[i] * r;
@@ -309,15 +317,22 @@ fn joint<const N: usize>(u: &[Vec3], w: &[f64], model: FitModel, settings: &FitS
     let m = u.len();
     let sum_sq: f64 = fields.iter().map(|b| (norm(*b) - 1.0).powi(2)).sum();
     let rows = || {
-        residual_jacobian(&errors, &fields).zip(w).map(|((j9, g2), &wi)| {
-            let j12: [f64; 12] = std::array::from_fn(|i| if i < 9 { j9[i] } else { wi * j9[i - 3] });
-            (j12, g2)
-        })
+        residual_jacobian(&errors, &fields)
+            .zip(w)
+            .zip(&fields)
+            .map(|(((j9, g2), &wi), b)| {
+                let j12: [f64; 12] = std::array::from_fn(|i| if i < 9 { j9[i] } else { wi * j9[i - 3] });
+                (j12, g2, norm(*b) - 1.0)
+            })
     };
-    let gain = rows().map(|(_, g2)| g2).sum::<f64>() / m as f64;
+    let distance_sq: f64 = rows().map(|(_, g2, r)| r * r / g2).sum();
+    let gain = rows().map(|(_, g2, _)| g2).sum::<f64>() / m as f64;
     let dof = m - N;
     let kept = (dof > 0)
-        .then(|| (sum_sq / (dof as f64 * gain)).sqrt())
+        .then(|| match settings.residual {
+            Residual::Paper => (sum_sq / (dof as f64 * gain)).sqrt(),
+            Residual::Readings => (distance_sq / dof as f64).sqrt(),
+        })
         .filter(|v| v.is_finite());
     let noise = match (settings.noise, kept, settings.truncation) {
         (Some(s), _, _) => Noise::Given(s),
@@ -335,17 +350,27 @@ fn joint<const N: usize>(u: &[Vec3], w: &[f64], model: FitModel, settings: &FitS
         (Some(t), Some(s)) if s > 0.0 => truncated_variance_factor(t / s),
         _ => 1.0,
     };
-    let quantile95 = match noise {
-        Noise::Given(_) => Some(normal_quantile(0.975)),
-        Noise::Estimated { dof, .. } => Some(student_quantile(0.975, dof)),
-        Noise::Unknown => None,
+    let serial = match settings.order {
+        _ if noise == Noise::Unknown => None,
+        Order::Unknown => None,
+        Order::Time => Some(Serial::of_residuals(
+            &rows().map(|(_, g2, r)| r / g2.sqrt()).collect::<Vec<_>>(),
+        )),
+        Order::Batch(batch) => Some(Serial { batch, lag_one: None }),
+    };
+    let quantile95 = match (noise, serial) {
+        (Noise::Unknown, _) => None,
+        (_, Some(s)) => Some(student_quantile(0.975, s.dof(m))),
+        (Noise::Given(_), None) => Some(normal_quantile(0.975)),
+        (Noise::Estimated { dof, .. }, None) => Some(student_quantile(0.975, dof)),
     };
     // theta = (psi, S, O, delta) from the model's (psi?, S or s, O, delta).
     let theta = theta_map::<N>(model);
-    let per_noise = sandwich_std(rows(), &theta);
-    let std = per_noise.zip(noise.value()).map(|(v, s)| {
+    let per_noise = std_errors(rows(), &theta, settings.residual, serial.map(|s| s.batch));
+    let std = per_noise.zip(noise.value()).map(|((white, hac), s)| {
         let s = s / c.sqrt();
-        let at = |i: usize| v[i] * s;
+        // In time order the larger of the white and the long-run standard errors.
+        let at = |i: usize| (white[i] * s).max(hac.as_ref().map_or(0.0, |h| h[i] / c.sqrt()));
         let k = N.saturating_sub(9);
         let scale: Vec3 = match model {
             FitModel::Offset => [at(0); 3],
@@ -373,7 +398,7 @@ fn joint<const N: usize>(u: &[Vec3], w: &[f64], model: FitModel, settings: &FitS
         noise,
         std,
         quantile95,
-        information_min_eigenvalue: min_eigenvalue(rows().map(|(j, _)| j), &theta),
+        information_min_eigenvalue: min_eigenvalue(rows().map(|(j, _, _)| j), &theta),
         status: if fit.termination.converged() {
             CalibrationStatus::Ok
         } else {

@@ -127,6 +127,56 @@ pub struct CalibrationJson {
     /// Whether the readings lie on an ellipsoid.
     #[serde(default)]
     pub ellipsoid: Option<EllipsoidJson>,
+    /// The residual the fit minimised: `readings` (each reading's distance from the ellipsoid,
+    /// the default) or `paper` (\[P1\]'s `|P (raw - bias)| - R`); `null` in older files.
+    #[serde(default)]
+    pub residual: Option<String>,
+    /// The noise `--noise` gave (the log's units), whether or not it explains the scatter.
+    #[serde(default)]
+    pub given_noise: Option<f64>,
+    /// For readings in time order: the correlation of the residuals the standard errors allow
+    /// for.
+    #[serde(default)]
+    pub correlation: Option<CorrelationJson>,
+    /// The verdict by noisy trials at the log's own readings (docs/conventions.md "The verdict of
+    /// a log"); `null` where none was run (the noise unknown).
+    #[serde(default)]
+    pub check: Option<CheckJson>,
+}
+
+/// The residuals' correlation in time and what it does to the standard errors.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CorrelationJson {
+    /// The batch length of the long-run covariance, readings.
+    pub batch_readings: usize,
+    /// The same in seconds (the median interval of the log's times), where known.
+    pub batch_seconds: Option<f64>,
+    /// The residuals' lag-one autocorrelation in time order.
+    pub lag_one: Option<f64>,
+    /// The standard errors white noise would give (`std_error` holds the larger of these and the
+    /// long-run ones).
+    pub white_std_error: StdError,
+}
+
+/// A log's check by trials.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CheckJson {
+    /// Trials asked for (`--trials`).
+    pub planned: usize,
+    /// Trials run: fewer than planned once more had failed than a pass allows.
+    pub trials: usize,
+    pub ok: usize,
+    pub not_converged: usize,
+    pub not_identifiable: usize,
+    pub failed: usize,
+    /// At least 95 % of the trials `ok`.
+    pub passed: bool,
+    /// The noise the trials drew, in words.
+    pub noise: String,
+    /// The seed of the trials' streams.
+    pub seed: u64,
+    /// The check in words.
+    pub words: String,
 }
 
 /// Motor interference: the raw reading carries `d * u` on top of the sensor's `K b + O`, with

@@ -10,13 +10,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
-use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, significant};
+use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, Order, significant};
 use magcal_core::small::upper_triangular_inverse;
 
 use super::Failure;
 use crate::digest::{Hashing, sha256_hex};
 use crate::log::calibration::{
-    CalibrationJson, Coverage, EllipsoidJson, HeadingCheckJson, IntervalJson, LackOfFitJson, NoiseJson, StdError,
+    CalibrationJson, CheckJson, CorrelationJson, Coverage, EllipsoidJson, HeadingCheckJson, IntervalJson,
+    LackOfFitJson, NoiseJson, StdError,
 };
 use crate::log::flight::InForce;
 use crate::log::flown::{Bounds, Flown, SECTOR_DEG, flown};
@@ -68,6 +69,25 @@ impl Fit {
     }
 }
 
+/// `--residual`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ResidualArg {
+    /// Each reading's distance from the fitted ellipsoid (the default, as designs).
+    Readings,
+    /// [P1]'s residual, `|P (raw - bias)| - R`.
+    Paper,
+}
+
+impl ResidualArg {
+    /// The core's residual.
+    pub fn residual(self) -> log_fit::Residual {
+        match self {
+            Self::Readings => log_fit::Residual::Readings,
+            Self::Paper => log_fit::Residual::Paper,
+        }
+    }
+}
+
 /// `magcal calibrate`.
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
@@ -110,6 +130,18 @@ pub struct CalibrateArgs {
     /// it. Default: estimated from the residuals (unknown when the fit is exact).
     #[arg(long, value_name = "SIGMA")]
     pub noise: Option<f64>,
+    /// The residual every model minimises: `readings` (each reading's distance from the fitted
+    /// ellipsoid, as designs are judged) or `paper` ([P1]'s `|P (raw - bias)| - R`, which runs
+    /// off where a vehicle barely tilts in a steep field).
+    #[arg(long, value_enum, default_value = "readings")]
+    pub residual: ResidualArg,
+    /// Noisy trials of the verdict: the log's field directions under the fit, read by the fitted
+    /// sensor with the log's noise, calibrated by the same fit; usable needs 95 % of them `ok`.
+    #[arg(long, default_value_t = log_fit::CHECK_TRIALS as u64, value_parser = clap::value_parser!(u64).range(20..=100_000))]
+    pub trials: u64,
+    /// The seed of the trials' random streams.
+    #[arg(long, default_value_t = log_fit::CHECK_SEED)]
+    pub seed: u64,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -167,6 +199,11 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let mut settings = FitSettings {
         noise: args.noise,
         truncation: None,
+        residual: args.residual.residual(),
+        order: if log.times.is_some() { Order::Time } else { Order::Unknown },
+        trials: args.trials as usize,
+        seed: args.seed,
+        profile: true,
     };
     let rejected = match args.reject {
         Some(k) => {
@@ -194,7 +231,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         }
         None => None,
     };
-    let mut json = to_json(&args.log, &log, &fit, &why, source);
+    let mut json = to_json(&args.log, &log, &fit, &why, source, args.seed);
     vector.iter().for_each(|v| v.record(&mut json));
     if let Some(joint) = &joint {
         motor::record(&mut json, joint);
@@ -293,7 +330,7 @@ fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log
         .map(|[a, b]| [*a, *b]);
 }
 
-fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: String) -> CalibrationJson {
+fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: String, seed: u64) -> CalibrationJson {
     let fields: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
@@ -387,7 +424,41 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
             chi_square_p: fit.ellipsoid.chi_square_p,
             words: fit.ellipsoid.words.clone(),
         }),
+        residual: Some(fit.residual.as_str().to_string()),
+        given_noise: fit.given_noise,
+        correlation: fit.serial.map(|s| CorrelationJson {
+            batch_readings: s.batch,
+            batch_seconds: log.times.as_deref().and_then(median_interval).map(|dt| dt * s.batch as f64),
+            lag_one: s.lag_one,
+            white_std_error: StdError {
+                psi_deg: fit.white_std.map(|w| w[0]),
+                scale: fit.white_std.map(|w| w[1]),
+                bias: fit.white_std.map(|w| w[2]),
+            },
+        }),
+        check: fit.check.map(|c| CheckJson {
+            planned: c.planned,
+            trials: c.trials,
+            ok: c.ok,
+            not_converged: c.not_converged,
+            not_identifiable: c.not_identifiable,
+            failed: c.failed,
+            passed: c.passed(),
+            noise: c.noise.words(),
+            seed,
+            words: c.words(),
+        }),
     }
+}
+
+/// The median interval between consecutive times, `None` for fewer than two.
+fn median_interval(times: &[f64]) -> Option<f64> {
+    let mut d: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).filter(|v| v.is_finite()).collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    Some(d[d.len() / 2])
 }
 
 /// Three numbers of 7 significant digits in columns of 15.
@@ -454,14 +525,28 @@ fn print_estimates(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()
         writeln!(w, "{:<22}{}", "std error bias", std(j.std_error.bias))?;
         writeln!(w, "{:<22}{}", "std error psi_deg", std(j.std_error.psi_deg))?;
         writeln!(w, "{:<22}{}", "std error scale", std(j.std_error.scale))?;
+        if let Some(c) = &j.correlation {
+            let e = &c.white_std_error;
+            writeln!(w, "{:<22}{}", "white-noise std bias", std(e.bias))?;
+            writeln!(w, "{:<22}{}", "white-noise std psi", std(e.psi_deg))?;
+            writeln!(w, "{:<22}{}", "white-noise std scale", std(e.scale))?;
+            writeln!(
+                w,
+                "  the residuals are correlated in time (lag-one {}): standard errors from their long-run covariance over batches of {} readings{}, where larger than white noise's",
+                c.lag_one.map_or("given".to_string(), |r| significant(r, 4)),
+                c.batch_readings,
+                c.batch_seconds.map_or(String::new(), |t| format!(" ({} s)", significant(t, 3)))
+            )?;
+        }
         if let Some(i) = &j.interval95 {
             writeln!(
                 w,
                 "95 % intervals: estimate +- {} standard errors ({})",
                 significant(i.quantile, 4),
-                match j.noise_estimate.as_ref().and_then(|n| n.dof) {
-                    Some(dof) => format!("Student t, {dof} degrees of freedom"),
-                    None => "normal, the noise given".to_string(),
+                match (&j.correlation, j.noise_estimate.as_ref().and_then(|n| n.dof)) {
+                    (Some(_), _) => "Student t, the batches' degrees of freedom".to_string(),
+                    (None, Some(dof)) => format!("Student t, {dof} degrees of freedom"),
+                    (None, None) => "normal, the noise given".to_string(),
                 }
             )?;
         }
@@ -542,10 +627,16 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
             e.words
         )?;
     }
+    if let Some(c) = &j.check {
+        writeln!(w, "{}: {}", if c.passed { "check" } else { "CHECK FAILED" }, c.words)?;
+    }
     if j.usable {
         writeln!(
             w,
-            "USABLE: identifiable, not rejected by the log, on an ellipsoid, standard errors known"
+            "USABLE: {}; identifiable, not rejected by the log, on an ellipsoid, standard errors known",
+            j.check
+                .as_ref()
+                .map_or("no check by trials".to_string(), |c| format!("{} of {} trials ok at this log's noise", c.ok, c.trials))
         )?;
     } else {
         writeln!(w, "NOT USABLE: {}", j.reasons.join("; "))?;
