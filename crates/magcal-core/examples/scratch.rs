@@ -23,7 +23,7 @@ fn main() {
         if let Ok(f) = log_fit::fit_with(&readings, r, FitModel::Full, &settings) {
             let z = (f.errors.scale()[1] - 0.7) / f.std_scale.map_or(f64::NAN, |s| s[1]);
             rows.push((f.usable, f.errors.scale()[1], z));
-            println!("{seed}: usable {} Sy {:.4} se {:.4} z {:.2} check {:?} rise {:?}", f.usable, f.errors.scale()[1], f.std_scale.map_or(f64::NAN, |s| s[1]), z, f.check.map(|c| (c.ok, c.trials)), f.profile.map(|p| (p.rise, p.axis, p.side)));
+            println!("{seed}: usable {} Sy {:.4} se {:.4} z {:.2} check {:?} rise {:?}", f.usable, f.errors.scale()[1], f.std_scale.map_or(f64::NAN, |s| s[1]), z, f.check.map(|c| (c.ok, c.trials)), f.profile.map(|p| (p.rise, p.along, p.side)));
         }
     }
     let u: Vec<_> = rows.iter().filter(|r| r.0).collect();

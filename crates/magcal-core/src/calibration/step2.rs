@@ -503,9 +503,9 @@ pub(crate) fn refine_linear<const N: usize>(
     })
 }
 
-/// How far the cost of [`Residual::Readings`] rises along a scale of `P` (see
-/// [`crate::log_fit`]'s "Nonlinearity"): for each diagonal entry of `P` among the unknowns `z`
-/// of `y = (P, c) = T z` (`scales`: their indices in `z`), the entry moved by 3 of its standard
+/// How far the cost of [`Residual::Readings`] rises along entries of `P` (see
+/// [`crate::log_fit::Profile`]): for each entry of `P` among the unknowns `z` of
+/// `y = (P, c) = T z` (`scales`: their indices in `z`), the entry moved by 3 of its standard
 /// errors `sqrt(C_kk)` (`C = var (J^T J)^-1` at `estimate`, `var` the variance of one scaled
 /// residual) each way, the other unknowns re-fitted from the linear profile path
 /// `z + t C e_k / C_kk` with it held. Returns the smallest rise of the cost, in units of `var`

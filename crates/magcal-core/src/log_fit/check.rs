@@ -100,6 +100,9 @@ pub struct TrialCheck {
     pub failed: usize,
     /// The noise the trials drew.
     pub noise: TrialNoise,
+    /// Over the `ok` trials, the rms of each estimate's error against the sensor they were drawn
+    /// from: `psi` (degrees), `S`, `O` (the log's units); `None` with fewer than 2 `ok` trials.
+    pub rms_error: Option<[Vec3; 3]>,
 }
 
 impl TrialCheck {
@@ -142,6 +145,15 @@ impl TrialCheck {
     pub(super) fn scaled(self, by: f64) -> Self {
         Self {
             noise: self.noise.scaled(by),
+            rms_error: self.rms_error.map(|[p, s, o]| [p, s.map(|v| v * by), o.map(|v| v * by)]),
+            ..self
+        }
+    }
+
+    /// The scale factors' errors for a fit to another magnitude, `f` times the old one.
+    pub(super) fn at_magnitude(self, f: f64) -> Self {
+        Self {
+            rms_error: self.rms_error.map(|[p, s, o]| [p, s.map(|v| v / f), o]),
             ..self
         }
     }
@@ -207,19 +219,32 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<Tr
             let readings = draw(&clean, &normals, &distances, noise, &mut rng);
             outcome(&readings, fit.model, &trial_settings)
         }));
-        if outcomes.iter().filter(|o| **o != Outcome::Ok).count() > allowed {
+        if outcomes.iter().filter(|o| !matches!(o, Outcome::Ok(_))).count() > allowed {
             break;
         }
     }
-    let count = |o: Outcome| outcomes.iter().filter(|x| **x == o).count();
+    let count = |o: Outcome| outcomes.iter().filter(|x| x.same(o)).count();
+    let truth = [fit.errors.psi_deg(), fit.errors.scale(), fit.bias];
+    let errors: Vec<[Vec3; 3]> = outcomes
+        .iter()
+        .filter_map(|o| match o {
+            Outcome::Ok(e) => Some(std::array::from_fn(|g| std::array::from_fn(|i| e[g][i] - truth[g][i]))),
+            _ => None,
+        })
+        .collect();
+    let n = errors.len() as f64;
+    let rms_error = (errors.len() >= 2).then(|| {
+        std::array::from_fn(|g| std::array::from_fn(|i| (errors.iter().map(|e| e[g][i] * e[g][i]).sum::<f64>() / n).sqrt()))
+    });
     Some(TrialCheck {
         planned: settings.trials,
         trials: outcomes.len(),
-        ok: count(Outcome::Ok),
+        ok: count(Outcome::Ok([[0.0; 3]; 3])),
         not_converged: count(Outcome::NotConverged),
         not_identifiable: count(Outcome::NotIdentifiable),
         failed: count(Outcome::Failed),
         noise,
+        rms_error,
     })
 }
 
@@ -231,13 +256,20 @@ fn needed(planned: usize) -> usize {
     (USABLE_SHARE * planned as f64 - 1e-9).ceil() as usize
 }
 
-/// How one trial ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How one trial ended; an `ok` one with its estimate (`psi`, `S`, `O`).
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Outcome {
-    Ok,
+    Ok([Vec3; 3]),
     NotConverged,
     NotIdentifiable,
     Failed,
+}
+
+impl Outcome {
+    /// The same kind of outcome, whatever the estimate.
+    fn same(&self, other: Outcome) -> bool {
+        std::mem::discriminant(self) == std::mem::discriminant(&other)
+    }
 }
 
 /// The fit of one trial's readings, classified.
@@ -245,7 +277,9 @@ fn outcome(readings: &[Vec3], model: FitModel, settings: &FitSettings) -> Outcom
     match fit_unit(readings, model, settings) {
         Err(_) => Outcome::Failed,
         Ok(f) if f.status == CalibrationStatus::NotConverged => Outcome::NotConverged,
-        Ok(f) if f.status == CalibrationStatus::Ok && f.identifiable => Outcome::Ok,
+        Ok(f) if f.status == CalibrationStatus::Ok && f.identifiable => {
+            Outcome::Ok([f.errors.psi_deg(), f.errors.scale(), f.bias])
+        }
         Ok(_) => Outcome::NotIdentifiable,
     }
 }
@@ -299,6 +333,7 @@ mod tests {
                 sigma: 30.0,
                 given: true,
             },
+            rms_error: None,
         };
         assert!(c.passed());
         assert_eq!(

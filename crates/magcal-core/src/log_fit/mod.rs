@@ -242,7 +242,8 @@ impl Noise {
 /// Whether the readings lie on an ellipsoid (see the module documentation).
 #[derive(Debug, Clone, PartialEq)]
 pub struct EllipsoidTest {
-    /// The residual rms, percent of the magnitude.
+    /// The rms of the readings' distances from the fitted ellipsoid (each `(|b| - R) / |P^T
+    /// w|`), percent of the radius of the sphere that best fits them.
     pub residual_percent: f64,
     /// With a given noise and residual degrees of freedom: `P(chi2 >= Q / sigma^2)` of the
     /// readings' squared distances `Q` from the ellipsoid.
@@ -383,6 +384,7 @@ impl LogFit {
             residual_max: self.residual_max * f,
             std_scale: self.std_scale.map(|s| s.map(|v| v / f)),
             white_std: self.white_std.map(|[p, s, o]| [p, s.map(|v| v / f), o]),
+            check: self.check.map(|c| c.at_magnitude(f)),
             ..self.clone()
         })
     }
@@ -523,6 +525,24 @@ fn checked(mut f: LogFit, u: &[Vec3], settings: &FitSettings) -> LogFit {
     // simulated (a runaway estimate is no sensor to draw readings from).
     if settings.trials > 0 && f.identifiable && f.ellipsoid.passed {
         f.check = check::run(u, &f, settings);
+        // The trials' own errors are what the estimate's error is at this log's noise, curvature
+        // and correlation included: a standard error is never below their rms.
+        if let Some([p, s, o]) = f.check.and_then(|c| c.rms_error) {
+            let widen = |std: &mut Option<Vec3>, rms: Vec3| {
+                if let Some(v) = std.as_mut() {
+                    *v = std::array::from_fn(|i| v[i].max(rms[i]));
+                }
+            };
+            if f.model == FitModel::Full {
+                widen(&mut f.std_psi_deg, p);
+            }
+            widen(&mut f.std_scale, s);
+            widen(&mut f.std_bias, o);
+            if let Some(words) = beyond_scales(&f) {
+                f.identifiable = false;
+                f.verdict = format!("not determined: the trials' errors at this log's noise exceed {words}");
+            }
+        }
         f.assess();
     }
     f
@@ -667,7 +687,11 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
         },
     );
     let bent = straight.filter(|s| s.rise < PROFILE_RISE_MIN);
-    let ellipsoid = ellipsoid_test((sum_sq / m as f64).sqrt(), chi.zip(settings.noise));
+    // The readings' distances from the ellipsoid against the radius of the sphere that best fits
+    // them: the size of the cloud, which no fit can shrink (a fit that runs off into a flat or
+    // long ellipsoid keeps its distances small while `|b| - R` grows).
+    let radius = sphere(u).map_or(1.0, |s| s.1);
+    let ellipsoid = ellipsoid_test((distance_sq / m as f64).sqrt() / radius, chi.zip(settings.noise));
     let mut f = LogFit {
         model,
         residual: settings.residual,
@@ -706,15 +730,16 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
     Ok(f)
 }
 
-/// The least rise of a log's cost along a scale factor at 3 of its standard errors
+/// The least rise of a log's cost at 3 standard errors of an entry of `P` (the scale factors,
+/// and for the full model the non-orthogonalities too), the other unknowns re-fitted
 /// ([`step2::profile_rise`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Profile {
     /// The rise, in units of the residuals' variance (a chi-square's): 9 for a straight problem.
     pub rise: f64,
-    /// The sensor axis whose scale it is (0, 1, 2; 0 for the offset model's one scale).
-    pub axis: usize,
-    /// The side: -1 toward a smaller entry of `P` (a larger scale factor), +1 toward a larger.
+    /// Along what: `scale of sensor axis x`, `non-orthogonality of axes x-y`, ...
+    pub along: &'static str,
+    /// The side: -1 toward a smaller entry of `P`, +1 toward a larger.
     pub side: f64,
 }
 
@@ -732,11 +757,14 @@ impl Profile {
 
     /// The verdict of a rise below [`PROFILE_RISE_MIN`].
     pub fn words(&self) -> String {
+        let how = if self.rise < 0.0 {
+            format!("falls by {}", significant(-self.rise, 3))
+        } else {
+            format!("rises by only {}", significant(self.rise, 3))
+        };
         format!(
-            "not determined: the readings' cost rises by only {} (9 were it straight, at least {PROFILE_RISE_MIN} is needed) at 3 standard errors along the scale of sensor axis {} ({} scale): the cost is flat there, and the standard errors at the estimate understate what the log leaves open",
-            significant(self.rise, 3),
-            ["x", "y", "z"][self.axis],
-            if self.side < 0.0 { "a larger" } else { "a smaller" }
+            "not determined: the readings' cost {how} at 3 standard errors along the {} (it would rise by 9 were the problem straight, and at least {PROFILE_RISE_MIN} is needed): the standard errors at the estimate understate what the log leaves open",
+            self.along
         )
     }
 }
@@ -754,14 +782,22 @@ fn profile(u: &[Vec3], model: FitModel, two_step: &TwoStep, p: Mat3, bias: Vec3,
     let (rise, which, side) = match model {
         FitModel::Full => {
             let t: [[f64; 9]; 9] = std::array::from_fn(|i| std::array::from_fn(|j| f64::from(u8::from(i == j))));
-            step2::profile_rise(two_step, &estimate, u, 1.0, &t, &[0, 3, 5], var)?
+            step2::profile_rise(two_step, &estimate, u, 1.0, &t, &[0, 3, 5, 1, 2, 4], var)?
         }
         FitModel::Diagonal => step2::profile_rise(two_step, &estimate, u, 1.0, &DIAGONAL_Y, &[0, 1, 2], var)?,
         FitModel::Offset => step2::profile_rise(two_step, &estimate, u, 1.0, &OFFSET_Y, &[0], var)?,
     };
+    const FULL: [&str; 6] = [
+        "scale of sensor axis x",
+        "scale of sensor axis y",
+        "scale of sensor axis z",
+        "non-orthogonality of axes x-y",
+        "non-orthogonality of axes x-z",
+        "non-orthogonality of axes y-z",
+    ];
     Some(Profile {
         rise,
-        axis: if model == FitModel::Offset { 0 } else { which },
+        along: if model == FitModel::Offset { "common scale" } else { FULL[which] },
         side,
     })
 }
@@ -792,6 +828,27 @@ const OFFSET_Y: [[f64; 4]; 9] = [
     [0.0, 0.0, 1.0, 0.0],
     [0.0, 0.0, 0.0, 1.0],
 ];
+
+/// The standard errors of `f` (in its frame: a unit field) beyond the physical scales (10
+/// degrees, half the scale factor, the field), in words; `None` where within.
+fn beyond_scales(f: &LogFit) -> Option<String> {
+    let scales = crate::PhysicalScales::default();
+    let (p, s, o) = (f.std_psi_deg?, f.std_scale?, f.std_bias?);
+    let axes = ["x", "y", "z"];
+    let mut over = Vec::new();
+    for i in 0..3 {
+        if p[i] > scales.psi_deg {
+            over.push(format!("10 degrees for psi{}", i + 1));
+        }
+        if s[i] > scales.scale_fraction * f.errors.scale()[i] {
+            over.push(format!("half the scale factor of axis {}", axes[i]));
+        }
+        if o[i] > scales.bias_fraction_of_field * f.magnitude {
+            over.push(format!("the field for the bias of axis {}", axes[i]));
+        }
+    }
+    (!over.is_empty()).then(|| over.join(", "))
+}
 
 /// `|P^T w|^2`, `w = b / |b|`: the squared gradient of `|P (s - O)|` with respect to the reading
 /// at the calibrated field `b` (a reading at the bias has no direction; any one gives its order).
@@ -853,7 +910,8 @@ fn untruncated(kept: f64, half_width: f64) -> f64 {
     sigma
 }
 
-/// The ellipsoid test of a fit with residual rms `rms` (in units of the magnitude) and, with a
+/// The ellipsoid test of a fit whose readings lie at an rms distance `rms` from the fitted
+/// ellipsoid (in units of the radius of the sphere that best fits them) and, with a
 /// given noise, its chi-square test `((p, distance rms), sigma)`. Only the residual's size
 /// decides: a scatter the given noise does not explain moves the standard errors onto the
 /// scatter (`fit_unit`), and is said here, but is no rejection (a log of one sensor at exactly
@@ -864,10 +922,10 @@ fn ellipsoid_test(rms: f64, chi: Option<((f64, f64), f64)>) -> EllipsoidTest {
     let within = residual_percent <= ELLIPSOID_LIMIT_PERCENT;
     let pct = significant(residual_percent, 4);
     let mut words = if within {
-        format!("residual rms {pct} % of the magnitude (limit {ELLIPSOID_LIMIT_PERCENT} %)")
+        format!("distance rms {pct} % of the readings' radius (limit {ELLIPSOID_LIMIT_PERCENT} %)")
     } else {
         format!(
-            "the readings do not lie on an ellipsoid: residual rms {pct} % of the magnitude, above the limit of {ELLIPSOID_LIMIT_PERCENT} %"
+            "the readings do not lie on an ellipsoid: their distance from it has an rms of {pct} % of their radius, above the limit of {ELLIPSOID_LIMIT_PERCENT} %"
         )
     };
     if let Some(((p, scatter), sigma)) = chi {
