@@ -106,8 +106,11 @@ pub fn calibrate(
             } else {
                 FitModel::Offset
             };
+            // The replay is the Monte Carlo: its fits run no check of their own.
             let settings = FitSettings {
                 noise: Some(noise),
+                trials: 0,
+                profile: false,
                 ..FitSettings::default()
             };
             let f = log_fit::fit_with(readings, magnitude, fit_model, &settings).map_err(|e| e.status())?;

@@ -95,7 +95,13 @@ pub fn prepare(
         Truth::Scenario => (scenario.field.magnitude(), "the scenario's field"),
         _ => (median_norm(&clean), "the median magnitude of the log's readings"),
     };
-    let base = log_fit::fit(&clean, magnitude, FitModel::Full)
+    // The whole log's fits give the truth and the noise; the replay's trials judge the designs.
+    let whole_log = FitSettings {
+        trials: 0,
+        profile: false,
+        ..FitSettings::default()
+    };
+    let base = log_fit::fit_with(&clean, magnitude, FitModel::Full, &whole_log)
         .map_err(|e| anyhow::anyhow!("the whole log does not calibrate (full model): {e}"))?;
     let calibrated: Vec<Vec3> = clean.iter().map(|r| base.apply(*r)).collect();
     let alignment = align(&calibrated, &c, &AlignSettings::default()).map_err(|e| {
@@ -147,7 +153,7 @@ pub fn prepare(
             (imposed, Some(composed))
         }
     };
-    let whole = log_fit::fit_with(&readings, magnitude, FitModel::Full, &FitSettings::default())
+    let whole = log_fit::fit_with(&readings, magnitude, FitModel::Full, &whole_log)
         .map_err(|e| anyhow::anyhow!("the whole log does not calibrate (full model): {e}"))?;
     let (noise, noise_source) = match (noise_nt, whole.noise.value()) {
         (Some(n), _) => (n, "--noise"),
