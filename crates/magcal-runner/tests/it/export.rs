@@ -986,6 +986,10 @@ fn a_dataflash_logs_own_offs_max_and_parameters_decide_what_is_written() {
     let m = &cal.soft_iron_inverse;
     let s = (m[0][0] + m[1][1] + m[2][2]) / 3.0;
     assert!((1.2..1.3).contains(&s), "{s}");
+    eprintln!(
+        "COMPASS_SCALE2 = {s} folded into DIA2 = {:?}",
+        [m[0][0], m[1][1], m[2][2]]
+    );
     let said = format!(
         "COMPASS_SCALE2: not written, the log's firmware has none (its PARM list every parameter it has); its scale {s} is carried by COMPASS_DIA2_* and COMPASS_ODI2_* (D = M: ArduPilot then applies m = D (r + OFS))"
     );
