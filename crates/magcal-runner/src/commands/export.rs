@@ -1,6 +1,7 @@
 //! `magcal export CAL.json --to ardupilot|px4|motioncal|magneto|c`: what the autopilot or the
 //! tool takes, from a calibration file. The formulas and formats are in [`crate::log::export`].
 
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
@@ -9,9 +10,9 @@ use clap::Args;
 use super::Failure;
 use crate::log::calibration::{CalibrationJson, read_calibration};
 use crate::log::export::{
-    self as fmt, ARDUPILOT_OFFS_MAX_DEFAULT, ArduPilot, Calibration, Motor, MotorInput, Px4, RangeWarning, Target,
-    unit_name,
+    self as fmt, ARDUPILOT_OFFS_MAX_DEFAULT, ArduPilot, Calibration, LeftOut, Motor, MotorInput, Px4, Target, unit_name,
 };
+use crate::log::parameters::Autopilot;
 use crate::output::file::Output;
 use crate::output::stderr::to_stderr;
 use crate::scenario::site::Units;
@@ -36,45 +37,95 @@ pub struct ExportArgs {
     #[arg(long, value_enum)]
     pub units: Option<Units>,
     /// The vehicle's `COMPASS_OFFS_MAX`, mGauss, for the range check of the ArduPilot offsets.
-    #[arg(long, default_value_t = ARDUPILOT_OFFS_MAX_DEFAULT, value_parser = clap::value_parser!(u16).range(1..))]
-    pub offs_max: u16,
+    /// Default: the log's own, where calibration.json records it
+    /// (`log_parameters.compass_offs_max`), else 1800 (ArduPilot's default).
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..))]
+    pub offs_max: Option<u16>,
     /// Refuse (exit 2, nothing written) a value outside what the autopilot accepts, a frame
-    /// the autopilot does not take, or a calibration not marked usable; without it they are
-    /// warnings on stderr.
-    #[arg(long)]
+    /// the autopilot does not take, or a part of the calibration that a parameter missing from
+    /// the log's firmware leaves out; without it they are warnings on stderr.
+    #[arg(long, conflicts_with = "force")]
     pub strict: bool,
+    /// Write a calibration not marked usable, which is otherwise refused (exit 3, nothing
+    /// written): its first line then says it is not a calibration to use, and why; exit 3.
+    #[arg(long)]
+    pub force: bool,
     /// Write to this file, replaced whole (default, or `-`: standard output). Only a regular
     /// file or a missing path is replaced, and never the calibration.
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
 
+/// How the first comment line of a forced export of a calibration not marked usable starts.
+const NOT_USABLE: &str = "NOT A CALIBRATION TO USE";
+
 /// Runs `export`: the calibration is checked ([`CalibrationJson::check`]), converted to the
-/// target's unit, written whole, and the values outside what the autopilot accepts named on
-/// stderr.
+/// target's unit and to the parameters the log's firmware has, made whole, and written unless
+/// it is not marked usable (without `--force`) or `--strict` refuses a warning; the values
+/// outside what the autopilot accepts are named on stderr.
 ///
 /// # Errors
 /// A bad calibration file, units unknown where the target needs them, a compass the target has
-/// no parameters for, `--strict` with a warning (exit 2); a calibration not marked usable
-/// (written, exit 3).
+/// no parameters for, `--strict` with a warning (exit 2, nothing written); a calibration not
+/// marked usable (exit 3: nothing written, or with `--force` written and marked so).
 pub fn run(args: &ExportArgs) -> Result<(), Failure> {
-    let cal = export_inner(args)?;
+    let out = Output::from_flag(args.out.as_deref());
+    let inputs = [args.calibration.as_path()];
+    out.check(&inputs)?;
+    let shown = args.calibration.display().to_string();
+    let cal = read_calibration(&args.calibration)?;
+    let converted = convert(args, &cal, &shown)?;
+    let made = render(args, &cal, &shown, &converted)?;
+    let to = match &out {
+        Output::File(path) => format!(" to {}", path.display()),
+        Output::Stdout => " to standard output".to_string(),
+    };
+    if !cal.usable && !args.force {
+        return Err(Failure::Unusable(format!(
+            "{shown}: nothing written{to}: {}; --force writes it all the same, its first line saying so",
+            not_usable(&cal)
+        )));
+    }
+    if args.strict {
+        refuse_strict(&shown, &made.problems)?;
+    }
+    out.write(&inputs, |w| Ok(w.write_all(&made.text)?))?;
+    say(&cal, &shown, &made);
     if !cal.usable {
-        return Err(Failure::Unusable(not_usable(args, &cal)));
+        return Err(Failure::Unusable(format!(
+            "{shown}: written with --force{to}, its first line saying so: {}",
+            not_usable(&cal)
+        )));
     }
     Ok(())
 }
 
-fn not_usable(args: &ExportArgs, cal: &CalibrationJson) -> String {
-    let reasons = if cal.reasons.is_empty() {
-        "it does not say it is usable".to_string()
+/// Why `cal` is not marked usable, from its `reasons`.
+fn not_usable(cal: &CalibrationJson) -> String {
+    if cal.reasons.is_empty() {
+        "the calibration is not marked usable, and gives no reasons".to_string()
     } else {
-        cal.reasons.join("; ")
-    };
-    format!(
-        "{}: the parameters were written, but the calibration is not marked usable: {reasons}",
-        args.calibration.display()
-    )
+        format!("the calibration is not marked usable: {}", cal.reasons.join("; "))
+    }
+}
+
+/// What stderr says of an export written: what it keeps, the alignment it drops, the notes and
+/// the warnings.
+fn say(cal: &CalibrationJson, shown: &str, made: &Made) {
+    to_stderr!("magcal: note: {}", made.keep);
+    if let Some(a) = &cal.alignment {
+        to_stderr!(
+            "magcal: warning: {shown}: the vector calibration's alignment ({:.3} deg, misalignment {:.3} deg beyond the nearest whole step) is not kept: the autopilots' board orientation parameters take only whole steps; the bias and soft-iron matrix are written",
+            a.angle_deg,
+            a.misalignment_deg
+        );
+    }
+    for note in &made.notes {
+        to_stderr!("magcal: note: {note}");
+    }
+    for problem in &made.problems {
+        to_stderr!("magcal: warning: {problem}");
+    }
 }
 
 /// The units of the log `cal` was made from: `units` of the file, or `--units`.
@@ -186,36 +237,6 @@ fn frame_check(to: Target, cal: &CalibrationJson) -> (Vec<String>, Vec<String>) 
     }
 }
 
-/// Reads, converts and writes; the calibration, for its `usable`.
-fn export_inner(args: &ExportArgs) -> Result<CalibrationJson> {
-    let out = Output::from_flag(args.out.as_deref());
-    let inputs = [args.calibration.as_path()];
-    out.check(&inputs)?;
-    let shown = args.calibration.display().to_string();
-    let cal = read_calibration(&args.calibration)?;
-    let converted = convert(args, &cal, &shown)?;
-    let made = render(args, &cal, &shown, &converted)?;
-    if args.strict {
-        refuse_strict(args, &cal, &shown, &made.problems)?;
-    }
-    out.write(&inputs, |w| Ok(w.write_all(&made.text)?))?;
-    to_stderr!("magcal: note: {}", made.keep);
-    if let Some(a) = &cal.alignment {
-        to_stderr!(
-            "magcal: warning: {shown}: the vector calibration's alignment ({:.3} deg, misalignment {:.3} deg beyond the nearest whole step) is not kept: the autopilots' board orientation parameters take only whole steps; the bias and soft-iron matrix are written",
-            a.angle_deg,
-            a.misalignment_deg
-        );
-    }
-    for note in &made.notes {
-        to_stderr!("magcal: note: {note}");
-    }
-    for problem in &made.problems {
-        to_stderr!("magcal: warning: {problem}");
-    }
-    Ok(cal)
-}
-
 /// The calibration in the target's unit, and the instance its parameters are for.
 struct Converted {
     calibration: Calibration,
@@ -270,34 +291,37 @@ struct Made {
     /// What the export keeps ([`keeps`]).
     keep: String,
     notes: Vec<String>,
-    /// The range warnings, then the frame warnings.
+    /// The range warnings, the parts of the calibration left out for the log's firmware, then
+    /// the frame warnings.
     problems: Vec<String>,
 }
 
-/// The target's text with its header, its notes, and its warnings.
+/// The target's text with its header, its notes, and its warnings. A calibration not marked
+/// usable (written only with `--force`) says so in its first line.
 fn render(args: &ExportArgs, cal: &CalibrationJson, shown: &str, converted: &Converted) -> Result<Made> {
     let (frame_warnings, mut notes) = frame_check(args.to, cal);
     let keep = keeps(args.to, fmt::rotation_deg(&cal.soft_iron_inverse, &cal.k));
-    let header = vec![
-        format!(
-            "magcal {} export --to {} of {} (log {}, fit {})",
-            env!("CARGO_PKG_VERSION"),
-            args.to.name(),
-            crate::limits::excerpt(shown, 120),
-            crate::limits::excerpt(&cal.log, 120),
-            crate::limits::excerpt(&cal.fit, 20)
-        ),
-        keep.clone(),
-    ];
+    let mut header = Vec::new();
+    if !cal.usable {
+        header.push(format!("{NOT_USABLE} (written with --force): {}", not_usable(cal)));
+    }
+    header.push(format!(
+        "magcal {} export --to {} of {} (log {}, fit {})",
+        env!("CARGO_PKG_VERSION"),
+        args.to.name(),
+        crate::limits::excerpt(shown, 120),
+        crate::limits::excerpt(&cal.log, 120),
+        crate::limits::excerpt(&cal.fit, 20)
+    ));
+    header.push(keep.clone());
     let mut text = Vec::new();
-    let warnings = write_target(&mut text, args, converted, header, &mut notes)?;
+    let mut problems = write_target(&mut text, args, cal, converted, header, &mut notes)?;
     if converted.calibration.motor.is_some() && args.to.max_instance().is_none() {
         notes.push(format!(
             "{} has no motor compensation: the motor interference of {shown} is not exported",
             args.to.name()
         ));
     }
-    let mut problems: Vec<String> = warnings.iter().map(ToString::to_string).collect();
     problems.extend(frame_warnings);
     Ok(Made {
         text,
@@ -307,43 +331,154 @@ fn render(args: &ExportArgs, cal: &CalibrationJson, shown: &str, converted: &Con
     })
 }
 
-/// Writes the target's form to `text` under `header` and the line that states the target's
-/// formula; the range warnings (ArduPilot's only), and a note where the target needs one.
-fn write_target(
+/// The names the log's firmware has of `to`'s parameters, where calibration.json records them
+/// (`log_parameters`), with the messages they come from.
+fn firmware(to: Target, cal: &CalibrationJson) -> Option<(&BTreeSet<String>, &str)> {
+    let autopilot = match to {
+        Target::ArduPilot => Autopilot::ArduPilot,
+        Target::Px4 => Autopilot::Px4,
+        Target::MotionCal | Target::Magneto | Target::C => return None,
+    };
+    let p = cal.log_parameters.as_ref()?;
+    Some((p.names_of(autopilot)?, p.source.as_str()))
+}
+
+/// The groups left out for the log's firmware, in words for the file's comments and stderr:
+/// those whose part of the calibration is lost go to `problems`, the others to `notes`.
+fn left_out(
+    left: &[LeftOut],
+    source: &str,
+    header: &mut Vec<String>,
+    notes: &mut Vec<String>,
+    problems: &mut Vec<String>,
+) {
+    for l in left {
+        let words = format!(
+            "{}: not written, the log's firmware has none (its {} list every parameter it has); {}",
+            l.parameters,
+            crate::limits::excerpt(source, 40),
+            l.carried
+        );
+        header.push(words.clone());
+        if l.lost {
+            problems.push(words);
+        } else {
+            notes.push(words);
+        }
+    }
+}
+
+/// `COMPASS_OFFS_MAX` for the range check, mGauss, and where it comes from: `--offs-max`, else
+/// the log's (calibration.json's `log_parameters`), else ArduPilot's default.
+fn offs_max(args: &ExportArgs, cal: &CalibrationJson) -> (f64, String) {
+    let logged = cal
+        .log_parameters
+        .as_ref()
+        .and_then(|p| Some((p.compass_offs_max?, p.source.as_str())));
+    match (args.offs_max, logged) {
+        (Some(v), Some((l, source))) => (
+            f64::from(v),
+            format!(
+                "--offs-max, over the log's {} ({})",
+                crate::limits::show(l),
+                crate::limits::excerpt(source, 40)
+            ),
+        ),
+        (Some(v), None) => (f64::from(v), "--offs-max".to_string()),
+        (None, Some((l, source))) => (l, format!("the log's ({})", crate::limits::excerpt(source, 40))),
+        (None, None) => (
+            f64::from(ARDUPILOT_OFFS_MAX_DEFAULT),
+            "ArduPilot's default (calibration.json records no COMPASS_OFFS_MAX of its log); give the vehicle's with --offs-max"
+                .to_string(),
+        ),
+    }
+}
+
+/// ArduPilot's text: the parameters its firmware has, the formula, the range check's limit; the
+/// warnings.
+fn write_ardupilot(
     text: &mut Vec<u8>,
     args: &ExportArgs,
+    cal: &CalibrationJson,
     converted: &Converted,
     mut header: Vec<String>,
     notes: &mut Vec<String>,
-) -> Result<Vec<RangeWarning>> {
+) -> Result<Vec<String>> {
+    let c = &converted.calibration;
+    let mut problems = Vec::new();
+    let p = match firmware(Target::ArduPilot, cal) {
+        Some((names, source)) => {
+            let (p, left) = ArduPilot::for_firmware(c, converted.instance, &|n: &str| names.contains(n));
+            left_out(&left, source, &mut header, notes, &mut problems);
+            p
+        }
+        None => ArduPilot::new(c, converted.instance),
+    };
+    let (limit, from) = offs_max(args, cal);
+    let limit_words = format!(
+        "the offsets are checked against COMPASS_OFFS_MAX = {} mGauss: {from}",
+        crate::limits::show(limit)
+    );
+    header.push(limit_words.clone());
+    notes.push(limit_words);
+    let range: Vec<String> = p.warnings(c.magnitude, limit).iter().map(ToString::to_string).collect();
+    problems.splice(0..0, range);
+    header.push(
+        "ArduPilot applies m = D * s * (r + OFS) + MOT * u (AP_Compass_Backend::correct_field), mGauss, D from DIA and ODI, s = COMPASS_SCALE (1 where the firmware has none), u throttle (0 to 1) or current (A)"
+            .to_string(),
+    );
+    fmt::write_ardupilot(text, &header, &p)?;
+    Ok(problems)
+}
+
+/// PX4's text: the parameters its firmware has and the formula; the parts left out.
+fn write_px4(
+    text: &mut Vec<u8>,
+    cal: &CalibrationJson,
+    converted: &Converted,
+    mut header: Vec<String>,
+    notes: &mut Vec<String>,
+) -> Result<Vec<String>> {
+    let (c, instance) = (&converted.calibration, converted.instance);
+    let mut problems = Vec::new();
+    let p = match firmware(Target::Px4, cal) {
+        Some((names, source)) => {
+            let (p, left) = Px4::for_firmware(c, instance, &|n: &str| names.contains(n));
+            left_out(&left, source, &mut header, notes, &mut problems);
+            p
+        }
+        None => Px4::new(c, instance),
+    };
+    header.push(
+        "PX4 applies m = R * S * ((r + power * COMP) - OFF) (calibration::Magnetometer::Correct), Gauss, S from SCALE and ODIAG, power throttle (0 to 1) or current (kA)"
+            .to_string(),
+    );
+    notes.push(format!(
+        "CAL_MAG{instance}_ID and CAL_MAG{instance}_ROT must be those of the device on the vehicle: PX4 gives slot {instance} to the magnetometer whose device id is CAL_MAG{instance}_ID, and this calibration does not know it"
+    ));
+    fmt::write_px4(text, &header, &p)?;
+    Ok(problems)
+}
+
+/// Writes the target's form to `text` under `header` and the line that states the target's
+/// formula; the warnings (range and parameters left out: the autopilots'), and a note where the
+/// target needs one.
+fn write_target(
+    text: &mut Vec<u8>,
+    args: &ExportArgs,
+    cal: &CalibrationJson,
+    converted: &Converted,
+    mut header: Vec<String>,
+    notes: &mut Vec<String>,
+) -> Result<Vec<String>> {
     let Converted {
         calibration,
         unit_label,
-        instance,
+        ..
     } = converted;
-    let instance = *instance;
-    let mut warnings: Vec<RangeWarning> = Vec::new();
     match args.to {
-        Target::ArduPilot => {
-            let p = ArduPilot::new(calibration, instance);
-            warnings = p.warnings(calibration.magnitude, f64::from(args.offs_max));
-            header.push(
-                "ArduPilot applies m = D * s * (r + OFS) + MOT * u (AP_Compass_Backend::correct_field), mGauss, D from DIA and ODI, s = COMPASS_SCALE, u throttle (0 to 1) or current (A)"
-                    .to_string(),
-            );
-            fmt::write_ardupilot(text, &header, &p)?;
-        }
-        Target::Px4 => {
-            let p = Px4::new(calibration, instance);
-            header.push(
-                "PX4 applies m = R * S * ((r + power * COMP) - OFF) (calibration::Magnetometer::Correct), Gauss, S from SCALE and ODIAG, power throttle (0 to 1) or current (kA)"
-                    .to_string(),
-            );
-            notes.push(format!(
-                "CAL_MAG{instance}_ID and CAL_MAG{instance}_ROT must be those of the device on the vehicle: PX4 gives slot {instance} to the magnetometer whose device id is CAL_MAG{instance}_ID, and this calibration does not know it"
-            ));
-            fmt::write_px4(text, &header, &p)?;
-        }
+        Target::ArduPilot => return write_ardupilot(text, args, cal, converted, header, notes),
+        Target::Px4 => return write_px4(text, cal, converted, header, notes),
         Target::MotionCal => {
             header.push(
                 "MotionCal and Adafruit_Sensor_Calibration apply b = softiron * (raw - hardiron), uT; mag_softiron is xx yy zz xy xz yz"
@@ -358,19 +493,20 @@ fn write_target(
             fmt::write_magneto(text, &header, calibration)?;
         }
         Target::C => {
+            // The formula leads the header, after the line of a calibration not to use.
+            let at = header.iter().take_while(|l| l.starts_with(NOT_USABLE)).count();
             header.insert(
-                0,
+                at,
                 format!("b = magcal_soft_iron * (raw - magcal_hard_iron), in {unit_label}; |b| = magcal_field"),
             );
             fmt::write_c(text, &header, calibration)?;
         }
     }
-    Ok(warnings)
+    Ok(Vec::new())
 }
 
-/// `--strict`: refuses the first of `problems` (counting the others), or a calibration not
-/// marked usable.
-fn refuse_strict(args: &ExportArgs, cal: &CalibrationJson, shown: &str, problems: &[String]) -> Result<()> {
+/// `--strict`: refuses the first of `problems`, counting the others.
+fn refuse_strict(shown: &str, problems: &[String]) -> Result<()> {
     if let Some(first) = problems.first() {
         bail!(
             "{shown}: --strict: {first}{}",
@@ -378,12 +514,6 @@ fn refuse_strict(args: &ExportArgs, cal: &CalibrationJson, shown: &str, problems
                 1 => String::new(),
                 n => format!(" (and {} more)", n - 1),
             }
-        );
-    }
-    if !cal.usable {
-        bail!(
-            "--strict: {}",
-            not_usable(args, cal).replace("the parameters were written, but ", "")
         );
     }
     Ok(())

@@ -55,8 +55,9 @@ pub enum Failure {
     Input(anyhow::Error),
     /// `check` found a regression: exit 1 (the table of what moved).
     Regression(String),
-    /// The command ran and wrote its outputs, but the result is not a calibration to use: the log
-    /// does not determine it, or rejects its model. Exit 3, with the reason.
+    /// The result is not a calibration to use: the log does not determine it, or rejects its
+    /// model. Exit 3, with the reason. `calibrate` writes its outputs all the same; `export`
+    /// writes nothing unless forced (`--force`), and then says so in what it writes.
     Unusable(String),
 }
 

@@ -7,6 +7,7 @@ use magcal_core::small::Mat3;
 use serde::{Deserialize, Serialize};
 
 use super::flight::Format;
+use super::parameters::LogParameters;
 use super::source::{LogArgs, format_of};
 use crate::limits::excerpt;
 
@@ -61,6 +62,11 @@ pub struct CalibrationJson {
     /// What the reader and the cut (window, rate) say about the log, one sentence each.
     #[serde(default)]
     pub log_notes: Vec<String>,
+    /// What a flight log says of its firmware's parameters, for `export`: which of those export
+    /// writes it has, and `COMPASS_OFFS_MAX`; `null` for a CSV log, a log that says nothing of
+    /// them, and a file written before this field existed.
+    #[serde(default)]
+    pub log_parameters: Option<LogParameters>,
     /// The time span of the readings fitted, seconds on the log's clock, where it has times.
     #[serde(default)]
     pub time_span_s: Option<[f64; 2]>,

@@ -16,7 +16,9 @@
 //!   in older logs: the motor compensation added); time `TimeUS` (`TimeMS` in old logs).
 //! - `PARM` (`Name`, `Value`): `COMPASS_OFS*`, `COMPASS_DIA*`, `COMPASS_ODI*`, `COMPASS_SCALE*`
 //!   (no suffix for instance 0, `2`, `3` for instances 1 and 2), in force from where they are
-//!   logged on; the first value of each is taken for readings logged before it.
+//!   logged on; the first value of each is taken for readings logged before it. For `export`
+//!   ([`super::parameters`]): which of the `COMPASS_*` parameters it writes the log has (a log
+//!   writes every parameter as `PARM` when it starts), and the last `COMPASS_OFFS_MAX`.
 //! - `ATT` (`Roll, Pitch, Yaw`, degrees) as a quaternion ([`super::binary::quaternion_of_euler`]);
 //!   `BAT` (`Curr`, amperes, instance 0); `CTUN` (`ThO`, 0 to 1).
 //!
@@ -46,6 +48,7 @@ use anyhow::{Result, bail};
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
 use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
+use super::parameters::LogParameters;
 use crate::scenario::site::Units;
 
 const MAGIC: [u8; 2] = [0xA3, 0x95];
@@ -221,6 +224,8 @@ struct Data {
     seen: Vec<u8>,
     /// `COMPASS_*` parameters: (byte offset, value) each time the value changes.
     params: HashMap<String, Vec<(u64, f64)>>,
+    /// The last `COMPASS_OFFS_MAX`, mGauss, for `export`'s range check.
+    offs_max: Option<f64>,
     attitude: Series<[f64; 4]>,
     current: Series<f64>,
     throttle: Series<f64>,
@@ -425,6 +430,9 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
         Role::Other => {}
         Role::Parm { name, value } => {
             let name = name.text(p);
+            if name == "COMPASS_OFFS_MAX" {
+                data.offs_max = Some(value.get(p));
+            }
             if followed(&name) {
                 let v = value.get(p);
                 let series = data.params.entry(name).or_default();
@@ -596,6 +604,8 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
             .into_iter()
             .flatten(),
     );
+    // A log writes every parameter as PARM when it starts: the names it lacks, its firmware lacks.
+    let parameters = LogParameters::ardupilot("PARM", Some(data.params.keys()), data.offs_max);
     Ok(FlightLog {
         format: Format::DataFlash,
         messages,
@@ -610,6 +620,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         to_body: Some(IDENTITY),
         calibration: InForce::Undone(undone.words),
         notes,
+        parameters,
         sha256,
         bytes,
     })

@@ -18,6 +18,7 @@
 use magcal_core::Vec3;
 use magcal_core::small::Mat3;
 
+use super::parameters::LogParameters;
 use crate::scenario::site::Units;
 
 /// The formats `magcal` reads.
@@ -129,6 +130,8 @@ pub struct FlightLog {
     /// What the user should know about the log, one sentence each: a rate too low to calibrate,
     /// parameters that changed, messages that were skipped and why.
     pub notes: Vec<String>,
+    /// What the log says of its firmware's parameters, for `export`, where it says anything.
+    pub parameters: Option<LogParameters>,
     /// SHA-256 of the file's bytes (lower-case hex).
     pub sha256: String,
     /// The file's size in bytes.

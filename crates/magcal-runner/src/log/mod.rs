@@ -1,7 +1,7 @@
 //! Logs of real readings and what the log commands share: a log of any format with what it
 //! carries beside the field ([`source`]), the CSV reader ([`read`]), what a flight log's reader
-//! hands over ([`flight`]), the calibration file ([`calibration`]) and the vehicle's box
-//! ([`vehicle`]). The site, date and units
+//! hands over ([`flight`]) with what it says of its firmware's parameters ([`parameters`]), the
+//! calibration file ([`calibration`]) and the vehicle's box ([`vehicle`]). The site, date and units
 //! of a log are typed in [`crate::scenario::site`], which scenarios share.
 
 pub mod ardupilot;
@@ -11,6 +11,7 @@ pub mod dataflash;
 pub mod export;
 pub mod flight;
 pub mod flown;
+pub mod parameters;
 pub mod read;
 pub mod source;
 pub mod tlog;

@@ -23,6 +23,7 @@ use magcal_core::aviation::{NavFrame, dcm_of_euler, dcm_of_quaternion, to_ned};
 use magcal_core::small::Mat3;
 
 use super::flight::{FlightLog, Format, InForce, Selection, Series};
+use super::parameters::LogParameters;
 use super::read::{self, Extra, RowFilter};
 use crate::scenario::site::Units;
 
@@ -168,6 +169,8 @@ pub struct Origin {
     pub span: Option<[f64; 2]>,
     /// What the user should know, one sentence each: the reader's notes and the cut's.
     pub notes: Vec<String>,
+    /// What a flight log says of its firmware's parameters (`log_parameters` of calibration.json).
+    pub parameters: Option<LogParameters>,
 }
 
 impl Origin {
@@ -184,6 +187,7 @@ impl Origin {
             to_body: None,
             span: None,
             notes: Vec::new(),
+            parameters: None,
         }
     }
 
@@ -646,6 +650,7 @@ fn from_flight(f: FlightLog) -> Log {
         to_body: f.to_body,
         span: span(&times),
         notes: f.notes,
+        parameters: f.parameters,
     };
     Log {
         readings: f.samples.iter().map(|s| s.raw).collect(),

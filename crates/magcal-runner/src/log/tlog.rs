@@ -18,7 +18,9 @@
 //! - `PARAM_VALUE`: `COMPASS_OFS*`, `COMPASS_DIA*`, `COMPASS_ODI*`, `COMPASS_SCALE*`,
 //!   `COMPASS_MOT*`, `COMPASS_MOTCT` (a ground station downloads them all when it connects; later
 //!   ones are changes). The offsets of instances 1 and 2 come from `COMPASS_OFS2_*`,
-//!   `COMPASS_OFS3_*` only.
+//!   `COMPASS_OFS3_*` only. For `export` ([`super::parameters`]): the last `COMPASS_OFFS_MAX`,
+//!   and, where the log received every `param_index` below `param_count`, which of the
+//!   `COMPASS_*` parameters export writes the firmware has.
 //! - `ATTITUDE` (roll, pitch, yaw, radians) as a quaternion
 //!   ([`super::binary::quaternion_of_euler`]); `SYS_STATUS.current_battery` (cA; else
 //!   `BATTERY_STATUS` of battery 0); `VFR_HUD.throttle` (percent, as 0 to 1).
@@ -55,6 +57,7 @@ use mavlink::{MavlinkVersion, Message, calculate_crc};
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
 use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
+use super::parameters::LogParameters;
 use crate::scenario::site::Units;
 
 /// Bytes of a record's time stamp.
@@ -198,6 +201,10 @@ struct Data {
     offsets: Vec<(u64, [f64; 3])>,
     /// `COMPASS_*` parameters: (byte offset, value) each time the value changes.
     params: HashMap<String, Vec<(u64, f64)>>,
+    /// The last `COMPASS_OFFS_MAX`, mGauss, for `export`'s range check.
+    offs_max: Option<f64>,
+    /// Which parameters of the vehicle's list were received.
+    indices: ParamIndices,
     attitude: Series<[f64; 4]>,
     sys_current: Series<f64>,
     battery_current: Series<f64>,
@@ -285,6 +292,41 @@ fn resync(w: &[u8], extras: &mut Extras) -> usize {
     w.len().saturating_sub(STAMP).max(1)
 }
 
+/// Which `param_index` of the vehicle's `param_count` the log received: the log holds every
+/// parameter of the firmware when it received each index (a ground station downloads the whole
+/// list when it connects; a log that starts later holds only the changes).
+#[derive(Default)]
+struct ParamIndices {
+    /// The last `param_count`.
+    count: u16,
+    /// One per index below `count` (at most 65,535 bytes).
+    seen: Vec<bool>,
+    /// Indices below `count` not received.
+    missing: usize,
+}
+
+impl ParamIndices {
+    /// Notes index `index` of a list of `count`; a new count starts the list again.
+    fn mark(&mut self, count: u16, index: u16) {
+        if count != self.count {
+            self.count = count;
+            self.seen = vec![false; usize::from(count)];
+            self.missing = usize::from(count);
+        }
+        if let Some(seen) = self.seen.get_mut(usize::from(index))
+            && !*seen
+        {
+            *seen = true;
+            self.missing -= 1;
+        }
+    }
+
+    /// Every index of a list that is not empty received.
+    fn whole(&self) -> bool {
+        self.count > 0 && self.missing == 0
+    }
+}
+
 /// A valid frame with its reception time.
 struct Received<'a> {
     frame: &'a Frame,
@@ -355,6 +397,10 @@ fn take(
         }
         MavMessage::PARAM_VALUE(d) => {
             let name = d.param_id.to_str().unwrap_or_default();
+            data.indices.mark(d.param_count, d.param_index);
+            if name == "COMPASS_OFFS_MAX" {
+                data.offs_max = Some(f64::from(d.param_value));
+            }
             if followed(name) {
                 let v = f64::from(d.param_value);
                 let series = data.params.entry(name.to_string()).or_default();
@@ -524,6 +570,8 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
     if present(&data.throttle) {
         messages.push("VFR_HUD: throttle (%)".into());
     }
+    let listed = data.indices.whole().then(|| data.params.keys());
+    let parameters = LogParameters::ardupilot("PARAM_VALUE", listed, data.offs_max);
     Ok(FlightLog {
         format: Format::Tlog,
         messages,
@@ -538,6 +586,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         to_body: Some(IDENTITY),
         calibration: InForce::Undone(undone.words),
         notes,
+        parameters,
         sha256,
         bytes,
     })

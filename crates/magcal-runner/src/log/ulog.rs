@@ -14,7 +14,9 @@
 //!   log without a version cannot tell: its readings are returned as they are
 //!   ([`InForce::Calibrated`]) and the words say why.
 //! - `CAL_MAGn_*` is matched to the instance by `CAL_MAGn_ID == device_id` (PX4's own rule,
-//!   `FindCurrentCalibrationIndex`), else by `n` = instance, and [`Px4Log`] says which.
+//!   `FindCurrentCalibrationIndex`), else by `n` = instance, and [`Px4Log`] says which. For
+//!   `export` ([`super::parameters`]): which of the `CAL_MAGn_*` parameters it writes the
+//!   firmware has (the header holds every parameter).
 //! - `to_body`, the rotation PX4 applies after the calibration (`calibration::Magnetometer`:
 //!   `m = R * S * ((r + power * COMP) - OFF)`): an external sensor (`CAL_MAGn_ROT >= 0`) is rotated
 //!   by `CAL_MAGn_ROT`, an internal one (`CAL_MAGn_ROT = -1`) by the board's `SENS_BOARD_ROT`;
@@ -79,6 +81,7 @@ use anyhow::{Context, Result, bail};
 use magcal_core::small::Mat3;
 
 use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
+use super::parameters::LogParameters;
 use crate::digest::Hashing;
 use crate::limits;
 use crate::scenario::site::Units;
@@ -1103,6 +1106,8 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
     let rate_hz = rate_of(&samples);
     note_rate(&raw, &chosen, &samples, rate_hz, beside.attitude.as_ref(), &mut notes);
     note_file(&raw, &mut notes);
+    // A ULog's header holds every parameter of its firmware.
+    let parameters = LogParameters::px4(raw.initial.keys());
     let log = FlightLog {
         format: Format::Ulog,
         messages,
@@ -1117,6 +1122,7 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
         to_body,
         calibration,
         notes,
+        parameters,
         sha256,
         bytes,
     };

@@ -130,6 +130,31 @@ fn the_fixture_reads_as_pymavlink_reads_it() {
 }
 
 #[test]
+fn the_fixture_lists_its_firmwares_parameters_without_compass_scale() {
+    // pymavlink's test.BIN comes from a firmware without COMPASS_SCALE (ArduPilot 3.x) and a
+    // COMPASS_OFFS_MAX of 850: its PARM names every other COMPASS_* that export writes, for
+    // three compasses (OFS, DIA, ODI, MOT: 36, and MOTCT).
+    let Some(path) = data(FIXTURE) else { return };
+    let log = read(&path, &pick(Some(1))).unwrap();
+    let p = log.parameters.unwrap();
+    assert_eq!(p.autopilot, magcal_runner::log::parameters::Autopilot::ArduPilot);
+    assert_eq!(p.source, "PARM");
+    assert_eq!(p.compass_offs_max, Some(850.0));
+    let names = p.names.unwrap();
+    assert_eq!(names.len(), 37, "{names:?}");
+    for n in [
+        "COMPASS_OFS2_X",
+        "COMPASS_DIA3_Z",
+        "COMPASS_ODI_Y",
+        "COMPASS_MOT2_Z",
+        "COMPASS_MOTCT",
+    ] {
+        assert!(names.contains(n), "{n}");
+    }
+    assert!(!names.iter().any(|n| n.starts_with("COMPASS_SCALE")), "{names:?}");
+}
+
+#[test]
 fn an_instance_the_fixture_lacks_is_refused_naming_those_it_has() {
     let Some(path) = data(FIXTURE) else { return };
     let e = read(&path, &pick(Some(5))).unwrap_err().to_string();

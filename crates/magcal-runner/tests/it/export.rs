@@ -39,16 +39,18 @@ fn symmetric(diag: Vec3, off: Vec3) -> Mat3 {
 /// `mag += offsets; if (have_scale_factor(i)) mag *= scale_factor; mag = mat * mag;` then
 /// `mag += motor_compensation * (throttle or current)`. `Compass::have_scale_factor` is false
 /// outside `[COMPASS_MIN_SCALE_FACTOR, COMPASS_MAX_SCALE_FACTOR]` = `[1/1.5, 1.5]`
-/// (`CompassCalibrator.h`).
+/// (`CompassCalibrator.h`), and a firmware without `COMPASS_SCALE` (ArduPilot 3.x) has no such
+/// step.
 fn ardupilot_correct(p: &BTreeMap<String, f64>, suffix: &str, r: Vec3, u: f64) -> Vec3 {
     let get = |name: String| p[&name];
     let axes = ["X", "Y", "Z"];
     let ofs = axes.map(|a| get(format!("COMPASS_OFS{suffix}_{a}")));
     let dia = axes.map(|a| get(format!("COMPASS_DIA{suffix}_{a}")));
     let odi = axes.map(|a| get(format!("COMPASS_ODI{suffix}_{a}")));
-    let scale = get(format!("COMPASS_SCALE{suffix}"));
     let mut mag = [0, 1, 2].map(|i| r[i] + ofs[i]);
-    if (1.0 / 1.5..=1.5).contains(&scale) {
+    if let Some(&scale) = p.get(&format!("COMPASS_SCALE{suffix}"))
+        && (1.0 / 1.5..=1.5).contains(&scale)
+    {
         mag = mag.map(|v| v * scale);
     }
     let mut mag = mat_vec(&symmetric(dia, odi), mag);
@@ -625,7 +627,7 @@ fn values_outside_what_ardupilot_takes_are_named_and_strict_refuses_them() {
 }
 
 #[test]
-fn frames_usability_and_notes_are_said() {
+fn frames_and_notes_are_said() {
     let tmp = TempDir::new().unwrap();
     let case = simulated(tmp.path());
     let (_, _, stderr) = export(&case.cal, "ardupilot", &[]);
@@ -660,21 +662,6 @@ fn frames_usability_and_notes_are_said() {
         &export(&ap, "px4", &["--strict"]),
         &["--strict: the calibration is in the frame"],
     );
-    // A calibration not marked usable: written all the same, exit 3 with the reasons; --strict
-    // writes nothing.
-    let unusable = edited(&case.cal, "unusable.json", |j| {
-        j["usable"] = serde_json::json!(false);
-        j["reasons"] = serde_json::json!(["the log rejects the model"]);
-    });
-    let out = tmp.path().join("out.param");
-    let (code, _, stderr) = export(&unusable, "ardupilot", &["--out", out.to_str().unwrap()]);
-    assert_eq!(code, 3, "{stderr}");
-    assert!(stderr.contains("the log rejects the model"), "{stderr}");
-    assert!(read_param(&fs::read_to_string(&out).unwrap()).contains_key("COMPASS_SCALE"));
-    fs::remove_file(&out).unwrap();
-    let refused = export(&unusable, "ardupilot", &["--strict", "--out", out.to_str().unwrap()]);
-    assert_refused(&refused, &["not marked usable", "the log rejects the model"]);
-    assert!(!out.exists());
 }
 
 #[test]
@@ -752,4 +739,453 @@ fn bad_input_is_refused_before_anything_is_written() {
         &["calibration.json"],
     );
     assert_eq!(fs::read(&case.cal).unwrap(), before);
+}
+
+// ---- A calibration not marked usable. ----
+
+/// Every target, with the line that opens its comments (the C header's is a block comment).
+const TARGETS: [(&str, &str); 5] = [
+    ("ardupilot", "# "),
+    ("px4", "# "),
+    ("motioncal", "# "),
+    ("magneto", "# "),
+    ("c", " * "),
+];
+
+/// The lines of an export that are not comments.
+fn values(text: &str) -> Vec<&str> {
+    text.lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with(" *") && !l.starts_with("/*"))
+        .collect()
+}
+
+#[test]
+fn a_calibration_not_usable_is_written_by_no_target_unless_forced() {
+    let tmp = TempDir::new().unwrap();
+    let case = simulated(tmp.path());
+    let reasons = ["the log rejects the model", "the readings are not on an ellipsoid"];
+    let unusable = edited(&case.cal, "unusable.json", |j| {
+        j["usable"] = serde_json::json!(false);
+        j["reasons"] = serde_json::json!(reasons);
+    });
+    let shown = unusable.display().to_string();
+    for (to, comment) in TARGETS {
+        // Refused: exit 3, one line naming the calibration, the output and the reasons; no file
+        // made, an existing one left as it was, nothing on standard output.
+        let out = tmp.path().join(format!("{to}.out"));
+        let out_s = out.to_str().unwrap();
+        let (code, stdout, stderr) = export(&unusable, to, &["--out", out_s]);
+        assert_eq!(code, 3, "{to}: {stderr}");
+        assert!(stdout.is_empty(), "{stdout}");
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+        let want = format!(
+            "magcal: not a calibration to use: {shown}: nothing written to {out_s}: the calibration is not marked usable: {}; --force writes it all the same, its first line saying so\n",
+            reasons.join("; ")
+        );
+        assert_eq!(stderr, want);
+        assert!(!out.exists(), "{to}");
+        let before = b"COMPASS_OFS_X,1\n# a file the user had\n".to_vec();
+        fs::write(&out, &before).unwrap();
+        assert_eq!(export(&unusable, to, &["--out", out_s]).0, 3);
+        assert_eq!(fs::read(&out).unwrap(), before, "{to}");
+        let (code, stdout, stderr) = export(&unusable, to, &[]);
+        assert_eq!((code, stdout.as_str()), (3, ""), "{to}: {stderr}");
+        assert!(stderr.contains("nothing written to standard output"), "{stderr}");
+        // Forced: written, its first comment line says it is not to use and why; exit 3. The
+        // values are those of the same calibration marked usable.
+        let (code, _, stderr) = export(&unusable, to, &["--force", "--out", out_s]);
+        assert_eq!(code, 3, "{to}: {stderr}");
+        assert!(
+            stderr.ends_with(&format!(
+                "magcal: not a calibration to use: {shown}: written with --force to {out_s}, its first line saying so: the calibration is not marked usable: {}\n",
+                reasons.join("; ")
+            )),
+            "{stderr}"
+        );
+        let text = fs::read_to_string(&out).unwrap();
+        let first = text.lines().find(|l| *l != "/*").unwrap();
+        assert_eq!(
+            first,
+            format!(
+                "{comment}NOT A CALIBRATION TO USE (written with --force): the calibration is not marked usable: {}",
+                reasons.join("; ")
+            ),
+            "{to}"
+        );
+        if to == "c" {
+            assert!(text.starts_with("/*\n"), "{text}");
+        }
+        let (code, usable_text, _) = export(&case.cal, to, &[]);
+        assert_eq!(code, 0);
+        assert!(!usable_text.contains("NOT A CALIBRATION"), "{usable_text}");
+        assert_eq!(values(&text), values(&usable_text), "{to}");
+        assert!(values(&text).len() >= 3, "{text}");
+        // --force and --strict contradict each other: refused before anything is written.
+        fs::remove_file(&out).unwrap();
+        let (code, _, stderr) = export(&unusable, to, &["--force", "--strict", "--out", out_s]);
+        assert_eq!(code, 2, "{stderr}");
+        assert!(stderr.contains("'--force' cannot be used with '--strict'"), "{stderr}");
+        assert!(!out.exists());
+    }
+    // --force on a usable calibration changes nothing; --strict on one not usable refuses it as
+    // not usable (exit 3), nothing written.
+    let (code, forced, _) = export(&case.cal, "ardupilot", &["--force"]);
+    assert_eq!((code, forced), (0, export(&case.cal, "ardupilot", &[]).1));
+    let (code, stdout, stderr) = export(&unusable, "px4", &["--strict"]);
+    assert_eq!((code, stdout.as_str()), (3, ""), "{stderr}");
+    // Without reasons, it says so.
+    let bare = edited(&case.cal, "bare.json", |j| {
+        j["usable"] = serde_json::json!(false);
+        j["reasons"] = serde_json::json!([]);
+    });
+    let (code, _, stderr) = export(&bare, "c", &[]);
+    assert_eq!(code, 3);
+    assert!(stderr.contains("not marked usable, and gives no reasons"), "{stderr}");
+}
+
+// ---- The log's own parameters. ----
+
+/// The true sensor of [`log_without_scale`]'s compass 1: `raw = K b + O` (mGauss), its gains
+/// about 0.8 (so `COMPASS_SCALE` would be about 1.25) and its bias beyond a `COMPASS_OFFS_MAX` of
+/// 850 on x.
+const K1: Mat3 = [[0.80, 0.02, -0.01], [0.0, 0.76, 0.03], [0.0, 0.0, 0.84]];
+const O1: Vec3 = [905.0, -310.0, 240.0];
+/// The field at the log's site, north, east, down, mGauss (|F| = 457.38).
+const FIELD_NED: Vec3 = [180.0, -20.0, 420.0];
+
+/// A DataFlash log of compass 1 (`MAG` with `I` = 1) as a firmware without `COMPASS_SCALE*`
+/// writes it (ArduPilot 3.x, as `pymavlink_test.BIN` was): `PARM` with every `COMPASS_OFS*`,
+/// `DIA*`, `ODI*`, `MOT*`, `COMPASS_MOTCT` and `COMPASS_OFFS_MAX` 850, then `n` readings of
+/// [`K1`], [`O1`] at random attitudes under an old calibration (`m = D (r + OFS)`, int16 fields as
+/// ArduPilot casts them). The log and the true raw readings.
+fn log_without_scale(dir: &Path, n: usize) -> (PathBuf, Vec<Vec3>) {
+    use crate::dataflash::{V, Writer, c_bn, mv};
+    use rand::RngExt;
+    let mut w = Writer::new();
+    w.fmt(0x81, "PARM", "QNf", "TimeUS,Name,Value");
+    w.fmt(
+        0x82,
+        "MAG",
+        "QBhhhhhhhhh",
+        "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ",
+    );
+    let old_ofs = [-40.0f32, 25.0, 10.0];
+    let (old_dia, old_odi) = ([1.02f32, 0.97, 1.01], [0.01f32, -0.02, 0.015]);
+    let mut parm = |name: &str, v: f32| w.msg(0x81, &[V::N(1000.0), V::S(name), V::N(f64::from(v))]);
+    for (sfx, ofs, dia, odi) in [
+        ("", [0.0; 3], [1.0; 3], [0.0; 3]),
+        ("2", old_ofs, old_dia, old_odi),
+        ("3", [0.0; 3], [1.0; 3], [0.0; 3]),
+    ] {
+        for (c, a) in ["X", "Y", "Z"].iter().enumerate() {
+            parm(&format!("COMPASS_OFS{sfx}_{a}"), ofs[c]);
+            parm(&format!("COMPASS_DIA{sfx}_{a}"), dia[c]);
+            parm(&format!("COMPASS_ODI{sfx}_{a}"), odi[c]);
+            parm(&format!("COMPASS_MOT{sfx}_{a}"), 0.0);
+        }
+    }
+    parm("COMPASS_MOTCT", 0.0);
+    parm("COMPASS_OFFS_MAX", 850.0);
+    parm("COMPASS_USE2", 1.0);
+    let d = {
+        let (a, o) = (old_dia.map(f64::from), old_odi.map(f64::from));
+        [[a[0], o[0], o[1]], [o[0], a[1], o[2]], [o[1], o[2], a[2]]]
+    };
+    let mut rng = magcal_core::rng::stream_rng(32, 0);
+    let mut raw = Vec::with_capacity(n);
+    for i in 0..n {
+        let roll = rng.random_range(-180.0f64..180.0).to_radians();
+        let pitch = rng.random_range(-90.0f64..90.0).to_radians();
+        let yaw = rng.random_range(0.0f64..360.0).to_radians();
+        let c = c_bn(roll, pitch, yaw);
+        let b: Vec3 = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * FIELD_NED[r]).sum::<f64>());
+        let kb = mv(&K1, b);
+        let r: Vec3 = std::array::from_fn(|a| kb[a] + O1[a]);
+        let m = mv(&d, std::array::from_fn(|a| r[a] + f64::from(old_ofs[a])));
+        let mut vals = vec![V::N(2000.0 + 20_000.0 * i as f64), V::N(1.0)];
+        vals.extend(m.map(V::N));
+        vals.extend(old_ofs.map(|x| V::N(f64::from(x))));
+        vals.extend([V::N(0.0); 3]);
+        w.msg(0x82, &vals);
+        raw.push(r);
+    }
+    (w.save(dir, "no-scale.bin"), raw)
+}
+
+/// The largest `||m| - |P (raw - bias)||` over `raw`, with `m` ArduPilot's field
+/// ([`ardupilot_correct`]) from the parameters `p` of compass suffix `sfx` stored as ArduPilot
+/// stores them (float32), and a bound on it: float32 rounding (2^-24 relative) of `D`
+/// and `OFS`, through `m = D (r + OFS)` (and `s` where written), to 4 units.
+fn ardupilot_against_p(
+    p: &BTreeMap<String, f64>,
+    sfx: &str,
+    cal: &magcal_runner::log::calibration::CalibrationJson,
+    raw: &[Vec3],
+) -> (f64, f64) {
+    let stored: BTreeMap<String, f64> = p.iter().map(|(k, v)| (k.clone(), f64::from(*v as f32))).collect();
+    let u = f64::from(f32::EPSILON) / 2.0;
+    let (mut worst, mut bound) = (0.0f64, 0.0f64);
+    for r in raw {
+        let m = ardupilot_correct(&stored, sfx, *r, 0.0);
+        let b = cal.apply(*r);
+        worst = worst.max((length(m) - length(b)).abs());
+        // |dm| <= |D| |d(r + OFS)| + |dD| |r + OFS| with |dD| <= u |D|_F (and as much of s).
+        let ofs = ["X", "Y", "Z"].map(|a| p[&format!("COMPASS_OFS{sfx}_{a}")]);
+        let d_f = ["DIA", "ODI"]
+            .iter()
+            .flat_map(|g| ["X", "Y", "Z"].map(|a| p[&format!("COMPASS_{g}{sfx}_{a}")]))
+            .map(|v| v * v)
+            .sum::<f64>()
+            .sqrt()
+            * 2f64.sqrt();
+        let s = p.get(&format!("COMPASS_SCALE{sfx}")).copied().unwrap_or(1.0);
+        let shifted = length([0, 1, 2].map(|i| r[i] + ofs[i]));
+        bound = bound.max(4.0 * u * d_f * s * (length(ofs) + 2.0 * shifted));
+    }
+    (worst, bound)
+}
+
+#[test]
+fn a_dataflash_logs_own_offs_max_and_parameters_decide_what_is_written() {
+    let tmp = TempDir::new().unwrap();
+    let (log, raw) = log_without_scale(tmp.path(), 600);
+    let r = length(FIELD_NED);
+    let cal_path = calibrate(
+        &log,
+        &["--compass", "1", "--magnitude", &r.to_string()],
+        &tmp.path().join("cal"),
+    );
+    let cal = magcal_runner::log::calibration::read_calibration(&cal_path).unwrap();
+    // What calibrate records of the log's parameters: the 37 COMPASS_* the firmware has of
+    // those export writes (no SCALE), and COMPASS_OFFS_MAX.
+    let json: serde_json::Value = serde_json::from_slice(&fs::read(&cal_path).unwrap()).unwrap();
+    let lp = &json["log_parameters"];
+    assert_eq!(lp["autopilot"], "ArduPilot");
+    assert_eq!(lp["source"], "PARM");
+    assert_eq!(lp["compass_offs_max"], 850.0);
+    let names: Vec<&str> = lp["names"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap())
+        .collect();
+    assert_eq!(names.len(), 37, "{names:?}");
+    assert!(names.contains(&"COMPASS_DIA2_X") && names.contains(&"COMPASS_MOTCT"));
+    assert!(!names.iter().any(|n| n.contains("SCALE")), "{names:?}");
+    assert_eq!(cal.instance, Some(1));
+    // The fit: the true bias to within the int16 logging's noise.
+    for (b, o) in cal.bias.iter().zip(O1) {
+        assert!((b - o).abs() < 1.0, "{:?}", cal.bias);
+    }
+
+    let (code, text, stderr) = export(&cal_path, "ardupilot", &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let p = read_param(&text);
+    // No COMPASS_SCALE2: its scale, about 1.25, is carried by D = M.
+    assert!(!text.lines().any(|l| l.starts_with("COMPASS_SCALE")), "{text}");
+    let m = &cal.soft_iron_inverse;
+    let s = (m[0][0] + m[1][1] + m[2][2]) / 3.0;
+    assert!((1.2..1.3).contains(&s), "{s}");
+    eprintln!(
+        "COMPASS_SCALE2 = {s} folded into DIA2 = {:?}",
+        [m[0][0], m[1][1], m[2][2]]
+    );
+    let said = format!(
+        "COMPASS_SCALE2: not written, the log's firmware has none (its PARM list every parameter it has); its scale {s} is carried by COMPASS_DIA2_* and COMPASS_ODI2_* (D = M: ArduPilot then applies m = D (r + OFS))"
+    );
+    assert!(text.contains(&format!("# {said}\n")), "{text}");
+    assert!(stderr.contains(&format!("magcal: note: {said}\n")), "{stderr}");
+    for (name, v) in [
+        ("COMPASS_DIA2_X", m[0][0]),
+        ("COMPASS_DIA2_Y", m[1][1]),
+        ("COMPASS_DIA2_Z", m[2][2]),
+        ("COMPASS_ODI2_X", m[0][1]),
+        ("COMPASS_ODI2_Y", m[0][2]),
+        ("COMPASS_ODI2_Z", m[1][2]),
+    ] {
+        assert_eq!(p[name], v, "{name}");
+    }
+    assert!(
+        (1.2..1.35).contains(&p["COMPASS_DIA2_Y"]),
+        "{}: inside ArduPilot's 0.2 to 5",
+        p["COMPASS_DIA2_Y"]
+    );
+    // ArduPilot's formula with the parameters as written (decimals that read back as the same
+    // f64) gives |P (raw - bias)| of the calibration to the rounding of the arithmetic; as
+    // ArduPilot stores them (float32), to float32 rounding; on the true raw readings.
+    let exact = raw
+        .iter()
+        .map(|r| {
+            let b = cal.apply(*r);
+            (length(ardupilot_correct(&p, "2", *r, 0.0)) - length(b)).abs() / length(b)
+        })
+        .fold(0.0, f64::max);
+    assert!(exact <= EXACT, "{exact:e}");
+    let (worst, bound) = ardupilot_against_p(&p, "2", &cal, &raw);
+    eprintln!("ArduPilot without COMPASS_SCALE2: ||m| - |P (r - c)|| <= {worst:.2e} mGauss (bound {bound:.2e})");
+    assert!(worst <= bound && bound < 1e-2, "{worst} {bound}");
+    // The formula with COMPASS_SCALE2 written as a firmware with it would take it (s D = M):
+    // the same field; dropping the scale without folding it into D would be 1/s off.
+    let unfolded: BTreeMap<String, f64> = p
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.clone(),
+                if k.starts_with("COMPASS_DIA2") || k.starts_with("COMPASS_ODI2") {
+                    v / s
+                } else {
+                    *v
+                },
+            )
+        })
+        .collect();
+    let b = cal.apply(raw[0]);
+    let m0 = ardupilot_correct(&unfolded, "2", raw[0], 0.0);
+    assert!((length(m0) * s / length(b) - 1.0).abs() < 1e-12);
+
+    // The range check uses the log's COMPASS_OFFS_MAX, 850: OFS2_X = -c_x, about -905.
+    let ofs_x = p["COMPASS_OFS2_X"];
+    assert!((-906.0..-904.0).contains(&ofs_x), "{ofs_x}");
+    assert!(
+        stderr.contains(
+            "magcal: note: the offsets are checked against COMPASS_OFFS_MAX = 850 mGauss: the log's (PARM)\n"
+        ),
+        "{stderr}"
+    );
+    assert!(
+        text.contains("# the offsets are checked against COMPASS_OFFS_MAX = 850 mGauss: the log's (PARM)\n"),
+        "{text}"
+    );
+    assert!(
+        stderr.contains(&format!(
+            "magcal: warning: COMPASS_OFS2_X = {ofs_x} is outside -850 to 850 mGauss"
+        )),
+        "{stderr}"
+    );
+    assert!(stderr.contains("magcal: warning: |COMPASS_OFS2| = "), "{stderr}");
+    assert!(!stderr.contains("COMPASS_OFS2_Y ="), "{stderr}");
+    assert_refused(
+        &export(&cal_path, "ardupilot", &["--strict"]),
+        &["--strict: COMPASS_OFS2_X = ", "(and 1 more)"],
+    );
+    // --offs-max overrides it, and says over what.
+    let (code, text2, stderr) = export(&cal_path, "ardupilot", &["--offs-max", "1000"]);
+    assert_eq!(code, 0);
+    assert!(!stderr.contains("warning"), "{stderr}");
+    assert!(
+        stderr.contains("COMPASS_OFFS_MAX = 1000 mGauss: --offs-max, over the log's 850 (PARM)"),
+        "{stderr}"
+    );
+    assert_eq!(values(&text2), values(&text));
+    // PX4's parameters are not the log's firmware's: all written.
+    let (code, px4, stderr) = export(&cal_path, "px4", &[]);
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(read_px4(&px4).len(), 9);
+    assert!(
+        !stderr.contains("not written") && !stderr.contains("COMPASS_OFFS_MAX"),
+        "{stderr}"
+    );
+
+    // The same calibration as a file written before log_parameters: every parameter, the
+    // default limit of 1800 (no warning for |OFS2| = 986), and the same field by the formula.
+    let old = edited(&cal_path, "old.json", |j| {
+        j.as_object_mut().unwrap().remove("log_parameters");
+    });
+    let (code, text, stderr) = export(&old, "ardupilot", &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let p_old = read_param(&text);
+    assert_eq!(p_old["COMPASS_SCALE2"], s);
+    assert!(!stderr.contains("warning"), "{stderr}");
+    assert!(
+        stderr.contains("COMPASS_OFFS_MAX = 1800 mGauss: ArduPilot's default (calibration.json records no COMPASS_OFFS_MAX of its log)"),
+        "{stderr}"
+    );
+    let (worst, bound) = ardupilot_against_p(&p_old, "2", &cal, &raw);
+    assert!(worst <= bound, "{worst} {bound}");
+}
+
+#[test]
+fn a_malformed_log_parameters_is_refused_naming_the_file_the_field_and_the_value() {
+    let tmp = TempDir::new().unwrap();
+    let case = simulated(tmp.path());
+    let out = tmp.path().join("kept.param");
+    fs::write(&out, b"kept\n").unwrap();
+    for (name, value, said) in [
+        (
+            "offs.json",
+            serde_json::json!({"autopilot": "ArduPilot", "source": "PARM", "names": null, "compass_offs_max": "850"}),
+            "log_parameters.compass_offs_max \"850\": not null or a number of mGauss from 1 to 32767",
+        ),
+        (
+            "negative.json",
+            serde_json::json!({"autopilot": "ArduPilot", "source": "PARM", "names": null, "compass_offs_max": -3}),
+            "log_parameters.compass_offs_max -3: not null",
+        ),
+        (
+            "names.json",
+            serde_json::json!({"autopilot": "ArduPilot", "source": "PARM", "names": ["COMPASS_OFS_X", 7]}),
+            "log_parameters.names: 7: not a parameter name",
+        ),
+        (
+            "autopilot.json",
+            serde_json::json!({"autopilot": "Betaflight", "source": "PARM"}),
+            "log_parameters.autopilot \"Betaflight\": not \"ArduPilot\" or \"PX4\"",
+        ),
+    ] {
+        let bad = edited(&case.cal, name, |j| j["log_parameters"] = value);
+        for to in ["ardupilot", "c"] {
+            assert_refused(
+                &export(&bad, to, &["--out", out.to_str().unwrap()]),
+                &[&format!("{}: not a magcal calibration: {said}", bad.display())],
+            );
+        }
+        assert_eq!(fs::read(&out).unwrap(), b"kept\n");
+    }
+    // null, as a CSV log's calibration has it: written as before.
+    let null = edited(&case.cal, "null.json", |j| {
+        j["log_parameters"] = serde_json::Value::Null
+    });
+    assert_eq!(export(&null, "ardupilot", &[]).0, 0);
+}
+
+#[test]
+fn a_px4_19_log_without_odiag_gets_no_odiag_and_says_what_is_lost() {
+    // PX4 1.9 (esc_status_log.ulg) had no CAL_MAGn_*ODIAG: its calibration (not usable: the log
+    // is too short) forced to PX4 writes offsets and scales, and says the off-diagonal terms
+    // are lost.
+    let Some(log) = data("px4/esc_status_log.ulg") else {
+        return;
+    };
+    let tmp = TempDir::new().unwrap();
+    let dir = tmp.path().join("cal");
+    let (code, _, stderr) = run(&["calibrate".as_ref(), log.as_os_str(), "--out".as_ref(), dir.as_os_str()]);
+    assert_eq!(code, 3, "{stderr}");
+    let cal = dir.join("calibration.json");
+    let json: serde_json::Value = serde_json::from_slice(&fs::read(&cal).unwrap()).unwrap();
+    assert_eq!(json["log_parameters"]["autopilot"], "PX4");
+    assert_eq!(json["log_parameters"]["names"].as_array().unwrap().len(), 24);
+    assert_eq!(export(&cal, "px4", &[]).0, 3);
+    let (code, text, stderr) = export(&cal, "px4", &["--force"]);
+    assert_eq!(code, 3, "{stderr}");
+    let p = read_px4(&text);
+    assert_eq!(
+        p.keys().map(String::as_str).collect::<Vec<_>>(),
+        [
+            "CAL_MAG0_XOFF",
+            "CAL_MAG0_XSCALE",
+            "CAL_MAG0_YOFF",
+            "CAL_MAG0_YSCALE",
+            "CAL_MAG0_ZOFF",
+            "CAL_MAG0_ZSCALE"
+        ]
+    );
+    let said = "CAL_MAG0_*ODIAG: not written, the log's firmware has none (its ULog parameters list every parameter it has); the off-diagonal terms are not carried: PX4 applies the diagonal alone";
+    assert!(text.contains(&format!("\n# {said}\n")), "{text}");
+    assert!(stderr.contains(&format!("magcal: warning: {said}\n")), "{stderr}");
+    assert!(
+        text.starts_with(
+            "# NOT A CALIBRATION TO USE (written with --force): the calibration is not marked usable: not identifiable"
+        ),
+        "{text}"
+    );
 }

@@ -29,7 +29,7 @@ const EPOCH_US: u64 = 1_700_000_000_000_000;
 const DELAY_US: u64 = 35_000;
 
 /// A telemetry log being written: records of a big-endian time stamp and one frame.
-#[derive(Default)]
+#[derive(Default, Clone)]
 struct Tlog {
     bytes: Vec<u8>,
     /// Byte offsets of the records and of their frames' payloads (for damaging them).
@@ -292,6 +292,64 @@ fn a_synthetic_tlog_gives_back_the_true_sensor_across_an_offsets_change() {
         e.ends_with("--compass 2: the log has no readings of magnetometer 2; it has 0, 1"),
         "{e}"
     );
+}
+
+#[test]
+fn a_whole_parameter_list_says_which_parameters_the_firmware_has() {
+    // The log of `synthetic` (its parameters sent with param_count 1000, index 0: a list it does
+    // not hold whole), then the vehicle's whole list of 15 as a ground station fetches it, with
+    // the values already in force and COMPASS_OFFS_MAX 850.
+    let dir = TempDir::new().unwrap();
+    let (base, _) = synthetic(100, 4);
+    let mut list: Vec<(String, f32)> = Vec::new();
+    let (ofs, dia, odi) = (
+        [-30.25f32, -77.5, -141.75],
+        [1.03f32, 0.96, 1.02],
+        [0.012f32, -0.018, 0.009],
+    );
+    for (c, a) in ["X", "Y", "Z"].iter().enumerate() {
+        list.push((format!("COMPASS_OFS_{a}"), ofs[c]));
+        list.push((format!("COMPASS_DIA_{a}"), dia[c]));
+        list.push((format!("COMPASS_ODI_{a}"), odi[c]));
+        list.push((format!("COMPASS_OFS2_{a}"), 0.0));
+    }
+    list.extend([
+        ("COMPASS_SCALE".to_string(), 1.05),
+        ("COMPASS_OFFS_MAX".to_string(), 850.0),
+        ("SYSID_THISMAV".to_string(), 1.0),
+    ]);
+    let with = |skip: Option<usize>| {
+        let mut w = base.clone();
+        for (i, (name, v)) in list.iter().enumerate() {
+            if Some(i) == skip {
+                continue;
+            }
+            let msg = MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+                param_value: *v,
+                param_count: list.len() as u16,
+                param_index: i as u16,
+                param_id: name.as_str().into(),
+                param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+            });
+            w.push(20_000_000 + i as u64, 1, MavlinkVersion::V2, &msg);
+        }
+        let path = dir.path().join("p.tlog");
+        std::fs::write(&path, &w.bytes).unwrap();
+        read(&path, &pick(None)).unwrap()
+    };
+    let whole = with(None).parameters.unwrap();
+    assert_eq!(whole.source, "PARAM_VALUE");
+    assert_eq!(whole.compass_offs_max, Some(850.0));
+    let names = whole.names.unwrap();
+    assert_eq!(names.len(), 13, "{names:?}");
+    assert!(names.contains("COMPASS_SCALE") && !names.contains("COMPASS_MOTCT"));
+    // One index missing: the list says nothing of what the firmware lacks; the limit holds.
+    let part = with(Some(14)).parameters.unwrap();
+    assert_eq!((part.names, part.compass_offs_max), (None, Some(850.0)));
+    // The log of `synthetic` alone: neither.
+    let path = dir.path().join("s.tlog");
+    std::fs::write(&path, &base.bytes).unwrap();
+    assert!(read(&path, &pick(None)).unwrap().parameters.is_none());
 }
 
 #[test]

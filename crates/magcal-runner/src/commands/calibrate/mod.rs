@@ -303,8 +303,8 @@ fn reject(log: &mut Log, k: f64, model: Fit, settings: &FitSettings) -> Result<l
 }
 
 /// What the calibration was made from: the format, magcal's version, the log's SHA-256, data
-/// rows (readings, skipped, rejected), format, messages, instance, frame and units, and what its
-/// reader and cut say about it.
+/// rows (readings, skipped, rejected), format, messages, instance, frame and units, what its
+/// reader and cut say about it, and what it says of its firmware's parameters.
 fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log) {
     json.format = Some(crate::log::calibration::FORMAT.to_string());
     json.magcal_version = Some(env!("CARGO_PKG_VERSION").to_string());
@@ -323,6 +323,7 @@ fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log
         InForce::Calibrated(w) => format!("calibrated: {w}"),
     });
     json.log_notes.clone_from(&o.notes);
+    json.log_parameters.clone_from(&o.parameters);
     json.time_span_s = log
         .times
         .as_ref()
@@ -346,6 +347,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         log_messages: Vec::new(),
         in_force: None,
         log_notes: Vec::new(),
+        log_parameters: None,
         time_span_s: None,
         heading_vs_log: None,
         motor: None,
