@@ -2,8 +2,11 @@
 """Independent cross-check of `magcal calibrate --fit full` on the public logs of ../shared/data/.
 
 A different method from magcal's (linear ellipsoid fit, then Levenberg-Marquardt on the
-normal equations): scipy.optimize.least_squares (trust-region reflective) on the norm residual
-|P (s - O)| - 1 directly, from a sphere fit, with P upper triangular. The quantities compared do
+normal equations): scipy.optimize.least_squares (trust-region reflective) from a sphere fit, with
+P upper triangular, on each of magcal's two residuals: [P1]'s norm residual |P (s - O)| - 1
+(`--residual paper`, under "logs") and the readings' distance from the ellipsoid to first order,
+(|P (s - O)| - 1) / |P^T w|, w = P (s - O) / |P (s - O)| (the default, under "readings_logs",
+which adds the restricted-tilt hamagure set 2). The quantities compared do
 not depend on the reference magnitude: the bias O (the log's units), the non-orthogonality psi
 (degrees, docs/conventions.md inverse map), the scale factors relative to their geometric mean, and the
 residual rms in percent of R; and the two coverage heuristics of the calibrated directions
@@ -32,6 +35,7 @@ LOGS = {
     "ck-explorer/acc_mag_log.csv": ("mx", "my", "mz"),
     "hamagure/data-set_1.csv": ("x", "y", "z"),
 }
+READINGS_LOGS = {**LOGS, "hamagure/data-set_2.csv": ("x", "y", "z")}
 
 
 def read(path, columns):
@@ -50,6 +54,15 @@ def unpack(x):
 def residual(x, s):
     p, o = unpack(x)
     return np.linalg.norm((s - o) @ p.T, axis=1) - 1.0
+
+
+def distance(x, s):
+    """(|P (s - O)| - 1) / |P^T w|: the reading's distance from the ellipsoid to first order."""
+    p, o = unpack(x)
+    b = (s - o) @ p.T
+    n = np.linalg.norm(b, axis=1)
+    g = (b / n[:, None]) @ p
+    return (n - 1.0) / np.linalg.norm(g, axis=1)
 
 
 def motioncal_gaps(d):
@@ -75,14 +88,14 @@ def microstrain_coverage(d):
     return 100.0 * len(set(zip(i.tolist(), j.tolist()))) / 576
 
 
-def fit(s):
+def fit(s, objective=residual):
     # Sphere |s|^2 = 2 c.s + k by linear least squares: the start.
     a = np.hstack([2.0 * s, np.ones((len(s), 1))])
     t, *_ = np.linalg.lstsq(a, (s * s).sum(axis=1), rcond=None)
     c = t[:3]
     r = math.sqrt(t[3] + c @ c)
     x0 = np.array([1 / r, 0, 0, 1 / r, 0, 1 / r, *c])
-    out = least_squares(residual, x0, args=(s,), method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=20000)
+    out = least_squares(objective, x0, args=(s,), method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=20000)
     p, o = unpack(out.x)
     # Positive diagonal representative (a row of P may change sign).
     p = p * np.sign(np.diag(p))[:, None]
@@ -115,12 +128,16 @@ def main():
     if not DATA.is_dir():
         sys.exit(f"{DATA} is absent")
     result = {
-        "method": f"scipy {scipy.__version__} least_squares (trf) on |P (s - O)| - 1 from a sphere fit; numpy {np.__version__}",
+        "method": f"scipy {scipy.__version__} least_squares (trf) from a sphere fit, on |P (s - O)| - 1 (logs) and on (|P (s - O)| - 1) / |P^T w| (readings_logs); numpy {np.__version__}",
         "logs": {},
+        "readings_logs": {},
     }
     for name, columns in LOGS.items():
         result["logs"][name] = fit(read(DATA / name, columns))
         print(name, json.dumps(result["logs"][name]))
+    for name, columns in READINGS_LOGS.items():
+        result["readings_logs"][name] = fit(read(DATA / name, columns), distance)
+        print(name, "readings", json.dumps(result["readings_logs"][name]))
     out = ROOT / "crates" / "magcal-runner" / "tests" / "crosscheck.json"
     out.write_text(json.dumps(result, indent=2) + "\n")
     print("written", out)

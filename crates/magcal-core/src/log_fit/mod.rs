@@ -669,7 +669,9 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
     };
     let converged = status == CalibrationStatus::Ok;
     let straight = match (converged, noise.value()) {
-        (true, Some(sigma)) if settings.residual == Residual::Readings && settings.profile && sigma > 0.0 => {
+        // Readings on their ellipsoid to rounding (noise-free, synthetic) leave a cost that is
+        // rounding too: nothing bends, and the rise would be rounding over rounding.
+        (true, Some(sigma)) if settings.residual == Residual::Readings && settings.profile && sigma > 1e-9 => {
             profile(u, model, &two_step, p, bias, sigma * sigma)
         }
         _ => None,

@@ -16,7 +16,7 @@ use crate::log::source::{self, Log, LogArgs};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
 use crate::output::file::{Output, replace, to_stdout};
 use crate::output::stderr::to_stderr;
-use crate::report::next::{AttitudeJson, NextJson, ParameterJson, RelativeJson};
+use crate::report::next::{AttitudeJson, MAX_PASSES, NextJson, ParameterJson, RelativeJson};
 use crate::scenario::site::{Date, Site, parse_model};
 
 /// `magcal next`.
@@ -87,19 +87,52 @@ fn show_efficiency(e: Option<f64>) -> String {
     }
 }
 
-/// Whether the full model is identifiable from `readings` (the log's units), as `calibrate` says
-/// it: from the calibration when it is the full fit of these very readings, else by the same
-/// fit ([`log_fit::fit`] of the full model at the calibration's magnitude); with the source.
-fn identifiable_before(cal: &CalibrationJson, same_readings: bool, readings: &[magcal_core::Vec3]) -> (bool, String) {
-    if same_readings && cal.fit == log_fit::FitModel::Full.as_str() {
-        return (cal.identifiable, "calibrate's verdict of this log".to_string());
+/// Whether the full model's calibration of `readings` (the log's units) is usable, as
+/// `calibrate` says it: from the calibration when it is the full fit of these very readings,
+/// else by the same fit and check ([`log_fit::fit`] of the full model at the calibration's
+/// magnitude); with the source.
+fn usable_before(cal: &CalibrationJson, same_readings: bool, readings: &[magcal_core::Vec3]) -> (bool, String) {
+    // The verdict of the same fit: the full model by the readings' residual (a calibration of
+    // [P1]'s residual, or of an older magcal, is fitted again).
+    if same_readings && cal.fit == log_fit::FitModel::Full.as_str() && cal.residual.as_deref() == Some("readings") {
+        return (cal.usable, "calibrate's verdict of this log".to_string());
     }
     match log_fit::fit(readings, cal.magnitude, log_fit::FitModel::Full) {
-        Ok(f) => (
-            f.identifiable,
-            "the full fit of this log, as calibrate fits it".to_string(),
-        ),
+        Ok(f) => (f.usable, "the full fit of this log, as calibrate fits and checks it".to_string()),
         Err(e) => (false, format!("the full fit of this log fails: {e}")),
+    }
+}
+
+/// The sensor the plan assumes (see [`NextJson::planned_under`]): `cal` where it is usable;
+/// else `cal` with the sensor of the sphere that best fits `readings` (the offset model: no
+/// non-orthogonality, one scale, its centre as the bias), and the words saying so.
+fn planning_sensor(cal: &CalibrationJson, readings: &[Vec3]) -> (CalibrationJson, String) {
+    if cal.usable {
+        return (cal.clone(), "the calibration's sensor".to_string());
+    }
+    let sphere = log_fit::FitSettings {
+        trials: 0,
+        profile: false,
+        ..log_fit::FitSettings::default()
+    };
+    match log_fit::fit_with(readings, cal.magnitude, log_fit::FitModel::Offset, &sphere) {
+        Ok(f) if f.status == magcal_core::CalibrationStatus::Ok => {
+            let mut planned = cal.clone();
+            planned.psi_deg = f.errors.psi_deg();
+            planned.scale = f.errors.scale();
+            planned.bias = f.bias;
+            planned.p = f.p;
+            planned.k = magcal_core::small::upper_triangular_inverse(&f.p).unwrap_or(cal.k);
+            (
+                planned,
+                "the sphere that best fits the log (the calibration is not usable, and its estimate is no sensor to plan with)"
+                    .to_string(),
+            )
+        }
+        _ => (
+            cal.clone(),
+            "the calibration's sensor, though not usable (no sphere fits the log)".to_string(),
+        ),
     }
 }
 
@@ -151,13 +184,17 @@ struct Augmented {
     m: usize,
     /// The attitudes chosen, with the variance at each when chosen.
     chosen: Vec<(magcal_core::Attitude, f64)>,
-    /// The body fields (nT): the log's calibrated readings, then the added attitudes'.
+    /// The passes over the chosen attitudes that make the log usable (`None`: not within
+    /// [`MAX_PASSES`]).
+    passes: Option<usize>,
+    /// The body fields (nT): the log's calibrated readings, then the added readings' (the
+    /// chosen attitudes, `passes` times, or [`MAX_PASSES`] times).
     body: Vec<Vec3>,
     /// The Cramer-Rao bounds before and after.
     crb: [CramerRao; 2],
     /// The certified D-efficiency per reading before and after.
     efficiency: [Option<f64>; 2],
-    /// The full fit of the log with the suggested readings simulated.
+    /// The full fit of the log with the added readings simulated.
     after_fit: Result<log_fit::LogFit, magcal_core::CalibrationError>,
 }
 
@@ -174,21 +211,16 @@ fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?
         .context("next needs --scenario, or the box as flags with --site and --date")?;
     check_box(&vehicle)?;
-    let (problem, factor) = fitted_problem(&cal, &vehicle).with_context(|| shown.clone())?;
     let log = read_log(args, &cal)?;
-    if !cal.identifiable {
-        to_stderr!(
-            "magcal: warning: {shown} is not identifiable ({}); the suggestions assume its fitted sensor",
-            cal.verdict
-        );
-    }
-    let a = augment(args, &cal, &vehicle, &problem, factor, log.readings)?;
+    let (planned, planned_under) = planning_sensor(&cal, &log.readings);
+    let (problem, factor) = fitted_problem(&planned, &vehicle).with_context(|| shown.clone())?;
+    let a = augment(args, &planned, &vehicle, &problem, factor, log.readings)?;
     let (body_log, body_all) = (&a.body[..a.m], &a.body[..]);
     let counts = [
         log_fit::motioncal_region_counts(body_log),
         log_fit::motioncal_region_counts(body_all),
     ];
-    let (identifiable_before, identifiable_before_source) = log.before;
+    let (usable_before, usable_before_source) = log.before;
     let json = NextJson {
         log: args.log.display().to_string(),
         calibration: shown,
@@ -197,7 +229,7 @@ fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
         attitude_box: vehicle.label.clone(),
         declination_deg: vehicle.field.declination_deg(),
         field_source: vehicle.field_source.clone(),
-        attitudes: attitude_rows(&a.chosen, &vehicle.field),
+        attitudes: attitude_rows(&a.chosen, &vehicle.field, a.passes.unwrap_or(MAX_PASSES)),
         relative_to_log: log
             .flown
             .as_ref()
@@ -209,11 +241,14 @@ fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
         motioncal_gap_percent_after: log_fit::motioncal_gaps(body_all),
         microstrain_coverage_percent_before: log_fit::microstrain_coverage_percent(body_log),
         microstrain_coverage_percent_after: log_fit::microstrain_coverage_percent(body_all),
-        identifiable_before,
-        identifiable_before_source,
-        identifiable_after: a.after_fit.as_ref().is_ok_and(|f| f.identifiable),
-        identifiable_after_why_not: match &a.after_fit {
-            Ok(f) if !f.identifiable => Some(f.verdict.clone()),
+        planned_under,
+        usable_before,
+        usable_before_source,
+        passes_to_usable: a.passes.filter(|_| a.after_fit.as_ref().is_ok_and(|f| f.usable)),
+        readings_added: a.body.len() - a.m,
+        usable_after: a.after_fit.as_ref().is_ok_and(|f| f.usable),
+        usable_after_why_not: match &a.after_fit {
+            Ok(f) if !f.usable => Some(f.reasons.join("; ")),
             Ok(_) => None,
             Err(e) => Some(e.to_string()),
         },
@@ -221,8 +256,8 @@ fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
     Ok((json, counts))
 }
 
-/// The D-optimal augmentation of the log's `readings` (its units) under the fitted sensor, and
-/// what it gives.
+/// The D-optimal augmentation of the log's `readings` (its units) under the planning sensor, the
+/// passes over it that make the log usable, and what they give.
 fn augment(
     args: &NextArgs,
     cal: &CalibrationJson,
@@ -247,27 +282,29 @@ fn augment(
         .augment(problem, before.matrix(), args.count as usize)
         .with_context(|| format!("{}: the log's information is singular", args.log.display()))?;
     let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
-    let added_fields = field.body_fields(&attitudes);
     let noise = cal
         .noise
         .ok_or_else(|| anyhow::anyhow!("{shown}: the calibration's noise is unknown (calibrate with --noise)"))?;
-    let sigma = noise * factor;
-    // After: what the full fit makes of the log with readings of the fitted sensor at the
-    // suggested attitudes (noise drawn as `simulate` draws it), so that "identifiable" is what a
-    // fit gives, not only what the bound at the fitted sensor predicts.
-    let simulated = model
-        .noisy_readings(
-            &added_fields,
-            sigma,
-            &mut crate::pipeline::simulated_log_rng(vehicle.seed),
-        )
+    // Added readings of the planning sensor join the log's own where that sensor is the
+    // calibration's; planned under the sphere, the log's readings are read again by the sphere's
+    // sensor at their field directions under it, so that one sensor reads them all.
+    let mut base = if cal.usable {
+        readings.clone()
+    } else {
+        let directions: Vec<Vec3> = readings
+            .iter()
+            .map(|s| {
+                let b = magcal_core::small::mat_vec(&cal.p, magcal_core::small::sub(*s, cal.bias.map(|v| v * factor)));
+                magcal_core::small::scale(r / magcal_core::small::norm(b), b)
+            })
+            .collect();
+        model.noisy_readings(&directions, noise * factor, &mut crate::pipeline::simulated_log_rng(vehicle.seed ^ 1))?
+    };
+    let (passes, after_fit, added) = passes_to_usable(&mut base, &model, &field.body_fields(&attitudes), noise * factor, r, vehicle.seed)
         .with_context(|| format!("{shown}: noise {noise}"))?;
-    readings.reserve_exact(attitudes.len());
-    readings.extend(simulated);
-    let after_fit = log_fit::fit(&readings, r, log_fit::FitModel::Full);
-    readings.truncate(m);
+    drop(base);
     // The information of noise-free readings ([P1] eq. (12)).
-    readings.extend(model.measure_all(&added_fields));
+    readings.extend(model.measure_all(&added));
     let after = InformationMatrix::from_readings(&readings, r);
     // The body fields: the log's calibrated (P (s - O), in nT), then the added attitudes'.
     readings.truncate(m);
@@ -275,31 +312,66 @@ fn augment(
     for s in readings.iter_mut() {
         *s = magcal_core::small::mat_vec(&cal.p, magcal_core::small::sub(*s, bias_nt));
     }
-    readings.extend(added_fields);
+    let n_added = added.len();
+    readings.extend(added);
     let certificate = vehicle.certificate(problem);
     let efficiency =
         |info: &InformationMatrix, m: usize| certificate.as_ref().map(|c| c.efficiency_bound(info.ln_det_nt(), m));
-    // Standard errors under the fitted model, noise from the residuals.
+    // Standard errors under the planning sensor at the log's noise.
     let scales = PhysicalScales::default();
+    let sigma = noise * factor;
     let crb = [
         CramerRao::new(&model, &readings[..m], sigma, &scales),
         CramerRao::new(&model, &readings, sigma, &scales),
     ];
     Ok(Augmented {
         m,
-        efficiency: [efficiency(&before, m), efficiency(&after, m + attitudes.len())],
+        efficiency: [efficiency(&before, m), efficiency(&after, m + n_added)],
         chosen,
+        passes,
         body: readings,
         crb,
         after_fit,
     })
 }
 
+/// The fewest passes (1, 2, 4, ... up to [`MAX_PASSES`]) over the body fields `fields` (nT) of
+/// the chosen attitudes whose readings, simulated from `model` with noise `sigma` (as `simulate`
+/// draws it) and added to the log's `readings` (nT), make the full calibration of the log usable
+/// (its check by trials included: what `calibrate` would say of the log flown so). Returns the
+/// passes (`None` where even the most do not), the fit at the last tried, and the body fields
+/// added there. `readings` holds the log and the last readings tried.
+fn passes_to_usable(
+    readings: &mut Vec<Vec3>,
+    model: &magcal_core::ErrorModel,
+    fields: &[Vec3],
+    sigma: f64,
+    r: f64,
+    seed: u64,
+) -> Result<(Option<usize>, Result<log_fit::LogFit, magcal_core::CalibrationError>, Vec<Vec3>)> {
+    let m = readings.len();
+    let mut passes = 1;
+    loop {
+        let added: Vec<Vec3> = (0..passes).flat_map(|_| fields.iter().copied()).collect();
+        let simulated = model.noisy_readings(&added, sigma, &mut crate::pipeline::simulated_log_rng(seed))?;
+        readings.truncate(m);
+        readings.extend(simulated);
+        let fit = log_fit::fit(readings, r, log_fit::FitModel::Full);
+        if fit.as_ref().is_ok_and(|f| f.usable) {
+            return Ok((Some(passes), fit, added));
+        }
+        if passes >= MAX_PASSES {
+            return Ok((None, fit, added));
+        }
+        passes *= 2;
+    }
+}
+
 /// The text report of `j`.
 fn write_text(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
     writeln!(
         w,
-        "{} readings of {}; the next {} attitudes in the box of {} (D-optimal augmentation under the fitted model):",
+        "{} readings of {}; the next {} attitudes in the box of {} (D-optimal augmentation of the log's information):",
         j.readings, j.log, j.count, j.attitude_box
     )?;
     write_attitudes(w, j)?;
@@ -328,13 +400,20 @@ fn write_text(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
         j.microstrain_coverage_percent_before,
         j.microstrain_coverage_percent_after
     )?;
+    writeln!(w, "planned under {}", j.planned_under)?;
     writeln!(
         w,
-        "identifiable: before {}, after {} (full model; before: {}; after: the full fit of the log with the suggested readings simulated from the fitted sensor{})",
-        j.identifiable_before,
-        j.identifiable_after,
-        j.identifiable_before_source,
-        j.identifiable_after_why_not
+        "usable (full model): before {} ({}); after {} ({} readings at these attitudes, {}; the full fit of the log with them simulated at the log's noise, checked as calibrate checks a log{})",
+        j.usable_before,
+        j.usable_before_source,
+        j.usable_after,
+        j.readings_added,
+        match j.passes_to_usable {
+            Some(1) => "the table as it stands".to_string(),
+            Some(n) => format!("{n} passes of the table"),
+            None => format!("{MAX_PASSES} passes of the table, the most tried"),
+        },
+        j.usable_after_why_not
             .as_ref()
             .map_or(String::new(), |why| format!(": {why}"))
     )?;
@@ -391,7 +470,7 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
         None => false,
     };
     let same_readings = same_file && read_columns == cal.columns && m == cal.samples && skipped.len() == cal.skipped;
-    let before = identifiable_before(cal, same_readings, &log_readings);
+    let before = usable_before(cal, same_readings, &log_readings);
     Ok(LogRead {
         readings: log_readings,
         flown,
@@ -405,7 +484,7 @@ struct LogRead {
     readings: Vec<Vec3>,
     /// The attitudes the log flew, where it has them.
     flown: Option<Flown>,
-    /// Whether the log was identifiable before, and on what that rests.
+    /// Whether the log's full calibration was usable before, and on what that rests.
     before: (bool, String),
 }
 
@@ -422,10 +501,15 @@ fn table_rows(chosen: &[(magcal_core::Attitude, f64)]) -> Vec<(magcal_core::Atti
     rows
 }
 
-/// The attitudes to add as a pilot reads them: roll, pitch, true and magnetic heading, readings,
-/// the variance of the linear model's prediction there, and the direction of the field the
-/// sensor reads there; the same attitude chosen again is one row with its readings.
-fn attitude_rows(chosen: &[(magcal_core::Attitude, f64)], field: &magcal_core::ReferenceField) -> Vec<AttitudeJson> {
+/// The attitudes to add as a pilot reads them: roll, pitch, true and magnetic heading, readings
+/// (its choices times the `passes` that make the log usable), the variance of the linear model's
+/// prediction there, and the direction of the field the sensor reads there; the same attitude
+/// chosen again is one row with its readings.
+fn attitude_rows(
+    chosen: &[(magcal_core::Attitude, f64)],
+    field: &magcal_core::ReferenceField,
+    passes: usize,
+) -> Vec<AttitudeJson> {
     // The headings a pilot reads: true, and magnetic from the declination of the vehicle's field.
     let headings = crate::output::Headings::of(field);
     let rows = table_rows(chosen);
@@ -443,7 +527,7 @@ fn attitude_rows(chosen: &[(magcal_core::Attitude, f64)], field: &magcal_core::R
                 pitch_deg: pitch,
                 true_heading_deg: headings.true_heading(a).0,
                 magnetic_heading_deg: headings.magnetic_heading(a).map(|h| h.0),
-                readings: *n,
+                readings: *n * passes,
                 variance: *d,
                 field_direction: f.map(|c| c / length),
             }

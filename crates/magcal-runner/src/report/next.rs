@@ -47,14 +47,29 @@ pub struct NextJson {
     /// MicroStrain's spatial coverage (percent), before and after.
     pub microstrain_coverage_percent_before: f64,
     pub microstrain_coverage_percent_after: f64,
-    /// Whether the full model is identifiable before, and on what that rests.
-    pub identifiable_before: bool,
-    pub identifiable_before_source: String,
-    /// Whether the full fit of the log with the suggested readings simulated from the fitted
-    /// sensor identifies the full model, and where it does not, why.
-    pub identifiable_after: bool,
-    pub identifiable_after_why_not: Option<String>,
+    /// The sensor the plan assumes: the calibration's where it is usable, else the sphere that
+    /// best fits the log (a runaway estimate is no sensor to plan with), in words.
+    pub planned_under: String,
+    /// Whether the full model's calibration of the log is usable before (calibrate's verdict,
+    /// its check by trials included), and on what that rests.
+    pub usable_before: bool,
+    pub usable_before_source: String,
+    /// The readings at each attitude of the table (each row's `readings` are for one pass; this
+    /// many passes) that make the full calibration of the log with them usable, where at most
+    /// [`MAX_PASSES`] do: the full fit of the log with that many readings simulated from the
+    /// planning sensor at the log's noise, judged as calibrate judges a log.
+    pub passes_to_usable: Option<usize>,
+    /// The readings added in all at that many passes (or at the most tried).
+    pub readings_added: usize,
+    /// Whether the full fit of the log with the readings added is usable, and where it is not,
+    /// why.
+    pub usable_after: bool,
+    pub usable_after_why_not: Option<String>,
 }
+
+/// The most passes over the table `next` tries before it says that more readings at these
+/// attitudes do not make the log usable.
+pub const MAX_PASSES: usize = 32;
 
 /// One attitude to add, degrees.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -160,24 +175,24 @@ fn yes_no(b: bool) -> &'static str {
 fn verdict(page: &mut Page, json: &NextJson) {
     let before = format!(
         "before: {} ({})",
-        if json.identifiable_before {
-            "identifiable"
-        } else {
-            "not identifiable"
-        },
-        json.identifiable_before_source
+        if json.usable_before { "usable" } else { "not usable" },
+        json.usable_before_source
     );
-    let text = match (&json.identifiable_after, &json.identifiable_after_why_not) {
-        (true, _) => format!(
-            "IDENTIFIABLE AFTER: the full fit of the log with these readings (simulated from the fitted sensor) determines the full model; {before}"
+    let text = match (json.passes_to_usable, &json.usable_after_why_not) {
+        (Some(n), _) => format!(
+            "USABLE AFTER: the full calibration of the log with {} readings at these attitudes ({n} pass{} of the table; simulated under {} at the log's noise) is usable; {before}",
+            json.readings_added,
+            if n == 1 { "" } else { "es" },
+            json.planned_under
         ),
-        (false, why) => format!(
-            "NOT IDENTIFIABLE AFTER: the full fit of the log with these readings does not determine the full model{}; {before}",
+        (None, why) => format!(
+            "NOT USABLE AFTER {MAX_PASSES} PASSES: the full calibration of the log with {} readings at these attitudes is still not usable{}; {before}",
+            json.readings_added,
             why.as_ref().map_or(String::new(), |w| format!(": {w}"))
         ),
     };
     page.push(Block::Verdict {
-        good: json.identifiable_after,
+        good: json.usable_after,
         text,
     });
 }
@@ -295,9 +310,9 @@ fn summary_table(page: &mut Page, json: &NextJson) {
             Cell::number(json.microstrain_coverage_percent_after, 4),
         ),
         row(
-            "identifiable (full model)",
-            Cell::text(yes_no(json.identifiable_before)),
-            Cell::text(yes_no(json.identifiable_after)),
+            "usable (full model)",
+            Cell::text(yes_no(json.usable_before)),
+            Cell::text(yes_no(json.usable_after)),
         ),
     ];
     page.heading("Before and after");

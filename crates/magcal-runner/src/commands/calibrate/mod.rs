@@ -2,6 +2,7 @@
 
 pub mod heading;
 mod motor;
+mod no_fit;
 pub mod vector;
 
 use std::collections::BTreeMap;
@@ -51,6 +52,17 @@ pub enum Fit {
 }
 
 impl Fit {
+    /// The name `--fit` gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Fit::Full => "full",
+            Fit::Diagonal => "diagonal",
+            Fit::Offset => "offset",
+            Fit::Auto => "auto",
+            Fit::Vector => "vector",
+        }
+    }
+
     /// The fit of `readings` to `magnitude` under this choice, with the reasons for `auto`.
     fn fit(
         self,
@@ -221,7 +233,10 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         model: args.wmm,
     });
     let units = units_of(args, &log)?;
-    let (fit, why, source) = fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?;
+    let (fit, why, source) = match fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)? {
+        Ok(fitted) => fitted,
+        Err(why) => return no_fit::report(args, set, &log, rows, rejected, why),
+    };
     let (mut fit, vector) = vector::instead(args, &log, fit, units, place.as_ref())?;
     let joint = match args.motor {
         Some(m) => {
@@ -701,7 +716,7 @@ fn print_heading(w: &mut dyn Write, h: &HeadingCheckJson) -> std::io::Result<()>
 }
 
 /// The roll, pitch and heading the log visited, and the share inside the box.
-fn print_flown(w: &mut dyn Write, f: &Flown, samples: usize, box_from: Option<&str>) -> std::io::Result<()> {
+pub(super) fn print_flown(w: &mut dyn Write, f: &Flown, samples: usize, box_from: Option<&str>) -> std::io::Result<()> {
     writeln!(
         w,
         "attitudes: {} of {samples} readings have one (degrees; roll right side down, pitch nose up, heading clockwise from north)",
@@ -845,12 +860,14 @@ fn fit_at_magnitude(
     log: &Log,
     settings: &FitSettings,
     given: Option<(f64, String)>,
-) -> Result<(LogFit, Vec<AutoReason>, String)> {
+) -> Result<Result<(LogFit, Vec<AutoReason>, String), String>> {
     let shown = args.log.display().to_string();
-    let fit_with = |magnitude: f64| -> Result<(LogFit, Vec<AutoReason>)> {
-        args.fit
-            .fit(&log.readings, magnitude, settings)
-            .with_context(|| format!("{shown}: no calibration ({} readings)", log.readings.len()))
+    // No fit is a property of the readings (too few, too alike), not bad input: the caller
+    // reports it with exit 3.
+    let fit_with = |magnitude: f64| {
+        args.fit.fit(&log.readings, magnitude, settings).map_err(|e| {
+            format!("the {} model: {e}", args.fit.name())
+        })
     };
     Ok(match given {
         Some((r, source)) => {
@@ -866,30 +883,32 @@ fn fit_at_magnitude(
                     significant(r, 7)
                 );
             }
-            let (f, why) = fit_with(r)?;
-            (f, why, source)
+            fit_with(r).map(|(f, why)| (f, why, source))
         }
         None => {
             // The fitted mean radius: the magnitude that makes the scale factors relative with
             // product 1; when the fit is not determined, the radius of the best-fitting sphere.
             // A fit does not depend on its magnitude but through that scale, so one fit serves.
-            let (unit, why) = fit_with(1.0)?;
+            let (unit, why) = match fit_with(1.0) {
+                Ok(f) => f,
+                Err(e) => return Ok(Err(e)),
+            };
             let (radius, source) = if unit.identifiable {
                 (
-                    unit.mean_radius(),
+                    Some(unit.mean_radius()),
                     "fitted mean radius (scale factors are relative to it, product 1)",
                 )
             } else {
                 (
-                    log_fit::sphere_radius(&log.readings)
-                        .with_context(|| format!("{shown}: no sphere fits the readings"))?,
+                    log_fit::sphere_radius(&log.readings),
                     "radius of the best-fitting sphere (scale factors are relative to it)",
                 )
             };
-            let f = unit
-                .at_magnitude(radius)
-                .with_context(|| format!("{shown}: no calibration at the magnitude {}", significant(radius, 7)))?;
-            (f, why, source.to_string())
+            match radius.map(|r| (r, unit.at_magnitude(r))) {
+                Some((_, Ok(f))) => Ok((f, why, source.to_string())),
+                Some((r, Err(e))) => Err(format!("no calibration at the magnitude {}: {e}", significant(r, 7))),
+                None => Err("no sphere fits the readings".to_string()),
+            }
         }
     })
 }

@@ -1,0 +1,107 @@
+//! What `calibrate` says of a log that no model fits (too few readings, readings all alike): a
+//! property of the data, not bad input, so exit 3 with the report, as for any calibration not to
+//! use; `--out` replaces the set with the report (`no_calibration.json`), so that no earlier
+//! calibration stays behind as if it were this log's.
+
+use std::collections::BTreeMap;
+
+use anyhow::Context;
+use serde::Serialize;
+
+use super::{CalibrateArgs, Failure};
+use crate::digest::sha256_hex;
+use crate::log::flown::{Flown, flown};
+use crate::log::source::Log;
+use crate::output::file::to_stdout;
+use crate::output::manifest::CalibrationManifest;
+use crate::output::staging::ResultSet;
+
+/// The format of `no_calibration.json`.
+pub const FORMAT: &str = "magcal-no-calibration-1";
+
+/// The report of a log without a calibration.
+#[derive(Debug, Serialize)]
+struct NoCalibrationJson {
+    log: String,
+    format: &'static str,
+    magcal_version: &'static str,
+    log_sha256: String,
+    columns: [String; 3],
+    samples: usize,
+    skipped: usize,
+    rejected: usize,
+    /// The model asked for (`--fit`).
+    fit: &'static str,
+    /// Always false: there is no calibration.
+    usable: bool,
+    /// Why there is none: under which model, and what the fit met.
+    reasons: Vec<String>,
+    /// The time span of the readings, seconds on the log's clock, where it has times.
+    time_span_s: Option<[f64; 2]>,
+    /// What the log's attitudes visited, where it has them.
+    flown: Option<Flown>,
+}
+
+/// Prints (and with `--out` writes) the report that `log` has no calibration, `why`; exit 3.
+pub fn report(
+    args: &CalibrateArgs,
+    set: Option<ResultSet>,
+    log: &Log,
+    rows: usize,
+    rejected: usize,
+    why: String,
+) -> Result<(), Failure> {
+    let json = NoCalibrationJson {
+        log: args.log.display().to_string(),
+        format: FORMAT,
+        magcal_version: env!("CARGO_PKG_VERSION"),
+        log_sha256: log.sha256.clone(),
+        columns: log.columns.clone(),
+        samples: log.readings.len(),
+        skipped: log.skipped.len(),
+        rejected,
+        fit: args.fit.name(),
+        usable: false,
+        reasons: vec![why],
+        time_span_s: log
+            .times
+            .as_ref()
+            .and_then(|t| Some([*t.first()?, *t.last()?])),
+        flown: log.attitudes.as_ref().and_then(|a| flown(a, None)),
+    };
+    if let Some(mut set) = set {
+        let mut text = serde_json::to_vec_pretty(&json).context("JSON")?;
+        text.push(b'\n');
+        set.put("no_calibration.json", &text)?;
+        let files = BTreeMap::from([("no_calibration.json".to_string(), sha256_hex(&text))]);
+        let manifest = CalibrationManifest::new(&args.log, log.sha256.clone(), log.bytes, rows, files);
+        set.put("manifest.json", &manifest.to_bytes()?)?;
+        set.commit()?;
+    }
+    to_stdout(|w| {
+        if args.json {
+            serde_json::to_writer_pretty(&mut *w, &json).context("JSON")?;
+            writeln!(w)?;
+        } else {
+            writeln!(
+                w,
+                "{}: {} readings (columns {}), {} skipped, {} rejected",
+                json.log,
+                json.samples,
+                json.columns.join(", "),
+                json.skipped,
+                json.rejected
+            )?;
+            writeln!(w, "NO CALIBRATION under {}", json.reasons.join("; "))?;
+            if let Some(f) = &json.flown {
+                super::print_flown(w, f, json.samples, None)?;
+            }
+        }
+        Ok(())
+    })?;
+    Err(Failure::Unusable(format!(
+        "{}: no calibration under {}",
+        args.log.display(),
+        json.reasons.join("; ")
+    )))
+}
