@@ -9,7 +9,7 @@ use magcal_core::aviation::z_up_of_ned;
 use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
-use magcal_core::vector::{ReferenceField, VectorFit, fit_vector};
+use magcal_core::vector::{ReferenceField, VectorError, VectorFit, fit_vector};
 
 use super::CalibrateArgs;
 use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson};
@@ -43,8 +43,26 @@ pub fn instead(
     if args.fit != super::Fit::Vector {
         return Ok((scalar, None));
     }
-    let v = fit(args, log, &scalar, units, place)?;
-    Ok((v.as_log_fit(&scalar, log), Some(v)))
+    match fit(args, log, &scalar, units, place) {
+        Ok(v) => Ok((v.as_log_fit(&scalar, log), Some(v))),
+        // What the readings and attitudes do not determine is the log's, not bad input: the
+        // scalar fit is reported, not usable, with the reason (exit 3).
+        Err(e) if matches!(
+            e.downcast_ref::<VectorError>(),
+            Some(VectorError::TooFewReadings { .. } | VectorError::NotDetermined { .. } | VectorError::NotConverged { .. })
+        ) =>
+        {
+            let mut f = scalar;
+            f.usable = false;
+            f.identifiable = false;
+            f.reasons.insert(
+                0,
+                format!("no vector calibration: {e:#}; the estimates shown are the scalar full fit's"),
+            );
+            Ok((f, None))
+        }
+        Err(e) => Err(e),
+    }
 }
 
 /// The vector fit of `log`: against the WMM field of `--site` and `--date` (in the log's units,
