@@ -235,9 +235,9 @@ fn nine_readings_leave_the_noise_and_the_standard_errors_unknown() {
 fn a_fit_does_not_depend_on_the_logs_units() {
     // The same log in nT, Gauss, tesla, 1e-14 and 1e20 times nT, fitted to the same magnitude in
     // each unit: every parameter and verdict agrees to 1e-9 relative (the iterations stop on
-    // tolerances of 1e-12 of the scaled problem), every standard error to 1e-8 (it is at least
-    // the rms of the check's trial errors, each a difference of two estimates some 1e-3 apart
-    // relative to their size, which the same tolerances leave good to about 1e-9).
+    // tolerances of 1e-12 of the scaled problem), every standard error to 1e-7 (it is at least
+    // the rms of the check's trial errors, each trial's fit stopped where a step lowers its cost
+    // by 1e-12 of it, about 1e-6 of a standard error from its minimum).
     let truth = paper::true_error_model();
     let r = paper::changsha_field().magnitude();
     let readings = log(&truth, &AttitudeBox::full(), 300, 11);
@@ -249,7 +249,7 @@ fn a_fit_does_not_depend_on_the_logs_units() {
         for i in 0..3 {
             assert!(close(f.errors.scale()[i], base.errors.scale()[i]), "{unit}: S{i}");
             assert!(close(f.bias[i], base.bias[i] * unit), "{unit}: O{i}");
-            let near = |a: f64, b: f64| (a - b).abs() <= 1e-8 * b.abs().max(f64::MIN_POSITIVE);
+            let near = |a: f64, b: f64| (a - b).abs() <= 1e-7 * b.abs().max(f64::MIN_POSITIVE);
             assert!(
                 near(f.std_bias.unwrap()[i], base.std_bias.unwrap()[i] * unit),
                 "{unit}"

@@ -131,6 +131,12 @@ pub fn reject_outliers(
     if !(k.is_finite() && k >= REJECT_MIN_K) {
         return Err(RejectError::TooSmall { k });
     }
+    // Distances within rounding of the readings' spread (an exact fit, noise-free readings) are
+    // no scatter to reject by: nothing is nearer than rounding.
+    let n = readings.len().max(1) as f64;
+    let mean = [0, 1, 2].map(|i| readings.iter().map(|s| s[i]).sum::<f64>() / n);
+    let cloud = (readings.iter().map(|s| norm(crate::small::sub(*s, mean)).powi(2)).sum::<f64>() / n).sqrt();
+    let rounding = 1e-9 * cloud;
     let mut keep = vec![true; readings.len()];
     let mut history: Vec<Vec<bool>> = Vec::new();
     for round in 1..=MAX_ROUNDS {
@@ -147,6 +153,15 @@ pub fn reject_outliers(
         let r: Vec<f64> = readings.iter().map(|s| distance(&f, *s)).collect();
         let centre = median(&r);
         let spread = 1.4826 * median(&r.iter().map(|x| (x - centre).abs()).collect::<Vec<_>>());
+        if k * spread <= rounding && r.iter().all(|x| (x - centre).abs() <= rounding) {
+            return Ok(Rejection {
+                keep: vec![true; readings.len()],
+                dropped: 0,
+                rounds: round,
+                k,
+                half_width: 0.0,
+            });
+        }
         let next: Vec<bool> = r.iter().map(|x| (x - centre).abs() <= k * spread).collect();
         let dropped = next.iter().filter(|k| !**k).count();
         if dropped as f64 > REJECT_MAX_SHARE * readings.len() as f64 {

@@ -234,16 +234,6 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
             "line 2: column 2 (y) is NaN",
         ),
         (
-            write("few.csv", &format!("x,y,z\n{}", numbers(5))),
-            vec![],
-            "5 readings",
-        ),
-        (
-            write("same.csv", &format!("x,y,z\n{}", "1,2,3\n".repeat(50))),
-            vec![],
-            "no calibration",
-        ),
-        (
             write("cols.csv", &format!("x,y,z\n{}", numbers(20))),
             vec!["--columns", "a,b,c"],
             "no column named \"a\"",
@@ -266,8 +256,35 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
         assert!(err.contains(needle), "{}: {err}", path.display());
         assert_eq!(err.trim().lines().count(), 1, "{err}");
     }
+    // Too few readings, or readings all alike: a log that does not determine a calibration is
+    // not bad input. Exit 3, the report on stdout (and no calibration in it), one line on stderr;
+    // --out replaces the set with the report, so that no earlier calibration stays behind.
+    for (name, text, needle) in [
+        ("few.csv", format!("x,y,z\n{}", numbers(5)), "5 readings, at least 9 are needed"),
+        ("same.csv", format!("x,y,z\n{}", "1,2,3\n".repeat(50)), "readings too alike"),
+    ] {
+        let path = write(name, &text);
+        let set = tmp.path().join(format!("{name}.set"));
+        let good = write("good.csv", &format!("x,y,z\n{}", numbers(20)));
+        magcal().arg("calibrate").arg(&good).arg("--out").arg(&set).output().unwrap();
+        assert!(set.join("calibration.json").exists());
+        let out = magcal()
+            .arg("calibrate")
+            .arg(&path)
+            .args(["--json", "--out"])
+            .arg(&set)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(3), "{name}: {err}");
+        assert!(err.contains(needle) && err.trim().lines().count() == 1, "{err}");
+        let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!((j["format"].as_str(), j["usable"].as_bool()), (Some("magcal-no-calibration-1"), Some(false)));
+        assert!(j["reasons"][0].as_str().unwrap().contains(needle), "{j}");
+        assert!(!set.join("calibration.json").exists() && set.join("no_calibration.json").exists());
+    }
     // Readings on a plane (z constant, yaw-only motion): no calibration, or one that says the log
-    // does not determine it; never a confident number.
+    // does not determine it; never a confident number, and never exit 2 (the log is fine).
     let plane: String = (0..200)
         .map(|i| {
             let a = i as f64 * 0.1;
@@ -276,11 +293,13 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
         .collect();
     let p = write("plane.csv", &format!("x,y,z\n{plane}"));
     let out = magcal().arg("calibrate").arg(&p).arg("--json").output().unwrap();
-    if out.status.code() == Some(3) {
-        let c: CalibrationJson = serde_json::from_slice(&out.stdout).unwrap();
-        assert!(!c.identifiable, "{}", c.verdict);
+    assert_eq!(out.status.code(), Some(3));
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    if j["format"] == "magcal-no-calibration-1" {
+        assert!(!j["reasons"].as_array().unwrap().is_empty(), "{j}");
     } else {
-        assert_eq!(out.status.code(), Some(2));
+        let c: CalibrationJson = serde_json::from_value(j).unwrap();
+        assert!(!c.identifiable, "{}", c.verdict);
     }
     // --skip-bad counts what it drops.
     let p = write("skip.csv", &format!("x,y,z\n1,inf,3\n{}\n,,\n", numbers(30)));
@@ -758,10 +777,11 @@ fn a_calibration_does_not_depend_on_the_logs_units_and_prints_its_digits() {
             );
             assert!(close(c.psi_deg[i], base.psi_deg[i]), "{name} psi{i}");
             assert!(close(c.bias[i], base.bias[i] * factor), "{name} O{i}");
-            // A standard error is at least the rms of the check's trial errors, differences of
-            // estimates some 1e-3 apart relative to their size: good to 1e-8.
+            // A standard error is at least the rms of the check's trial errors, each trial's fit
+            // stopped where a step lowers its cost by 1e-12 of it, about 1e-6 of a standard
+            // error from its minimum: the rms of 200 is good to about 1e-7.
             let (a, b) = (c.std_error.bias.unwrap()[i], base.std_error.bias.unwrap()[i]);
-            assert!((a - b * factor).abs() <= 1e-8 * (b * factor).abs(), "{name} std O{i}");
+            assert!((a - b * factor).abs() <= 1e-7 * (b * factor).abs(), "{name} std O{i}: {a} {}", b * factor);
         }
         assert!(close(c.magnitude, base.magnitude * factor), "{name}");
         assert_eq!(
