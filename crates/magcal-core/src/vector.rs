@@ -182,6 +182,9 @@ pub struct VectorFit {
     pub dof: usize,
     /// The 95 % interval of the noise (chi-square of `dof` degrees of freedom).
     pub noise_interval95: Option<(f64, f64)>,
+    /// For readings in time order, the batch length of the standard errors' long-run
+    /// covariance ([`fit_vector_in`]).
+    pub serial: Option<crate::log_fit::Serial>,
     /// Student's `t` of `dof` degrees of freedom at 0.975: the multiple of a standard error
     /// that makes a 95 % confidence interval.
     pub quantile95: Option<f64>,
@@ -286,6 +289,24 @@ const MAX_ITERATIONS: usize = 200;
 /// finite, attitudes that leave the information singular, a `K` with a negative determinant (a
 /// given field), a fit that does not settle.
 pub fn fit_vector(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) -> Result<VectorFit, VectorError> {
+    fit_vector_in(readings, attitudes, field, crate::log_fit::Order::Unknown)
+}
+
+/// [`fit_vector`] of readings in the order `order` says: in time order, the standard errors
+/// allow for the residuals' correlation as a log fit's do ([`crate::log_fit::serial`]): the
+/// covariance is the sandwich of the scores' long-run covariance (batch length by Andrews' rule
+/// on the residuals' component along the calibrated field), its diagonal at least the white
+/// one's (a diagonal added where it falls short, which keeps it a covariance), and the 95 %
+/// intervals take the batches' degrees of freedom.
+///
+/// # Errors
+/// As [`fit_vector`].
+pub fn fit_vector_in(
+    readings: &[Vec3],
+    attitudes: &[Mat3],
+    field: ReferenceField,
+    order: crate::log_fit::Order,
+) -> Result<VectorFit, VectorError> {
     let (scale, given) = validate(readings, attitudes, field)?;
     let data = Data {
         readings,
@@ -315,7 +336,7 @@ pub fn fit_vector(readings: &[Vec3], attitudes: &[Mat3], field: ReferenceField) 
         }
         None => gauss_newton(&data, start(&data))?,
     };
-    Ok(assess(&data, fit, given.is_none(), scale, iterations))
+    Ok(assess(&data, fit, given.is_none(), scale, iterations, order))
 }
 
 /// Checks the inputs; the magnitude the readings are divided by and a given field's direction.
@@ -785,17 +806,28 @@ fn derived(k: &Mat3, step: &Mat3) -> Option<[f64; 9]> {
 }
 
 /// The fit's statistics and verdict.
-fn assess(data: &Data, unit: Unit, fitted: bool, scale: f64, iterations: usize) -> VectorFit {
+fn assess(data: &Data, unit: Unit, fitted: bool, scale: f64, iterations: usize, order: crate::log_fit::Order) -> VectorFit {
     let m = data.readings.len();
     let p_count = if fitted { 14 } else { 12 };
     let rss = unit.rss(data);
     let dof = 3 * m - p_count;
     let noise_unit = (rss / dof as f64).sqrt();
     let (p, alignment) = decompose(&unit.k).unwrap_or(([[f64::NAN; 3]; 3], [[f64::NAN; 3]; 3]));
-    let covariance = NormalEquations::of(data, &unit, fitted).inverse().ok().map(|inv| {
-        inv.into_iter()
-            .map(|row| row.into_iter().map(|v| v * noise_unit * noise_unit).collect::<Vec<_>>())
-            .collect::<Vec<_>>()
+    let inverse = NormalEquations::of(data, &unit, fitted).inverse().ok();
+    let serial = match order {
+        crate::log_fit::Order::Unknown => None,
+        crate::log_fit::Order::Time => Some(crate::log_fit::Serial::of_residuals(&radial_residuals(data, &unit))),
+        crate::log_fit::Order::Batch(batch) => Some(crate::log_fit::Serial { batch, lag_one: None }),
+    };
+    let covariance = inverse.as_ref().map(|inv| {
+        let white: Vec<Vec<f64>> = inv
+            .iter()
+            .map(|row| row.iter().map(|v| v * noise_unit * noise_unit).collect())
+            .collect();
+        match serial {
+            Some(s) => long_run(data, &unit, fitted, inv, &white, s.batch),
+            None => white,
+        }
     });
     let std_error = covariance
         .as_ref()
@@ -815,13 +847,76 @@ fn assess(data: &Data, unit: Unit, fitted: bool, scale: f64, iterations: usize) 
         noise_interval95: noise_unit
             .is_finite()
             .then(|| crate::log_fit::chi_square_interval(noise_unit * scale, dof)),
-        quantile95: Some(crate::log_fit::student_quantile(0.975, dof)).filter(|q| q.is_finite()),
+        quantile95: Some(crate::log_fit::student_quantile(
+            0.975,
+            serial.map_or(dof, |s| s.dof(m)),
+        ))
+        .filter(|q| q.is_finite()),
+        serial,
         std_error,
         identifiable,
         verdict,
         rms_residual: (rss / (3 * m) as f64).sqrt() * scale,
         iterations,
     }
+}
+
+/// Each reading's residual along the calibrated field, `r . w`, `w = K C^T f / |K C^T f|`: the
+/// series whose lag-one autocorrelation chooses the batch length.
+fn radial_residuals(data: &Data, unit: &Unit) -> Vec<f64> {
+    data.iter()
+        .map(|(m, c)| {
+            let model = mat_vec(&unit.k, mat_t_vec(c, unit.f));
+            let r = sub(m, crate::small::add(model, unit.o));
+            dot(r, model) / norm(model)
+        })
+        .collect()
+}
+
+/// The covariance of the unknowns from the long-run covariance of the scores `J_t^T r_t` (summed
+/// over a reading's three components) by overlapping batch means of `batch` readings, times
+/// `n / (n - p)` (`n = 3 m` residuals, `p` unknowns), with the white covariance's diagonal where
+/// that is larger (see [`fit_vector_in`]).
+fn long_run(data: &Data, unit: &Unit, fitted: bool, inv: &[Vec<f64>], white: &[Vec<f64>], batch: usize) -> Vec<Vec<f64>> {
+    let p = if fitted { 14 } else { 12 };
+    let [u, v] = tangent(unit.f);
+    let scores: Vec<[f64; 14]> = data
+        .iter()
+        .map(|(m, c)| {
+            let b = mat_t_vec(c, unit.f);
+            let r = sub(m, crate::small::add(mat_vec(&unit.k, b), unit.o));
+            let (ku, kv) = (mat_vec(&unit.k, mat_t_vec(c, u)), mat_vec(&unit.k, mat_t_vec(c, v)));
+            let mut s = [0.0; 14];
+            for i in 0..3 {
+                for j in 0..3 {
+                    s[3 * i + j] += b[j] * r[i];
+                }
+                s[9 + i] += r[i];
+                s[12] += ku[i] * r[i];
+                s[13] += kv[i] * r[i];
+            }
+            s
+        })
+        .collect();
+    let b = crate::log_fit::serial::long_run_covariance(&scores, batch);
+    let n = (3 * scores.len()) as f64;
+    let factor = if n > p as f64 { n / (n - p as f64) } else { f64::NAN };
+    let mut cov: Vec<Vec<f64>> = (0..p)
+        .map(|a| {
+            (0..p)
+                .map(|d| {
+                    factor
+                        * (0..p)
+                            .map(|k| (0..p).map(|l| inv[a][k] * b[k][l] * inv[l][d]).sum::<f64>())
+                            .sum::<f64>()
+                })
+                .collect()
+        })
+        .collect();
+    for a in 0..p {
+        cov[a][a] += (white[a][a] - cov[a][a]).max(0.0);
+    }
+    cov
 }
 
 /// The standard errors from the covariance `cov` of the unknowns in units of the field.

@@ -213,7 +213,9 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         truncation: None,
         residual: args.residual.residual(),
         order: if log.times.is_some() { Order::Time } else { Order::Unknown },
-        trials: args.trials as usize,
+        // A vector fit replaces the scalar fit it starts from, and has no check by trials of
+        // its own: the scalar fit's would be run for nothing.
+        trials: if args.fit == Fit::Vector { 0 } else { args.trials as usize },
         seed: args.seed,
         profile: true,
     };

@@ -9,7 +9,7 @@ use magcal_core::aviation::z_up_of_ned;
 use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
-use magcal_core::vector::{ReferenceField, VectorError, VectorFit, fit_vector};
+use magcal_core::vector::{ReferenceField, VectorError, VectorFit, fit_vector_in};
 
 use super::CalibrateArgs;
 use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson};
@@ -120,7 +120,12 @@ pub fn fit(
             ),
         ),
     };
-    let fit = fit_vector(&readings, &attitudes, field).with_context(|| {
+    let order = if log.times.is_some() {
+        magcal_core::log_fit::Order::Time
+    } else {
+        magcal_core::log_fit::Order::Unknown
+    };
+    let fit = fit_vector_in(&readings, &attitudes, field, order).with_context(|| {
         format!(
             "{shown}: --fit vector ({} of {} readings with an attitude)",
             readings.len(),
@@ -170,6 +175,12 @@ impl Vector {
             verdict: v.verdict.clone(),
             iterations: v.iterations,
             lack_of_fit: None,
+            // The vector fit's own statistics: the scalar fit's check, profile and white
+            // standard errors are not its.
+            serial: v.serial,
+            white_std: None,
+            profile: None,
+            check: None,
             ..scalar.clone()
         };
         f.reasons.clear();
