@@ -806,7 +806,14 @@ fn derived(k: &Mat3, step: &Mat3) -> Option<[f64; 9]> {
 }
 
 /// The fit's statistics and verdict.
-fn assess(data: &Data, unit: Unit, fitted: bool, scale: f64, iterations: usize, order: crate::log_fit::Order) -> VectorFit {
+fn assess(
+    data: &Data,
+    unit: Unit,
+    fitted: bool,
+    scale: f64,
+    iterations: usize,
+    order: crate::log_fit::Order,
+) -> VectorFit {
     let m = data.readings.len();
     let p_count = if fitted { 14 } else { 12 };
     let rss = unit.rss(data);
@@ -877,7 +884,14 @@ fn radial_residuals(data: &Data, unit: &Unit) -> Vec<f64> {
 /// over a reading's three components) by overlapping batch means of `batch` readings, times
 /// `n / (n - p)` (`n = 3 m` residuals, `p` unknowns), with the white covariance's diagonal where
 /// that is larger (see [`fit_vector_in`]).
-fn long_run(data: &Data, unit: &Unit, fitted: bool, inv: &[Vec<f64>], white: &[Vec<f64>], batch: usize) -> Vec<Vec<f64>> {
+fn long_run(
+    data: &Data,
+    unit: &Unit,
+    fitted: bool,
+    inv: &[Vec<f64>],
+    white: &[Vec<f64>],
+    batch: usize,
+) -> Vec<Vec<f64>> {
     let p = if fitted { 14 } else { 12 };
     let [u, v] = tangent(unit.f);
     let scores: Vec<[f64; 14]> = data

@@ -250,10 +250,7 @@ fn a_fit_does_not_depend_on_the_logs_units() {
             assert!(close(f.errors.scale()[i], base.errors.scale()[i]), "{unit}: S{i}");
             assert!(close(f.bias[i], base.bias[i] * unit), "{unit}: O{i}");
             let near = |a: f64, b: f64| (a - b).abs() <= 1e-7 * b.abs().max(f64::MIN_POSITIVE);
-            assert!(
-                near(f.std_bias.unwrap()[i], base.std_bias.unwrap()[i] * unit),
-                "{unit}"
-            );
+            assert!(near(f.std_bias.unwrap()[i], base.std_bias.unwrap()[i] * unit), "{unit}");
             assert!(near(f.std_scale.unwrap()[i], base.std_scale.unwrap()[i]), "{unit}");
         }
         assert!(close(f.noise.value().unwrap(), base.noise.value().unwrap() * unit));
@@ -462,7 +459,12 @@ fn a_yaw_only_log_gets_no_confident_bias() {
                     let z99 = 2.575_829_303_548_901 / f.quantile95.unwrap();
                     let want = truth_vector(&truth);
                     for i in 0..9 {
-                        assert!((e[i] - want[i]).abs() <= z99 * h[i], "parameter {i}: {} +- {}", e[i], z99 * h[i]);
+                        assert!(
+                            (e[i] - want[i]).abs() <= z99 * h[i],
+                            "parameter {i}: {} +- {}",
+                            e[i],
+                            z99 * h[i]
+                        );
                     }
                 } else {
                     assert!(!f.usable, "tilt {tilt}, {model:?}: {}", f.verdict);
@@ -515,7 +517,9 @@ fn a_given_noise_raises_no_false_alarm_on_logs_of_one_sensor_at_that_noise() {
     for seed in 0..100 {
         let mut rng = stream_rng(70_000 + seed, 0);
         let design = sources::random(&bounds, 300, &mut rng);
-        let readings = truth.noisy_readings(&field.body_fields(&design), 50.0, &mut rng).unwrap();
+        let readings = truth
+            .noisy_readings(&field.body_fields(&design), 50.0, &mut rng)
+            .unwrap();
         let f = log_fit::fit_with(&readings, field.magnitude(), FitModel::Full, &settings).unwrap();
         alarms += usize::from(!f.ellipsoid.passed);
         switched += usize::from(!matches!(f.noise, Noise::Given(_)));

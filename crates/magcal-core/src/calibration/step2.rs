@@ -468,7 +468,11 @@ pub(crate) fn refine_linear<const N: usize>(
     let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
     let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
     let y0 = to_centred(&pack(&start.p, scale(1.0 / R, start.bias_nt)), m);
-    let z0: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).find(|&i| T[i][j] != 0.0).map_or(0.0, |i| y0[i] / T[i][j]));
+    let z0: [f64; N] = std::array::from_fn(|j| {
+        (0..PARAMETERS)
+            .find(|&i| T[i][j] != 0.0)
+            .map_or(0.0, |i| y0[i] / T[i][j])
+    });
     let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
     let normal = |z: &[f64; N]| {
         let y = y_of(z);
@@ -486,7 +490,14 @@ pub(crate) fn refine_linear<const N: usize>(
         }
         (jtj, g)
     };
-    let fit = levenberg_marquardt(settings, z0, |z| reading_cost(&y_of(z), &d), normal, |_, _, _| None, false);
+    let fit = levenberg_marquardt(
+        settings,
+        z0,
+        |z| reading_cost(&y_of(z), &d),
+        normal,
+        |_, _, _| None,
+        false,
+    );
     let x = from_centred(&y_of(&fit.x), m).ok_or(CalibrationError::NotPositiveDefinite {
         reason: "estimated P is singular",
     })?;
@@ -525,7 +536,11 @@ pub(crate) fn profile_rise<const N: usize>(
     let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
     let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
     let y0 = to_centred(&pack(&estimate.p, scale(1.0 / R, estimate.bias_nt)), m);
-    let z0: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).find(|&i| T[i][j] != 0.0).map_or(0.0, |i| y0[i] / T[i][j]));
+    let z0: [f64; N] = std::array::from_fn(|j| {
+        (0..PARAMETERS)
+            .find(|&i| T[i][j] != 0.0)
+            .map_or(0.0, |i| y0[i] / T[i][j])
+    });
     let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
     let normal = |z: &[f64; N], held: Option<usize>| {
         let y = y_of(z);

@@ -145,7 +145,9 @@ impl TrialCheck {
     pub(super) fn scaled(self, by: f64) -> Self {
         Self {
             noise: self.noise.scaled(by),
-            rms_error: self.rms_error.map(|[p, s, o]| [p, s.map(|v| v * by), o.map(|v| v * by)]),
+            rms_error: self
+                .rms_error
+                .map(|[p, s, o]| [p, s.map(|v| v * by), o.map(|v| v * by)]),
             ..self
         }
     }
@@ -234,7 +236,9 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<Tr
         .collect();
     let n = errors.len() as f64;
     let rms_error = (errors.len() >= 2).then(|| {
-        std::array::from_fn(|g| std::array::from_fn(|i| (errors.iter().map(|e| e[g][i] * e[g][i]).sum::<f64>() / n).sqrt()))
+        std::array::from_fn(|g| {
+            std::array::from_fn(|i| (errors.iter().map(|e| e[g][i] * e[g][i]).sum::<f64>() / n).sqrt())
+        })
     });
     Some(TrialCheck {
         planned: settings.trials,
@@ -354,9 +358,9 @@ mod tests {
         };
         assert!(!stopped.passed());
         assert!(
-            stopped
-                .words()
-                .contains("; stopped after 20 of 200 trials: 11 had failed, more than the 10 a pass allows; 11 not identifiable"),
+            stopped.words().contains(
+                "; stopped after 20 of 200 trials: 11 had failed, more than the 10 a pass allows; 11 not identifiable"
+            ),
             "{}",
             stopped.words()
         );

@@ -62,11 +62,11 @@ mod reject;
 pub mod serial;
 mod statistics;
 
+pub use check::{CHECK_SEED, CHECK_TRIALS, TrialCheck, TrialNoise, USABLE_SHARE};
 pub use coverage::{
     MotionCalRegion, microstrain_coverage_percent, motioncal_gaps, motioncal_region, motioncal_region_counts,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
-pub use check::{CHECK_SEED, CHECK_TRIALS, TrialCheck, TrialNoise, USABLE_SHARE};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 pub use serial::Serial;
 
@@ -754,7 +754,11 @@ impl Profile {
     /// the 9 of a straight problem (the half-width at which a parabola through the rise reaches
     /// the chi-square's 9), else 1.
     pub fn inflation(&self) -> f64 {
-        if self.rise < 9.0 && self.rise > 0.0 { 3.0 / self.rise.sqrt() } else { 1.0 }
+        if self.rise < 9.0 && self.rise > 0.0 {
+            3.0 / self.rise.sqrt()
+        } else {
+            1.0
+        }
     }
 
     /// The verdict of a rise below [`PROFILE_RISE_MIN`].
@@ -799,7 +803,11 @@ fn profile(u: &[Vec3], model: FitModel, two_step: &TwoStep, p: Mat3, bias: Vec3,
     ];
     Some(Profile {
         rise,
-        along: if model == FitModel::Offset { "common scale" } else { FULL[which] },
+        along: if model == FitModel::Offset {
+            "common scale"
+        } else {
+            FULL[which]
+        },
         side,
     })
 }
@@ -1082,7 +1090,11 @@ impl std::fmt::Display for AutoReason {
             Self::Identifiable(model) => write!(f, "{}: identifiable", model.as_str()),
             Self::NotIdentifiable { model, verdict } => write!(f, "{}: not identifiable ({verdict})", model.as_str()),
             Self::FailsCheck { model, words } => {
-                write!(f, "{}: identifiable, but fails its check by trials ({words})", model.as_str())
+                write!(
+                    f,
+                    "{}: identifiable, but fails its check by trials ({words})",
+                    model.as_str()
+                )
             }
             Self::NoneIdentifiable(model) => write!(f, "{}: not usable either", model.as_str()),
             Self::Failed { model, error } => write!(f, "{}: {error}", model.as_str()),
@@ -1134,7 +1146,10 @@ pub fn fit_auto(
             Ok(f) if f.identifiable => {
                 let f = checked(f, &u, &unit);
                 if let Some(c) = f.check.filter(|c| !c.passed()) {
-                    reasons.push(AutoReason::FailsCheck { model, words: c.words() });
+                    reasons.push(AutoReason::FailsCheck {
+                        model,
+                        words: c.words(),
+                    });
                     richer.push(f);
                     continue;
                 }
@@ -1245,7 +1260,11 @@ fn reduced_readings(
     settings: &TwoStep,
 ) -> Result<(Mat3, Vec3, usize, Termination), CalibrationError> {
     let (centre, radius) = sphere(u)?;
-    let p0 = [[1.0 / radius, 0.0, 0.0], [0.0, 1.0 / radius, 0.0], [0.0, 0.0, 1.0 / radius]];
+    let p0 = [
+        [1.0 / radius, 0.0, 0.0],
+        [0.0, 1.0 / radius, 0.0],
+        [0.0, 0.0, 1.0 / radius],
+    ];
     let start = crate::calibration::Estimate {
         p: p0,
         bias_nt: centre,
@@ -1567,7 +1586,10 @@ mod tests {
             assert!((f.bias[i] - truth.bias_nt()[i] / 1e5).abs() <= 3.0 * se_o[i], "O{i}");
         }
         let (auto, why) = fit_auto(&readings, field, &FitSettings::default()).unwrap();
-        assert_eq!((auto.model, why), (FitModel::Full, vec![AutoReason::Identifiable(FitModel::Full)]));
+        assert_eq!(
+            (auto.model, why),
+            (FitModel::Full, vec![AutoReason::Identifiable(FitModel::Full)])
+        );
         let paper = FitSettings {
             residual: Residual::Paper,
             ..FitSettings::default()

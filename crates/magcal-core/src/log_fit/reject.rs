@@ -135,7 +135,12 @@ pub fn reject_outliers(
     // no scatter to reject by: nothing is nearer than rounding.
     let n = readings.len().max(1) as f64;
     let mean = [0, 1, 2].map(|i| readings.iter().map(|s| s[i]).sum::<f64>() / n);
-    let cloud = (readings.iter().map(|s| norm(crate::small::sub(*s, mean)).powi(2)).sum::<f64>() / n).sqrt();
+    let cloud = (readings
+        .iter()
+        .map(|s| norm(crate::small::sub(*s, mean)).powi(2))
+        .sum::<f64>()
+        / n)
+        .sqrt();
     let rounding = 1e-9 * cloud;
     let mut keep = vec![true; readings.len()];
     let mut history: Vec<Vec<bool>> = Vec::new();

@@ -79,7 +79,11 @@ pub fn batch_length(rho: f64, m: usize) -> usize {
     let alpha = 4.0 * rho * rho / ((1.0 - rho).powi(2) * (1.0 + rho).powi(2));
     let l = 1.1447 * (alpha * m as f64).cbrt();
     let most = (m / MIN_BATCHES).max(1);
-    if l.is_finite() { (l.ceil() as usize).clamp(1, most) } else { most }
+    if l.is_finite() {
+        (l.ceil() as usize).clamp(1, most)
+    } else {
+        most
+    }
 }
 
 /// The long-run covariance `B` (see the module documentation) of the `scores` in time order,

@@ -85,7 +85,12 @@ fn embedding<const N: usize>(model: FitModel) -> [[f64; N]; 9] {
 /// The standard errors of `model`'s parameters at `noise` (white) and, in time order, those of
 /// the residuals' long-run covariance; the larger of the two is the one to use. `None` where the
 /// information is singular to working precision.
-fn std_of<const N: usize>(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis) -> Option<(Vec<f64>, Vec<f64>)> {
+fn std_of<const N: usize>(
+    errors: &ErrorModel,
+    fields: &[Vec3],
+    model: FitModel,
+    basis: Basis,
+) -> Option<(Vec<f64>, Vec<f64>)> {
     let T = embedding::<N>(model);
     let rows = residual_jacobian(errors, fields)
         .zip(fields)
@@ -279,7 +284,11 @@ pub(super) fn std_errors<const P: usize, const N: usize>(
     let white = sandwich(&B);
     let serial = batch.map(|l| {
         let m = scores.len();
-        let dof_factor = if m > N { (m as f64 / (m - N) as f64).sqrt() } else { f64::NAN };
+        let dof_factor = if m > N {
+            (m as f64 / (m - N) as f64).sqrt()
+        } else {
+            f64::NAN
+        };
         sandwich(&long_run_covariance(&scores, l))
             .into_iter()
             .map(|v| v * dof_factor)

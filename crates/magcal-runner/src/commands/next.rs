@@ -98,7 +98,10 @@ fn usable_before(cal: &CalibrationJson, same_readings: bool, readings: &[magcal_
         return (cal.usable, "calibrate's verdict of this log".to_string());
     }
     match log_fit::fit(readings, cal.magnitude, log_fit::FitModel::Full) {
-        Ok(f) => (f.usable, "the full fit of this log, as calibrate fits and checks it".to_string()),
+        Ok(f) => (
+            f.usable,
+            "the full fit of this log, as calibrate fits and checks it".to_string(),
+        ),
         Err(e) => (false, format!("the full fit of this log fails: {e}")),
     }
 }
@@ -298,10 +301,21 @@ fn augment(
                 magcal_core::small::scale(r / magcal_core::small::norm(b), b)
             })
             .collect();
-        model.noisy_readings(&directions, noise * factor, &mut crate::pipeline::simulated_log_rng(vehicle.seed ^ 1))?
+        model.noisy_readings(
+            &directions,
+            noise * factor,
+            &mut crate::pipeline::simulated_log_rng(vehicle.seed ^ 1),
+        )?
     };
-    let (passes, after_fit, added) = passes_to_usable(&mut base, &model, &field.body_fields(&attitudes), noise * factor, r, vehicle.seed)
-        .with_context(|| format!("{shown}: noise {noise}"))?;
+    let (passes, after_fit, added) = passes_to_usable(
+        &mut base,
+        &model,
+        &field.body_fields(&attitudes),
+        noise * factor,
+        r,
+        vehicle.seed,
+    )
+    .with_context(|| format!("{shown}: noise {noise}"))?;
     drop(base);
     // The information of noise-free readings ([P1] eq. (12)).
     readings.extend(model.measure_all(&added));
@@ -348,7 +362,11 @@ fn passes_to_usable(
     sigma: f64,
     r: f64,
     seed: u64,
-) -> Result<(Option<usize>, Result<log_fit::LogFit, magcal_core::CalibrationError>, Vec<Vec3>)> {
+) -> Result<(
+    Option<usize>,
+    Result<log_fit::LogFit, magcal_core::CalibrationError>,
+    Vec<Vec3>,
+)> {
     let m = readings.len();
     let mut passes = 1;
     loop {

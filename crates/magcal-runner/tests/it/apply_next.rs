@@ -519,7 +519,12 @@ fn next_says_usable_before_as_calibrate_said_it() {
     let Some(h2) = data(H2) else { return };
     let tmp = TempDir::new().unwrap();
     let arc = tmp.path().join("arc.csv");
-    let text: String = fs::read_to_string(&h2).unwrap().lines().take(1201).map(|l| format!("{l}\n")).collect();
+    let text: String = fs::read_to_string(&h2)
+        .unwrap()
+        .lines()
+        .take(1201)
+        .map(|l| format!("{l}\n"))
+        .collect();
     fs::write(&arc, text).unwrap();
     let drone = scenario("drone");
     for fit in ["full", "auto"] {
@@ -537,7 +542,10 @@ fn next_says_usable_before_as_calibrate_said_it() {
             drone.as_os_str(),
         ]);
         assert_eq!(code, 0, "{stderr}");
-        assert!(stdout.contains("planned under the sphere that best fits the log"), "{stdout}");
+        assert!(
+            stdout.contains("planned under the sphere that best fits the log"),
+            "{stdout}"
+        );
         let line = stdout.lines().find(|l| l.starts_with("usable (full model):")).unwrap();
         // After: the full fit of the log (read again by the sphere's sensor) with ten readings
         // simulated at the suggested attitudes is usable, its check by trials included.

@@ -185,7 +185,12 @@ fn a_constrained_log_calibrates_by_the_readings_residual_and_runs_off_by_the_pap
         "{text}"
     );
     let auto = calibrate(&["--fit", "auto"], &log);
-    assert_eq!((auto.fit.as_str(), auto.usable), ("full", true), "{:?}", auto.fit_reason);
+    assert_eq!(
+        (auto.fit.as_str(), auto.usable),
+        ("full", true),
+        "{:?}",
+        auto.fit_reason
+    );
     // Where the log covers every direction, it rejects the reduced models of a real sensor
     // (ck-explorer's psi reaches 3.8 degrees).
     let Some(log) = data("ck-explorer/acc_mag_log.csv") else {
@@ -260,13 +265,27 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
     // not bad input. Exit 3, the report on stdout (and no calibration in it), one line on stderr;
     // --out replaces the set with the report, so that no earlier calibration stays behind.
     for (name, text, needle) in [
-        ("few.csv", format!("x,y,z\n{}", numbers(5)), "5 readings, at least 9 are needed"),
-        ("same.csv", format!("x,y,z\n{}", "1,2,3\n".repeat(50)), "readings too alike"),
+        (
+            "few.csv",
+            format!("x,y,z\n{}", numbers(5)),
+            "5 readings, at least 9 are needed",
+        ),
+        (
+            "same.csv",
+            format!("x,y,z\n{}", "1,2,3\n".repeat(50)),
+            "readings too alike",
+        ),
     ] {
         let path = write(name, &text);
         let set = tmp.path().join(format!("{name}.set"));
         let good = write("good.csv", &format!("x,y,z\n{}", numbers(20)));
-        magcal().arg("calibrate").arg(&good).arg("--out").arg(&set).output().unwrap();
+        magcal()
+            .arg("calibrate")
+            .arg(&good)
+            .arg("--out")
+            .arg(&set)
+            .output()
+            .unwrap();
         assert!(set.join("calibration.json").exists());
         let out = magcal()
             .arg("calibrate")
@@ -279,7 +298,10 @@ fn bad_logs_get_one_clear_line_and_exit_2() {
         assert_eq!(out.status.code(), Some(3), "{name}: {err}");
         assert!(err.contains(needle) && err.trim().lines().count() == 1, "{err}");
         let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        assert_eq!((j["format"].as_str(), j["usable"].as_bool()), (Some("magcal-no-calibration-1"), Some(false)));
+        assert_eq!(
+            (j["format"].as_str(), j["usable"].as_bool()),
+            (Some("magcal-no-calibration-1"), Some(false))
+        );
         assert!(j["reasons"][0].as_str().unwrap().contains(needle), "{j}");
         assert!(!set.join("calibration.json").exists() && set.join("no_calibration.json").exists());
     }
@@ -781,7 +803,11 @@ fn a_calibration_does_not_depend_on_the_logs_units_and_prints_its_digits() {
             // stopped where a step lowers its cost by 1e-12 of it, about 1e-6 of a standard
             // error from its minimum: the rms of 200 is good to about 1e-7.
             let (a, b) = (c.std_error.bias.unwrap()[i], base.std_error.bias.unwrap()[i]);
-            assert!((a - b * factor).abs() <= 1e-7 * (b * factor).abs(), "{name} std O{i}: {a} {}", b * factor);
+            assert!(
+                (a - b * factor).abs() <= 1e-7 * (b * factor).abs(),
+                "{name} std O{i}: {a} {}",
+                b * factor
+            );
         }
         assert!(close(c.magnitude, base.magnitude * factor), "{name}");
         assert_eq!(

@@ -208,17 +208,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     if let Some(m) = args.motor {
         motor::inputs(&log, m).with_context(|| shown.clone())?;
     }
-    let mut settings = FitSettings {
-        noise: args.noise,
-        truncation: None,
-        residual: args.residual.residual(),
-        order: if log.times.is_some() { Order::Time } else { Order::Unknown },
-        // A vector fit replaces the scalar fit it starts from, and has no check by trials of
-        // its own: the scalar fit's would be run for nothing.
-        trials: if args.fit == Fit::Vector { 0 } else { args.trials as usize },
-        seed: args.seed,
-        profile: true,
-    };
+    let mut settings = fit_settings(args, &log);
     let rejected = match args.reject {
         Some(k) => {
             let r = reject(&mut log, k, args.fit, &settings).with_context(|| format!("{shown}: --reject {k}"))?;
@@ -235,7 +225,8 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         model: args.wmm,
     });
     let units = units_of(args, &log)?;
-    let (fit, why, source) = match fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)? {
+    let (fit, why, source) = match fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?
+    {
         Ok(fitted) => fitted,
         Err(why) => return no_fit::report(args, set, &log, rows, rejected, why),
     };
@@ -289,6 +280,29 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             args.log.display(),
             json.reasons.join("; ")
         )))
+    }
+}
+
+/// What the fit knows beyond the readings and how it is judged, from the options and the log.
+fn fit_settings(args: &CalibrateArgs, log: &Log) -> FitSettings {
+    FitSettings {
+        noise: args.noise,
+        truncation: None,
+        residual: args.residual.residual(),
+        order: if log.times.is_some() {
+            Order::Time
+        } else {
+            Order::Unknown
+        },
+        // A vector fit replaces the scalar fit it starts from, and has no check by trials of
+        // its own: the scalar fit's would be run for nothing.
+        trials: if args.fit == Fit::Vector {
+            0
+        } else {
+            args.trials as usize
+        },
+        seed: args.seed,
+        profile: true,
     }
 }
 
@@ -413,20 +427,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         },
         usable: fit.usable,
         reasons: fit.reasons.clone(),
-        noise_estimate: Some(NoiseJson {
-            source: fit.noise.source().to_string(),
-            dof: match fit.noise {
-                Noise::Estimated { dof, .. } => Some(dof),
-                _ => None,
-            },
-            interval95: match fit.noise {
-                Noise::Estimated { interval95, .. } if interval95.0.is_finite() && interval95.1.is_finite() => {
-                    Some([interval95.0, interval95.1])
-                }
-                _ => None,
-            },
-            truncation_k: None,
-        }),
+        noise_estimate: Some(noise_json(&fit.noise)),
         interval95: fit
             .interval95()
             .zip(fit.quantile95)
@@ -445,34 +446,70 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         }),
         residual: Some(fit.residual.as_str().to_string()),
         given_noise: fit.given_noise,
-        correlation: fit.serial.map(|s| CorrelationJson {
-            batch_readings: s.batch,
-            batch_seconds: log.times.as_deref().and_then(median_interval).map(|dt| dt * s.batch as f64),
-            lag_one: s.lag_one,
-            white_std_error: StdError {
-                psi_deg: fit.white_std.map(|w| w[0]),
-                scale: fit.white_std.map(|w| w[1]),
-                bias: fit.white_std.map(|w| w[2]),
-            },
-        }),
-        check: fit.check.map(|c| CheckJson {
-            planned: c.planned,
-            trials: c.trials,
-            ok: c.ok,
-            not_converged: c.not_converged,
-            not_identifiable: c.not_identifiable,
-            failed: c.failed,
-            passed: c.passed(),
-            noise: c.noise.words(),
-            seed,
-            words: c.words(),
-        }),
+        correlation: correlation_json(fit, log),
+        check: fit.check.map(|c| check_json(&c, seed)),
+    }
+}
+
+/// Where the noise comes from and how sure it is, as `calibration.json` gives it.
+fn noise_json(noise: &Noise) -> NoiseJson {
+    NoiseJson {
+        source: noise.source().to_string(),
+        dof: match *noise {
+            Noise::Estimated { dof, .. } => Some(dof),
+            _ => None,
+        },
+        interval95: match *noise {
+            Noise::Estimated { interval95, .. } if interval95.0.is_finite() && interval95.1.is_finite() => {
+                Some([interval95.0, interval95.1])
+            }
+            _ => None,
+        },
+        truncation_k: None,
+    }
+}
+
+/// The residuals' correlation in time as `calibration.json` gives it.
+fn correlation_json(fit: &LogFit, log: &Log) -> Option<CorrelationJson> {
+    fit.serial.map(|s| CorrelationJson {
+        batch_readings: s.batch,
+        batch_seconds: log
+            .times
+            .as_deref()
+            .and_then(median_interval)
+            .map(|dt| dt * s.batch as f64),
+        lag_one: s.lag_one,
+        white_std_error: StdError {
+            psi_deg: fit.white_std.map(|w| w[0]),
+            scale: fit.white_std.map(|w| w[1]),
+            bias: fit.white_std.map(|w| w[2]),
+        },
+    })
+}
+
+/// A check by trials as `calibration.json` gives it.
+fn check_json(c: &log_fit::TrialCheck, seed: u64) -> CheckJson {
+    CheckJson {
+        planned: c.planned,
+        trials: c.trials,
+        ok: c.ok,
+        not_converged: c.not_converged,
+        not_identifiable: c.not_identifiable,
+        failed: c.failed,
+        passed: c.passed(),
+        noise: c.noise.words(),
+        seed,
+        words: c.words(),
     }
 }
 
 /// The median interval between consecutive times, `None` for fewer than two.
 fn median_interval(times: &[f64]) -> Option<f64> {
-    let mut d: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).filter(|v| v.is_finite()).collect();
+    let mut d: Vec<f64> = times
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|v| v.is_finite())
+        .collect();
     if d.is_empty() {
         return None;
     }
@@ -554,7 +591,8 @@ fn print_estimates(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()
                 "  the residuals are correlated in time (lag-one {}): standard errors from their long-run covariance over batches of {} readings{}, where larger than white noise's",
                 c.lag_one.map_or("given".to_string(), |r| significant(r, 4)),
                 c.batch_readings,
-                c.batch_seconds.map_or(String::new(), |t| format!(" ({} s)", significant(t, 3)))
+                c.batch_seconds
+                    .map_or(String::new(), |t| format!(" ({} s)", significant(t, 3)))
             )?;
         }
         if let Some(i) = &j.interval95 {
@@ -653,9 +691,10 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
         writeln!(
             w,
             "USABLE: {}; identifiable, not rejected by the log, on an ellipsoid, standard errors known",
-            j.check
-                .as_ref()
-                .map_or("no check by trials".to_string(), |c| format!("{} of {} trials ok at this log's noise", c.ok, c.trials))
+            j.check.as_ref().map_or("no check by trials".to_string(), |c| format!(
+                "{} of {} trials ok at this log's noise",
+                c.ok, c.trials
+            ))
         )?;
     } else {
         writeln!(w, "NOT USABLE: {}", j.reasons.join("; "))?;
@@ -867,9 +906,9 @@ fn fit_at_magnitude(
     // No fit is a property of the readings (too few, too alike), not bad input: the caller
     // reports it with exit 3.
     let fit_with = |magnitude: f64| {
-        args.fit.fit(&log.readings, magnitude, settings).map_err(|e| {
-            format!("the {} model: {e}", args.fit.name())
-        })
+        args.fit
+            .fit(&log.readings, magnitude, settings)
+            .map_err(|e| format!("the {} model: {e}", args.fit.name()))
     };
     Ok(match given {
         Some((r, source)) => {

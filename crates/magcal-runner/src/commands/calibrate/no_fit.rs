@@ -63,10 +63,7 @@ pub fn report(
         fit: args.fit.name(),
         usable: false,
         reasons: vec![why],
-        time_span_s: log
-            .times
-            .as_ref()
-            .and_then(|t| Some([*t.first()?, *t.last()?])),
+        time_span_s: log.times.as_ref().and_then(|t| Some([*t.first()?, *t.last()?])),
         flown: log.attitudes.as_ref().and_then(|a| flown(a, None)),
     };
     if let Some(mut set) = set {

@@ -47,10 +47,15 @@ pub fn instead(
         Ok(v) => Ok((v.as_log_fit(&scalar, log), Some(v))),
         // What the readings and attitudes do not determine is the log's, not bad input: the
         // scalar fit is reported, not usable, with the reason (exit 3).
-        Err(e) if matches!(
-            e.downcast_ref::<VectorError>(),
-            Some(VectorError::TooFewReadings { .. } | VectorError::NotDetermined { .. } | VectorError::NotConverged { .. })
-        ) =>
+        Err(e)
+            if matches!(
+                e.downcast_ref::<VectorError>(),
+                Some(
+                    VectorError::TooFewReadings { .. }
+                        | VectorError::NotDetermined { .. }
+                        | VectorError::NotConverged { .. }
+                )
+            ) =>
         {
             let mut f = scalar;
             f.usable = false;

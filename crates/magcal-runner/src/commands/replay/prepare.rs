@@ -95,12 +95,7 @@ pub fn prepare(
         Truth::Scenario => (scenario.field.magnitude(), "the scenario's field"),
         _ => (median_norm(&clean), "the median magnitude of the log's readings"),
     };
-    // The whole log's fits give the truth and the noise; the replay's trials judge the designs.
-    let whole_log = FitSettings {
-        trials: 0,
-        profile: false,
-        ..FitSettings::default()
-    };
+    let whole_log = whole_log_settings();
     let base = log_fit::fit_with(&clean, magnitude, FitModel::Full, &whole_log)
         .map_err(|e| anyhow::anyhow!("the whole log does not calibrate (full model): {e}"))?;
     let calibrated: Vec<Vec3> = clean.iter().map(|r| base.apply(*r)).collect();
@@ -220,4 +215,14 @@ fn median_norm(readings: &[Vec3]) -> f64 {
 pub fn rotation_angle_deg(q: &Mat3) -> f64 {
     let t = (q[0][0] + q[1][1] + q[2][2] - 1.0) / 2.0;
     t.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+/// The settings of the whole log's fits, which give the truth and the noise: no check by trials
+/// and no profile (the replay's trials judge the designs).
+fn whole_log_settings() -> FitSettings {
+    FitSettings {
+        trials: 0,
+        profile: false,
+        ..FitSettings::default()
+    }
 }
