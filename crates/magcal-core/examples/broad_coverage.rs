@@ -226,7 +226,7 @@ fn z_quantile(q: f64) -> f64 {
 }
 
 /// Andrews' AR(1) Bartlett length for `m` values of lag-one autocorrelation `rho`, before any
-/// rounding or cap ([`serial::batch_length`]).
+/// rounding or cap (the rule of `Order::Time` before the batch became a tenth of the log).
 fn andrews(rho: f64, m: usize) -> f64 {
     let alpha = 4.0 * rho * rho / ((1.0 - rho).powi(2) * (1.0 + rho).powi(2));
     1.1447 * (alpha * m as f64).cbrt()

@@ -154,7 +154,10 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
             std_psi_deg: used.map(|t| t[0]),
             std_scale: used.map(|t| t[1]),
             std_bias: used.map(|t| t[2]),
-            white: std.as_ref().filter(|_| basis.serial.is_some()).map(|v| triple(&v.white)),
+            white: std
+                .as_ref()
+                .filter(|_| basis.serial.is_some())
+                .map(|v| triple(&v.white)),
             serial: std.as_ref().and_then(|v| v.serial.as_deref()).map(triple),
             identifiable: within,
             words,
