@@ -289,6 +289,11 @@ pub struct LogFit {
     /// For readings in time order: the standard errors of `psi`, `S`, `O` that white noise would
     /// give, beside the ones above.
     pub white_std: Option<[Vec3; 3]>,
+    /// For readings in time order: the standard errors of `psi`, `S`, `O` of the residuals'
+    /// long-run covariance alone ([`serial`]; widened by the cost's bend and corrected for a
+    /// truncation as the others are), before the larger of them and [`Self::white_std`] is
+    /// taken and before the check's trials' errors set a floor ([`Self::check`]).
+    pub serial_std: Option<[Vec3; 3]>,
     /// For readings in time order: the batch length of the long-run covariance.
     pub serial: Option<Serial>,
     /// The multiple of a standard error that makes a 95 % confidence interval: Student's `t` of
@@ -384,6 +389,7 @@ impl LogFit {
             residual_max: self.residual_max * f,
             std_scale: self.std_scale.map(|s| s.map(|v| v / f)),
             white_std: self.white_std.map(|[p, s, o]| [p, s.map(|v| v / f), o]),
+            serial_std: self.serial_std.map(|[p, s, o]| [p, s.map(|v| v / f), o]),
             check: self.check.map(|c| c.at_magnitude(f)),
             ..self.clone()
         })
@@ -476,6 +482,7 @@ impl LogFit {
             given_noise: self.given_noise.map(|v| v * L),
             check: self.check.map(|c| c.scaled(L)),
             white_std: self.white_std.map(|[p, s, o]| [p, s.map(|v| v * L), o.map(|v| v * L)]),
+            serial_std: self.serial_std.map(|[p, s, o]| [p, s.map(|v| v * L), o.map(|v| v * L)]),
             std_scale: self.std_scale.map(|s| s.map(|v| v * L)),
             std_bias: self.std_bias.map(|s| s.map(|v| v * L)),
             ..self
@@ -709,6 +716,7 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
         std_scale: judged.std_scale,
         std_bias: judged.std_bias,
         white_std: judged.white,
+        serial_std: judged.serial,
         serial,
         quantile95,
         identifiable: judged.identifiable && converged && bent.is_none(),

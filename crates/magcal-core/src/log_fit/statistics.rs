@@ -19,6 +19,9 @@ pub(super) struct Judged {
     /// The standard errors white noise would give (`psi`, `S`, `O`), where they differ from the
     /// ones above (a log in time order).
     pub white: Option<[Vec3; 3]>,
+    /// In time order, the long-run covariance's standard errors alone (`psi`, `S`, `O`), before
+    /// the larger of them and the white ones is taken.
+    pub serial: Option<[Vec3; 3]>,
     pub identifiable: bool,
     pub words: String,
 }
@@ -63,6 +66,7 @@ pub(super) fn judge(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis
         j.std_scale = None;
         j.std_bias = None;
         j.white = None;
+        j.serial = None;
         j.identifiable = false;
     }
     j
@@ -82,15 +86,19 @@ fn embedding<const N: usize>(model: FitModel) -> [[f64; N]; 9] {
     })
 }
 
+/// The standard errors of `model`'s parameters: the ones to use, the white ones at `noise`, and
+/// in time order those of the residuals' long-run covariance alone. `None` where the information
+/// is singular to working precision.
+struct Std {
+    used: Vec<f64>,
+    white: Vec<f64>,
+    serial: Option<Vec<f64>>,
+}
+
 /// The standard errors of `model`'s parameters at `noise` (white) and, in time order, those of
 /// the residuals' long-run covariance; the larger of the two is the one to use. `None` where the
 /// information is singular to working precision.
-fn std_of<const N: usize>(
-    errors: &ErrorModel,
-    fields: &[Vec3],
-    model: FitModel,
-    basis: Basis,
-) -> Option<(Vec<f64>, Vec<f64>)> {
+fn std_of<const N: usize>(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis) -> Option<Std> {
     let T = embedding::<N>(model);
     let rows = residual_jacobian(errors, fields)
         .zip(fields)
@@ -98,18 +106,14 @@ fn std_of<const N: usize>(
     let (white, serial) = std_errors(rows, &T, basis.residual, basis.serial.map(|s| s.batch))?;
     let noise = basis.noise.unwrap_or(1.0) * basis.inflation;
     let white: Vec<f64> = white.iter().map(|v| v * noise).collect();
-    let used = match serial {
-        Some(s) => {
-            let c = basis.truncation_factor;
-            // Readings kept within a truncation scatter less than the sensor: c of its variance.
-            s.iter()
-                .zip(&white)
-                .map(|(h, w)| (h * basis.inflation / c.sqrt()).max(*w))
-                .collect()
-        }
+    // Readings kept within a truncation scatter less than the sensor: c of its variance.
+    let c = basis.truncation_factor;
+    let serial: Option<Vec<f64>> = serial.map(|s| s.iter().map(|h| h * basis.inflation / c.sqrt()).collect());
+    let used = match &serial {
+        Some(s) => s.iter().zip(&white).map(|(h, w)| h.max(*w)).collect(),
         None => white.clone(),
     };
-    Some((used, white))
+    Some(Std { used, white, serial })
 }
 
 /// [`judge`] at a known noise.
@@ -123,7 +127,7 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
         // The bound names the weakest combination and says whether the information is regular;
         // the standard errors are the fit's own (see `std_errors`).
         let std = crb.std.and_then(|_| std_of::<9>(errors, fields, model, basis));
-        let within = std.as_ref().is_some_and(|(v, _)| {
+        let within = std.as_ref().is_some_and(|Std { used: v, .. }| {
             (0..3).all(|i| {
                 v[i] <= scales.psi_deg
                     && v[3 + i] <= scales.scale_fraction * s[i]
@@ -145,12 +149,16 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
         } else {
             format!("not determined: {named}")
         };
-        let used = std.as_ref().map(|(v, _)| triple(v));
+        let used = std.as_ref().map(|v| triple(&v.used));
         return Judged {
             std_psi_deg: used.map(|t| t[0]),
             std_scale: used.map(|t| t[1]),
             std_bias: used.map(|t| t[2]),
-            white: std.as_ref().filter(|_| basis.serial.is_some()).map(|(_, w)| triple(w)),
+            white: std
+                .as_ref()
+                .filter(|_| basis.serial.is_some())
+                .map(|v| triple(&v.white)),
+            serial: std.as_ref().and_then(|v| v.serial.as_deref()).map(triple),
             identifiable: within,
             words,
         };
@@ -166,12 +174,13 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
             ([v[0]; 3], [v[1], v[2], v[3]])
         }
     };
-    let Some((used, white)) = std else {
+    let Some(Std { used, white, serial }) = std else {
         return Judged {
             std_psi_deg: Some([0.0; 3]),
             std_scale: None,
             std_bias: None,
             white: None,
+            serial: None,
             identifiable: false,
             words: "not determined: the readings do not determine the scale factors and bias (singular information)"
                 .into(),
@@ -211,6 +220,10 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
         std_scale: Some(ss),
         std_bias: Some(sb),
         white: basis.serial.map(|_| [[0.0; 3], ws, wb]),
+        serial: serial.as_deref().map(|v| {
+            let (hs, hb) = split(v);
+            [[0.0; 3], hs, hb]
+        }),
         identifiable,
         words,
     }
