@@ -3,66 +3,91 @@
 //! (docs/conventions.md "One field").
 //!
 //! A log fit assumes one sensor in one uniform field: under a calibration that holds, the
-//! calibrated magnitude `m_t = |P (s_t - O)|` stays at the field magnitude but for noise and
-//! what the model leaves out. A magnet fixed to the board adds a hard iron `d` while it is there:
-//! under the calibration of the readings without it, `m_t = |b_t + P d|`, which moves the level
-//! of `m_t` (by up to `|P d|` where the attitudes change little) and widens its spread (by about
-//! `|P d| |cos|` where they turn). [`field_segments`] looks for both.
+//! calibrated field `b_t = P (s_t - O)` has the field's magnitude but for noise and what the
+//! model leaves out. A magnet fixed to the board adds a hard iron `d` while it is there: under a
+//! calibration of the readings without it, `|b_t + d| / R - 1 ~ u_t . d / R` with `u_t = b_t /
+//! |b_t|`, a change of the magnitude that follows the attitude (a step of the level where the
+//! attitudes change little, a wider spread where they turn). A calibration fitted to the whole
+//! log takes part of the magnet into its bias and its scale factors, so the readings with the
+//! magnet and those without both stray with the attitude; what tells them apart is that each
+//! keeps its own calibration error.
 //!
 //! # Method
-//! - The series: blocks of `block_s` seconds (default 1; longer when the log has more than
-//!   `max_blocks` of them), each holding the median of its readings' relative level
-//!   `m_t / R - 1` and the median of their relative deviation `|m_t / R - 1|`, with `R` the
-//!   median of all `m_t`. The medians make a block indifferent to a few spikes.
-//! - The search (circular binary segmentation, Olshen et al. 2004): in each piece, every window of
-//!   whole blocks against the rest of the piece (a window at an end of the piece is one change,
-//!   one inside it is a change and a change back), scored by the difference of the block means
-//!   inside and outside, `z = |mean_in - mean_out| / (sd sqrt(1/n_in + 1/n_out))`, for the level
-//!   and for the deviation. A window is a change when, for the level or the deviation, the
-//!   difference is at least `min_step` (default 5 % of the magnitude) **and** `z >= z` (default
-//!   [`FIELD_CHANGE_Z`]); every piece it leaves lasts at least `min_part_s` (default 5 s). The
-//!   window of largest `z` is cut first, and the search repeats in the pieces.
-//! - `sd` is the long-run standard deviation of the block series, not its plain one: real
-//!   residuals are correlated in time (the attitude moves slowly, and the field's departures
-//!   from the model with it), so neighbouring blocks are not independent. It comes from batch
-//!   means of `batch_blocks` blocks (default 10 s): `sd = sqrt(batch) 1.4826 median |a_k+1 -
-//!   a_k| / sqrt(2)` over consecutive batch means `a_k`. Differences of neighbours and their
-//!   median make it indifferent to the few batches that straddle a change.
+//! - **The model of a window.** The relative magnitude `rho_t = |b_t| / R - 1` (`R` the median
+//!   of `|b_t|`) is regressed on `h_t = (1, u, u_x^2 - u_z^2, u_y^2 - u_z^2, u_x u_y, u_x u_z,
+//!   u_y u_z)` at `u = u_t`: to first order the magnitude's change under a small error of the
+//!   calibration, a level, a hard iron (3) and the traceless part of a soft iron (5), nine
+//!   unknowns `theta`. A ridge `RIDGE n |theta_(2..9)|^2` gives a window of one attitude (a rest)
+//!   its level alone. Readings go in blocks of `block_s` seconds (default 1; longer where the log
+//!   would have more than `max_blocks`), each holding `sum h h^T`, `sum h rho`, `sum rho^2` and
+//!   its count: any window of whole blocks is fitted from prefix sums.
+//! - **The search** (circular binary segmentation, Olshen et al. 2004): in each piece, every
+//!   window of whole blocks against the rest of the piece (a window at an end of the piece is one
+//!   change, one inside it a change and a change back). The window's fit `theta_in` and the
+//!   rest's `theta_out` differ by `delta`; the **step** is the rms over the piece's readings of
+//!   the change of magnitude that `delta` makes, `sqrt(delta^T (sum h h^T) delta / n)`, a fraction
+//!   of `R`; the **z** is `sqrt((RSS_piece - RSS_in - RSS_out) / s^2)`, the drop of the residual
+//!   sum of squares that the cut buys against the long-run variance `s^2` of a reading (for white
+//!   noise the root of a chi-square of 9 degrees of freedom). A window is a change when its step
+//!   is at least `min_step` (default [`FIELD_CHANGE_STEP`]) **and** its z at least `z` (default
+//!   [`FIELD_CHANGE_Z`]), every piece it leaves lasting at least `min_part_s` (default 5 s). The
+//!   window of largest z is cut first, and the search repeats in the pieces.
+//! - **The long-run variance.** Real residuals are correlated in time (the attitude moves slowly,
+//!   and the field's departures from the model with it), so the scatter of single readings
+//!   understates what a window's fit can wander by. Each batch of `batch_blocks` blocks (default
+//!   30 s) is fitted alone; its blocks' residual sums, scaled by the root of their counts, give
+//!   the Bartlett (Newey-West) estimate over 5 lags of blocks, corrected for the nine unknowns.
+//!   `s^2` is the median over the batches, so that a batch that straddles a change does not
+//!   inflate it, nor a calibration wrong for the whole log (each batch has its own fit). The
+//!   batch's own fit takes some of the slow noise with it: the thresholds are set on
+//!   simulations (see [`FIELD_CHANGE_Z`]) rather than on the chi-square.
 //!
 //! # Why both thresholds
 //! Every real log holds changes that are significant and harmless: the rest phases of a BROAD
-//! trial sit in another spot of the room than the motion between them, and its calibrated level
-//! differs there by about 1 %; with 50,000 readings a z test alone calls that a change. The step
+//! trial sit in another spot of the room than the motion between them, and the calibrated field
+//! differs there by about 1 %; with 50,000 readings a test alone calls that a change. The step
 //! says how large a change must be to matter ([`FIELD_CHANGE_STEP`]), the z how sure it must be
-//! ([`FIELD_CHANGE_Z`]). Measured (numbers in the docs of the two constants): the clean BROAD
-//! trials' largest step is at most 1.8 %, the attached magnet's 24 %; the z of the clean trials
-//! reaches 6.3 and the simulated logs' 9.3, the magnet's 12.3.
+//! ([`FIELD_CHANGE_Z`]); the numbers measured are in their docs. A step alone would not do
+//! either: a window's fit of nine unknowns over a few seconds of correlated noise wanders by
+//! several percent (up to 5.9 % in simulated logs of 1 % noise).
 //!
 //! # Parts
-//! The longest piece is the reference: a piece whose median level lies within `min_step` of the
-//! reference's and whose median deviation from the reference magnitude is below `min_step` is in
-//! the reference field ([`Segment::in_field`]). Neighbouring pieces alike in that are one part
-//! ([`FieldChange::parts`]): the pieces of a magnet's window, which the calibration of the rest
-//! does not make constant, are one part "not in the field".
+//! The longest piece is the reference. A piece whose readings, under the reference's fit instead
+//! of their own, change by less than `min_step` (rms) is in the reference field
+//! ([`Segment::in_field`]); neighbouring pieces alike in that are one part
+//! ([`FieldChange::parts`]).
+// Index loops mirror the matrix algebra they implement.
+#![allow(clippy::needless_range_loop)]
 
 use crate::metrics::median;
-use crate::small::Vec3;
+use crate::small::{Vec3, cholesky_in_place, cholesky_solve, norm};
 
-/// The smallest change that counts, a fraction of the magnitude (of the level `m / R - 1` or the
-/// deviation `|m / R - 1|`): 5 %. Measured, the largest difference of block means between a
-/// window of 5 s or more and the rest, whatever its z, under the full fit of the whole log:
-/// BROAD 02 1.78 %, 05 1.12 %, 30 (a magnet fixed in the room) 1.19 %; the magnet attached to
-/// the board (trial 33) 23.9 % under the full fit of the part without it. A step of 5 % is the
-/// hard iron of a magnet about a tenth of the field strong where the attitudes change little.
+/// The smallest change that counts: 5 % of the magnitude, rms over the readings of the piece
+/// searched. Measured, the largest step of any window of 5 s or more whatever its z, under the
+/// full fit of the whole log: BROAD 02 2.1 %, 05 2.8 %, 30 (a magnet fixed in the room) 2.5 %;
+/// of the windows with `z >= 15`, 1.6 % in 02 and none in the others. A magnet attached to the
+/// board (BROAD 33): 46.7 %. A magnet `d` changes the field by `|d| / sqrt(3)` rms where the
+/// board turns all round, by up to `|d|` where it keeps one attitude: 5 % is a magnet of a
+/// twentieth to a tenth of the field.
 pub const FIELD_CHANGE_STEP: f64 = 0.05;
 
-/// The z a change needs (see [`field_segments`]): 8. Measured, the largest z over 200 simulated
-/// logs of one field each (170 s at 285.7 Hz, AR(1) noise of 1 % with correlation times of 0.1,
-/// 1 and 3 s): 7.25, 7.73 and 9.33, 99th percentiles 6.51, 7.49 and 8.46 (the test
-/// `null_z_distribution`); BROAD's clean trials under their full fits 6.27 (02), 4.49 (05), 4.51
-/// (30); the attached magnet 12.3. With the step, no log of one field in 200 changes at 1 % or
-/// 3 % noise, one in 200 at 5 % noise correlated over 3 s (`one_field_false_alarms`).
-pub const FIELD_CHANGE_Z: f64 = 8.0;
+/// The z a change needs (see [`field_segments`]): 15. Measured, the largest z over 200
+/// simulated logs of one field each (170 s at 285.7 Hz, at rest for the first and last 30 s,
+/// AR(1) noise of 1 %): 12.8, 14.4 and 19.3 with correlation times of 0.1, 1 and 3 s (99th
+/// percentiles 11.5, 13.8 and 18.5; the test `null_z_distribution`); BROAD under the full fits
+/// of the whole trials: 02 15.5, 05 5.1, 30 8.7; BROAD 33's magnet 87. With the step, 200 such
+/// logs change in none at 1 % noise (correlation 3 s) and at 3 % (1 s), in 6 at 3 % (3 s) and 9
+/// at 5 % (3 s); of 40 logs with a change from 60 to 110 s in 2 % noise correlated over 1 s, a
+/// level 8 % higher is found in 38, a magnet of 0.2 R turning with the board in 40, one of
+/// 0.1 R in 38 (`operating_points`).
+pub const FIELD_CHANGE_Z: f64 = 15.0;
+
+/// The ridge on the hard iron of a window, per reading (`RIDGE n |c|^2`): against the `n / 3`
+/// that readings all round the sphere give each component, a shrink of 3 %.
+const RIDGE: f64 = 0.01;
+
+/// Unknowns of a window's fit: level and hard iron.
+const P: usize = 9;
 
 /// Settings of [`field_segments`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,9 +95,9 @@ pub struct FieldChangeSettings {
     /// Block length, seconds (default 1); longer where the log would have more than
     /// `max_blocks`.
     pub block_s: f64,
-    /// At most this many blocks (default 3000): the search costs the square of their number.
+    /// At most this many blocks (default 1000): the search costs the square of their number.
     pub max_blocks: usize,
-    /// Blocks per batch of the long-run standard deviation (default 10).
+    /// Blocks per batch of the long-run variance (default 30).
     pub batch_blocks: usize,
     /// The shortest piece, seconds (default 5).
     pub min_part_s: f64,
@@ -88,8 +113,8 @@ impl Default for FieldChangeSettings {
     fn default() -> Self {
         FieldChangeSettings {
             block_s: 1.0,
-            max_blocks: 3000,
-            batch_blocks: 10,
+            max_blocks: 1000,
+            batch_blocks: 30,
             min_part_s: 5.0,
             min_step: FIELD_CHANGE_STEP,
             z: FIELD_CHANGE_Z,
@@ -112,7 +137,7 @@ pub enum FieldChangeError {
         /// What it must be.
         why: &'static str,
     },
-    /// A time or magnitude that is not finite, or a time before the one before it.
+    /// A time or field that is not finite, a zero field, or a time before the one before it.
     #[error("reading {index}: {why}")]
     BadReading {
         /// 0-based index of the reading.
@@ -120,7 +145,7 @@ pub enum FieldChangeError {
         /// What is wrong.
         why: &'static str,
     },
-    /// Too few blocks for the long-run standard deviation and two pieces.
+    /// Too few blocks for the long-run variance and two pieces.
     #[error(
         "{span_s:.1} s in {blocks} blocks of {block_s} s: too short to tell a change of the field (needs {needed} blocks and two pieces of {min_part_s} s)"
     )]
@@ -149,13 +174,12 @@ pub struct Segment {
     pub first: usize,
     /// Its readings.
     pub readings: usize,
-    /// The median magnitude of its readings, the log's units.
+    /// The median magnitude of its readings, the units of the fields given.
     pub magnitude: f64,
-    /// The median of `|m / R_ref - 1|` over its readings, with `R_ref` the reference piece's
-    /// median magnitude.
-    pub deviation: f64,
-    /// In the field of the reference piece (the longest): level and deviation within
-    /// `min_step`.
+    /// The rms change of its readings' magnitude under the reference piece's fit instead of its
+    /// own, a fraction of the magnitude (0 for the reference).
+    pub change: f64,
+    /// In the field of the reference piece (the longest): `change < min_step`.
     pub in_field: bool,
 }
 
@@ -166,10 +190,9 @@ pub struct Candidate {
     pub from_s: f64,
     /// End, seconds.
     pub to_s: f64,
-    /// Its z (the larger of level and deviation).
+    /// Its z.
     pub z: f64,
-    /// Its difference of block means, fraction of the magnitude (the larger of level and
-    /// deviation, in absolute value).
+    /// Its step, a fraction of the magnitude.
     pub step: f64,
 }
 
@@ -178,15 +201,14 @@ pub struct Candidate {
 pub struct FieldChange {
     /// The pieces in time order; one piece: no change found.
     pub segments: Vec<Segment>,
-    /// The median of all magnitudes, the log's units (the `R` of the search).
+    /// The median of all magnitudes, the units of the fields given (the `R` of the search).
     pub magnitude: f64,
-    /// Blocks searched and their length, seconds.
+    /// Blocks searched.
     pub blocks: usize,
     /// Block length, seconds.
     pub block_s: f64,
-    /// Long-run standard deviations of the block series (level, deviation), fractions of the
-    /// magnitude.
-    pub long_run_sd: [f64; 2],
+    /// The long-run standard deviation of a reading's relative magnitude (`s`).
+    pub long_run_sd: f64,
     /// The windows cut, in the order cut.
     pub cuts: Vec<Candidate>,
     /// Of the windows not cut in the last round: the one of largest z whatever its step.
@@ -228,58 +250,111 @@ fn longest(segments: &[Segment]) -> usize {
         .map_or(0, |(i, _)| i)
 }
 
-/// One block: its readings and the medians of the two series.
+/// The sums of a window's regression: count, `sum h h^T`, `sum h rho`, `sum rho^2`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Sums {
+    n: f64,
+    hh: [[f64; P]; P],
+    hr: [f64; P],
+    rr: f64,
+}
+
+impl Sums {
+    fn add(&mut self, h: [f64; P], rho: f64) {
+        self.n += 1.0;
+        for i in 0..P {
+            self.hr[i] += h[i] * rho;
+            for j in 0..P {
+                self.hh[i][j] += h[i] * h[j];
+            }
+        }
+        self.rr += rho * rho;
+    }
+
+    /// `self - other`, `self + other` by `sign`.
+    fn combine(&self, other: &Sums, sign: f64) -> Sums {
+        let mut out = *self;
+        out.n += sign * other.n;
+        out.rr += sign * other.rr;
+        for i in 0..P {
+            out.hr[i] += sign * other.hr[i];
+            for j in 0..P {
+                out.hh[i][j] += sign * other.hh[i][j];
+            }
+        }
+        out
+    }
+
+    /// The ridge fit `theta` and its residual sum of squares (at least 0).
+    fn fit(&self) -> ([f64; P], f64) {
+        let mut a = self.hh;
+        for i in 1..P {
+            a[i][i] += RIDGE * self.n;
+        }
+        if !cholesky_in_place(&mut a) {
+            return ([0.0; P], self.rr.max(0.0));
+        }
+        let theta = cholesky_solve(&a, &self.hr);
+        (theta, self.rss(&theta))
+    }
+
+    /// `sum (rho - h . theta)^2`.
+    fn rss(&self, theta: &[f64; P]) -> f64 {
+        let mut q = self.rr;
+        for i in 0..P {
+            q -= 2.0 * theta[i] * self.hr[i];
+            for j in 0..P {
+                q += theta[i] * self.hh[i][j] * theta[j];
+            }
+        }
+        q.max(0.0)
+    }
+
+    /// The rms over these readings of `h . delta`.
+    fn rms_of(&self, delta: &[f64; P]) -> f64 {
+        let mut q = 0.0;
+        for i in 0..P {
+            for j in 0..P {
+                q += delta[i] * self.hh[i][j] * delta[j];
+            }
+        }
+        (q.max(0.0) / self.n).sqrt()
+    }
+}
+
+/// One block: its readings and their sums.
 #[derive(Debug, Clone, Copy)]
 struct Block {
     first: usize,
     end: usize,
     from_s: f64,
     to_s: f64,
-    /// Median of `m / R - 1` and of `|m / R - 1|`.
-    x: [f64; 2],
+    sums: Sums,
 }
 
 /// The pieces of a log of one field each: `times` (seconds, non-decreasing) and the calibrated
-/// magnitudes `magnitudes` of the readings (any units, positive), searched as the module says.
+/// fields `fields` of the readings (any units), searched as the module says.
 ///
 /// # Errors
-/// A setting out of range, a time or magnitude not finite, a time before the one before it, a
-/// median magnitude not positive; a log too short for the search ([`FieldChangeError::TooShort`]).
+/// A setting out of range, a time or field not finite, a zero field, a time before the one before
+/// it; a log too short for the search ([`FieldChangeError::TooShort`]).
 ///
 /// # Panics
-/// `times` and `magnitudes` of different lengths.
+/// `times` and `fields` of different lengths.
 #[track_caller]
 pub fn field_segments(
     times: &[f64],
-    magnitudes: &[f64],
+    fields: &[Vec3],
     settings: &FieldChangeSettings,
 ) -> Result<FieldChange, FieldChangeError> {
-    assert_eq!(times.len(), magnitudes.len(), "one time per magnitude");
+    assert_eq!(times.len(), fields.len(), "one time per field");
     check_settings(settings)?;
-    for (i, (t, m)) in times.iter().zip(magnitudes).enumerate() {
-        if !t.is_finite() || !m.is_finite() {
-            return Err(FieldChangeError::BadReading {
-                index: i,
-                why: "time or magnitude not finite",
-            });
-        }
-        if i > 0 && *t < times[i - 1] {
-            return Err(FieldChangeError::BadReading {
-                index: i,
-                why: "time before the one before it",
-            });
-        }
-    }
-    let r = median(magnitudes);
-    if r.is_nan() || r <= 0.0 {
-        return Err(FieldChangeError::BadReading {
-            index: 0,
-            why: "the median magnitude is not positive",
-        });
-    }
+    let magnitudes: Vec<f64> = fields.iter().map(|b| norm(*b)).collect();
+    check_readings(times, &magnitudes)?;
+    let r = median(&magnitudes);
     let span = times.last().map_or(0.0, |l| l - times[0]);
     let block_s = settings.block_s.max(span / settings.max_blocks as f64);
-    let blocks = blocks(times, magnitudes, r, block_s);
+    let blocks = blocks(times, fields, &magnitudes, r, block_s);
     let needed = 3 * settings.batch_blocks;
     if blocks.len() < needed || span < 2.0 * settings.min_part_s {
         return Err(FieldChangeError::TooShort {
@@ -290,11 +365,14 @@ pub fn field_segments(
             min_part_s: settings.min_part_s,
         });
     }
-    let sd = [0, 1].map(|k| long_run_sd(&blocks, k, settings.batch_blocks));
+    let mut prefix = vec![Sums::default()];
+    for b in &blocks {
+        prefix.push(prefix[prefix.len() - 1].combine(&b.sums, 1.0));
+    }
     let search = Search {
         blocks: &blocks,
-        sums: [0, 1].map(|k| prefix_sums(&blocks, k)),
-        sd,
+        prefix,
+        variance: long_run_variance(&blocks, settings.batch_blocks),
         settings,
     };
     let mut cuts = vec![0, blocks.len()];
@@ -311,7 +389,7 @@ pub fn field_segments(
                 best = Some((c, i, j));
             }
             largest_z = stronger(largest_z, found.largest_z, |c| c.z);
-            largest_step = stronger(largest_step, found.largest_step, |c| c.step.abs());
+            largest_step = stronger(largest_step, found.largest_step, |c| c.step);
         }
         match best {
             Some((c, i, j)) if cuts.len() - 1 < settings.max_pieces => {
@@ -324,11 +402,11 @@ pub fn field_segments(
         }
     };
     Ok(FieldChange {
-        segments: segments(&blocks, &cuts, magnitudes, settings.min_step),
+        segments: search.segments(&cuts, &magnitudes),
         magnitude: r,
         blocks: blocks.len(),
         block_s,
-        long_run_sd: sd,
+        long_run_sd: search.variance.sqrt(),
         cuts: cut,
         largest_z,
         largest_step,
@@ -368,6 +446,28 @@ fn check_settings(s: &FieldChangeSettings) -> Result<(), FieldChangeError> {
     Ok(())
 }
 
+fn check_readings(times: &[f64], magnitudes: &[f64]) -> Result<(), FieldChangeError> {
+    for (i, (t, m)) in times.iter().zip(magnitudes).enumerate() {
+        let why = if !t.is_finite() || !m.is_finite() {
+            "time or field not finite"
+        } else if *m <= 0.0 {
+            "a zero field"
+        } else if i > 0 && *t < times[i - 1] {
+            "time before the one before it"
+        } else {
+            continue;
+        };
+        return Err(FieldChangeError::BadReading { index: i, why });
+    }
+    if times.is_empty() {
+        return Err(FieldChangeError::BadReading {
+            index: 0,
+            why: "no readings",
+        });
+    }
+    Ok(())
+}
+
 fn stronger(a: Option<Candidate>, b: Option<Candidate>, key: impl Fn(&Candidate) -> f64) -> Option<Candidate> {
     match (a, b) {
         (Some(a), Some(b)) => Some(if key(&b) > key(&a) { b } else { a }),
@@ -376,7 +476,7 @@ fn stronger(a: Option<Candidate>, b: Option<Candidate>, key: impl Fn(&Candidate)
 }
 
 /// The readings in blocks of `block_s` seconds from the first (empty blocks left out).
-fn blocks(times: &[f64], magnitudes: &[f64], r: f64, block_s: f64) -> Vec<Block> {
+fn blocks(times: &[f64], fields: &[Vec3], magnitudes: &[f64], r: f64, block_s: f64) -> Vec<Block> {
     let t0 = times[0];
     let index = |t: f64| ((t - t0) / block_s).floor();
     let mut out = Vec::new();
@@ -384,58 +484,73 @@ fn blocks(times: &[f64], magnitudes: &[f64], r: f64, block_s: f64) -> Vec<Block>
     while first < times.len() {
         let k = index(times[first]);
         let end = first + times[first..].iter().take_while(|t| index(**t) <= k).count();
-        let level: Vec<f64> = magnitudes[first..end].iter().map(|m| m / r - 1.0).collect();
-        let deviation: Vec<f64> = level.iter().map(|v| v.abs()).collect();
+        let mut sums = Sums::default();
+        for (b, m) in fields[first..end].iter().zip(&magnitudes[first..end]) {
+            let u = [b[0] / m, b[1] / m, b[2] / m];
+            sums.add(
+                [
+                    1.0,
+                    u[0],
+                    u[1],
+                    u[2],
+                    u[0] * u[0] - u[2] * u[2],
+                    u[1] * u[1] - u[2] * u[2],
+                    u[0] * u[1],
+                    u[0] * u[2],
+                    u[1] * u[2],
+                ],
+                m / r - 1.0,
+            );
+        }
         out.push(Block {
             first,
             end,
             from_s: times[first],
             to_s: times[end - 1],
-            x: [median(&level), median(&deviation)],
+            sums,
         });
         first = end;
     }
     out
 }
 
-/// The long-run standard deviation of series `k` per block, from the neighbours' differences of
-/// batch means of `batch` blocks (see the module).
-fn long_run_sd(blocks: &[Block], k: usize, batch: usize) -> f64 {
-    let means: Vec<f64> = blocks
+/// The long-run variance of a reading's relative magnitude: each batch of `batch` blocks fitted
+/// alone; its blocks' residual sums `r_k`, scaled `e_k = r_k / sqrt(n_k)`, give the Bartlett
+/// (Newey-West) estimate `g_0 + 2 sum_{l <= LAGS} (1 - l / (LAGS + 1)) g_l` of their
+/// autocovariances `g_l`, times `batch / (batch - P)` for the unknowns fitted. The median over
+/// the batches is the variance: a batch that straddles a change is one of many.
+fn long_run_variance(blocks: &[Block], batch: usize) -> f64 {
+    let per_batch: Vec<f64> = blocks
         .chunks_exact(batch)
-        .map(|c| c.iter().map(|b| b.x[k]).sum::<f64>() / batch as f64)
+        .map(|c| {
+            let total = c.iter().fold(Sums::default(), |s, b| s.combine(&b.sums, 1.0));
+            let (theta, _) = total.fit();
+            // A block's residual sum: sum rho - (sum h) . theta, the first row of its sums.
+            let e: Vec<f64> = c
+                .iter()
+                .map(|b| (b.sums.hr[0] - (0..P).map(|i| b.sums.hh[0][i] * theta[i]).sum::<f64>()) / b.sums.n.sqrt())
+                .collect();
+            let g = |l: usize| e.iter().zip(&e[l..]).map(|(a, b)| a * b).sum::<f64>() / batch as f64;
+            let lags = LAGS.min(batch - 1);
+            let bartlett = g(0)
+                + 2.0
+                    * (1..=lags)
+                        .map(|l| (1.0 - l as f64 / (lags + 1) as f64) * g(l))
+                        .sum::<f64>();
+            bartlett * batch as f64 / batch.saturating_sub(P).max(1) as f64
+        })
         .collect();
-    let mut steps: Vec<f64> = means.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
-    steps.sort_by(f64::total_cmp);
-    // The rms of the smallest KEPT of the differences, scaled to a normal's standard deviation.
-    let kept = ((steps.len() as f64 * KEPT).ceil() as usize).clamp(1, steps.len().max(1));
-    let rms = (steps[..kept].iter().map(|d| d * d).sum::<f64>() / kept as f64).sqrt();
-    (batch as f64).sqrt() * rms / TRIMMED_RMS / 2f64.sqrt()
+    median(&per_batch)
 }
 
-/// The share of the differences of batch means kept for the long-run standard deviation: those
-/// that straddle a change (two per change) are left out with the largest.
-const KEPT: f64 = 0.8;
+/// Lags of blocks in the Bartlett estimate of the long-run variance.
+const LAGS: usize = 5;
 
-/// The rms of the smallest 80 % of `|x|` for a standard normal x: `sqrt((0.8 - 2 q phi(q)) / 0.8)`
-/// with `q = 1.28155` its 90th percentile.
-const TRIMMED_RMS: f64 = 0.661_6;
-
-fn prefix_sums(blocks: &[Block], k: usize) -> Vec<f64> {
-    let mut sums = Vec::with_capacity(blocks.len() + 1);
-    sums.push(0.0);
-    for b in blocks {
-        sums.push(sums.last().copied().unwrap_or(0.0) + b.x[k]);
-    }
-    sums
-}
-
-/// The state of a search: the blocks, the prefix sums of both series, their long-run standard
-/// deviations.
+/// The state of a search: the blocks, the prefix sums of their sums, the long-run variance.
 struct Search<'a> {
     blocks: &'a [Block],
-    sums: [Vec<f64>; 2],
-    sd: [f64; 2],
+    prefix: Vec<Sums>,
+    variance: f64,
     settings: &'a FieldChangeSettings,
 }
 
@@ -448,22 +563,28 @@ struct PieceSearch {
 }
 
 impl Search<'_> {
+    /// The sums of blocks `a..b`.
+    fn sums(&self, a: usize, b: usize) -> Sums {
+        self.prefix[b].combine(&self.prefix[a], -1.0)
+    }
+
     /// Whether blocks `a..b` last at least the shortest piece (an empty range does).
     fn long_enough(&self, a: usize, b: usize) -> bool {
         a == b || self.blocks[b - 1].to_s - self.blocks[a].from_s >= self.settings.min_part_s
     }
 
-    /// Difference of means inside `i..j` and outside it within `a..b`, and its z, of series `k`.
-    fn score(&self, k: usize, (a, b): (usize, usize), (i, j): (usize, usize)) -> (f64, f64) {
-        let s = &self.sums[k];
-        let (n_in, n_out) = ((j - i) as f64, (b - a - (j - i)) as f64);
-        let inside = s[j] - s[i];
-        let outside = s[b] - s[a] - inside;
-        let step = inside / n_in - outside / n_out;
-        let z = step.abs() / (self.sd[k] * (1.0 / n_in + 1.0 / n_out).sqrt());
+    /// The step and z of window `i..j` against the rest of piece `a..b`, whose sums and fit's
+    /// residual sum of squares are given.
+    fn score(&self, piece: &Sums, piece_rss: f64, (i, j): (usize, usize)) -> (f64, f64) {
+        let inside = self.sums(i, j);
+        let outside = piece.combine(&inside, -1.0);
+        let (theta_in, rss_in) = inside.fit();
+        let (theta_out, rss_out) = outside.fit();
+        let delta: [f64; P] = std::array::from_fn(|k| theta_in[k] - theta_out[k]);
+        let drop = (piece_rss - rss_in - rss_out).max(0.0);
+        let z = (drop / self.variance).sqrt();
         // A series without scatter: any difference is sure, none is not.
-        let z = if z.is_nan() { 0.0 } else { z };
-        (step, z)
+        (piece.rms_of(&delta), if z.is_nan() { 0.0 } else { z })
     }
 
     /// Every window of blocks `a..b` against the rest of the piece.
@@ -473,6 +594,8 @@ impl Search<'_> {
             largest_z: None,
             largest_step: None,
         };
+        let piece = self.sums(a, b);
+        let (_, piece_rss) = piece.fit();
         let (min_step, z_needed) = (self.settings.min_step, self.settings.z);
         for i in a..b {
             if !self.long_enough(a, i) {
@@ -482,73 +605,61 @@ impl Search<'_> {
                 if (i == a && j == b) || !self.long_enough(i, j) || !self.long_enough(j, b) {
                     continue;
                 }
-                let scores = [0, 1].map(|k| self.score(k, (a, b), (i, j)));
-                let z = scores[0].1.max(scores[1].1);
-                let step = if scores[0].0.abs() >= scores[1].0.abs() {
-                    scores[0].0
-                } else {
-                    scores[1].0
-                };
+                let (step, z) = self.score(&piece, piece_rss, (i, j));
                 let window = Candidate {
                     from_s: self.blocks[i].from_s,
                     to_s: self.blocks[j - 1].to_s,
                     z,
                     step,
                 };
-                // The z and step of the series that make the window a change, the larger z first.
-                let cut = scores
-                    .iter()
-                    .filter(|(s, z)| s.abs() >= min_step && *z >= z_needed)
-                    .max_by(|a, b| a.1.total_cmp(&b.1));
-                match cut {
-                    Some(&(step, z)) => {
-                        if out.cut.is_none_or(|c| z > c.0.z) {
-                            out.cut = Some((Candidate { z, step, ..window }, i, j));
-                        }
+                if step >= min_step && z >= z_needed {
+                    if out.cut.is_none_or(|c| z > c.0.z) {
+                        out.cut = Some((window, i, j));
                     }
-                    None => {
-                        out.largest_z = stronger(out.largest_z, Some(window), |c| c.z);
-                        if z >= z_needed {
-                            out.largest_step = stronger(out.largest_step, Some(window), |c| c.step.abs());
-                        }
+                } else {
+                    out.largest_z = stronger(out.largest_z, Some(window), |c| c.z);
+                    if z >= z_needed {
+                        out.largest_step = stronger(out.largest_step, Some(window), |c| c.step);
                     }
                 }
             }
         }
         out
     }
-}
 
-/// The pieces between `cuts` (block indices), with their medians against the longest piece.
-fn segments(blocks: &[Block], cuts: &[usize], magnitudes: &[f64], min_step: f64) -> Vec<Segment> {
-    let mut out: Vec<Segment> = cuts
-        .windows(2)
-        .map(|w| {
-            let (first, end) = (blocks[w[0]].first, blocks[w[1] - 1].end);
-            Segment {
-                from_s: blocks[w[0]].from_s,
-                to_s: blocks[w[1] - 1].to_s,
-                first,
-                readings: end - first,
-                magnitude: median(&magnitudes[first..end]),
-                deviation: f64::NAN,
-                in_field: true,
-            }
-        })
-        .collect();
-    let reference = out[longest(&out)].magnitude;
-    for s in &mut out {
-        let m = &magnitudes[s.first..s.first + s.readings];
-        let deviation: Vec<f64> = m.iter().map(|v| (v / reference - 1.0).abs()).collect();
-        s.deviation = median(&deviation);
-        s.in_field = (s.magnitude / reference - 1.0).abs() < min_step && s.deviation < min_step;
+    /// The pieces between `cuts` (block indices), each against the longest.
+    fn segments(&self, cuts: &[usize], magnitudes: &[f64]) -> Vec<Segment> {
+        let mut out: Vec<Segment> = cuts
+            .windows(2)
+            .map(|w| {
+                let (first, end) = (self.blocks[w[0]].first, self.blocks[w[1] - 1].end);
+                Segment {
+                    from_s: self.blocks[w[0]].from_s,
+                    to_s: self.blocks[w[1] - 1].to_s,
+                    first,
+                    readings: end - first,
+                    magnitude: median(&magnitudes[first..end]),
+                    change: 0.0,
+                    in_field: true,
+                }
+            })
+            .collect();
+        let reference = longest(&out);
+        let theta = |k: usize| self.sums(cuts[k], cuts[k + 1]).fit().0;
+        let theta_ref = theta(reference);
+        for (k, s) in out.iter_mut().enumerate() {
+            let own = theta(k);
+            let delta: [f64; P] = std::array::from_fn(|i| theta_ref[i] - own[i]);
+            s.change = self.sums(cuts[k], cuts[k + 1]).rms_of(&delta);
+            s.in_field = s.change < self.settings.min_step;
+        }
+        out
     }
-    out
 }
 
 /// The centre and radius of the sphere that best fits the readings (the linear fit of
-/// [`super::sphere_radius`]): a start that no runaway can take, for the magnitudes of a log
-/// whose fit does not settle. `None` when no sphere fits.
+/// [`super::sphere_radius`]): a start that no runaway can take, for the calibrated field of a
+/// log whose fit does not settle. `None` when no sphere fits.
 pub fn best_sphere(readings: &[Vec3]) -> Option<(Vec3, f64)> {
     super::sphere(readings).ok()
 }
@@ -557,6 +668,7 @@ pub fn best_sphere(readings: &[Vec3]) -> Option<(Vec3, f64)> {
 mod tests {
     use super::*;
     use crate::rng::{MagcalRng, stream_rng};
+    use rand::RngExt;
     use rand_distr::{Distribution, StandardNormal};
 
     /// BROAD's rate, Hz.
@@ -567,7 +679,7 @@ mod tests {
         (0..(span_s * RATE) as usize).map(|i| i as f64 / RATE).collect()
     }
 
-    /// Unit-variance AR(1) noise of correlation time `tau_s` at the times' spacing.
+    /// Unit-variance AR(1) noise of correlation time `tau_s` at [`RATE`].
     fn ar1(n: usize, tau_s: f64, rng: &mut MagcalRng) -> Vec<f64> {
         let phi = (-1.0 / (RATE * tau_s)).exp();
         let innovation = (1.0 - phi * phi).sqrt();
@@ -582,26 +694,54 @@ mod tests {
             .collect()
     }
 
-    /// Magnitudes `r (1 + sigma e_t)` of one field.
-    fn one_field(t: &[f64], r: f64, sigma: f64, tau_s: f64, rng: &mut MagcalRng) -> Vec<f64> {
-        ar1(t.len(), tau_s, rng).iter().map(|e| r * (1.0 + sigma * e)).collect()
+    /// The field's direction in the calibrated frame as a BROAD trial turns it: at rest for the
+    /// first and last 30 s, between them through most directions (periods 37 and 11 s, phases
+    /// drawn).
+    fn directions(t: &[f64], rng: &mut MagcalRng) -> Vec<Vec3> {
+        let (p1, p2) = (rng.random_range(0.0..1.0), rng.random_range(0.0..1.0));
+        let end = t.last().copied().unwrap_or(0.0);
+        t.iter()
+            .map(|t| {
+                let moving = t.clamp(30.0, end - 30.0);
+                let phi = std::f64::consts::PI * (0.5 + 0.45 * (std::f64::consts::TAU * (moving / 37.0 + p1)).sin());
+                let lambda = std::f64::consts::TAU * (moving / 11.0 + p2);
+                [phi.sin() * lambda.cos(), phi.sin() * lambda.sin(), phi.cos()]
+            })
+            .collect()
     }
 
-    /// Magnitudes of one field with a magnet on the board from `on_s` to `off_s`: `level` moves
-    /// the magnitude (attitudes that change little), `spread` widens it (attitudes that turn:
-    /// `|b + d| = R sqrt(1 + a^2 + 2 a cos theta)` with `a = spread` and the turn of period 7 s).
-    fn with_magnet(t: &[f64], base: &[f64], (on_s, off_s): (f64, f64), level: f64, spread: f64) -> Vec<f64> {
+    /// Calibrated fields of one field of magnitude `r` with relative AR(1) noise `sigma` of
+    /// correlation time `tau_s`, and from `on_s` to `off_s` a magnet: the level times `1 + level`
+    /// and a hard iron `d` (the calibrated frame, the units of `r`).
+    #[allow(clippy::too_many_arguments)]
+    fn log(
+        t: &[f64],
+        r: f64,
+        (sigma, tau_s): (f64, f64),
+        (on_s, off_s): (f64, f64),
+        level: f64,
+        d: Vec3,
+        rng: &mut MagcalRng,
+    ) -> Vec<Vec3> {
+        let u = directions(t, rng);
+        let e = ar1(t.len(), tau_s, rng);
         t.iter()
-            .zip(base)
-            .map(|(t, m)| {
+            .zip(u)
+            .zip(e)
+            .map(|((t, u), e)| {
+                let m = r * (1.0 + sigma * e);
                 if (on_s..off_s).contains(t) {
-                    let c = (std::f64::consts::TAU * t / 7.0).cos();
-                    m * (1.0 + level) * (1.0 + spread * spread + 2.0 * spread * c).sqrt()
+                    std::array::from_fn(|i| m * (1.0 + level) * u[i] + d[i])
                 } else {
-                    *m
+                    u.map(|c| m * c)
                 }
             })
             .collect()
+    }
+
+    /// A log of one field.
+    fn one_field(t: &[f64], noise: (f64, f64), rng: &mut MagcalRng) -> Vec<Vec3> {
+        log(t, 44.0, noise, (0.0, 0.0), 0.0, [0.0; 3], rng)
     }
 
     /// The boundaries of the part found out of the field, or a message.
@@ -614,35 +754,41 @@ mod tests {
     }
 
     #[test]
-    fn a_step_of_the_level_is_found_within_a_block() {
-        // 8 % for 50 s in 2 % AR(1) noise of 1 s: 20 logs, every window found within 1 s (the
-        // block) of where the magnet went on and off.
+    fn a_step_of_the_level_is_found_at_its_block() {
+        // 10 % for 50 s in 2 % noise correlated over 1 s, the board turning: found in 20 logs of
+        // 20, both ends at the block (the first reading of 60 s and of 110 s).
         for k in 0..20 {
             let mut rng = stream_rng(0xF1E1E, k);
             let t = times(170.0);
-            let m = with_magnet(&t, &one_field(&t, 44.0, 0.02, 1.0, &mut rng), (60.0, 110.0), 0.08, 0.0);
-            let f = field_segments(&t, &m, &FieldChangeSettings::default()).unwrap();
+            let b = log(&t, 44.0, (0.02, 1.0), (60.0, 110.0), 0.1, [0.0; 3], &mut rng);
+            let f = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap();
             let (on, off) = found_window(&f).unwrap();
             assert!(
-                (on - 60.0).abs() <= 2.5 && (off - 110.0).abs() <= 2.5,
+                (on - 60.0).abs() <= 0.01 && (off - 110.0).abs() <= 0.01,
                 "log {k}: {on} to {off}"
             );
-            assert!((f.segments[1].magnitude / f.segments[0].magnitude - 1.08).abs() < 0.01);
+            let middle = &f.segments[f.parts()[1].0];
+            assert!(
+                (middle.magnitude / f.segments[0].magnitude - 1.1).abs() < 0.01,
+                "{middle:?}"
+            );
         }
     }
 
     #[test]
-    fn a_wider_spread_is_found_where_the_level_hardly_moves() {
-        // A magnet of 0.2 R turning with the board: the median magnitude moves by
-        // sqrt(1 + 0.04) - 1 = 2 %, below the step, its spread by far more.
+    fn a_magnet_turning_with_the_board_is_found_within_three_seconds() {
+        // A hard iron of 0.2 R: the median magnitude moves by about 2 %, below the step; the
+        // field by 0.2 R / sqrt(3) rms. Found in 20 logs of 20: both ends at the block in 17,
+        // within 1 s in 19, 3 s late in one (the field's direction nearly square to the magnet
+        // then, so that the magnet hardly shows).
         for k in 0..20 {
             let mut rng = stream_rng(0xF1E1F, k);
             let t = times(170.0);
-            let m = with_magnet(&t, &one_field(&t, 44.0, 0.02, 1.0, &mut rng), (60.0, 110.0), 0.0, 0.2);
-            let f = field_segments(&t, &m, &FieldChangeSettings::default()).unwrap();
+            let b = log(&t, 44.0, (0.02, 1.0), (60.0, 110.0), 0.0, [0.0, 0.0, 8.8], &mut rng);
+            let f = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap();
             let (on, off) = found_window(&f).unwrap();
             assert!(
-                (on - 60.0).abs() <= 2.5 && (off - 110.0).abs() <= 2.5,
+                (on - 60.0).abs() <= 3.01 && (off - 110.0).abs() <= 3.01,
                 "log {k}: {on} to {off}"
             );
         }
@@ -650,53 +796,50 @@ mod tests {
 
     #[test]
     fn a_step_below_the_threshold_is_not_a_change() {
-        // 3 % for 50 s: significant (z far above 8 with 1 % noise) but below the 5 % step.
+        // 3 % for 50 s in 1 % noise: sure (z above the threshold) but below the 5 % step.
         let mut rng = stream_rng(0xF1E20, 0);
         let t = times(170.0);
-        let m = with_magnet(&t, &one_field(&t, 44.0, 0.01, 1.0, &mut rng), (60.0, 110.0), 0.03, 0.0);
-        let f = field_segments(&t, &m, &FieldChangeSettings::default()).unwrap();
+        let b = log(&t, 44.0, (0.01, 1.0), (60.0, 110.0), 0.03, [0.0; 3], &mut rng);
+        let f = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap();
         assert!(!f.changed(), "{:?}", f.segments);
+        let largest = f.largest_step.unwrap();
         assert!(
-            f.largest_step.is_some_and(|c| (c.step.abs() - 0.03).abs() < 0.005),
-            "{:?}",
-            f.largest_step
+            (largest.step - 0.03).abs() < 0.01 && largest.z > FIELD_CHANGE_Z,
+            "{largest:?}"
         );
     }
 
     #[test]
     fn one_field_false_alarms() {
-        // 200 logs of one field each (170 s at 285.7 Hz, BROAD's length and rate) with AR(1)
-        // noise. Measured: no change in any log at 1 % and 3 % noise (correlation 1 s), one
-        // in 200 at 5 % with correlation 3 s (`null_z_distribution`); asserted within twice that.
-        for (sigma, tau, most) in [(0.01, 1.0, 0), (0.03, 1.0, 0), (0.05, 3.0, 2)] {
+        // 200 logs of one field each (170 s at 285.7 Hz, BROAD's length and rate; at rest for
+        // the first and last 30 s) with AR(1) noise: no change in any at 1 % noise correlated
+        // over 3 s, nor at 3 % correlated over 1 s (`operating_points` measures more).
+        for noise in [(0.01, 3.0), (0.03, 1.0)] {
             let alarms = (0..200)
                 .filter(|k| {
-                    let mut rng = stream_rng(0xF1E1D, *k);
+                    let mut rng = stream_rng(0xF1E22, *k);
                     let t = times(170.0);
-                    let m = one_field(&t, 44.0, sigma, tau, &mut rng);
-                    field_segments(&t, &m, &FieldChangeSettings::default())
+                    let b = one_field(&t, noise, &mut rng);
+                    field_segments(&t, &b, &FieldChangeSettings::default())
                         .unwrap()
                         .changed()
                 })
                 .count();
-            assert!(
-                alarms <= most,
-                "noise {sigma}, correlation {tau} s: {alarms} of 200 logs"
-            );
+            assert_eq!(alarms, 0, "noise {noise:?}");
         }
     }
 
     #[test]
     fn a_log_too_short_is_not_searched() {
         let t: Vec<f64> = (0..200).map(|i| f64::from(i) * 0.1).collect();
-        let m = vec![1.0; t.len()];
-        let e = field_segments(&t, &m, &FieldChangeSettings::default()).unwrap_err();
+        let b = vec![[1.0, 0.0, 0.0]; t.len()];
+        let e = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap_err();
         assert!(
             matches!(
                 e,
                 FieldChangeError::TooShort {
                     blocks: 20,
-                    needed: 30,
+                    needed: 90,
                     ..
                 }
             ),
@@ -705,62 +848,107 @@ mod tests {
     }
 
     #[test]
-    fn times_out_of_order_are_refused() {
+    fn bad_readings_are_refused() {
         let mut t = times(60.0);
+        let mut b = vec![[1.0, 0.0, 0.0]; t.len()];
         t.swap(10, 11);
-        let m = vec![1.0; t.len()];
-        let e = field_segments(&t, &m, &FieldChangeSettings::default()).unwrap_err();
+        let e = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap_err();
         assert!(matches!(e, FieldChangeError::BadReading { index: 11, .. }), "{e}");
+        t.swap(10, 11);
+        b[5] = [0.0; 3];
+        let e = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap_err();
+        assert!(matches!(e, FieldChangeError::BadReading { index: 5, .. }), "{e}");
     }
 
     #[test]
     fn a_log_at_one_hertz_is_searched_in_blocks_of_its_readings() {
-        // A flight log's 1 Hz: 300 readings, one per block; a 10 % step for 100 s is found.
+        // A flight log's 1 Hz: 300 readings, one per block; a level 10 % higher for 100 s in
+        // white noise of 1 % is found where it is.
         let t: Vec<f64> = (0..300).map(f64::from).collect();
         let mut rng = stream_rng(0xF1E21, 0);
-        let base: Vec<f64> = (0..300)
-            .map(|_| 0.5 * (1.0 + 0.01 * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)))
+        let u = directions(&t, &mut rng);
+        let b: Vec<Vec3> = t
+            .iter()
+            .zip(u)
+            .map(|(t, u)| {
+                let e: f64 = StandardNormal.sample(&mut rng);
+                let m = 0.5 * (1.0 + 0.01 * e) * if (100.0..200.0).contains(t) { 1.1 } else { 1.0 };
+                u.map(|c| m * c)
+            })
             .collect();
-        let m = with_magnet(&t, &base, (100.0, 200.0), 0.1, 0.0);
-        let f = field_segments(&t, &m, &FieldChangeSettings::default()).unwrap();
+        let f = field_segments(&t, &b, &FieldChangeSettings::default()).unwrap();
         assert_eq!(found_window(&f).unwrap(), (100.0, 200.0));
         assert_eq!(f.blocks, 300);
     }
 
     #[test]
+    #[ignore = "a measurement: cargo test --release -p magcal-core operating -- --ignored --nocapture"]
+    fn operating_points() {
+        for (min_part_s, z) in [(5.0, 12.0), (5.0, 15.0), (5.0, 18.0)] {
+            let settings = FieldChangeSettings {
+                min_part_s,
+                z,
+                ..FieldChangeSettings::default()
+            };
+            let mut line = format!("part {min_part_s} z {z}:");
+            for (name, noise, level, d) in [
+                ("null 1%/3s", (0.01, 3.0), 0.0, [0.0; 3]),
+                ("null 3%/1s", (0.03, 1.0), 0.0, [0.0; 3]),
+                ("null 3%/3s", (0.03, 3.0), 0.0, [0.0; 3]),
+                ("null 5%/3s", (0.05, 3.0), 0.0, [0.0; 3]),
+                ("level 8%", (0.02, 1.0), 0.08, [0.0; 3]),
+                ("iron 0.2R", (0.02, 1.0), 0.0, [0.0, 0.0, 8.8]),
+                ("iron 0.1R", (0.02, 1.0), 0.0, [0.0, 0.0, 4.4]),
+                ("iron 0.1R xy", (0.02, 1.0), 0.0, [3.1, 3.1, 0.0]),
+            ] {
+                let (mut found, mut within) = (0, 0);
+                let logs = if name.starts_with("null") { 200 } else { 40 };
+                for k in 0..logs {
+                    let mut rng = stream_rng(0xF1E22, k);
+                    let t = times(170.0);
+                    let b = log(&t, 44.0, noise, (60.0, 110.0), level, d, &mut rng);
+                    let f = field_segments(&t, &b, &settings).unwrap();
+                    found += usize::from(f.changed());
+                    if let Ok((on, off)) = found_window(&f) {
+                        within += usize::from((on - 60.0).abs() <= 2.5 && (off - 110.0).abs() <= 2.5);
+                    }
+                }
+                line += &format!(" {name} {found}/{within} of {logs};");
+            }
+            println!("{line}");
+        }
+    }
+
+    #[test]
     #[ignore = "a measurement: cargo test --release -p magcal-core null_z -- --ignored --nocapture"]
     fn null_z_distribution() {
-        for (sigma, tau) in [
-            (0.01, 0.1),
-            (0.01, 1.0),
-            (0.01, 3.0),
-            (0.03, 1.0),
-            (0.05, 1.0),
-            (0.05, 3.0),
-            (0.1, 1.0),
-        ] {
+        for noise in [(0.01, 0.1), (0.01, 1.0), (0.01, 3.0), (0.03, 1.0), (0.05, 3.0)] {
             let mut zs = Vec::new();
-            let mut alarms = [0; 3];
+            let mut steps = Vec::new();
+            let mut alarms = 0;
             for k in 0..200 {
                 let mut rng = stream_rng(0xF1E1D, k);
                 let t = times(170.0);
-                let m = one_field(&t, 44.0, sigma, tau, &mut rng);
-                for (i, (a, z)) in alarms.iter_mut().zip([6.0, 7.0, 8.0]).enumerate() {
-                    let settings = FieldChangeSettings {
-                        z,
-                        ..FieldChangeSettings::default()
-                    };
-                    let f = field_segments(&t, &m, &settings).unwrap();
-                    *a += usize::from(f.changed());
-                    if i == 0 {
-                        zs.push(f.largest_z.map_or(0.0, |c| c.z));
-                    }
-                }
+                let b = one_field(&t, noise, &mut rng);
+                let settings = FieldChangeSettings {
+                    z: 1e-9,
+                    min_step: 10.0,
+                    ..FieldChangeSettings::default()
+                };
+                let f = field_segments(&t, &b, &settings).unwrap();
+                zs.push(f.largest_z.map_or(0.0, |c| c.z));
+                steps.push(f.largest_step.map_or(0.0, |c| c.step));
+                alarms += usize::from(
+                    field_segments(&t, &b, &FieldChangeSettings::default())
+                        .unwrap()
+                        .changed(),
+                );
             }
             zs.sort_by(f64::total_cmp);
+            steps.sort_by(f64::total_cmp);
             println!(
-                "sigma {sigma} tau {tau}: largest z median {:.2} p95 {:.2} p99 {:.2} max {:.2}; logs with a change at z 6, 7, 8: {alarms:?}/200",
-                zs[100], zs[190], zs[198], zs[199]
+                "noise {noise:?}: largest z median {:.2} p95 {:.2} p99 {:.2} max {:.2}; largest step median {:.4} max {:.4}; logs with a change {alarms}/200",
+                zs[100], zs[190], zs[198], zs[199], steps[100], steps[199]
             );
         }
     }
