@@ -218,7 +218,11 @@ fn span(from_s: f64, to_s: f64) -> String {
 }
 
 fn bounds(from_s: f64, to_s: f64) -> [f64; 2] {
-    [(from_s * 1e3).floor() / 1e3, (to_s * 1e3).ceil() / 1e3]
+    // A nanosecond of slack: 44.98 - 1 is 43.980000000000004 in binary, not 43.981.
+    [
+        (from_s * 1e3 + 1e-6).floor() / 1e3,
+        (to_s * 1e3 - 1e-6).ceil() / 1e3,
+    ]
 }
 
 /// The reason a change of the field gives: the parts, and the longest to calibrate alone, less
