@@ -56,19 +56,26 @@
 
 mod check;
 mod coverage;
+mod field_change;
 mod lack_of_fit;
 pub mod motor;
 mod reject;
 pub mod serial;
 mod statistics;
+mod versus_raw;
 
 pub use check::{CHECK_SEED, CHECK_TRIALS, TrialCheck, TrialNoise, USABLE_SHARE};
 pub use coverage::{
     MotionCalRegion, microstrain_coverage_percent, motioncal_gaps, motioncal_region, motioncal_region_counts,
 };
+pub use field_change::{
+    Candidate, FIELD_CHANGE_STEP, FIELD_CHANGE_Z, FieldChange, FieldChangeError, FieldChangeSettings, Segment,
+    best_sphere, field_segments,
+};
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 pub use serial::Serial;
+pub use versus_raw::{HeadingVersusRaw, MIN_BLOCKS, WORSE_SIGMAS, heading_versus_raw, time_blocks};
 
 pub use crate::calibration::step2::Residual;
 use crate::calibration::{CalibrationError, CalibrationStatus, Termination, TwoStep, step2};

@@ -73,6 +73,10 @@ pub struct CalibrationJson {
     /// With attitudes in the log: the heading the calibration gives against them.
     #[serde(default)]
     pub heading_vs_log: Option<HeadingCheckJson>,
+    /// With times in the log: whether the field the calibration maps the readings to stays one
+    /// field over time (docs/conventions.md "One field"); `null` without times.
+    #[serde(default)]
+    pub field_change: Option<FieldChangeJson>,
     /// The motor interference fitted with the calibration (`calibrate --motor`), else `null`.
     #[serde(default)]
     pub motor: Option<MotorJson>,
@@ -262,6 +266,91 @@ pub struct HeadingCheckJson {
     pub uncalibrated: Option<HeadingFiguresJson>,
     /// Why there are no figures, where there are none.
     pub error: Option<String>,
+    /// The calibrated heading rms against the raw one, with the standard error of the difference.
+    #[serde(default)]
+    pub versus_raw: Option<VersusRawJson>,
+}
+
+/// The calibrated heading against the raw one over the same readings (docs/conventions.md "One
+/// field").
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct VersusRawJson {
+    /// Calibrated minus raw heading rms, degrees.
+    pub difference_deg: f64,
+    /// Its standard error (delete-one-block jackknife), degrees; `null` with too few blocks.
+    pub std_error_deg: Option<f64>,
+    /// Blocks of time (or of readings, in a log without times).
+    pub blocks: usize,
+    /// What a block is, in words.
+    pub block: String,
+    /// The difference beyond which the calibration is worse: `sigmas` standard errors, degrees.
+    pub limit_deg: Option<f64>,
+    /// Standard errors of the limit.
+    pub sigmas: f64,
+    /// The calibration's heading is worse than the raw readings' beyond chance.
+    pub worse: bool,
+}
+
+/// Whether the field stays one field over the log's time.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FieldChangeJson {
+    /// Whether the log was searched: it has times, enough of them, and a calibration that settles
+    /// to measure the field with; `words` says why not.
+    pub tested: bool,
+    /// The field changes within the log.
+    pub changed: bool,
+    /// The calibration whose magnitudes were searched, in words.
+    pub measured_with: String,
+    /// The pieces between changes, in time order (one: no change).
+    pub segments: Vec<FieldSegmentJson>,
+    /// The smallest change that counts, percent of the magnitude.
+    pub step_percent: f64,
+    /// The z a change needs.
+    pub z: f64,
+    /// The shortest piece, seconds.
+    pub min_part_s: f64,
+    /// The blocks' length, seconds: a change lies within a block of a cut.
+    pub block_s: f64,
+    /// The changes found, in the order cut: each window, its z and its difference from the rest.
+    #[serde(default)]
+    pub changes: Vec<FieldCutJson>,
+    /// Of the windows not cut: the largest z.
+    pub largest_z: Option<f64>,
+    /// Of the windows not cut with z at least `z`: the largest change, percent of the magnitude.
+    pub largest_step_percent: Option<f64>,
+    /// What was found, in words.
+    pub words: String,
+}
+
+/// A window cut as a change of the field: against the rest of its piece.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FieldCutJson {
+    pub from_s: f64,
+    pub to_s: f64,
+    pub z: f64,
+    /// The rms change of the magnitude over the piece's readings between the window's fit and
+    /// the rest's, percent of the magnitude.
+    pub step_percent: f64,
+}
+
+/// A piece of the log between changes of the field.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FieldSegmentJson {
+    /// Time of its first reading, seconds on the log's clock.
+    pub from_s: f64,
+    /// Time of its last reading.
+    pub to_s: f64,
+    pub readings: usize,
+    /// Median calibrated magnitude under the calibration measured with (the log's units, at
+    /// that calibration's scale).
+    pub magnitude: f64,
+    /// `magnitude / R - 1`, percent, with `R` the longest piece's median.
+    pub level_percent: f64,
+    /// The rms change of its readings' magnitude under the longest piece's field (level and hard
+    /// iron) instead of its own, percent of the magnitude: how far it is from that field.
+    pub change_percent: f64,
+    /// In the field of the longest piece: `change_percent` below `step_percent`.
+    pub in_field: bool,
 }
 
 /// Heading and direction errors, degrees.

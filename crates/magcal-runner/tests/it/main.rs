@@ -10,6 +10,7 @@ mod attitudes;
 mod bad_input;
 mod bad_logs;
 mod calibrate;
+mod calibrate_one_field;
 mod cli;
 mod dataflash;
 mod evaluate;

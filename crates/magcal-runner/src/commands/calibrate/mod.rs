@@ -3,6 +3,7 @@
 pub mod heading;
 mod motor;
 mod no_fit;
+mod one_field;
 pub mod vector;
 
 use std::collections::BTreeMap;
@@ -245,6 +246,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         motor::record(&mut json, joint);
     }
     json.heading_vs_log = heading::check(&log, &fit);
+    one_field::judge(&mut json, &log, &fit, &settings);
     json.rejected = rejected;
     if let Some(n) = json.noise_estimate.as_mut() {
         n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
@@ -381,6 +383,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         log_parameters: None,
         time_span_s: None,
         heading_vs_log: None,
+        field_change: None,
         motor: None,
         alignment: None,
         columns: log.columns.clone(),
@@ -724,6 +727,7 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
     if let Some(h) = &j.heading_vs_log {
         print_heading(w, h)?;
     }
+    one_field::print_field_change(w, j)?;
     if let Some(m) = &j.motor {
         let se = m.std_error.map_or("unknown".to_string(), row);
         writeln!(
@@ -749,6 +753,9 @@ fn print_heading(w: &mut dyn Write, h: &HeadingCheckJson) -> std::io::Result<()>
                 f.heading_rms_deg, f.heading_p95_deg, f.heading_max_deg, f.direction_rms_deg
             )?;
         }
+    }
+    if let Some(v) = &h.versus_raw {
+        one_field::print_versus_raw(w, v)?;
     }
     if let Some(e) = &h.error {
         writeln!(w, "  no figures: {e}")?;
