@@ -243,6 +243,8 @@ def summary(rows):
             out += share_rows(group, f"design={kind}", [r for r in logs if r["design"] == kind])
         for sensor in SENSORS:
             out += share_rows(group, f"sensor={sensor}", [r for r in logs if r["sensor"] == sensor])
+        for m in sorted({r["readings"] for r in rows}):
+            out += share_rows(group, f"readings={m}", [r for r in logs if r["readings"] == m])
     return out
 
 
@@ -254,16 +256,20 @@ def write_csv(rows, columns, path):
     path.write_text(buf.getvalue())
 
 
-def table(rows, summ):
+def table(rows, summ, by_readings=False):
     usable, refused = groups(rows)
 
-    def line(group):
-        shares = [s for s in summ if s["group"] == group and s["subset"] == "all"]
+    def line(group, subset):
+        shares = [s for s in summ if s["group"] == group and s["subset"] == subset]
         return " | ".join("-" if s["logs"] == 0 else f"{float(s['share']):.3f}" for s in shares)
 
     out = ["| logs | n | " + " | ".join(PARAMETERS) + " |", "|---|---|" + "---|" * len(PARAMETERS)]
-    out.append(f"| usable | {len(usable)} | {line('usable')} |")
-    out.append(f"| not usable, with intervals | {len(refused)} | {line('not_usable_with_intervals')} |")
+    out.append(f"| usable | {len(usable)} | {line('usable', 'all')} |")
+    if by_readings:
+        for m in sorted({r["readings"] for r in rows}):
+            n = sum(1 for r in usable if r["readings"] == m)
+            out.append(f"| usable, {m} readings | {n} | {line('usable', f'readings={m}')} |")
+    out.append(f"| not usable, with intervals | {len(refused)} | {line('not_usable_with_intervals', 'all')} |")
     return out
 
 
@@ -314,27 +320,28 @@ def readme(rows, summ, seconds, jobs, revision):
         "Share of logs whose estimate lies within its stated 99 % interval of the truth:",
         "",
     ]
-    lines += table(rows, summ)
+    lines += table(rows, summ, by_readings=True)
     low = below_bar(summ)
     lines += [
         "",
         f"The bar: at least {BAR:.0%} of usable logs per parameter. At the nominal {LEVEL:.0%} a share over the "
         f"{len(usable)} usable logs has a standard error of {100 * se_bar:.2f} points.",
         "",
-        "Cells of usable logs below the bar (all, per sigma, per design, per sensor):",
+        "Cells of usable logs below the bar (all, per sigma, per design, per sensor, per readings):",
         "",
     ]
     lines += [f"- {s['subset']}, {s['parameter']}: {s['inside']} of {s['logs']} ({s['share']})" for s in low] or ["None."]
     misses = [r for r in usable if any(r[f"{q}_inside"] == "false" for q in PARAMETERS)]
     lines += ["", f"Usable logs with at least one estimate outside its 99 % interval: {len(misses)}", ""]
     if misses:
-        lines += ["| index | roll | pitch | lat | sigma | sensor | design | readings | outside |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += ["| index | roll | pitch | lat | sigma | sensor | design | readings | noise estimated (dof) | outside: error vs 99 % half-width |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for r in misses:
             outside = ", ".join(
                 f"{q} ({float(r[f'{q}_estimate']) - float(r[f'{q}_truth']):+.3g} vs +-{float(r[f'{q}_half99']):.3g})"
                 for q in PARAMETERS if r[f"{q}_inside"] == "false")
             lines.append(f"| {r['index']} | {r['roll_deg']} | {r['pitch_deg']} | {r['lat_deg']} | {r['sigma_nt']} | "
-                         f"{r['sensor']} | {r['design']} | {r['readings']} | {outside} |")
+                         f"{r['sensor']} | {r['design']} | {r['readings']} | {float(r['noise_nt']):.3g} ({r['dof']}) | {outside} |")
     lines += [
         "",
         "## Files",
@@ -344,7 +351,7 @@ def readme(rows, summ, seconds, jobs, revision):
         "  the truth, the 99 % half-width and whether the truth lies inside; `reason` is the first of",
         "  calibrate's `reasons`, cut at 160 characters",
         "- `summary.csv`: per group (usable; not usable with intervals), subset (all, per sigma, per design,",
-        "  per sensor) and parameter: logs, inside, share, its binomial standard error",
+        "  per sensor, per readings) and parameter: logs, inside, share, its binomial standard error",
         "",
     ]
     return "\n".join(lines)
