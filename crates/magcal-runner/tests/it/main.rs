@@ -17,6 +17,7 @@ mod evaluate;
 mod export;
 mod fuzz;
 mod log_outputs;
+mod loop_design_log;
 mod motor;
 mod reference;
 mod replay;

@@ -1,0 +1,205 @@
+//! The loop from plan to calibration: the design `magcal design` recommends, flown (simulated by
+//! `magcal simulate`) and calibrated by `magcal calibrate`, gives usable logs as often as design's
+//! check calibrated it; a design that `design` calls FAILS gives logs that are not usable.
+//!
+//! Each vehicle runs `design`, then simulates [`SEEDS`] logs of the recommended design and of the
+//! vehicle's failing design (seeds 1 to [`SEEDS`], the first of the 50 that `scripts/loop.py`
+//! runs for the README's table) and calibrates each with `--magnitude R`, R the field magnitude
+//! simulate prints. The bounds are statistical (README "Does the loop hold?"):
+//! - recommended: the usable share within [`Z`] standard errors of design's check share, the
+//!   standard error that of the difference of two binomial shares (check trials, logs) at their
+//!   pooled share, the null being that both are one share `p`. Where both shares are 0 or both 1
+//!   the difference and its standard error are 0 and the bound holds. With 200 of 200 check
+//!   trials ok and 10 logs every log must be usable (9 of 10 is 4.5 standard errors away; with the
+//!   script's 50 logs, 48 must be).
+//! - failing: not usable in at least the lower [`Z`]-standard-error limit of a binomial of the
+//!   logs each refused with probability [`REFUSED_P`] ("most": 7 of 10, 39 of 50), and the usable
+//!   share not above design's check share by more than [`Z`] pooled standard errors (a log's fit
+//!   is one trial of its design, so it cannot be usable more often than the design's trials are
+//!   `ok`).
+//!
+//! Each vehicle is one test, so that the harness runs them side by side.
+
+use std::path::Path;
+
+use magcal_runner::output::{DesignMetricsRow, read_csv};
+use tempfile::TempDir;
+
+use crate::common::{calibrate_json, magcal, scenarios};
+
+/// Logs per design.
+const SEEDS: u64 = 10;
+/// Standard errors a share may lie from its null.
+const Z: f64 = 3.0;
+/// The least probability with which a log of a failing design is refused that "most" means.
+const REFUSED_P: f64 = 0.9;
+
+/// `x2 / n2 - x1 / n1` in standard errors of the difference of two binomial shares at their
+/// pooled share; 0 where both shares are 0 or both 1.
+fn pooled_z(x1: usize, n1: usize, x2: usize, n2: usize) -> f64 {
+    let (x1, n1, x2, n2) = (x1 as f64, n1 as f64, x2 as f64, n2 as f64);
+    let p = (x1 + x2) / (n1 + n2);
+    let se = (p * (1.0 - p) * (1.0 / n1 + 1.0 / n2)).sqrt();
+    let diff = x2 / n2 - x1 / n1;
+    if se == 0.0 { 0.0 } else { diff / se }
+}
+
+/// The fewest not-usable logs of `n` that "most are refused" allows.
+fn min_refused(n: usize) -> usize {
+    let n = n as f64;
+    (REFUSED_P * n - Z * (REFUSED_P * (1.0 - REFUSED_P) * n).sqrt()).ceil() as usize
+}
+
+/// One calibrated log: its seed, exit code, `usable`, the log's own check and the first reason.
+struct Log {
+    seed: u64,
+    code: Option<i32>,
+    usable: bool,
+    check: String,
+    reason: String,
+}
+
+impl std::fmt::Debug for Log {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "seed {}: exit {:?}, usable {}, check {}; {}",
+            self.seed, self.code, self.usable, self.check, self.reason
+        )
+    }
+}
+
+/// `magcal design scenarios/NAME.toml`: its design metrics.
+fn design(name: &str, dir: &Path) -> Vec<DesignMetricsRow> {
+    let out = dir.join(format!("design-{name}"));
+    let o = magcal()
+        .arg("design")
+        .arg(scenarios().join(format!("{name}.toml")))
+        .args(["--quiet", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    read_csv(&out.join("design_metrics.csv")).unwrap()
+}
+
+/// A log of design `design` of scenario `name` with noise seed `seed`, calibrated.
+fn flown(name: &str, design: &str, seed: u64, dir: &Path) -> Log {
+    let log = dir.join(format!("{name}-{design}-{seed}.csv"));
+    let o = magcal()
+        .arg("simulate")
+        .arg(scenarios().join(format!("{name}.toml")))
+        .args(["--design", design, "--seed", &seed.to_string(), "--out"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let magnitude = stderr
+        .split("--magnitude ")
+        .nth(1)
+        .map(|v| v.trim_end_matches(|c: char| c == ')' || c.is_whitespace()))
+        .unwrap_or_else(|| panic!("no magnitude in {stderr}"))
+        .to_string();
+    let (code, c, stderr) = calibrate_json(&log, &["--magnitude", &magnitude]);
+    // Exit 0 is a calibration to use, 3 one that is not; anything else is no answer.
+    assert_eq!(code, Some(if c.usable { 0 } else { 3 }), "{name} {design} seed {seed}: {stderr}");
+    Log {
+        seed,
+        code,
+        usable: c.usable,
+        check: c
+            .check
+            .map_or("none".to_string(), |k| format!("{} of {}", k.ok, k.trials)),
+        reason: c.reasons.first().cloned().unwrap_or_default(),
+    }
+}
+
+/// Runs the loop for vehicle `name`: its recommended design must give usable logs as often as
+/// design's check share says, and `failing` (a design that `design` calls FAILS), where given,
+/// logs that are mostly not usable.
+fn the_loop_holds(name: &str, failing: Option<&str>) {
+    let dir = TempDir::new().unwrap();
+    let metrics = design(name, dir.path());
+    let recommended: Vec<&DesignMetricsRow> = metrics.iter().filter(|m| m.recommended).collect();
+    assert_eq!(recommended.len(), 1, "{name}: one design to fly");
+    let mut judged = vec![(recommended[0], true)];
+    if let Some(f) = failing {
+        let m = metrics.iter().find(|m| m.design == f).unwrap();
+        assert!(!m.works, "{name} {f}: design says it works ({} of {})", m.check_ok, m.check_trials);
+        judged.push((m, false));
+    }
+    for (m, works) in judged {
+        let logs: Vec<Log> = (1..=SEEDS).map(|s| flown(name, &m.design, s, dir.path())).collect();
+        let n = logs.len();
+        let usable = logs.iter().filter(|l| l.usable).count();
+        let z = pooled_z(m.check_ok, m.check_trials, usable, n);
+        let said = format!(
+            "{name} {}: design's check {} of {} ok, {usable} of {n} logs usable (z = {z:+.2})\n{logs:#?}",
+            m.design, m.check_ok, m.check_trials
+        );
+        if works {
+            assert!(z.abs() <= Z, "{said}");
+        } else {
+            assert!(n - usable >= min_refused(n) && z <= Z, "{said}");
+        }
+    }
+}
+
+#[test]
+fn the_bounds_are_those_the_readme_states() {
+    // 200 of 200 check trials: every one of 10 logs, 48 of 50.
+    assert!(pooled_z(200, 200, 10, 10).abs() <= Z && pooled_z(200, 200, 9, 10).abs() > Z);
+    assert!(pooled_z(200, 200, 48, 50).abs() <= Z && pooled_z(200, 200, 47, 50).abs() > Z);
+    assert_eq!(min_refused(10), 7);
+    assert_eq!(min_refused(50), 39);
+    // A design no trial calibrates: 2 usable logs of 50 are within the bound, 3 are not.
+    assert!(pooled_z(0, 200, 2, 50) <= Z && pooled_z(0, 200, 3, 50) > Z);
+}
+
+#[test]
+fn the_vessels_plan_calibrates_when_flown_and_its_random_design_does_not() {
+    the_loop_holds("usv", Some("random12"));
+}
+
+#[test]
+fn the_ships_grid_calibrates_when_flown_and_its_random_design_does_not() {
+    the_loop_holds("ship", Some("random20"));
+}
+
+#[test]
+fn the_drones_optimum_calibrates_when_flown() {
+    // Every attitude: every design of the drone works, none to fly that fails.
+    the_loop_holds("drone", None);
+}
+
+#[test]
+fn the_auvs_plan_calibrates_when_flown() {
+    // [P1]'s AUV; plan300.toml fits with the default residual (the readings'), as calibrate does.
+    the_loop_holds("plan300", None);
+}
+
+#[test]
+fn the_gliders_plan_calibrates_when_flown_and_its_surface_circles_do_not() {
+    the_loop_holds("glider", Some("surface12"));
+}
+
+#[test]
+fn the_ground_vehicles_optimum_is_refused_when_flown() {
+    // No design of the level box works; its optimum calibrates in 18 of 200 check trials.
+    let dir = TempDir::new().unwrap();
+    let metrics = design("ground-vehicle", dir.path());
+    assert!(metrics.iter().all(|m| !m.recommended && !m.works));
+    let m = metrics.iter().find(|m| m.design == "optimum12").unwrap();
+    let logs: Vec<Log> = (1..=SEEDS)
+        .map(|s| flown("ground-vehicle", "optimum12", s, dir.path()))
+        .collect();
+    let usable = logs.iter().filter(|l| l.usable).count();
+    let z = pooled_z(m.check_ok, m.check_trials, usable, logs.len());
+    assert!(
+        logs.len() - usable >= min_refused(logs.len()) && z <= Z,
+        "{} of {} check trials, {usable} usable (z = {z:+.2}): {logs:#?}",
+        m.check_ok,
+        m.check_trials
+    );
+}
