@@ -161,10 +161,10 @@ fn broad_33_a_magnet_attached_for_part_of_the_trial_is_refused_with_its_windows(
     };
     let f = c.field_change.as_ref().unwrap();
     // The fit of the whole trial runs away; the pieces come from the best-fitting sphere and
-    // are measured again under the sphere fitted to the longest of them.
+    // are measured again under the full fit of the longest of them.
     assert!(f.changed && !c.identifiable, "{}", f.words);
     assert!(
-        f.measured_with.starts_with("the offset fit of 98.000 to 168.973 s"),
+        f.measured_with.starts_with("the full fit of 98.000 to 168.973 s"),
         "{}",
         f.measured_with
     );
@@ -197,31 +197,29 @@ fn broad_33_a_magnet_attached_for_part_of_the_trial_is_refused_with_its_windows(
     assert!(stderr.contains("the field changes within the log"), "{stderr}");
     // The runaway fit is also far worse than the raw readings against the capture.
     let v = versus_raw(&c);
-    assert!(v.worse && (v.difference_deg - 36.9).abs() < 0.1, "{v:?}");
+    assert!(v.worse && (v.difference_deg - 37.11).abs() < 0.01, "{v:?}");
 }
 
 #[test]
-fn broad_33_the_part_suggested_settles_but_its_heading_is_worse_than_raw() {
-    // The full fit of 99 to 169 s (38 s of motion, then rest) is identifiable, to a mean radius
-    // of 49.4 uT where the raw readings have 44.4: the capture says its heading is 8.74 degrees
-    // rms against the raw readings' 3.96, and the second rule refuses it.
+fn broad_33_the_part_suggested_calibrates_alone() {
+    // The part after the magnet, 99 to 169 s (38 s of motion, then rest), is usable on its own,
+    // and the capture says its heading is better than the raw readings': 3.838 degrees rms
+    // against 3.959.
     let Some((c, _)) = broad(
         "33_disturbed_attached_magnet_2cm",
         &["--from", "99.000", "--to", "168.973"],
     ) else {
         return;
     };
-    assert!(c.identifiable && !c.usable, "{:?}", c.reasons);
+    assert!(c.usable, "{:?}", c.reasons);
     let h = c.heading_vs_log.as_ref().unwrap();
     let (cal, raw) = (h.calibrated.unwrap(), h.uncalibrated.unwrap());
-    assert!((cal.heading_rms_deg - 8.737).abs() < 0.001 && (raw.heading_rms_deg - 3.959).abs() < 0.001);
+    assert!(
+        (cal.heading_rms_deg - 3.838).abs() < 0.001 && (raw.heading_rms_deg - 3.959).abs() < 0.001,
+        "{cal:?} {raw:?}"
+    );
     let v = versus_raw(&c);
-    assert!(v.worse && (v.difference_deg - 4.78).abs() < 0.01, "{v:?}");
-    assert!(v.std_error_deg.is_some_and(|s| (s - 0.91).abs() < 0.01), "{v:?}");
-    assert_eq!(c.reasons.len(), 1, "{:?}", c.reasons);
-    assert!(c.reasons[0].starts_with(
-        "its heading against the log's attitudes is worse than the raw readings': rms 8.737 against 3.959 degrees"
-    ));
+    assert!(!v.worse && (v.difference_deg + 0.121).abs() < 0.001, "{v:?}");
     // 70 s of readings: too short for the search of the field (three batches of 30 s).
     let f = c.field_change.clone().unwrap();
     assert!(!f.tested && f.words.contains("too short"), "{}", f.words);
@@ -231,8 +229,8 @@ fn broad_33_the_part_suggested_settles_but_its_heading_is_worse_than_raw() {
 fn broad_clean_trials_pass_both_rules() {
     // (trial, calibrated minus raw heading rms, its standard error, largest z of the search).
     for (trial, difference, std_error, largest_z) in [
-        ("02_undisturbed_slow_rotation_B", -0.0194, 0.032, 15.5),
-        ("05_undisturbed_slow_rotation_with_breaks_B", -0.0729, 0.022, 5.1),
+        ("02_undisturbed_slow_rotation_B", -0.0252, 0.0320, 15.5),
+        ("05_undisturbed_slow_rotation_with_breaks_B", -0.0772, 0.0184, 5.1),
     ] {
         let Some((c, _)) = broad(trial, &[]) else {
             return;
@@ -260,7 +258,7 @@ fn broad_clean_trials_pass_both_rules() {
 #[test]
 fn broad_10_is_not_searched_and_its_runaway_fit_is_worse_than_raw() {
     // Translation with little rotation: no model settles, so no calibration measures the field
-    // ("cannot tell"), and the runaway full fit scores 18.83 degrees against the raw readings'
+    // ("cannot tell"), and the runaway full fit scores 78.61 degrees against the raw readings'
     // 2.87: the heading rule says so beside the fit's own verdict.
     let Some((c, _)) = broad("10_undisturbed_slow_translation_A", &[]) else {
         return;
@@ -273,12 +271,12 @@ fn broad_10_is_not_searched_and_its_runaway_fit_is_worse_than_raw() {
     );
     assert!(c.reasons[0].starts_with("not identifiable"), "{:?}", c.reasons);
     let v = versus_raw(&c);
-    assert!(v.worse && (v.difference_deg - 15.96).abs() < 0.01, "{v:?}");
+    assert!(v.worse && (v.difference_deg - 75.74).abs() < 0.01, "{v:?}");
 }
 
 #[test]
 fn broad_30_a_magnet_fixed_in_the_room_is_flagged_by_neither_rule() {
-    // Its calibration moves the heading by 0.0015 degree (standard error 0.085), and its
+    // Its calibration moves the heading by 0.031 degree (standard error 0.124), and its
     // magnitudes show no change over time: what is wrong is that the field depends on where the
     // board is (docs/conventions.md "One field"), which neither rule sees.
     let Some((c, _)) = broad("30_disturbed_stationary_magnet_C", &[]) else {
@@ -287,11 +285,11 @@ fn broad_30_a_magnet_fixed_in_the_room_is_flagged_by_neither_rule() {
     assert!(c.usable, "{:?}", c.reasons);
     let f = c.field_change.clone().unwrap();
     assert!(
-        f.tested && !f.changed && f.largest_z.is_some_and(|z| (z - 8.7).abs() < 0.1),
+        f.tested && !f.changed && f.largest_z.is_some_and(|z| (z - 8.8).abs() < 0.1),
         "{}",
         f.words
     );
     let v = versus_raw(&c);
-    assert!(!v.worse && (v.difference_deg + 0.0015).abs() < 0.0005, "{v:?}");
-    assert!(v.std_error_deg.is_some_and(|s| (s - 0.085).abs() < 0.001), "{v:?}");
+    assert!(!v.worse && (v.difference_deg - 0.0309).abs() < 0.0005, "{v:?}");
+    assert!(v.std_error_deg.is_some_and(|s| (s - 0.1235).abs() < 0.001), "{v:?}");
 }

@@ -103,7 +103,11 @@ fn flown(name: &str, design: &str, seed: u64, dir: &Path) -> Log {
         .to_string();
     let (code, c, stderr) = calibrate_json(&log, &["--magnitude", &magnitude]);
     // Exit 0 is a calibration to use, 3 one that is not; anything else is no answer.
-    assert_eq!(code, Some(if c.usable { 0 } else { 3 }), "{name} {design} seed {seed}: {stderr}");
+    assert_eq!(
+        code,
+        Some(if c.usable { 0 } else { 3 }),
+        "{name} {design} seed {seed}: {stderr}"
+    );
     Log {
         seed,
         code,
@@ -126,7 +130,11 @@ fn the_loop_holds(name: &str, failing: Option<&str>) {
     let mut judged = vec![(recommended[0], true)];
     if let Some(f) = failing {
         let m = metrics.iter().find(|m| m.design == f).unwrap();
-        assert!(!m.works, "{name} {f}: design says it works ({} of {})", m.check_ok, m.check_trials);
+        assert!(
+            !m.works,
+            "{name} {f}: design says it works ({} of {})",
+            m.check_ok, m.check_trials
+        );
         judged.push((m, false));
     }
     for (m, works) in judged {
