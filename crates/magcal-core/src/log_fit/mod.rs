@@ -32,7 +32,7 @@
 //!
 //! # Verdicts
 //! The log is **identifiable** under a model when every parameter's standard error is known and
-//! within the physical scales of [`PhysicalScales`] (10 degrees, half the scale factor, the
+//! within the physical scales of [`PhysicalScales`](crate::identifiability::PhysicalScales) (10 degrees, half the scale factor, the
 //! field magnitude) and the fit converged; otherwise the verdict names the weakest parameters,
 //! by the sensor's axes x, y, z.
 //!
@@ -749,7 +749,7 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
 
 /// The least rise of a log's cost at 3 standard errors of an entry of `P` (the scale factors,
 /// and for the full model the non-orthogonalities too), the other unknowns re-fitted
-/// ([`step2::profile_rise`]).
+/// (`calibration::step2::profile_rise`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Profile {
     /// The rise, in units of the residuals' variance (a chi-square's): 9 for a straight problem.

@@ -42,7 +42,7 @@ pub struct ApplyArgs {
 /// `apply --matrix`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Matrix {
-    /// `p`, upper triangular (\[P1\] eq. (6)), then `alignment.rotation` where the calibration
+    /// `p`, upper triangular (eq. (6) of the paper), then `alignment.rotation` where the calibration
     /// carries one.
     #[default]
     Triangular,

@@ -349,6 +349,9 @@ fn augment(
     })
 }
 
+/// A fit of the log with readings added, or why there is none.
+type FitResult = Result<log_fit::LogFit, magcal_core::CalibrationError>;
+
 /// The fewest passes (1, 2, 4, ... up to [`MAX_PASSES`]) over the body fields `fields` (nT) of
 /// the chosen attitudes whose readings, simulated from `model` with noise `sigma` (as `simulate`
 /// draws it) and added to the log's `readings` (nT), make the full calibration of the log usable
@@ -362,11 +365,7 @@ fn passes_to_usable(
     sigma: f64,
     r: f64,
     seed: u64,
-) -> Result<(
-    Option<usize>,
-    Result<log_fit::LogFit, magcal_core::CalibrationError>,
-    Vec<Vec3>,
-)> {
+) -> Result<(Option<usize>, FitResult, Vec<Vec3>)> {
     let m = readings.len();
     let mut passes = 1;
     loop {

@@ -87,7 +87,7 @@ impl Fit {
 pub enum ResidualArg {
     /// Each reading's distance from the fitted ellipsoid (the default, as designs).
     Readings,
-    /// [P1]'s residual, `|P (raw - bias)| - R`.
+    /// the paper's residual, `|P (raw - bias)| - R`.
     Paper,
 }
 
@@ -144,7 +144,7 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "SIGMA")]
     pub noise: Option<f64>,
     /// The residual every model minimises: `readings` (each reading's distance from the fitted
-    /// ellipsoid, as designs are judged) or `paper` ([P1]'s `|P (raw - bias)| - R`, which runs
+    /// ellipsoid, as designs are judged) or `paper` (the paper's `|P (raw - bias)| - R`, which runs
     /// off where a vehicle barely tilts in a steep field).
     #[arg(long, value_enum, default_value = "readings")]
     pub residual: ResidualArg,
@@ -900,6 +900,9 @@ fn magnitude_of(args: &CalibrateArgs, units: Option<Units>, place: Option<&Place
     Ok(args.magnitude.map(|r| (r, "given".to_string())).or(wmm))
 }
 
+/// A log's fit, the reasons of `--fit auto`, and where the magnitude comes from.
+type Fitted = (LogFit, Vec<AutoReason>, String);
+
 /// The fit of `log` with the model of `--fit` at the magnitude `given` (with where it comes from),
 /// or at the fit's own mean radius; the reasons of `--fit auto`, and where the magnitude comes
 /// from, in words.
@@ -908,7 +911,7 @@ fn fit_at_magnitude(
     log: &Log,
     settings: &FitSettings,
     given: Option<(f64, String)>,
-) -> Result<Result<(LogFit, Vec<AutoReason>, String), String>> {
+) -> Result<Result<Fitted, String>> {
     let shown = args.log.display().to_string();
     // No fit is a property of the readings (too few, too alike), not bad input: the caller
     // reports it with exit 3.
