@@ -109,6 +109,7 @@ pub fn calibrate(
             // The replay is the Monte Carlo: its fits run no check of their own.
             let settings = FitSettings {
                 noise: Some(noise),
+                residual: two_step.residual,
                 trials: 0,
                 profile: false,
                 ..FitSettings::default()

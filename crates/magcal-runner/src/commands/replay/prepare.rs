@@ -95,7 +95,7 @@ pub fn prepare(
         Truth::Scenario => (scenario.field.magnitude(), "the scenario's field"),
         _ => (median_norm(&clean), "the median magnitude of the log's readings"),
     };
-    let whole_log = whole_log_settings();
+    let whole_log = whole_log_settings(scenario);
     let base = log_fit::fit_with(&clean, magnitude, FitModel::Full, &whole_log)
         .map_err(|e| anyhow::anyhow!("the whole log does not calibrate (full model): {e}"))?;
     let calibrated: Vec<Vec3> = clean.iter().map(|r| base.apply(*r)).collect();
@@ -217,10 +217,12 @@ pub fn rotation_angle_deg(q: &Mat3) -> f64 {
     t.clamp(-1.0, 1.0).acos().to_degrees()
 }
 
-/// The settings of the whole log's fits, which give the truth and the noise: no check by trials
-/// and no profile (the replay's trials judge the designs).
-fn whole_log_settings() -> FitSettings {
+/// The settings of the whole log's fits, which give the truth and the noise: the scenario's
+/// residual, as the trials' fits use, so that the whole log is measured by the estimator the
+/// designs are; no check by trials and no profile (the replay's trials judge the designs).
+fn whole_log_settings(scenario: &Scenario) -> FitSettings {
     FitSettings {
+        residual: scenario.calibration.residual,
         trials: 0,
         profile: false,
         ..FitSettings::default()
