@@ -66,7 +66,7 @@ fn run(args: &[&std::ffi::OsStr]) -> (i32, String, String) {
 /// `magcal calibrate LOG ARGS --json --out DIR`: the exit code, the JSON printed and stderr.
 fn calibrate(log: &Path, args: &[&str], dir: &Path) -> (i32, serde_json::Value, String) {
     let mut a: Vec<&std::ffi::OsStr> = vec!["calibrate".as_ref(), log.as_os_str()];
-    a.extend(args.iter().map(|s| s.as_ref()));
+    a.extend(args.iter().map(std::ffi::OsStr::new));
     a.extend(["--json".as_ref(), "--out".as_ref(), dir.as_os_str()]);
     let (code, stdout, stderr) = run(&a);
     let json = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"));
@@ -77,7 +77,7 @@ fn calibrate(log: &Path, args: &[&str], dir: &Path) -> (i32, serde_json::Value, 
 fn next(cal: &Path, log: &Path, args: &[&str]) -> (i32, String, String) {
     let scenario = crate::common::scenarios().join("drone.toml");
     let mut a: Vec<&std::ffi::OsStr> = vec!["next".as_ref(), cal.as_os_str(), log.as_os_str()];
-    a.extend(args.iter().map(|s| s.as_ref()));
+    a.extend(args.iter().map(std::ffi::OsStr::new));
     a.extend(["--scenario".as_ref(), scenario.as_os_str()]);
     run(&a)
 }
@@ -162,7 +162,8 @@ fn assert_exports_refused(cal: &Path, dir: &Path, first_reason: &str) {
 }
 
 /// next and export, with and without `--force`, refusing `cal` with exit 2 and the message
-/// `needles` on one line, nothing written.
+/// `needles` on one line, nothing written to `dir` (outside the calibration set, where export
+/// refuses to write).
 fn assert_next_and_export_refuse(cal: &Path, log: &Path, next_args: &[&str], dir: &Path, needles: &[&str]) {
     let check = |what: &str, code: i32, stderr: &str| {
         assert_eq!(code, 2, "{what}: {stderr}");
@@ -221,7 +222,7 @@ fn assert_too_few(log: &Path, compass: &str, readings: u64, tmp: &Path) {
         &record,
         log,
         &["--compass", compass],
-        &dir,
+        tmp,
         &["no_calibration.json: not a magcal calibration: missing field `magnitude`"],
     );
 }
@@ -322,7 +323,7 @@ fn exit_codes_px4_quadrotor_local() {
             &cal,
             &log,
             &["--compass", compass],
-            &dir,
+            tmp.path(),
             &["calibration.json: p [[", condition, "(singular or garbled"],
         );
     }
