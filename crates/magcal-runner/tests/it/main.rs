@@ -14,6 +14,7 @@ mod calibrate_one_field;
 mod cli;
 mod dataflash;
 mod evaluate;
+mod exit_codes;
 mod export;
 mod fuzz;
 mod log_outputs;
