@@ -46,8 +46,8 @@ enum Command {
     /// realised by the log's own readings, every model scored against the reference.
     Replay(commands::replay::ReplayArgs),
     /// Write a calibration.json as an autopilot's parameters (ArduPilot, PX4) or a tool's form
-    /// (MotionCal, Magneto, a C header); exit 3 when the calibration is not marked usable (the
-    /// output is written all the same).
+    /// (MotionCal, Magneto, a C header); a calibration not marked usable writes nothing and exits
+    /// 3, unless `--force` writes it under a first line that says so (still exit 3).
     Export(commands::export::ExportArgs),
     /// One self-contained HTML page of a result, to turn and hover in a browser, offline.
     Report(commands::report::ReportArgs),

@@ -490,7 +490,7 @@ impl CalibrationJson {
     /// The checks of a calibration before use; the error names the field and its value.
     ///
     /// `p` upper triangular with a positive diagonal (\[P1\] eq. (6): the Cholesky factor of
-    /// `G = P^T P`), finite, invertible and conditioned below [`MAX_CONDITION`]; `bias` finite;
+    /// `G = P^T P`), finite, invertible and, where `usable`, conditioned below [`MAX_CONDITION`]; `bias` finite;
     /// `magnitude` finite and positive; `noise` and `residual_rms` finite and not negative; and
     /// what is derived from `p` agrees with it: `k = P^-1`, `scale` and `psi_deg` (docs/conventions.md's
     /// inverse map of `K`), `soft_iron_inverse` (the symmetric square root of `P^T P`).
@@ -556,8 +556,8 @@ impl CalibrationJson {
         Ok(())
     }
 
-    /// `p` upper triangular with a positive diagonal, `P^T P` finite, conditioned below
-    /// [`MAX_CONDITION`].
+    /// `p` upper triangular with a positive diagonal, `P^T P` finite, invertible, and for a
+    /// usable calibration conditioned below [`MAX_CONDITION`].
     fn check_p(&self) -> Result<(), String> {
         use magcal_core::small::{mat_mul, transpose};
         let show = |m: &Mat3| format!("{m:?}");
@@ -584,10 +584,15 @@ impl CalibrationJson {
         if !frobenius(&mat_mul(&transpose(p), p)).is_finite() {
             return Err(format!("p {}: too large (G = P^T P overflows)", show(p)));
         }
+        // A usable calibration must be conditioned below the limit; one calibrate marked not
+        // usable may be ill-conditioned (a fit that runs away) and is still calibrate's own
+        // record of the log: `next` plans from it and `export --force` writes it, so only a
+        // singular `p` is refused there.
         let cond = self.condition();
-        if cond.is_nan() || cond > MAX_CONDITION {
+        let limit = if self.usable { MAX_CONDITION } else { f64::MAX };
+        if cond.is_nan() || cond > limit {
             return Err(format!(
-                "p {}: condition number {cond:.3e} above {MAX_CONDITION:e} (singular or garbled: it would amplify a reading's error by as much)",
+                "p {}: condition number {cond:.3e} above {limit:e} (singular or garbled: it would amplify a reading's error by as much)",
                 show(p)
             ));
         }
@@ -700,10 +705,28 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationJson> {
 pub fn parse_calibration(text: &[u8], shown: &str) -> Result<CalibrationJson> {
     // A byte-order mark, as editors on Windows write it, is not part of the JSON.
     let text = text.strip_prefix(b"\xef\xbb\xbf").unwrap_or(text);
-    let cal: CalibrationJson = serde_json::from_slice(text)
-        .map_err(|e| anyhow::anyhow!("{shown}: not a magcal calibration: {}", excerpt(&e.to_string(), 160)))?;
+    let cal: CalibrationJson = serde_json::from_slice(text).map_err(|e| match no_calibration(text) {
+        Some(why) => anyhow::anyhow!(
+            "{shown}: calibrate's report that its log has no calibration ({}: {}), not a calibration: there is nothing to use; the reason says what the log lacks",
+            NO_CALIBRATION_FORMAT,
+            excerpt(&why, 160)
+        ),
+        None => anyhow::anyhow!("{shown}: not a magcal calibration: {}", excerpt(&e.to_string(), 160)),
+    })?;
     cal.check().map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     Ok(cal)
+}
+
+/// The format of `calibrate`'s report that a log has no calibration (`no_calibration.json`).
+pub const NO_CALIBRATION_FORMAT: &str = "magcal-no-calibration-1";
+
+/// The first reason of `calibrate`'s report that a log has no calibration (`no_calibration.json`),
+/// where `text` is one.
+fn no_calibration(text: &[u8]) -> Option<String> {
+    let v: serde_json::Value = serde_json::from_slice(text).ok()?;
+    (v.get("format")?.as_str()? == NO_CALIBRATION_FORMAT)
+        .then(|| v.get("reasons")?.get(0)?.as_str().map(str::to_string))
+        .flatten()
 }
 
 /// The columns to read `log` with: `asked` (`--columns`) when given, else the columns `cal` was

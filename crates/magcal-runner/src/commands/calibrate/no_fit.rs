@@ -10,14 +10,12 @@ use serde::Serialize;
 
 use super::{CalibrateArgs, Failure};
 use crate::digest::sha256_hex;
+use crate::log::calibration::NO_CALIBRATION_FORMAT;
 use crate::log::flown::{Flown, flown};
 use crate::log::source::Log;
 use crate::output::file::to_stdout;
 use crate::output::manifest::CalibrationManifest;
 use crate::output::staging::ResultSet;
-
-/// The format of `no_calibration.json`.
-pub const FORMAT: &str = "magcal-no-calibration-1";
 
 /// The report of a log without a calibration.
 #[derive(Debug, Serialize)]
@@ -53,7 +51,7 @@ pub fn report(
 ) -> Result<(), Failure> {
     let json = NoCalibrationJson {
         log: args.log.display().to_string(),
-        format: FORMAT,
+        format: NO_CALIBRATION_FORMAT,
         magcal_version: env!("CARGO_PKG_VERSION"),
         log_sha256: log.sha256.clone(),
         columns: log.columns.clone(),
