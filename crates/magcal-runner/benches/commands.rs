@@ -1,6 +1,8 @@
 //! Whole `magcal` processes on a log, with their targets: `calibrate` on the ck-explorer log
-//! (0.3 s), `next` with K = 10 (1 s). The public log is read from `../shared/data/` when it is
-//! there; else a synthetic log of the same size.
+//! (12,000 readings) with its default check of 200 trials (5 s: "a few seconds") and with the
+//! fewest trials `--trials` takes, 20 (1 s), which shows what the check costs; `next` with
+//! K = 10 (5 s: it fits and checks the log with the suggested readings). The public log is read
+//! from `../shared/data/` when it is there; else a synthetic log of the same size.
 //!
 //! `cargo bench -p magcal-runner --bench commands`
 use std::path::{Path, PathBuf};
@@ -50,9 +52,20 @@ fn commands(c: &mut Criterion) {
     let cal = tmp.join("cal");
     let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/drone.toml");
     let mut group = c.benchmark_group("process");
-    group.sample_size(20);
+    group.sample_size(10);
     group.bench_function("calibrate_ck_explorer", |b| {
         b.iter(|| run(&["calibrate".as_ref(), log.as_os_str(), "--json".as_ref()]))
+    });
+    group.bench_function("calibrate_ck_explorer_trials_20", |b| {
+        b.iter(|| {
+            run(&[
+                "calibrate".as_ref(),
+                log.as_os_str(),
+                "--json".as_ref(),
+                "--trials".as_ref(),
+                "20".as_ref(),
+            ])
+        })
     });
     run(&["calibrate".as_ref(), log.as_os_str(), "--out".as_ref(), cal.as_os_str()]);
     let json = cal.join("calibration.json");
