@@ -449,6 +449,27 @@ pub(crate) fn refine_holding(
     })
 }
 
+/// The readings in units of the field `R` (nT), their mean `m`, the readings less it, and the
+/// coordinates `z` under `T` of `estimate` in the frame centred on `m` (each read at the first
+/// nonzero entry of its column of `T`).
+fn centred_coordinates<const N: usize>(
+    estimate: &Estimate,
+    readings: &[Vec3],
+    R: f64,
+    T: &[[f64; N]; PARAMETERS],
+) -> (Vec3, Vec<Vec3>, [f64; N]) {
+    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
+    let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
+    let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
+    let y0 = to_centred(&pack(&estimate.p, scale(1.0 / R, estimate.bias_nt)), m);
+    let z0: [f64; N] = std::array::from_fn(|j| {
+        (0..PARAMETERS)
+            .find(|&i| T[i][j] != 0.0)
+            .map_or(0.0, |i| y0[i] / T[i][j])
+    });
+    (m, d, z0)
+}
+
 /// Step 2 on [`Residual::Readings`] for a model whose unknowns `z` (`N` of them) give the
 /// centred unknowns linearly, `y = (P, c) = T z` (`c = P (m - o)` about the mean reading `m`):
 /// the reduced models of [`crate::log_fit`] (diagonal: `P` diagonal, `z = (P11, P22, P33, c)`;
@@ -464,15 +485,7 @@ pub(crate) fn refine_linear<const N: usize>(
     T: &[[f64; N]; PARAMETERS],
 ) -> Result<Refined, CalibrationError> {
     let R = field_magnitude_nt;
-    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
-    let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
-    let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
-    let y0 = to_centred(&pack(&start.p, scale(1.0 / R, start.bias_nt)), m);
-    let z0: [f64; N] = std::array::from_fn(|j| {
-        (0..PARAMETERS)
-            .find(|&i| T[i][j] != 0.0)
-            .map_or(0.0, |i| y0[i] / T[i][j])
-    });
+    let (m, d, z0) = centred_coordinates(start, readings, R, T);
     let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
     let normal = |z: &[f64; N]| {
         let y = y_of(z);
@@ -532,15 +545,7 @@ pub(crate) fn profile_rise<const N: usize>(
     var: f64,
 ) -> Option<(f64, usize, f64)> {
     let R = field_magnitude_nt;
-    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
-    let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
-    let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
-    let y0 = to_centred(&pack(&estimate.p, scale(1.0 / R, estimate.bias_nt)), m);
-    let z0: [f64; N] = std::array::from_fn(|j| {
-        (0..PARAMETERS)
-            .find(|&i| T[i][j] != 0.0)
-            .map_or(0.0, |i| y0[i] / T[i][j])
-    });
+    let (_, d, z0) = centred_coordinates(estimate, readings, R, T);
     let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
     let normal = |z: &[f64; N], held: Option<usize>| {
         let y = y_of(z);
