@@ -31,11 +31,11 @@
 //! | " | next, export | 0 | |
 //! | broad/02 `--noise 0.7` | calibrate | 0 | (usable; an ellipsoid: scatter 1.109 times the given noise, said, not a reason) |
 //! | " | export | 0 | |
-//! | broad/05 | calibrate, next, export | 0 | (usable; 200 of 200 trials) |
+//! | broad/05 | calibrate, export | 0 | (usable; 200 of 200 trials; next as 02's) |
 //! | broad/10 | calibrate | 3 | not identifiable: not determined: ... the scale of sensor axis y; not an ellipsoid (18.24 %); heading worse than the raw readings' |
 //! | " | next | 0 | |
 //! | " | export, export --force | 3 | nothing written / written with the warning line |
-//! | broad/30 | calibrate, next, export | 0 | (usable; 200 of 200 trials) |
+//! | broad/30 | calibrate, export | 0 | (usable; 200 of 200 trials; next as 02's) |
 //! | broad/33 | calibrate | 3 | the field changes within the log ... 42.000-97.997 s ...; not an ellipsoid (11.51 %); heading worse than the raw readings' |
 //! | " | next | 0 | (condition number 1.3e6) |
 //! | " | export, export --force | 3 | nothing written / written with the warning line |
@@ -408,15 +408,15 @@ fn exit_codes_broad_02_at_its_still_noise() {
 #[test]
 fn exit_codes_broad_05() {
     let tmp = TempDir::new().unwrap();
-    let Some((log, code, j, stderr, dir)) = broad("05_undisturbed_slow_rotation_with_breaks_B.csv", &[], tmp.path())
+    let Some((_, code, j, stderr, dir)) = broad("05_undisturbed_slow_rotation_with_breaks_B.csv", &[], tmp.path())
     else {
         return;
     };
     // 0: trial 02's motion with pauses: the pauses add readings at attitudes already visited, the
     // field is the same throughout, and every noisy trial calibrates.
     assert_broad_usable(code, &j, &stderr);
+    // next on a usable BROAD calibration takes trial 02's path (0), tested there.
     let cal = written(&dir, &j);
-    assert_next_ok(&cal, &log, &BROAD_NEXT);
     assert_exports_usable(&cal, tmp.path());
 }
 
@@ -456,7 +456,7 @@ fn exit_codes_broad_10() {
 #[test]
 fn exit_codes_broad_30() {
     let tmp = TempDir::new().unwrap();
-    let Some((log, code, j, stderr, dir)) = broad("30_disturbed_stationary_magnet_C.csv", &[], tmp.path()) else {
+    let Some((_, code, j, stderr, dir)) = broad("30_disturbed_stationary_magnet_C.csv", &[], tmp.path()) else {
         return;
     };
     // 0: the magnet is fixed in the room, not on the board: the sensor turns in one (disturbed)
@@ -465,8 +465,8 @@ fn exit_codes_broad_30() {
     // every noisy trial calibrates. The heading against motion capture is poorer than trial 02's
     // because the room's field is not the earth's, which no sensor calibration can remove.
     assert_broad_usable(code, &j, &stderr);
+    // next on a usable BROAD calibration takes trial 02's path (0), tested there.
     let cal = written(&dir, &j);
-    assert_next_ok(&cal, &log, &BROAD_NEXT);
     assert_exports_usable(&cal, tmp.path());
 }
 

@@ -166,6 +166,8 @@ fn a_calibrated_evaluation_page_shows_the_calibrated_and_raw_figures_of_the_json
         .arg("calibrate")
         .arg(&log)
         .args(BROAD_ARGS)
+        // The subject is the page, not the check by trials: the fewest trials.
+        .args(["--trials", "20"])
         .arg("--out")
         .arg(tmp.path().join("cal"))
         .output()

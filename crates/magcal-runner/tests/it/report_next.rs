@@ -224,6 +224,8 @@ fn a_next_page_of_a_log_with_attitudes_says_each_attitude_relative_to_what_was_f
         .arg("calibrate")
         .arg(&log)
         .args(crate::common::BROAD_ARGS)
+        // The subject is the page, not the check by trials: the fewest trials.
+        .args(["--trials", "20"])
         .arg("--out")
         .arg(&cal)
         .output()
