@@ -346,6 +346,10 @@ fn broad(trial: &str, extra: &[&str], tmp: &Path) -> Option<(PathBuf, i32, serde
     Some((log, code, j, stderr, dir))
 }
 
+/// The fewest trials, for the usable trials other than 02: at the default 200 they calibrate in
+/// 200 of 200 (the table above), so 20 give the same code at a tenth of the time.
+const FEWEST: &[&str] = &["--trials", "20"];
+
 /// The reading flags next needs to read a BROAD trial as calibrate read it.
 const BROAD_NEXT: [&str; 8] = [
     "--columns",
@@ -358,12 +362,12 @@ const BROAD_NEXT: [&str; 8] = [
     "t_s",
 ];
 
-/// A usable BROAD calibration: no reason, 200 of 200 noisy trials.
+/// A usable BROAD calibration: no reason, every noisy trial ok.
 fn assert_broad_usable(code: i32, j: &serde_json::Value, stderr: &str) {
     assert_eq!(code, 0, "{stderr}");
     assert_eq!(j["usable"], true);
     assert_reasons(j, &[]);
-    assert_eq!(j["check"]["ok"], 200, "{}", j["check"]);
+    assert_eq!(j["check"]["ok"], j["check"]["planned"], "{}", j["check"]);
     assert_eq!(j["ellipsoid"]["passed"], true);
     assert_eq!(j["field_change"]["changed"], false);
 }
@@ -387,8 +391,11 @@ fn exit_codes_broad_02_at_its_still_noise() {
     // The rows with movement = 0 (the sensor at rest, 11,449 and 9,511 of them before and after
     // the rotation) scatter by 0.70, 0.71, 0.69 uT per component: the log's true noise.
     let tmp = TempDir::new().unwrap();
-    let Some((_, code, j, stderr, dir)) = broad("02_undisturbed_slow_rotation_B.csv", &["--noise", "0.7"], tmp.path())
-    else {
+    let Some((_, code, j, stderr, dir)) = broad(
+        "02_undisturbed_slow_rotation_B.csv",
+        &["--noise", "0.7", "--trials", "20"],
+        tmp.path(),
+    ) else {
         return;
     };
     // 0: the noise the log really has cannot make it "not an ellipsoid". The residuals (0.78 uT)
@@ -408,7 +415,7 @@ fn exit_codes_broad_02_at_its_still_noise() {
 #[test]
 fn exit_codes_broad_05() {
     let tmp = TempDir::new().unwrap();
-    let Some((_, code, j, stderr, dir)) = broad("05_undisturbed_slow_rotation_with_breaks_B.csv", &[], tmp.path())
+    let Some((_, code, j, stderr, dir)) = broad("05_undisturbed_slow_rotation_with_breaks_B.csv", FEWEST, tmp.path())
     else {
         return;
     };
@@ -456,7 +463,7 @@ fn exit_codes_broad_10() {
 #[test]
 fn exit_codes_broad_30() {
     let tmp = TempDir::new().unwrap();
-    let Some((_, code, j, stderr, dir)) = broad("30_disturbed_stationary_magnet_C.csv", &[], tmp.path()) else {
+    let Some((_, code, j, stderr, dir)) = broad("30_disturbed_stationary_magnet_C.csv", FEWEST, tmp.path()) else {
         return;
     };
     // 0: the magnet is fixed in the room, not on the board: the sensor turns in one (disturbed)
