@@ -350,17 +350,11 @@ fn broad(trial: &str, extra: &[&str], tmp: &Path) -> Option<(PathBuf, i32, serde
 /// 200 of 200 (the table above), so 20 give the same code at a tenth of the time.
 const FEWEST: &[&str] = &["--trials", "20"];
 
-/// The reading flags next needs to read a BROAD trial as calibrate read it.
-const BROAD_NEXT: [&str; 8] = [
-    "--columns",
-    "mx,my,mz",
-    "--quaternion",
-    "qw,qx,qy,qz",
-    "--attitude-frame",
-    "enu",
-    "--time",
-    "t_s",
-];
+/// The reading flags next needs to read a BROAD trial as calibrate read it: calibrate's, less
+/// the units (next takes them from calibration.json), with the times.
+fn broad_next() -> Vec<&'static str> {
+    [&BROAD_ARGS[..6], &["--time", "t_s"]].concat()
+}
 
 /// A usable BROAD calibration: no reason, every noisy trial ok.
 fn assert_broad_usable(code: i32, j: &serde_json::Value, stderr: &str) {
@@ -382,7 +376,7 @@ fn exit_codes_broad_02() {
     // ellipsoid (1.74 %), heading not worse than raw, and every noisy trial calibrates.
     assert_broad_usable(code, &j, &stderr);
     let cal = written(&dir, &j);
-    assert_next_ok(&cal, &log, &BROAD_NEXT);
+    assert_next_ok(&cal, &log, &broad_next());
     assert_exports_usable(&cal, tmp.path());
 }
 
@@ -456,7 +450,7 @@ fn exit_codes_broad_10() {
     );
     let cal = written(&dir, &j);
     // 0: the attitudes that would determine it are exactly what this log lacks.
-    assert_next_ok(&cal, &log, &BROAD_NEXT);
+    assert_next_ok(&cal, &log, &broad_next());
     assert_exports_refused(&cal, tmp.path(), first);
 }
 
@@ -505,6 +499,6 @@ fn exit_codes_broad_33() {
     let cal = written(&dir, &j);
     // 0: next plans from calibrate's own record (condition number 1.3e6: the fit of two fields
     // runs away), under the best-fitting sphere; export refuses it with 3.
-    assert_next_ok(&cal, &log, &BROAD_NEXT);
+    assert_next_ok(&cal, &log, &broad_next());
     assert_exports_refused(&cal, tmp.path(), first);
 }
