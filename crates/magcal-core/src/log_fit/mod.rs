@@ -59,6 +59,7 @@ mod coverage;
 mod field_change;
 mod lack_of_fit;
 pub mod motor;
+mod passes;
 mod reject;
 pub mod serial;
 mod statistics;
@@ -73,6 +74,7 @@ pub use field_change::{
     best_sphere, field_segments,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
+pub use passes::{PASS_EDGE_SIGMAS, PASS_FALSE_ALARM, PASS_SHARE, PASS_SHIFT, Pass, Passes, pass_sigmas, passes};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 pub use serial::Serial;
 pub use versus_raw::{HeadingVersusRaw, MIN_BLOCKS, WORSE_SIGMAS, heading_versus_raw, time_blocks};

@@ -77,6 +77,11 @@ pub struct CalibrationJson {
     /// field over time (docs/conventions.md "One field"); `null` without times.
     #[serde(default)]
     pub field_change: Option<FieldChangeJson>,
+    /// Brief passes through another field (a magnet or iron passed close by): runs of readings
+    /// whose calibrated magnitude departs from the field's, and what they do to the calibration
+    /// (docs/conventions.md "One field"); `null` where the fit is not identifiable.
+    #[serde(default)]
+    pub passes: Option<PassesJson>,
     /// The motor interference fitted with the calibration (`calibrate --motor`), else `null`.
     #[serde(default)]
     pub motor: Option<MotorJson>,
@@ -320,6 +325,53 @@ pub struct FieldChangeJson {
     pub largest_step_percent: Option<f64>,
     /// What was found, in words.
     pub words: String,
+}
+
+/// The passes of a log through another field, and whether they move its calibration.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PassesJson {
+    /// The median calibrated magnitude, the log's units.
+    pub magnitude: f64,
+    /// The robust standard deviation of the calibrated magnitude, the log's units.
+    pub noise: f64,
+    /// The departure a reading needs: the larger of `share_percent` of the magnitude and
+    /// `sigmas` times `noise`, the log's units.
+    pub threshold: f64,
+    pub share_percent: f64,
+    pub sigmas: f64,
+    /// Noise standard deviations at which a pass's edge ends.
+    pub edge_sigmas: f64,
+    /// The passes found, in log order.
+    pub passes: Vec<PassJson>,
+    /// Readings within them.
+    pub readings: usize,
+    /// The largest difference between the calibration of the log without its passes and the
+    /// calibration of the whole log, in the standard errors of the latter; `null` without passes
+    /// or where it could not be measured.
+    pub shift_std_errors: Option<f64>,
+    /// The parameter that moves most, in words.
+    pub shift_parameter: Option<String>,
+    /// The largest shift that leaves the calibration usable, standard errors.
+    pub shift_limit: f64,
+    /// The passes make the calibration unusable.
+    pub unusable: bool,
+    /// What was found, in words.
+    pub words: String,
+}
+
+/// One pass through another field.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PassJson {
+    /// The position of its first reading in the log (`position` names it: a CSV line, a flight
+    /// log's byte offset).
+    pub at: usize,
+    pub position: String,
+    /// Its span on the log's clock, seconds, where the log has times.
+    pub from_s: Option<f64>,
+    pub to_s: Option<f64>,
+    pub readings: usize,
+    /// Its largest departure, percent of the magnitude, signed.
+    pub peak_percent: f64,
 }
 
 /// A window cut as a change of the field: against the rest of its piece.

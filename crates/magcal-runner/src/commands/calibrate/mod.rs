@@ -384,6 +384,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         time_span_s: None,
         heading_vs_log: None,
         field_change: None,
+        passes: None,
         motor: None,
         alignment: None,
         columns: log.columns.clone(),
@@ -728,6 +729,7 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
         print_heading(w, h)?;
     }
     one_field::print_field_change(w, j)?;
+    one_field::print_passes(w, j)?;
     if let Some(m) = &j.motor {
         let se = m.std_error.map_or("unknown".to_string(), row);
         writeln!(

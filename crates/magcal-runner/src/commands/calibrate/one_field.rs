@@ -1,17 +1,21 @@
 //! Whether a log is one sensor in one field (docs/conventions.md "One field"): a change of the
-//! field within the log (a magnet put on the board or taken off) and a calibration whose heading
-//! against the log's attitudes is worse than the raw readings' each make a calibration
+//! field within the log (a magnet put on the board or taken off), brief passes through another
+//! field that move the calibration (a magnet or iron close to the path), and a calibration whose
+//! heading against the log's attitudes is worse than the raw readings' each make a calibration
 //! unusable, and say so.
 
 use std::io::Write;
 
 use magcal_core::Vec3;
 use magcal_core::log_fit::{
-    self, FieldChange, FieldChangeSettings, FitModel, FitSettings, LogFit, best_sphere, field_segments, significant,
+    self, FieldChange, FieldChangeSettings, FitModel, FitSettings, LogFit, PASS_EDGE_SIGMAS, PASS_SHARE, PASS_SHIFT,
+    Passes, REJECT_MIN_K, best_sphere, field_segments, significant,
 };
 use magcal_core::small::sub;
 
-use crate::log::calibration::{CalibrationJson, FieldChangeJson, FieldCutJson, FieldSegmentJson, VersusRawJson};
+use crate::log::calibration::{
+    CalibrationJson, FieldChangeJson, FieldCutJson, FieldSegmentJson, PassJson, PassesJson, VersusRawJson,
+};
 use crate::log::source::Log;
 
 /// Searches `log` for a change of the field (where it has times) under `fit`, records it in
@@ -19,14 +23,26 @@ use crate::log::source::Log;
 /// against the log's attitudes is worse than the raw readings' (`json.heading_vs_log` must be
 /// filled).
 pub fn judge(json: &mut CalibrationJson, log: &Log, fit: &LogFit, settings: &FitSettings) {
+    // Brief passes are found first, and the search of changes that last runs without them: a
+    // pass of a tenth of a second is a block of a second far off the field.
+    let found = fit.identifiable.then(|| brief_passes(log, fit)).flatten();
     if let Some(times) = &log.times {
-        json.field_change = Some(field_change(&log.readings, times, fit, settings));
+        json.field_change = Some(field_change(&log.readings, times, fit, settings, found.as_ref()));
     }
     if let Some(f) = json.field_change.as_ref().filter(|f| f.changed) {
         json.usable = false;
         // The fit of two fields does not settle for that reason: the change is the cause to name.
         json.reasons.retain(|r| !r.starts_with("not identifiable"));
         json.reasons.insert(0, change_reason(f));
+    } else if let Some(found) = &found {
+        // Under a change of the field the whole log's calibration departs everywhere: the change
+        // is the cause to name, and passes are looked for within one field only.
+        let p = passes(json, log, fit, settings, found);
+        if p.unusable {
+            json.usable = false;
+            json.reasons.push(pass_reason(&p));
+        }
+        json.passes = Some(p);
     }
     let worse = json
         .heading_vs_log
@@ -48,16 +64,238 @@ pub fn judge(json: &mut CalibrationJson, log: &Log, fit: &LogFit, settings: &Fit
     }
 }
 
+/// How many passes the words name before "and N more".
+const PASSES_NAMED: usize = 5;
+
+/// The passes of the log's readings under `fit` through another field: with times, the brief
+/// ones ([`Passes::brief`] at the change search's shortest part).
+fn brief_passes(log: &Log, fit: &LogFit) -> Option<Passes> {
+    let calibrated: Vec<Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
+    let found = log_fit::passes(&calibrated)?;
+    Some(match &log.times {
+        Some(t) => found.brief(t, FieldChangeSettings::default().min_part_s),
+        None => found,
+    })
+}
+
+/// The passes `found` in words, and how far the calibration of the log without them lies from
+/// `fit`, in `fit`'s standard errors.
+fn passes(json: &CalibrationJson, log: &Log, fit: &LogFit, settings: &FitSettings, found: &Passes) -> PassesJson {
+    let share_percent = 100.0 * PASS_SHARE;
+    let mut out = PassesJson {
+        magnitude: found.magnitude,
+        noise: found.noise,
+        threshold: found.threshold,
+        share_percent,
+        sigmas: found.sigmas,
+        edge_sigmas: PASS_EDGE_SIGMAS,
+        passes: found
+            .passes
+            .iter()
+            .map(|p| PassJson {
+                at: log.lines[p.first],
+                position: log.origin.position_name().to_string(),
+                from_s: log.times.as_ref().map(|t| t[p.first]),
+                to_s: log.times.as_ref().map(|t| t[p.first + p.readings - 1]),
+                readings: p.readings,
+                peak_percent: 100.0 * p.peak,
+            })
+            .collect(),
+        readings: found.readings(),
+        shift_std_errors: None,
+        shift_parameter: None,
+        shift_limit: PASS_SHIFT,
+        unusable: false,
+        words: String::new(),
+    };
+    let rule = format!(
+        "{} ({} % of the field, or {} noise standard deviations)",
+        significant(found.threshold, 3),
+        significant(share_percent, 2),
+        significant(found.sigmas, 3)
+    );
+    if found.passes.is_empty() {
+        out.words = format!(
+            "no pass through another field: no reading's calibrated magnitude departs from the field's by {rule} or more"
+        );
+        return out;
+    }
+    let peak = out
+        .passes
+        .iter()
+        .map(|p| p.peak_percent)
+        .max_by(|a, b| a.abs().total_cmp(&b.abs()));
+    let what = format!(
+        "{} pass{} through another field ({} readings departing from the field's magnitude by {rule} or more, up to {} %; a magnet or iron close to the path, or glitches): {}",
+        out.passes.len(),
+        if out.passes.len() == 1 { "" } else { "es" },
+        out.readings,
+        peak.map_or("?".to_string(), |p| format!("{:+.0}", p)),
+        pass_list(&out.passes)
+    );
+    // What the passes do to the calibration: the same model refitted without them.
+    let shift = if json.fit == "vector" || json.motor.is_some() {
+        Err(format!(
+            "the {} fit is not refitted without them",
+            if json.motor.is_some() { "motor" } else { "vector" }
+        ))
+    } else {
+        let keep = found.keep(log.readings.len());
+        let kept: Vec<Vec3> = log
+            .readings
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(r, _)| *r)
+            .collect();
+        let refit_settings = FitSettings { trials: 0, ..*settings };
+        log_fit::fit_with(&kept, fit.magnitude, fit.model, &refit_settings)
+            .map_err(|e| format!("the log without them does not fit: {e}"))
+            .and_then(|r| largest_shift(fit, &r))
+    };
+    let remedy = format!(
+        "drop them (--reject {}) or calibrate away from the iron",
+        reject_k(found.threshold, found.noise)
+    );
+    match shift {
+        Ok((s, name)) => {
+            out.shift_std_errors = Some(s);
+            out.shift_parameter = Some(name.clone());
+            // A shift that is not a number is not within the limit.
+            out.unusable = s.is_nan() || s > PASS_SHIFT;
+            out.words = if out.unusable {
+                format!(
+                    "{what}; without them the calibration moves by {} standard errors ({name}), more than {}: {remedy}",
+                    significant(s, 2),
+                    significant(PASS_SHIFT, 2)
+                )
+            } else {
+                format!(
+                    "{what}; without them the calibration moves by {} standard errors at most ({name}), within {}: they leave it as it is",
+                    significant(s, 2),
+                    significant(PASS_SHIFT, 2)
+                )
+            };
+        }
+        Err(why) => {
+            out.unusable = true;
+            out.words = format!("{what}; what they do to the calibration is not known ({why}): {remedy}");
+        }
+    }
+    out
+}
+
+/// The reason passes give, short: the table's `PASSES` line and the JSON's words have the list.
+fn pass_reason(p: &PassesJson) -> String {
+    let moves = match (p.shift_std_errors, &p.shift_parameter) {
+        (Some(s), Some(name)) => format!("move the calibration by {} standard errors ({name})", significant(s, 2)),
+        _ => "do what is not known to the calibration".to_string(),
+    };
+    format!(
+        "{} pass{} through another field ({} readings; a magnet or iron close to the path) {moves}: drop them (--reject {}) or calibrate away from the iron",
+        p.passes.len(),
+        if p.passes.len() == 1 { "" } else { "es" },
+        p.readings,
+        reject_k(p.threshold, p.noise)
+    )
+}
+
+/// The `--reject` K that drops every departing reading: the departure threshold in noise
+/// standard deviations, rounded down.
+fn reject_k(threshold: f64, noise: f64) -> f64 {
+    (threshold / noise).floor().max(REJECT_MIN_K)
+}
+
+/// The passes in words, the first [`PASSES_NAMED`] of them.
+fn pass_list(passes: &[PassJson]) -> String {
+    let mut named: Vec<String> = passes
+        .iter()
+        .take(PASSES_NAMED)
+        .map(|p| {
+            let place = match (p.from_s, p.to_s) {
+                (Some(a), Some(b)) => format!("{} s", span(a, b)),
+                _ => format!("{} {}", p.position, p.at),
+            };
+            format!("{place} ({} readings, {:+.0} %)", p.readings, p.peak_percent)
+        })
+        .collect();
+    if passes.len() > PASSES_NAMED {
+        named.push(format!("and {} more", passes.len() - PASSES_NAMED));
+    }
+    named.join(", ")
+}
+
+/// The largest `|refit - fit|` over the estimated parameters in `fit`'s standard errors, and its
+/// parameter's name; an error where `fit` has no standard errors.
+fn largest_shift(fit: &LogFit, refit: &LogFit) -> Result<(f64, String), String> {
+    let (Some(sp), Some(ss), Some(sb)) = (fit.std_psi_deg, fit.std_scale, fit.std_bias) else {
+        return Err("the calibration has no standard errors".to_string());
+    };
+    let axes = ["x", "y", "z"];
+    let groups = [
+        (
+            fit.errors.psi_deg(),
+            refit.errors.psi_deg(),
+            sp,
+            "non-orthogonality psi",
+        ),
+        (fit.errors.scale(), refit.errors.scale(), ss, "scale of sensor axis "),
+        (fit.bias, refit.bias, sb, "bias of sensor axis "),
+    ];
+    let mut best: Option<(f64, String)> = None;
+    for (a, b, se, name) in groups {
+        for i in 0..3 {
+            // A parameter the model holds fixed has a standard error of 0 and does not move.
+            if se[i].is_nan() || se[i] <= 0.0 {
+                continue;
+            }
+            let z = (b[i] - a[i]).abs() / se[i];
+            let label = if name.ends_with("psi") {
+                format!("{name}{}", i + 1)
+            } else {
+                format!("{name}{}", axes[i])
+            };
+            if best.as_ref().is_none_or(|(m, _)| z.is_nan() || z > *m) {
+                best = Some((z, label));
+            }
+        }
+    }
+    best.ok_or_else(|| "no parameter has a standard error".to_string())
+}
+
 /// The search of the log's magnitudes: under `fit` where it is identifiable; else under the
 /// best-fitting sphere, to find the pieces, then under the fit (the model of `fit`, else a
 /// sphere) of its longest piece, which must settle to measure the field with.
-fn field_change(readings: &[Vec3], times: &[f64], fit: &LogFit, settings: &FitSettings) -> FieldChangeJson {
+fn field_change(
+    readings: &[Vec3],
+    times: &[f64],
+    fit: &LogFit,
+    settings: &FitSettings,
+    passes: Option<&Passes>,
+) -> FieldChangeJson {
     let search = FieldChangeSettings::default();
     let under = |f: &LogFit| readings.iter().map(|s| f.apply(*s)).collect::<Vec<Vec3>>();
     if fit.identifiable {
+        let Some(p) = passes.filter(|p| !p.passes.is_empty()) else {
+            return to_json(
+                field_segments(times, &under(fit), &search),
+                "the calibration of the whole log".to_string(),
+            );
+        };
+        let keep = p.keep(readings.len());
+        let (t, b): (Vec<f64>, Vec<Vec3>) = times
+            .iter()
+            .zip(under(fit))
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(x, _)| x)
+            .unzip();
         return to_json(
-            field_segments(times, &under(fit), &search),
-            "the calibration of the whole log".to_string(),
+            field_segments(&t, &b, &search),
+            format!(
+                "the calibration of the whole log, without the {} readings of its passes through another field",
+                p.readings()
+            ),
         );
     }
     let Some((centre, _)) = best_sphere(readings) else {
@@ -291,6 +529,15 @@ pub fn print_field_change(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Re
         )?;
     }
     Ok(())
+}
+
+/// The passes through another field, for the table.
+pub fn print_passes(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
+    match &j.passes {
+        Some(p) if p.passes.is_empty() => writeln!(w, "{}", p.words),
+        Some(p) => writeln!(w, "{}{}", if p.unusable { "PASSES: " } else { "passes: " }, p.words),
+        None => Ok(()),
+    }
 }
 
 /// The calibrated heading against the raw one, for the table.
