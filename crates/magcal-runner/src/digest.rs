@@ -17,6 +17,12 @@ pub fn sha256_hex_of_parts(parts: &[&[u8]]) -> String {
     hex(hash)
 }
 
+/// SHA-256 of `bytes` in standard base64: the form a Content-Security-Policy hash source takes.
+pub fn sha256_base64(bytes: &[u8]) -> String {
+    use base64::Engine;
+    base64::engine::general_purpose::STANDARD.encode(Sha256::digest(bytes))
+}
+
 fn hex(hash: Sha256) -> String {
     hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }

@@ -123,8 +123,44 @@ fn log_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
     Some((lo, hi))
 }
 
-/// Renders the body (a drawing on `root`, evaluating to `Result<()>`) twice, as
-/// `<prefix><stem>.svg` and `.png`, into the result set.
+/// Where drawn figures go: a result set's files (SVG and PNG), or a page's figures (SVG only).
+pub trait Figures {
+    /// Stores the file `name` (`<prefix><stem>.svg` or `.png`).
+    ///
+    /// # Errors
+    /// One that cannot be stored.
+    fn put(&mut self, name: &str, bytes: &[u8]) -> Result<()>;
+
+    /// Whether PNG copies are drawn too.
+    fn png(&self) -> bool {
+        true
+    }
+}
+
+impl Figures for ResultSet {
+    fn put(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        ResultSet::put(self, name, bytes)
+    }
+}
+
+/// The SVG drawings in memory, as `(name, text)` in the order drawn: what a page shows.
+#[derive(Debug, Default)]
+pub struct Svgs(pub Vec<(String, String)>);
+
+impl Figures for Svgs {
+    fn put(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        let text = String::from_utf8(bytes.to_vec()).with_context(|| format!("{name}: not UTF-8"))?;
+        self.0.push((name.to_string(), text));
+        Ok(())
+    }
+
+    fn png(&self) -> bool {
+        false
+    }
+}
+
+/// Renders the body (a drawing on `root`, evaluating to `Result<()>`) as `<prefix><stem>.svg`,
+/// and where the figures want it as `.png`, into `set` (a [`Figures`]).
 macro_rules! render {
     ($set:expr, $prefix:expr, $stem:expr, |$root:ident| $body:expr) => {{
         let stem: &str = $stem;
@@ -135,13 +171,15 @@ macro_rules! render {
             $root.present().map_err(|e| anyhow::anyhow!("{stem}.svg: {e}"))?;
         }
         $set.put(&format!("{}{stem}.svg", $prefix), svg.as_bytes())?;
-        let mut rgb = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
-        {
-            let $root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
-            $body?;
-            $root.present().map_err(|e| anyhow::anyhow!("{stem}.png: {e}"))?;
+        if $set.png() {
+            let mut rgb = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+            {
+                let $root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
+                $body?;
+                $root.present().map_err(|e| anyhow::anyhow!("{stem}.png: {e}"))?;
+            }
+            $set.put(&format!("{}{stem}.png", $prefix), &png(&rgb, stem)?)?;
         }
-        $set.put(&format!("{}{stem}.png", $prefix), &png(&rgb, stem)?)?;
     }};
 }
 
@@ -165,7 +203,7 @@ fn png(rgb: &[u8], stem: &str) -> Result<Vec<u8>> {
 ///
 /// # Errors
 /// A missing or malformed file of the set (named in the message).
-pub fn draw(src: &Path, manifest: &Manifest, set: &mut ResultSet, prefix: &str) -> Result<Vec<String>> {
+pub fn draw(src: &Path, manifest: &Manifest, set: &mut dyn Figures, prefix: &str) -> Result<Vec<String>> {
     register();
     let mut drawn = Vec::new();
     let name = manifest.name.as_str();
@@ -700,7 +738,7 @@ pub struct ReplayCell {
 /// # Errors
 /// A figure that cannot be rendered or stored.
 pub fn draw_replay(
-    set: &mut ResultSet,
+    set: &mut dyn Figures,
     prefix: &str,
     title: &str,
     metrics: &[(&str, &str, Vec<ReplayCell>)],

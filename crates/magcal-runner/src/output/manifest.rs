@@ -72,6 +72,11 @@ impl SetKind {
             scenario_sha256: Option<String>,
         }
         let path = dir.join("manifest.json");
+        // A manifest that is there but not a regular file (a link out of the set, a FIFO that
+        // would block the read) is named, not read.
+        if std::fs::symlink_metadata(&path).is_ok() {
+            crate::limits::set_member(dir, "manifest.json")?;
+        }
         let Ok(bytes) = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES) else {
             return Ok(None);
         };
@@ -295,7 +300,7 @@ impl Manifest {
     /// # Errors
     /// A missing or malformed file, or one whose own hash does not match its bytes, named.
     pub fn read(dir: &Path) -> Result<(Self, Seal)> {
-        let path = dir.join("manifest.json");
+        let path = crate::limits::set_member(dir, "manifest.json")?;
         let bytes = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES)?;
         let manifest: Self =
             serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal manifest", path.display()))?;

@@ -251,8 +251,67 @@ fn check_replaceable(target: &Path, want: SetKind) -> Result<()> {
             kind.as_str(),
             want.as_str()
         ),
-        Some(_) => Ok(()),
+        Some(_) => check_own(target),
     }
+}
+
+/// Files of a set's directory that magcal writes without listing them in the manifest: the
+/// manifest itself and a run's record of how it went.
+const UNLISTED: [&str; 2] = ["manifest.json", "run.json"];
+
+/// Refuses a set that holds what it did not write (a file the user put there), naming it: the
+/// set is replaced whole, which would delete it. A set's own files are those its manifest lists,
+/// [`UNLISTED`], and in `plots/` the figures magcal draws (`.svg`, `.png`).
+fn check_own(target: &Path) -> Result<()> {
+    #[derive(serde::Deserialize)]
+    struct Listed {
+        #[serde(default)]
+        files: Vec<String>,
+    }
+    let manifest = crate::limits::set_member(target, "manifest.json")?;
+    let bytes = crate::limits::read_bounded(&manifest, crate::limits::MAX_MANIFEST_BYTES)?;
+    let listed: Listed =
+        serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal manifest", manifest.display()))?;
+    let mut foreign = Vec::new();
+    let names = |dir: &Path| -> Result<Vec<(String, std::fs::FileType)>> {
+        let mut out = Vec::new();
+        for entry in std::fs::read_dir(dir).with_context(|| format!("{}: cannot read", dir.display()))? {
+            let entry = entry.with_context(|| format!("{}: cannot read", dir.display()))?;
+            let kind = entry
+                .file_type()
+                .with_context(|| format!("{}: cannot read", entry.path().display()))?;
+            out.push((entry.file_name().to_string_lossy().into_owned(), kind));
+        }
+        Ok(out)
+    };
+    for (name, kind) in names(target)? {
+        if name == "plots" && kind.is_dir() {
+            for (figure, kind) in names(&target.join("plots"))? {
+                let drawn = kind.is_file() && (figure.ends_with(".svg") || figure.ends_with(".png"));
+                if !drawn {
+                    foreign.push(format!("plots/{figure}"));
+                }
+            }
+        } else if !(kind.is_file() && (UNLISTED.contains(&name.as_str()) || listed.files.contains(&name))) {
+            foreign.push(name);
+        }
+    }
+    if foreign.is_empty() {
+        return Ok(());
+    }
+    foreign.sort();
+    let shown: Vec<String> = foreign.iter().take(5).map(|f| format!("{f:?}")).collect();
+    let more = if foreign.len() > 5 {
+        format!(" and {} more", foreign.len() - 5)
+    } else {
+        String::new()
+    };
+    bail!(
+        "{}: holds {} the set did not write ({}{more}); the set is replaced whole, which would delete them: move them out, or give another --out",
+        target.display(),
+        if foreign.len() == 1 { "a file" } else { "files" },
+        shown.join(", ")
+    )
 }
 
 /// Refuses a target that is, or holds, one of `inputs` (compared by device and inode, so that a

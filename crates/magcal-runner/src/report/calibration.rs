@@ -114,7 +114,7 @@ fn d_efficiency_row(cal: &CalibrationJson) -> Vec<Cell> {
 
 /// The set's manifest, its own hash checked.
 fn read_manifest(dir: &Path) -> Result<CalibrationManifest> {
-    let path = dir.join("manifest.json");
+    let path = crate::limits::set_member(dir, "manifest.json")?;
     let bytes = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES)?;
     verify(&path, &bytes)?;
     serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal calibration manifest", path.display()))

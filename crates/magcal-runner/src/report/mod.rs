@@ -3,7 +3,18 @@
 //! hovers, and the result's numbers in tables.
 //!
 //! A page is a list of [`Block`]s rendered by one askama template (`templates/page.html`), which
-//! escapes every text. A number in a table keeps its full value in the cell's `data-value`, and
+//! escapes every text.
+//!
+//! # A page from someone else's set
+//! A page is meant to be shared, and a set can come from anyone: nothing of it may run, fetch or
+//! read. Its `Content-Security-Policy` lets no script run but the two the page carries (plotly.js
+//! and the figures' loader, named by their SHA-256), loads nothing from anywhere (images only as
+//! `data:`), and so blocks every inline event handler. Text reaches the page only escaped: by the
+//! template in the markup, as `\u003c` and the like in the JSON blocks (so that no `</script`,
+//! `<!--` or `<script` in a string ends or turns a block), and as entities in what plotly shows
+//! (its labels take markup such as `<span style>`, which must stay text). Static figures are
+//! SVG drawn by magcal from the set's sealed files and shown as `<img>` (`data:` URIs run no
+//! script), never inlined. A number in a table keeps its full value in the cell's `data-value`, and
 //! the page carries the figures it was made from in `<script id="magcal-data"
 //! type="application/json">`, so that a test can hold what is shown against the result's own
 //! files. What is drawn may be thinned ([`thin`]) and rounded ([`drawn`]); what is computed and
@@ -48,7 +59,7 @@ pub enum Block {
         height: u32,
         caption: String,
     },
-    /// A static figure (SVG text, inlined) with a caption.
+    /// A static figure with a caption: `svg` is the drawing in base64, shown as a `data:` image.
     Image { id: String, svg: String, caption: String },
 }
 
@@ -131,11 +142,65 @@ pub struct Page {
 #[template(path = "page.html")]
 struct PageTemplate<'a> {
     version: &'a str,
+    policy: &'a str,
     title: &'a str,
     subtitle: &'a str,
     blocks: &'a [Block],
     plotly_js: &'a str,
-    data: &'a Value,
+    loader_js: &'a str,
+    /// The data block's JSON, escaped for a script element ([`script_json`]).
+    data: &'a str,
+}
+
+/// The script that draws each figure from its JSON block as it comes near the view.
+const LOADER_JS: &str = include_str!("../../templates/loader.js");
+
+/// The page's Content-Security-Policy: no source of anything but the page itself, its two
+/// scripts by hash (which also forbids every inline event handler and `javascript:` URL), inline
+/// styles (plotly sets them), and images and fonts as `data:` only.
+fn policy(scripts: &[&str]) -> String {
+    let hashes: Vec<String> = scripts
+        .iter()
+        .map(|s| format!("'sha256-{}'", crate::digest::sha256_base64(s.as_bytes())))
+        .collect();
+    format!(
+        "default-src 'none'; script-src {} 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:; base-uri 'none'; form-action 'none'",
+        hashes.join(" ")
+    )
+}
+
+/// `value` as JSON text that a `<script type="application/json">` element holds whole: `<`, `>`
+/// and `&` as `\u003c`, `\u003e`, `\u0026` (they occur only within strings, where the escape is
+/// the same text), so that no `</script`, `<!--` or `<script` ends the element or turns the HTML
+/// parser's script-data states; U+2028 and U+2029 escaped too.
+pub fn script_json(value: &Value) -> String {
+    let text = serde_json::to_string(value).expect("a JSON value serialises");
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '<' => out.push_str("\\u003c"),
+            '>' => out.push_str("\\u003e"),
+            '&' => out.push_str("\\u0026"),
+            '\u{2028}' => out.push_str("\\u2028"),
+            '\u{2029}' => out.push_str("\\u2029"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// `value` with every string made plain text for plotly, whose labels, titles and hover take a
+/// markup of their own (`<b>`, `<a href>`, `<span style>`): `&`, `<` and `>` as the entities
+/// plotly shows as those characters. magcal's figures use no markup.
+fn plotly_text(value: &mut Value) {
+    match value {
+        Value::String(s) if s.contains(['&', '<', '>']) => {
+            *s = s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;");
+        }
+        Value::Array(items) => items.iter_mut().for_each(plotly_text),
+        Value::Object(map) => map.values_mut().for_each(plotly_text),
+        _ => {}
+    }
 }
 
 impl Page {
@@ -178,11 +243,12 @@ impl Page {
     /// plotly logo and its size following the window.
     pub fn plot(&mut self, id: &str, mut plot: Plot, height: u32, caption: impl Into<String>) {
         plot.set_configuration(Configuration::new().display_logo(false).responsive(true));
-        // The figure waits in a JSON block for the page's loader (templates/page.html), which
+        // The figure waits in a JSON block for the page's loader (templates/loader.js), which
         // draws it when it comes near the screen: a page of many WebGL views opens at once
-        // instead of building every view before it shows anything. `</` cannot occur outside a
-        // JSON string, and inside one `<\/` is the same text, so no figure can end its block.
-        let figure = plot.to_json().replace("</", "<\\/");
+        // instead of building every view before it shows anything.
+        let mut figure: Value = serde_json::from_str(&plot.to_json()).expect("plotly writes JSON");
+        plotly_text(&mut figure);
+        let figure = script_json(&figure);
         let html = format!(
             "<div id=\"{id}\" class=\"plotly-graph-div\" style=\"height:100%; width:100%;\"></div>\n<script type=\"application/json\" class=\"magcal-figure\" data-for=\"{id}\">{figure}</script>"
         );
@@ -204,14 +270,16 @@ impl Page {
     /// # Errors
     /// A template that fails to render (a bug).
     pub fn render(&self) -> Result<String> {
-        let data = Value::Object(self.data.clone());
+        let data = script_json(&Value::Object(self.data.clone()));
         let js = plotly_js();
         let page = PageTemplate {
             version: env!("CARGO_PKG_VERSION"),
+            policy: &policy(&[&js, LOADER_JS]),
             title: &self.title,
             subtitle: &self.subtitle,
             blocks: &self.blocks,
             plotly_js: &js,
+            loader_js: LOADER_JS,
             data: &data,
         };
         page.render().context("the report page does not render")
@@ -358,6 +426,51 @@ mod tests {
     }
 
     #[test]
+    fn script_json_keeps_every_string_inside_its_element() {
+        let v = serde_json::json!({"a": "<!-- <script> </script> & \u{2028}\u{2029}", "<k>": 1});
+        let text = script_json(&v);
+        assert!(!text.contains(['<', '>', '&', '\u{2028}', '\u{2029}']), "{text}");
+        assert_eq!(serde_json::from_str::<Value>(&text).unwrap(), v, "the same JSON");
+    }
+
+    #[test]
+    fn figure_text_is_plain_for_plotly() {
+        let mut v =
+            serde_json::json!({"name": "<span style=\"background:url(http://x)\">a & b</span>", "x": [1, "c<d"]});
+        plotly_text(&mut v);
+        assert_eq!(
+            v["name"],
+            "&lt;span style=\"background:url(http://x)\"&gt;a &amp; b&lt;/span&gt;"
+        );
+        assert_eq!(v["x"][1], "c&lt;d");
+        assert_eq!(v["x"][0], 1);
+    }
+
+    #[test]
+    fn the_policy_names_the_page_scripts_and_loads_nothing() {
+        let mut page = Page::new("t", "s");
+        page.text("x");
+        let html = page.render().unwrap();
+        let policy = html
+            .split("http-equiv=\"Content-Security-Policy\" content=\"")
+            .nth(1)
+            .and_then(|r| r.split('"').next())
+            .unwrap();
+        let js = plotly_js();
+        for script in [js.as_str(), LOADER_JS] {
+            let hash = crate::digest::sha256_base64(script.as_bytes());
+            assert!(policy.contains(&format!("'sha256-{hash}'")), "{policy}");
+            assert!(html.contains(&format!("<script type=\"text/javascript\">{script}</script>")));
+        }
+        for part in ["default-src 'none'", "connect-src 'none'", "img-src data: blob:"] {
+            assert!(policy.contains(part), "{policy}");
+        }
+        // No inline script but those named: an event handler or a `javascript:` URL runs nowhere.
+        let scripts = policy.split(';').find(|d| d.trim().starts_with("script-src")).unwrap();
+        assert!(!scripts.contains("'unsafe-inline'"), "{scripts}");
+    }
+
+    #[test]
     fn a_page_escapes_text_and_embeds_plotly_once_and_nothing_remote() {
         let mut page = Page::new("a <b> & \"c\"", "sub");
         page.text("x < y");
@@ -389,9 +502,10 @@ mod tests {
             "plotly.js and the loader of the figures run; nothing else"
         );
         assert_eq!(html.matches("<script").count(), 4, "and the data and figure blocks");
+        // In the figure, plotly's markup is entities, and those in JSON escapes.
         assert!(
-            html.contains(r#""name":"<\/script><b>""#),
-            "a figure cannot end its block"
+            html.contains(r#""name":"\u0026lt;/script\u0026gt;\u0026lt;b\u0026gt;""#),
+            "a figure cannot end its block nor carry plotly markup"
         );
         assert!(!html.contains("<script src"), "no script from elsewhere");
         assert!(!html.contains("<link"), "no stylesheet from elsewhere");

@@ -69,7 +69,7 @@ impl ReplaySet {
     /// A manifest that is damaged or not a replay's, a file it does not record, or a file whose
     /// bytes are not the ones it records (edited since replay wrote it).
     fn read(dir: &Path) -> Result<Self> {
-        let path = dir.join("manifest.json");
+        let path = limits::set_member(dir, "manifest.json")?;
         let bytes = limits::read_bounded(&path, limits::MAX_MANIFEST_BYTES)?;
         verify(&path, &bytes)?;
         let manifest: ReplayManifest = serde_json::from_slice(&bytes).map_err(|e| {

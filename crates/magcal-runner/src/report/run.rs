@@ -19,7 +19,6 @@ use serde_json::json;
 
 use super::plan::{self, Plan};
 use super::{Block, Cell, Page, Table, drawn, significant};
-use crate::digest::sha256_hex;
 use crate::output::manifest::Manifest;
 use crate::output::{CertificateRow, DesignMetricsRow, DesignPointRow, SummaryRow, parse_csv};
 use crate::pipeline::Metric;
@@ -29,14 +28,11 @@ const PALETTE: [&str; 10] = [
     "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
 ];
 
-/// Largest SVG figure inlined, bytes (the set's own are under 200 kB).
-const MAX_SVG_BYTES: u64 = 8_000_000;
-
 /// The page of the `design` or `run` set in `dir`.
 ///
 /// # Errors
 /// A set whose manifest or files cannot be read, whose files differ from the SHA-256 its manifest
-/// recorded, or whose files disagree with one another; a figure that is not a plain SVG.
+/// recorded, or whose files disagree with one another; a figure that cannot be drawn.
 pub fn page(dir: &Path) -> Result<Page> {
     let (manifest, _) = Manifest::read(dir)?;
     let designs_path = dir.join("designs.csv");
@@ -56,7 +52,7 @@ pub fn page(dir: &Path) -> Result<Page> {
     } else {
         None
     };
-    let figures = figures(dir)?;
+    let figures = figures(dir, &manifest)?;
     let trials = if summary.is_some() {
         format!("{} trials per design and noise level", manifest.trials)
     } else {
@@ -81,14 +77,15 @@ pub fn page(dir: &Path) -> Result<Page> {
     }
     page.heading("The set's figures");
     page.note(format!(
-        "The {} SVG figures of {} as the set holds them, inlined unchanged.",
+        "The {} figures of the set, drawn from its sealed files as `magcal plot` draws them into {} (the set's own SVG files are not read: they are not sealed).",
         figures.len(),
         dir.join("plots").display()
     ));
     for (stem, svg) in &figures {
+        use base64::Engine;
         page.push(Block::Image {
             id: format!("figure-{stem}"),
-            svg: svg.clone(),
+            svg: base64::engine::general_purpose::STANDARD.encode(svg),
             caption: caption(stem),
         });
     }
@@ -100,20 +97,11 @@ pub fn page(dir: &Path) -> Result<Page> {
 /// The rows of the set's file `name`, which its manifest must list and whose SHA-256 must be the
 /// one it recorded.
 fn member<T: DeserializeOwned>(dir: &Path, manifest: &Manifest, name: &str) -> Result<Vec<T>> {
-    let path = dir.join(name);
     if !manifest.lists(name) {
         bail!("{}: does not list {name}", dir.join("manifest.json").display());
     }
-    let bytes = crate::limits::read_bounded(&path, crate::limits::max_result_file_bytes())?;
-    if let Some(recorded) = manifest.file_sha256.get(name)
-        && *recorded != sha256_hex(&bytes)
-    {
-        bail!(
-            "{}: its SHA-256 is not the one manifest.json recorded; the file changed after the set was written",
-            path.display()
-        );
-    }
-    parse_csv(&bytes, &path.display().to_string())
+    let (bytes, shown) = super::sealed_bytes(dir, name, manifest.file_sha256.get(name), "magcal run")?;
+    parse_csv(&bytes, &shown)
 }
 
 /// `designs.csv` and `design_metrics.csv` name the same designs in the same order.
@@ -407,43 +395,28 @@ fn sweep(page: &mut Page, summary: &[SummaryRow]) {
     );
 }
 
-/// The set's SVG figures, by name, each checked to be a plain SVG drawing.
-fn figures(dir: &Path) -> Result<Vec<(String, String)>> {
-    let plots = dir.join("plots");
-    let entries = match std::fs::read_dir(&plots) {
-        Ok(entries) => entries,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-        Err(e) => bail!("{}: cannot list: {e}", plots.display()),
-    };
-    let mut paths = Vec::new();
-    for entry in entries {
-        let path = entry
-            .with_context(|| format!("{}: cannot list", plots.display()))?
-            .path();
-        if path.extension().is_some_and(|e| e == "svg") {
-            paths.push(path);
-        }
+/// The set's figures as SVG, by stem in the page's order: drawn here from the set's files as
+/// `magcal plot` draws them, each file checked against its seal first (a set's `plots/` is not
+/// sealed, and is never read).
+fn figures(dir: &Path, manifest: &Manifest) -> Result<Vec<(String, String)>> {
+    // designs.csv, design_metrics.csv and summary.csv were checked as the page read them.
+    if manifest.lists("pso_runs.csv") {
+        super::sealed_bytes(
+            dir,
+            "pso_runs.csv",
+            manifest.file_sha256.get("pso_runs.csv"),
+            "magcal run",
+        )?;
     }
-    paths.sort_by_key(|p| (rank(&stem(p)), stem(p)));
-    let mut figures = Vec::new();
-    for path in paths {
-        let bytes = crate::limits::read_bounded(&path, MAX_SVG_BYTES)?;
-        let text = String::from_utf8(bytes).map_err(|e| {
-            anyhow::anyhow!(
-                "{}: not UTF-8 text (byte {})",
-                path.display(),
-                e.utf8_error().valid_up_to()
-            )
-        })?;
-        plain_svg(&text).with_context(|| path.display().to_string())?;
-        figures.push((stem(&path), text));
-    }
+    let mut svgs = crate::plots::Svgs::default();
+    crate::plots::draw(dir, manifest, &mut svgs, "").context("drawing the set's figures")?;
+    let mut figures: Vec<(String, String)> = svgs
+        .0
+        .into_iter()
+        .map(|(name, text)| (name.trim_end_matches(".svg").to_string(), text))
+        .collect();
+    figures.sort_by_key(|(stem, _)| (rank(stem), stem.clone()));
     Ok(figures)
-}
-
-fn stem(path: &Path) -> String {
-    path.file_stem()
-        .map_or_else(String::new, |s| s.to_string_lossy().into_owned())
 }
 
 /// Where a figure comes on the page: [P1]'s figures first, then the other metrics, the sweep,
@@ -495,83 +468,16 @@ fn caption(stem: &str) -> String {
     format!("plots/{stem}.svg")
 }
 
-/// Refuses an SVG that could run script or fetch anything once inlined: only the elements of a
-/// plain drawing, no event attribute, no link, no style sheet.
-fn plain_svg(text: &str) -> Result<()> {
-    const ELEMENTS: [&str; 12] = [
-        "svg", "g", "rect", "line", "polyline", "polygon", "circle", "ellipse", "path", "text", "tspan", "title",
-    ];
-    let body = text.trim_start();
-    let body = match body.strip_prefix("<?xml") {
-        Some(rest) => rest.split_once("?>").map_or("", |r| r.1).trim_start(),
-        None => body,
-    };
-    if !body.starts_with("<svg") {
-        bail!(
-            "not an SVG drawing (it starts {:?})",
-            body.chars().take(20).collect::<String>()
-        );
-    }
-    for (at, _) in body.match_indices('<') {
-        let tag = &body[at + 1..];
-        let end = tag.find('>').unwrap_or(tag.len());
-        let tag = &tag[..end];
-        if tag.starts_with('/') {
-            continue;
-        }
-        let name: String = tag
-            .chars()
-            .take_while(|c| c.is_ascii_alphanumeric() || *c == ':' || *c == '-')
-            .collect();
-        if !ELEMENTS.contains(&name.as_str()) {
-            bail!(
-                "element <{}> is not one of a plain drawing",
-                name.chars().take(20).collect::<String>()
-            );
-        }
-        let lower = tag.to_ascii_lowercase();
-        let event = lower
-            .split(|c: char| c.is_whitespace())
-            .any(|a| a.starts_with("on") && a.contains('='));
-        if event
-            || lower.contains("href")
-            || lower.contains("url(")
-            || lower.contains("javascript:")
-            || lower.contains("style=")
-        {
-            bail!("<{name}> has an attribute that could run script or fetch something");
-        }
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn only_plain_drawings_are_inlined() {
-        let good = "<svg width=\"2\" viewBox=\"0 0 2 2\" xmlns=\"http://www.w3.org/2000/svg\">\n<rect x=\"0\"/><text x=\"1\">a &lt; b</text>\n</svg>\n";
-        plain_svg(good).unwrap();
-        plain_svg(&format!("<?xml version=\"1.0\"?>\n{good}")).unwrap();
-        for (bad, needle) in [
-            ("<html></html>", "not an SVG"),
-            ("<svg><script>alert(1)</script></svg>", "<script>"),
-            ("<svg><rect onload=\"x()\"/></svg>", "<rect> has an attribute"),
-            ("<svg><image href=\"http://x/y.png\"/></svg>", "<image>"),
-            ("<svg><rect fill=\"url(http://x)\"/></svg>", "<rect> has an attribute"),
-            ("<svg><foreignObject/></svg>", "<foreignObject>"),
-        ] {
-            let e = plain_svg(bad).unwrap_err().to_string();
-            assert!(e.contains(needle), "{bad}: {e}");
-        }
-    }
-
-    #[test]
-    fn every_figure_of_the_shipped_sets_is_a_plain_drawing_with_a_caption() {
+    fn every_figure_of_the_shipped_sets_is_drawn_with_a_caption() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../results");
         for set in ["wu2014", "noise-sweep", "ship", "criteria"] {
-            let figures = figures(&root.join(set)).unwrap();
+            let (manifest, _) = Manifest::read(&root.join(set)).unwrap();
+            let figures = figures(&root.join(set), &manifest).unwrap();
             assert!(figures.len() >= 10, "{set}: {}", figures.len());
             for (stem, _) in &figures {
                 assert!(caption(stem).len() > stem.len() + 20, "{set}: {stem} has no caption");

@@ -1,0 +1,261 @@
+//! Result sets from someone else: a page of magcal's is meant to be shared, so nothing in a set
+//! may make it run script, fetch anything or read outside the set, and a manifest that is not a
+//! regular file is named, not read (docs/conventions.md has no part of this: it is the page's,
+//! `report/mod.rs` "A page from someone else's set").
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use magcal_runner::digest::sha256_hex;
+use tempfile::TempDir;
+
+use crate::browser::{chromium, open};
+use crate::common::{magcal, magcal_process};
+use crate::report::report;
+
+/// What a hostile string holds: the HTML parser's script-data escapes, a script, an event
+/// handler, plotly's own markup fetching a URL, and the line separators JavaScript ends lines at.
+const HOSTILE: &str = "<!-- <script>document.title='pwned'</script> <img src=x onerror=\"document.title='pwned'\"> <span style=\"background:url(http://127.0.0.1:9/x)\">uT</span> \u{2028}\u{2029} --> &amp;";
+
+/// A log `x,y,z` of 600 readings of 50 uT in directions all round, read with a bias.
+fn sphere_log(dir: &Path) -> PathBuf {
+    let mut text = String::from("x,y,z\n");
+    for i in 0..600 {
+        let t = f64::from(i);
+        let z = 1.0 - 2.0 * (t + 0.5) / 600.0;
+        let r = (1.0 - z * z).sqrt();
+        let a = t * 2.399_963;
+        // A deterministic scatter of 0.1 uT.
+        let e = |k: f64| 0.1 * ((t * k).sin());
+        let b = [
+            50.0 * r * a.cos() + 3.0 + e(1.3),
+            50.0 * r * a.sin() - 2.0 + e(2.9),
+            50.0 * z + 1.0 + e(4.7),
+        ];
+        text.push_str(&format!("{},{},{}\n", b[0], b[1], b[2]));
+    }
+    let path = dir.join("log.csv");
+    fs::write(&path, text).unwrap();
+    path
+}
+
+/// Edits the set's file `name` with `edit`, records its new SHA-256 in the manifest and seals the
+/// manifest again, as anyone can.
+fn edit_and_reseal(set: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value)) {
+    let path = set.join(name);
+    let mut v: serde_json::Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
+    edit(&mut v);
+    let bytes = serde_json::to_vec_pretty(&v).unwrap();
+    fs::write(&path, &bytes).unwrap();
+    let manifest = set.join("manifest.json");
+    let mut m: serde_json::Value = serde_json::from_slice(&fs::read(&manifest).unwrap()).unwrap();
+    m["file_sha256"][name] = serde_json::Value::String(sha256_hex(&bytes));
+    m.as_object_mut().unwrap().remove("manifest_sha256");
+    let text = serde_json::to_string_pretty(&m).unwrap();
+    let body = text.strip_suffix("\n}").unwrap();
+    let with = |hash: &str| format!("{body},\n  \"manifest_sha256\": \"{hash}\"\n}}");
+    fs::write(&manifest, with(&sha256_hex(with("").as_bytes()))).unwrap();
+}
+
+#[test]
+fn markup_in_a_resealed_calibration_is_only_text_on_its_page() {
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let set = tmp.path().join("cal");
+    let o = magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--units", "uT", "--trials", "20", "--out"])
+        .arg(&set)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    edit_and_reseal(&set, "calibration.json", |c| {
+        c["units"] = HOSTILE.into();
+        c["fit_reason"] = HOSTILE.into();
+    });
+    let page_path = tmp.path().join("page.html");
+    report(&set, &page_path);
+    let html = fs::read_to_string(&page_path).unwrap();
+    // No string of the set's reaches the markup unescaped, nor a script element's text.
+    for raw in [
+        "<img src=x onerror",
+        "<span style=\"background:url(http://127.0.0.1",
+        "<script>document.title",
+    ] {
+        assert!(!html.contains(raw), "{raw} in the page's markup");
+    }
+    assert_eq!(html.matches("<!-- ").count(), 1, "only the page's own comment");
+    let Some(browser) = chromium() else { return };
+    let page = open(&browser, &page_path, Duration::from_secs(60));
+    assert!(page.errors.is_empty(), "{:?}", page.errors);
+    assert!(
+        page.requests
+            .iter()
+            .all(|u| u.starts_with("file://") || u.starts_with("data:")),
+        "{:?}",
+        page.requests
+    );
+    assert_ne!(page.eval("document.title"), "pwned");
+    // The data block is whole and holds the string as it is.
+    assert_eq!(
+        page.eval("JSON.parse(document.getElementById('magcal-data').textContent).calibration.units"),
+        HOSTILE
+    );
+    assert_eq!(
+        page.eval("document.querySelectorAll('span[style], img[onerror]').length"),
+        0
+    );
+    // Every figure's JSON parses; where it shows the units, plotly shows them as text.
+    let figures = page.eval(
+        "Array.from(document.querySelectorAll('script.magcal-figure')).every(s => { JSON.parse(s.textContent); return true; })",
+    );
+    assert_eq!(figures, true);
+    // The residual map's axis shows the units: the hostile string, character for character, as
+    // text (plotly's markup taken as none).
+    let shown = page.eval("Array.from(document.querySelectorAll('.plotly-graph-div')).map(d => d.innerText).join(' ')");
+    let shown = shown.as_str().unwrap_or("");
+    assert!(
+        shown.contains("(<!-- <script>document.title='pwned'</script> <img src=x onerror=\"document.title='pwned'\"> <span style=\"background:url(http://127.0.0.1:9/x)\">uT</span>"),
+        "{shown}"
+    );
+    assert!(shown.contains("--> &amp;)"), "{shown}");
+}
+
+/// Runs `magcal ARGS`, which must end within 20 s; its exit code and stderr.
+fn ends(args: &[&std::ffi::OsStr]) -> (Option<i32>, String) {
+    let mut child = magcal_process()
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut stderr = String::new();
+            std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+            return (status.code(), stderr);
+        }
+        if start.elapsed() > Duration::from_secs(20) {
+            child.kill().unwrap();
+            panic!("magcal {args:?} still runs after 20 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn a_manifest_that_is_a_fifo_or_a_link_is_named_and_not_read() {
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let set = tmp.path().join("cal");
+    let o = magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--trials", "20", "--out"])
+        .arg(&set)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let smoke = tmp.path().join("smoke");
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/smoke.toml");
+    let o = magcal()
+        .args(["design", "--quiet"])
+        .arg(&scenario)
+        .arg("--out")
+        .arg(&smoke)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let secret = tmp.path().join("secret.json");
+    fs::write(&secret, "{\"SECRET\": 1}").unwrap();
+    let page = tmp.path().join("p.html");
+    for dir in [&set, &smoke] {
+        let manifest = dir.join("manifest.json");
+        for kind in ["a symbolic link", "a special file"] {
+            fs::remove_file(&manifest).unwrap();
+            if kind == "a symbolic link" {
+                std::os::unix::fs::symlink(&secret, &manifest).unwrap();
+            } else {
+                let c = std::ffi::CString::new(manifest.to_str().unwrap()).unwrap();
+                assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+            }
+            let report_args = ["report".as_ref(), dir.as_os_str(), "--out".as_ref(), page.as_os_str()];
+            let check_args = [
+                "check".as_ref(),
+                "--baseline".as_ref(),
+                dir.as_os_str(),
+                scenario.as_os_str(),
+            ];
+            for args in [&report_args[..], &check_args[..]] {
+                if args[0] == "check" && dir == &set {
+                    continue;
+                }
+                let (code, stderr) = ends(args);
+                assert_eq!(code, Some(2), "{args:?}: {stderr}");
+                assert!(
+                    stderr.contains(&format!("manifest.json: is {kind}, not a regular file"))
+                        && !stderr.contains("SECRET"),
+                    "{args:?}: {stderr}"
+                );
+                assert!(!page.exists());
+            }
+        }
+    }
+}
+
+#[test]
+fn a_set_that_holds_what_it_did_not_write_is_not_replaced() {
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let set = tmp.path().join("cal");
+    let calibrate = || {
+        magcal()
+            .arg("calibrate")
+            .arg(&log)
+            .args(["--trials", "20", "--out"])
+            .arg(&set)
+            .output()
+            .unwrap()
+    };
+    assert_eq!(calibrate().status.code(), Some(0));
+    // A set of its own files only is replaced, as before.
+    assert_eq!(calibrate().status.code(), Some(0));
+    fs::write(set.join("notes.txt"), "the user's").unwrap();
+    fs::create_dir(set.join("photos")).unwrap();
+    let before = crate::common::snapshot(&set);
+    let o = calibrate();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("holds files the set did not write (\"notes.txt\", \"photos\")") && stderr.lines().count() == 1,
+        "{stderr}"
+    );
+    assert_eq!(crate::common::snapshot(&set), before, "nothing of the set changed");
+    // A run set: a file beside its figures is the user's too.
+    let smoke = tmp.path().join("smoke");
+    let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/smoke.toml");
+    let design = || {
+        magcal()
+            .args(["design", "--quiet"])
+            .arg(&scenario)
+            .arg("--out")
+            .arg(&smoke)
+            .output()
+            .unwrap()
+    };
+    assert_eq!(design().status.code(), Some(0));
+    assert_eq!(design().status.code(), Some(0));
+    fs::write(smoke.join("plots").join("mine.pdf"), "x").unwrap();
+    let o = design();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("holds a file the set did not write (\"plots/mine.pdf\")"),
+        "{stderr}"
+    );
+    assert!(smoke.join("plots").join("mine.pdf").exists());
+}
