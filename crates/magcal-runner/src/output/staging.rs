@@ -440,7 +440,7 @@ mod tests {
     const DEAD: u32 = 4_194_305;
 
     /// The manifest of a run set as [`SetKind::of`] recognises it (a name and a scenario hash).
-    const RUN_MANIFEST: &str = r#"{"name":"s","scenario_sha256":"0"}"#;
+    const RUN_MANIFEST: &str = r#"{"name":"s","scenario_sha256":"0","files":["a.csv","b.csv","new.csv","raced.csv"]}"#;
 
     /// Every file below `dir`, relative path -> text.
     fn files(dir: &Path) -> BTreeMap<String, String> {
