@@ -177,7 +177,12 @@ pub fn read_held(
     input: &LogArgs,
     held_bytes_per_reading: u64,
 ) -> Result<Log> {
-    let mut log = source::open(path, input, held_bytes_per_reading)?;
+    // A calibration with motor interference reads the log's current or throttle.
+    let input = LogArgs {
+        motor: cal.motor.is_some(),
+        ..input.clone()
+    };
+    let mut log = source::open(path, &input, held_bytes_per_reading)?;
     if let Some(m) = &cal.motor {
         without_interference(&mut log, m).with_context(|| format!("{}: {cal_shown}", path.display()))?;
     }

@@ -4,7 +4,7 @@
 use std::collections::BTreeSet;
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::Failure;
@@ -315,7 +315,8 @@ fn render(args: &ExportArgs, cal: &CalibrationJson, shown: &str, converted: &Con
     ));
     header.push(keep.clone());
     let mut text = Vec::new();
-    let mut problems = write_target(&mut text, args, cal, converted, header, &mut notes)?;
+    let mut problems = write_target(&mut text, args, cal, converted, header, &mut notes)
+        .with_context(|| format!("{}: --to {}", crate::limits::excerpt(shown, 120), args.to.name()))?;
     if converted.calibration.motor.is_some() && args.to.max_instance().is_none() {
         notes.push(format!(
             "{} has no motor compensation: the motor interference of {shown} is not exported",
@@ -414,6 +415,7 @@ fn write_ardupilot(
         }
         None => ArduPilot::new(c, converted.instance),
     };
+    representable(&p.params())?;
     let (limit, from) = offs_max(args, cal);
     let limit_words = format!(
         "the offsets are checked against COMPASS_OFFS_MAX = {} mGauss: {from}",
@@ -449,6 +451,7 @@ fn write_px4(
         }
         None => Px4::new(c, instance),
     };
+    representable(&p.params())?;
     header.push(
         "PX4 applies m = R * S * ((r + power * COMP) - OFF) (calibration::Magnetometer::Correct), Gauss, S from SCALE and ODIAG, power throttle (0 to 1) or current (kA)"
             .to_string(),
@@ -476,6 +479,21 @@ fn write_target(
         unit_label,
         ..
     } = converted;
+    let mut values: Vec<(String, f64)> = Vec::new();
+    for (i, axis) in ["x", "y", "z"].iter().enumerate() {
+        values.push((format!("the bias along {axis}"), calibration.bias[i]));
+        for (j, other) in ["x", "y", "z"].iter().enumerate() {
+            values.push((
+                format!("the soft-iron matrix's entry {axis}{other}"),
+                calibration.matrix[i][j],
+            ));
+        }
+    }
+    values.push(("the field's magnitude".to_string(), calibration.magnitude));
+    if let Some(m) = &calibration.motor {
+        values.extend((0..3).map(|i| (format!("the motor term {}", ["x", "y", "z"][i]), m.per_unit[i])));
+    }
+    representable(&values)?;
     match args.to {
         Target::ArduPilot => return write_ardupilot(text, args, cal, converted, header, notes),
         Target::Px4 => return write_px4(text, cal, converted, header, notes),
@@ -503,6 +521,20 @@ fn write_target(
         }
     }
     Ok(Vec::new())
+}
+
+/// Refuses a value no target can hold: one that is not finite or lies beyond a 32-bit float
+/// (ArduPilot's and PX4's parameters, MotionCal's and the C form's numbers are `float`).
+fn representable(values: &[(String, f64)]) -> Result<()> {
+    for (name, v) in values {
+        if !(v.is_finite() && v.abs() <= f64::from(f32::MAX)) {
+            bail!(
+                "{name} would be {}: not a number the target holds (a 32-bit float: finite, at most 3.4e38 in size); nothing written",
+                crate::limits::show(*v)
+            );
+        }
+    }
+    Ok(())
 }
 
 /// `--strict`: refuses the first of `problems`, counting the others.

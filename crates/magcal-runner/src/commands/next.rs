@@ -445,6 +445,8 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
     let log_shown = args.log.display().to_string();
     let mut input = args.input.clone();
     input.columns = columns_for(cal, &shown, &args.log, &input)?;
+    // The flags that made a calibration with motor interference are taken as they were given.
+    input.motor = cal.motor.is_some();
     let Log {
         readings: log_readings,
         skipped,

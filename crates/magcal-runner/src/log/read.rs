@@ -606,11 +606,25 @@ fn pick_columns(
         .map(|i| s.get(i).is_some_and(|c| number(c, separator).is_some()))
         .collect();
     let p = choose(names, &numeric, columns).with_context(|| format!("{shown} (read as {})", separator.name()))?;
-    let e = extras
+    let e: Vec<usize> = extras
         .iter()
         .map(|e| choose_extra(names, e, &p))
         .collect::<Result<_>>()
         .with_context(|| shown.to_string())?;
+    // One column, one meaning: the same column as two Euler angles, or as the time and an angle,
+    // is a slip, not a log.
+    for (i, a) in e.iter().enumerate() {
+        if let Some((j, _)) = e.iter().enumerate().take(i).find(|(_, b)| *b == a) {
+            let name = names.get(*a).map_or(String::new(), |n| format!(" ({n:?})"));
+            let (first, second) = (extras[j].flag, extras[i].flag);
+            let how = if first == second {
+                format!("{first} names column {}{name} twice", a + 1)
+            } else {
+                format!("{first} and {second} both name column {}{name}", a + 1)
+            };
+            bail!("{shown}: {how}: each column is one quantity; name another");
+        }
+    }
     let f = filters
         .iter()
         .map(|f| find_column(names, "--where", &f.column))

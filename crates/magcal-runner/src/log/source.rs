@@ -144,6 +144,10 @@ pub struct LogArgs {
     /// CSV: the column of the throttle, 0 to 1 (for `calibrate --motor throttle`).
     #[arg(long, value_name = "COLUMN")]
     pub throttle: Option<String>,
+    /// Whether the command fits the motors (`calibrate --motor`): `--current` and `--throttle`
+    /// mean nothing without it. Set by the command, not a flag.
+    #[arg(skip)]
+    pub motor: bool,
 }
 
 /// Where a log's readings came from, and what the reader and the cut did to them.
@@ -373,6 +377,22 @@ fn check_flags(args: &LogArgs, format: Format) -> Result<()> {
         ("--throttle", args.throttle.is_some()),
     ];
     if format == Format::Csv {
+        if args.attitude_frame != FrameArg::Ned && args.euler.is_none() && args.quaternion.is_none() {
+            bail!(
+                "--attitude-frame gives the frame of the attitude columns, and none is named: give --euler or --quaternion, or leave it out"
+            );
+        }
+        for (flag, given) in [
+            ("--current", args.current.is_some()),
+            ("--throttle", args.throttle.is_some()),
+        ] {
+            if given && !args.motor {
+                bail!(
+                    "{flag} names a column read only for motor interference (calibrate --motor {}, or a calibration it made): give --motor, or leave it out",
+                    &flag[2..]
+                );
+            }
+        }
         if args.compass.is_some() {
             bail!("--compass applies to flight logs; a CSV log holds one magnetometer (choose it with --columns)");
         }

@@ -259,3 +259,113 @@ fn a_set_that_holds_what_it_did_not_write_is_not_replaced() {
     );
     assert!(smoke.join("plots").join("mine.pdf").exists());
 }
+
+/// `magcal ARGS`: exit code and stderr.
+fn run(args: &[&std::ffi::OsStr]) -> (Option<i32>, String) {
+    let o = magcal().args(args).output().unwrap();
+    (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+#[test]
+fn flags_that_cannot_be_meant_are_refused_naming_them() {
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    // The same readings with columns beside them: a, b, c (angles) and t (a time).
+    let text = fs::read_to_string(&log).unwrap();
+    let mut rows = text.lines();
+    let mut wide = format!("{},a,b,c,t\n", rows.next().unwrap());
+    for (i, r) in rows.enumerate() {
+        wide.push_str(&format!("{r},0,0,{},{}\n", i % 360, i));
+    }
+    let wide_log = tmp.path().join("wide.csv");
+    fs::write(&wide_log, wide).unwrap();
+    for (extra, needle) in [
+        (
+            &["--euler", "a,a,c"][..],
+            "--euler names column 4 (\"a\") twice: each column is one quantity",
+        ),
+        (
+            &["--euler", "a,b,c", "--time", "c"][..],
+            "--time and --euler both name column 6 (\"c\")",
+        ),
+        (
+            &["--attitude-frame", "enu"][..],
+            "--attitude-frame gives the frame of the attitude columns, and none is named",
+        ),
+        (
+            &["--current", "a"][..],
+            "--current names a column read only for motor interference (calibrate --motor current, or a calibration it made): give --motor, or leave it out",
+        ),
+        (
+            &["--throttle", "a"][..],
+            "--throttle names a column read only for motor interference (calibrate --motor throttle",
+        ),
+    ] {
+        let mut args: Vec<&std::ffi::OsStr> = vec!["calibrate".as_ref(), wide_log.as_os_str()];
+        args.extend(extra.iter().map(std::ffi::OsStr::new));
+        args.extend(["--trials", "20"].map(std::ffi::OsStr::new));
+        let (code, stderr) = run(&args);
+        assert_eq!(code, Some(2), "{extra:?}: {stderr}");
+        assert!(
+            stderr.contains("wide.csv") && stderr.contains(needle) && stderr.lines().count() == 1,
+            "{extra:?}: {stderr}"
+        );
+    }
+    // --current with --motor current reads it.
+    let (code, stderr) = run(&[
+        "calibrate".as_ref(),
+        wide_log.as_os_str(),
+        "--current".as_ref(),
+        "c".as_ref(),
+        "--motor".as_ref(),
+        "current".as_ref(),
+        "--trials".as_ref(),
+        "20".as_ref(),
+    ]);
+    assert!(matches!(code, Some(0 | 3)), "{stderr}");
+}
+
+#[test]
+fn export_refuses_a_value_no_target_can_hold() {
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let set = tmp.path().join("cal");
+    let o = magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(["--units", "uT", "--trials", "20", "--out"])
+        .arg(&set)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    let cal: serde_json::Value = serde_json::from_slice(&fs::read(set.join("calibration.json")).unwrap()).unwrap();
+    for (field, value, needle) in [
+        ("bias", 1e300, "the bias along x would be 1"),
+        // Converted to mGauss it overflows before it is a parameter: refused all the same.
+        ("bias", f64::MAX, ""),
+    ] {
+        let mut c = cal.clone();
+        c[field][0] = value.into();
+        let edited = tmp.path().join("edited.json");
+        fs::write(&edited, serde_json::to_vec(&c).unwrap()).unwrap();
+        for to in ["ardupilot", "px4", "motioncal", "magneto", "c"] {
+            let out = tmp.path().join(format!("out-{to}"));
+            let (code, stderr) = run(&[
+                "export".as_ref(),
+                edited.as_os_str(),
+                "--to".as_ref(),
+                to.as_ref(),
+                "--out".as_ref(),
+                out.as_os_str(),
+            ]);
+            assert_eq!(code, Some(2), "{to}: {stderr}");
+            assert!(
+                stderr.contains("edited.json")
+                    && stderr.contains(needle)
+                    && (needle.is_empty() || stderr.contains("nothing written")),
+                "{to}: {stderr}"
+            );
+            assert!(!out.exists(), "{to}: written");
+        }
+    }
+}

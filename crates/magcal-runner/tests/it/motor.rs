@@ -109,7 +109,7 @@ fn a_known_interference_is_recovered_within_its_standard_errors() {
         String::from_utf8_lossy(&out.stderr).contains("the log has none (a CSV log names its column with --current)")
     );
     // Without --motor the interference goes into the residuals: several times the noise.
-    let (_, plain, _) = calibrate_json(&log, &["--current", "current"]);
+    let (_, plain, _) = calibrate_json(&log, &[]);
     assert!(
         plain.residual_rms > 3.0 * fitted.residual_rms,
         "{} vs {}",

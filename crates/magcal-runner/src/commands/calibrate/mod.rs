@@ -196,7 +196,11 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         Some(dir) => Some(ResultSet::begin(dir, Target::Calibration, &inputs)?),
         None => None,
     };
-    let mut log = source::open(&args.log, &args.input, HELD_BYTES_PER_READING)?;
+    let input = LogArgs {
+        motor: args.motor.is_some(),
+        ..args.input.clone()
+    };
+    let mut log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
     for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
         if let Some(v) = value
             && !(v.is_finite() && v > 0.0)
