@@ -369,3 +369,39 @@ fn export_refuses_a_value_no_target_can_hold() {
         }
     }
 }
+
+#[test]
+fn a_planar_log_is_never_usable() {
+    use rand::RngExt;
+    // Readings on a flat circle of radius 30 (a vehicle that only turns), 1 % noise in the plane
+    // and 0.1 % across it: the third axis is not determined, under the full model or auto.
+    let tmp = TempDir::new().unwrap();
+    for seed in 0..5 {
+        let mut rng = magcal_core::rng::stream_rng(0x33, seed);
+        let mut text = String::from("x,y,z\n");
+        for i in 0..400 {
+            let a = std::f64::consts::TAU * f64::from(i) / 400.0;
+            let mut n = || rng.random_range(-0.5..0.5);
+            let (x, y, z) = (
+                30.0 * a.cos() + 5.0 + 0.6 * n(),
+                30.0 * a.sin() - 3.0 + 0.6 * n(),
+                2.0 + 0.06 * n(),
+            );
+            text.push_str(&format!("{x},{y},{z}\n"));
+        }
+        let log = tmp.path().join(format!("flat{seed}.csv"));
+        fs::write(&log, text).unwrap();
+        for fit in ["full", "auto"] {
+            let (code, stderr) = run(&[
+                "calibrate".as_ref(),
+                log.as_os_str(),
+                "--fit".as_ref(),
+                fit.as_ref(),
+                "--trials".as_ref(),
+                "20".as_ref(),
+            ]);
+            assert_eq!(code, Some(3), "seed {seed} {fit}: {stderr}");
+            assert!(stderr.contains("not identifiable"), "seed {seed} {fit}: {stderr}");
+        }
+    }
+}
