@@ -99,6 +99,66 @@ pub fn bytes(n: u64) -> String {
     }
 }
 
+/// The most read from a log that is not a regular file (a pipe, a FIFO, a device), bytes: 1 GiB.
+/// A stream has no size to check first and may never end (a FIFO that keeps sending zeros after
+/// a header, endless format definitions); a flight log larger than this is saved to a file.
+pub const MAX_STREAM_BYTES: u64 = 1 << 30;
+
+/// The error of a [`Bounded`] reader past its bound: its words name the file and the bound.
+#[derive(Debug)]
+pub struct StreamBound(pub String);
+
+impl std::fmt::Display for StreamBound {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for StreamBound {}
+
+/// A reader of `inner` that fails, naming `shown`, once more than `max` bytes have come through
+/// it: how a log that is not a regular file is read ([`MAX_STREAM_BYTES`]).
+pub struct Bounded<R> {
+    inner: R,
+    left: u64,
+    max: u64,
+    shown: String,
+}
+
+impl<R: Read> Bounded<R> {
+    /// `inner`, bounded at `max` bytes where `regular` is false (a regular file has its size).
+    pub fn new(inner: R, regular: bool, max: u64, shown: &str) -> Self {
+        let max = if regular { u64::MAX } else { max };
+        Self {
+            inner,
+            left: max,
+            max,
+            shown: shown.to_string(),
+        }
+    }
+}
+
+impl<R: Read> Read for Bounded<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if self.left == 0 {
+            // One byte more than the bound says whether the stream goes on.
+            let mut probe = [0u8; 1];
+            return match self.inner.read(&mut probe)? {
+                0 => Ok(0),
+                _ => Err(std::io::Error::other(StreamBound(format!(
+                    "{}: more than {} from a stream (a pipe or a device, not a regular file), which is all magcal reads of one; save the log to a file",
+                    self.shown,
+                    bytes(self.max)
+                )))),
+            };
+        }
+        let n = buf.len().min(usize::try_from(self.left).unwrap_or(usize::MAX));
+        let k = self.inner.read(&mut buf[..n])?;
+        self.left -= k as u64;
+        Ok(k)
+    }
+}
+
 /// The whole of `path`, at most `max` bytes, whatever it is (a regular file, a FIFO, a device):
 /// a directory, or more than `max` bytes, is refused naming the file and the limit.
 ///

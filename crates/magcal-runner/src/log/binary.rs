@@ -20,7 +20,7 @@ const CHUNK: usize = 1 << 20;
 /// [`Chunks::window`], at least as many as the last [`Chunks::fill`] asked for (fewer only at the
 /// end of the file). Every byte read is hashed.
 pub struct Chunks {
-    file: File,
+    file: limits::Bounded<File>,
     shown: String,
     buf: Vec<u8>,
     /// Index in `buf` of the current position.
@@ -46,7 +46,7 @@ impl Chunks {
             bail!("{shown}: is a directory");
         }
         Ok(Self {
-            file,
+            file: limits::Bounded::new(file, meta.is_file(), limits::MAX_STREAM_BYTES, &shown),
             shown,
             buf: vec![0; CHUNK],
             pos: 0,
@@ -85,6 +85,10 @@ impl Chunks {
             let k = match self.file.read(&mut self.buf[self.end..]) {
                 Ok(k) => k,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) if e.get_ref().is_some_and(|r| r.is::<limits::StreamBound>()) => {
+                    // The stream's bound: its own words name the file.
+                    bail!("{e}");
+                }
                 Err(e) => {
                     return Err(e).with_context(|| {
                         format!("{}: cannot read at byte {}", self.shown, self.base + self.end as u64)

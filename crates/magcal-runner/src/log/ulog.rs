@@ -155,8 +155,12 @@ const HELD_PER_READING: u64 = 2 * (32 + std::mem::size_of::<Sample>() as u64);
 const HELD_PER_ATTITUDE: u64 = 2 * (24 + 40);
 /// Memory a kept scalar of a series costs (kept and handed over, doubled), bytes.
 const HELD_PER_SCALAR: u64 = 2 * (16 + 16);
-/// Memory a kept parameter change or format costs beyond its bytes, bytes.
-const HELD_PER_ENTRY: u64 = 128;
+/// Memory a kept parameter change or format costs beyond its bytes, bytes: measured, a million
+/// one-field formats (21 MB of log) held 457 MB, two entries each.
+const HELD_PER_ENTRY: u64 = 256;
+/// The most formats a log may define: PX4's logs define a few hundred; a stream of endless
+/// definitions is refused long before it fills the memory budget.
+const MAX_FORMATS: usize = 65_536;
 
 /// A PX4 log as read, with what the reader found out about its calibration.
 #[derive(Debug, Clone)]
@@ -197,6 +201,7 @@ pub fn read_px4(path: &Path, selection: &Selection) -> Result<Px4Log> {
         bail!("{shown}: is a directory, not a log");
     }
     let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read the log"))?;
+    let file = crate::limits::Bounded::new(file, meta.is_file(), crate::limits::MAX_STREAM_BYTES, &shown);
     read_from(BufReader::with_capacity(1 << 16, file), &shown, selection)
 }
 
@@ -626,6 +631,14 @@ impl Pass {
         let text = std::str::from_utf8(msg.body)
             .map_err(|_| anyhow::anyhow!("{}", msg.error("a format that is not UTF-8")))?;
         let (fname, fields) = parse_format(text).map_err(|e| anyhow::anyhow!("{}", msg.error(&e)))?;
+        if self.formats.len() >= MAX_FORMATS {
+            bail!(
+                "{}",
+                msg.error(&format!(
+                    "more than {MAX_FORMATS} formats (a PX4 log defines a few hundred): not a log to read"
+                ))
+            );
+        }
         let held = msg.body.len() as u64 + HELD_PER_ENTRY * (1 + fields.len() as u64);
         self.budget.charge(held, msg.shown, msg.at)?;
         if self.formats.insert(fname.clone(), fields).is_some() {

@@ -405,3 +405,95 @@ fn a_planar_log_is_never_usable() {
         }
     }
 }
+
+/// The `i`-th chunk a stream sends after its head.
+type Chunk = Box<dyn Fn(u64) -> Vec<u8> + Send>;
+
+/// A FIFO at `path` fed from a thread: `head`, then `next(i)` for i = 0, 1, ... until the reader
+/// goes away.
+#[cfg(unix)]
+fn endless_fifo(
+    path: &Path,
+    head: Vec<u8>,
+    next: impl Fn(u64) -> Vec<u8> + Send + 'static,
+) -> std::thread::JoinHandle<()> {
+    let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let path = path.to_path_buf();
+    std::thread::spawn(move || {
+        use std::io::Write;
+        let Ok(mut f) = fs::OpenOptions::new().write(true).open(&path) else {
+            return;
+        };
+        if f.write_all(&head).is_err() {
+            return;
+        }
+        for i in 0.. {
+            if f.write_all(&next(i)).is_err() {
+                return;
+            }
+        }
+    })
+}
+
+#[cfg(unix)]
+#[test]
+fn endless_streams_end_with_one_line_naming_what_was_seen() {
+    let tmp = TempDir::new().unwrap();
+    // A DataFlash FMT header, then zeros for ever (bounded in bytes); a tlog of zeros (no frame
+    // where one must be); a ULog header, then new format definitions for ever (bounded in
+    // formats: 65,536, where a million took 457 MB and a stream of them 18 GB in 2 minutes).
+    let mut fmt = vec![0xA3, 0x95, 0x80, 128, 89];
+    fmt.extend(b"FMT\0");
+    let mut f = b"BBnNZ".to_vec();
+    f.resize(16, 0);
+    fmt.extend(f);
+    let mut c = b"Type,Length,Name,Format,Columns".to_vec();
+    c.resize(64, 0);
+    fmt.extend(c);
+    let mut ulog = b"ULog\x01\x12\x35\x01".to_vec();
+    ulog.extend([0u8; 8]);
+    let cases: Vec<(&str, Vec<u8>, Chunk, &str)> = vec![
+        (
+            "dataflash",
+            fmt,
+            Box::new(|_| vec![0u8; 1 << 20]),
+            "more than 1.0 GiB from a stream",
+        ),
+        (
+            // A tlog must show a frame in its first 64 KiB.
+            "tlog",
+            Vec::new(),
+            Box::new(|_| vec![0u8; 1 << 20]),
+            "no valid MAVLink frame",
+        ),
+        (
+            "ulog",
+            ulog,
+            Box::new(|i| {
+                let body = format!("t{i}:uint8_t x;").into_bytes();
+                let mut m = (body.len() as u16).to_le_bytes().to_vec();
+                m.push(b'F');
+                m.extend(body);
+                m
+            }),
+            "more than 65536 formats",
+        ),
+    ];
+    for (format, head, next, needle) in cases {
+        let fifo = tmp.path().join(format!("stream-{format}"));
+        let writer = endless_fifo(&fifo, head, next);
+        let (code, stderr) = ends(&[
+            "calibrate".as_ref(),
+            fifo.as_os_str(),
+            "--format".as_ref(),
+            format.as_ref(),
+        ]);
+        assert_eq!(code, Some(2), "{format}: {stderr}");
+        assert!(
+            stderr.contains(&format!("stream-{format}")) && stderr.contains(needle) && stderr.lines().count() == 1,
+            "{format}: {stderr}"
+        );
+        writer.join().unwrap();
+    }
+}
