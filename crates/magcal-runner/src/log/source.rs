@@ -471,6 +471,20 @@ impl<'a> CsvExtras<'a> {
         })
     }
 
+    /// The attitude flag whose columns hold a value in some but not all of them in the row's
+    /// values `v` (what `--skip-bad` drops, as it drops a missing value of the field).
+    fn partly_missing(&self, v: &[Option<f64>]) -> Option<&'static str> {
+        let partly = |at: usize, n: usize| {
+            let present = v[at..at + n].iter().filter(|x| x.is_some()).count();
+            present != 0 && present != n
+        };
+        match (self.euler, self.quaternion) {
+            (Some(at), _) if partly(at, 3) => Some("--euler"),
+            (_, Some(at)) if partly(at, 4) => Some("--quaternion"),
+            _ => None,
+        }
+    }
+
     /// The attitude of a row's values (`C`, NED convention), `None` where every value of it is
     /// missing (empty or not finite: an attitude the capture lost); some missing and some not,
     /// or a quaternion that is not of unit norm, is an error naming the line.
@@ -530,6 +544,8 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
     let mut throttles = x.throttle.map(|_| Vec::new());
     let mut missing_time = None;
     let mut previous: Option<(usize, f64)> = None;
+    // Rows dropped here by --skip-bad: an attitude with some of its values missing.
+    let mut dropped: Vec<(usize, String)> = Vec::new();
     let s = read::stream_with(
         path,
         args.columns.as_deref(),
@@ -538,6 +554,12 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         args.skip_bad,
         held,
         |line, r, v| {
+            if args.skip_bad
+                && let Some(flag) = x.partly_missing(v)
+            {
+                dropped.push((line, format!("{flag} has a value missing (--skip-bad)")));
+                return Ok(());
+            }
             if let (Some(t), Some(at)) = (&mut times, x.time) {
                 match v[at] {
                     Some(s) => {
@@ -589,10 +611,15 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
     if let Some(note) = filter_note(&args.filter, s.filtered) {
         origin.notes.push(note);
     }
+    let mut skipped = s.skipped;
+    if !dropped.is_empty() {
+        skipped.extend(dropped);
+        skipped.sort_by_key(|(line, _)| *line);
+    }
     Ok(Log {
         readings,
         lines,
-        skipped: s.skipped,
+        skipped,
         filtered: s.filtered,
         columns: s.columns,
         sha256: s.sha256,

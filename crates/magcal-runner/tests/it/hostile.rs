@@ -497,3 +497,40 @@ fn endless_streams_end_with_one_line_naming_what_was_seen() {
         writer.join().unwrap();
     }
 }
+
+#[test]
+fn skip_bad_drops_a_row_whose_attitude_is_partly_missing() {
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let text = fs::read_to_string(&log).unwrap();
+    let mut rows = text.lines();
+    let mut with = format!("{},r,p,h\n", rows.next().unwrap());
+    for (i, r) in rows.enumerate() {
+        // Line 9 (the 8th reading) has no heading.
+        let h = if i == 7 { String::new() } else { (i % 360).to_string() };
+        with.push_str(&format!("{r},0,0,{h}\n"));
+    }
+    let log = tmp.path().join("euler.csv");
+    fs::write(&log, with).unwrap();
+    let base = [
+        "calibrate".as_ref(),
+        log.as_os_str(),
+        "--euler".as_ref(),
+        "r,p,h".as_ref(),
+        "--trials".as_ref(),
+        "20".as_ref(),
+    ];
+    let (code, stderr) = run(&base);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(
+        stderr.contains("euler.csv: line 9: --euler has a value in 2 of its 3 columns"),
+        "{stderr}"
+    );
+    let o = magcal().args(base).args(["--skip-bad", "--json"]).output().unwrap();
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (j["skipped"].as_u64(), j["samples"].as_u64()),
+        (Some(1), Some(599)),
+        "{j}"
+    );
+}
