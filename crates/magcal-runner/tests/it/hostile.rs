@@ -40,6 +40,19 @@ fn sphere_log(dir: &Path) -> PathBuf {
     path
 }
 
+/// `magcal calibrate LOG ARGS --trials 20 --out SET`, which must give a usable calibration.
+fn calibrated_set(log: &Path, args: &[&str], set: &Path) {
+    let o = magcal()
+        .arg("calibrate")
+        .arg(log)
+        .args(args)
+        .args(["--trials", "20", "--out"])
+        .arg(set)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// Edits the set's file `name` with `edit`, records its new SHA-256 in the manifest and seals the
 /// manifest again, as anyone can.
 fn edit_and_reseal(set: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Value)) {
@@ -63,14 +76,7 @@ fn markup_in_a_resealed_calibration_is_only_text_on_its_page() {
     let tmp = TempDir::new().unwrap();
     let log = sphere_log(tmp.path());
     let set = tmp.path().join("cal");
-    let o = magcal()
-        .arg("calibrate")
-        .arg(&log)
-        .args(["--units", "uT", "--trials", "20", "--out"])
-        .arg(&set)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    calibrated_set(&log, &["--units", "uT"], &set);
     edit_and_reseal(&set, "calibration.json", |c| {
         c["units"] = HOSTILE.into();
         c["fit_reason"] = HOSTILE.into();
@@ -152,14 +158,7 @@ fn a_manifest_that_is_a_fifo_or_a_link_is_named_and_not_read() {
     let tmp = TempDir::new().unwrap();
     let log = sphere_log(tmp.path());
     let set = tmp.path().join("cal");
-    let o = magcal()
-        .arg("calibrate")
-        .arg(&log)
-        .args(["--trials", "20", "--out"])
-        .arg(&set)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    calibrated_set(&log, &[], &set);
     let smoke = tmp.path().join("smoke");
     let scenario = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenarios/smoke.toml");
     let o = magcal()
@@ -330,14 +329,7 @@ fn export_refuses_a_value_no_target_can_hold() {
     let tmp = TempDir::new().unwrap();
     let log = sphere_log(tmp.path());
     let set = tmp.path().join("cal");
-    let o = magcal()
-        .arg("calibrate")
-        .arg(&log)
-        .args(["--units", "uT", "--trials", "20", "--out"])
-        .arg(&set)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", String::from_utf8_lossy(&o.stderr));
+    calibrated_set(&log, &["--units", "uT"], &set);
     let cal: serde_json::Value = serde_json::from_slice(&fs::read(set.join("calibration.json")).unwrap()).unwrap();
     for (field, value, needle) in [
         ("bias", 1e300, "the bias along x would be 1"),
