@@ -201,13 +201,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         ..args.input.clone()
     };
     let mut log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
-    for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
-        if let Some(v) = value
-            && !(v.is_finite() && v > 0.0)
-        {
-            return Err(anyhow::anyhow!("{name} {v}: must be positive and finite").into());
-        }
-    }
+    positive_options(args)?;
     let rows = log.readings.len() + log.skipped.len();
     let shown = args.log.display().to_string();
     if let Some(m) = args.motor {
@@ -287,6 +281,18 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             json.reasons.join("; ")
         )))
     }
+}
+
+/// `--magnitude` and `--noise`, when given, are positive and finite.
+fn positive_options(args: &CalibrateArgs) -> anyhow::Result<()> {
+    for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
+        if let Some(v) = value
+            && !(v.is_finite() && v > 0.0)
+        {
+            anyhow::bail!("{name} {v}: must be positive and finite");
+        }
+    }
+    Ok(())
 }
 
 /// What the fit knows beyond the readings and how it is judged, from the options and the log.

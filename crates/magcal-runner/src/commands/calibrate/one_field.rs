@@ -133,26 +133,7 @@ fn passes(json: &CalibrationJson, log: &Log, fit: &LogFit, settings: &FitSetting
         peak.map_or("?".to_string(), |p| format!("{:+.0}", p)),
         pass_list(&out.passes)
     );
-    // What the passes do to the calibration: the same model refitted without them.
-    let shift = if json.fit == "vector" || json.motor.is_some() {
-        Err(format!(
-            "the {} fit is not refitted without them",
-            if json.motor.is_some() { "motor" } else { "vector" }
-        ))
-    } else {
-        let keep = found.keep(log.readings.len());
-        let kept: Vec<Vec3> = log
-            .readings
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(r, _)| *r)
-            .collect();
-        let refit_settings = FitSettings { trials: 0, ..*settings };
-        log_fit::fit_with(&kept, fit.magnitude, fit.model, &refit_settings)
-            .map_err(|e| format!("the log without them does not fit: {e}"))
-            .and_then(|r| largest_shift(fit, &r))
-    };
+    let shift = shift_without(json, log, fit, settings, found);
     let remedy = format!(
         "drop them (--reject {}) or calibrate away from the iron",
         reject_k(found.threshold, found.noise)
@@ -183,6 +164,35 @@ fn passes(json: &CalibrationJson, log: &Log, fit: &LogFit, settings: &FitSetting
         }
     }
     out
+}
+
+/// What the passes do to the calibration: the same model refitted without them, as the largest
+/// move of a parameter in its standard errors and the parameter's name.
+fn shift_without(
+    json: &CalibrationJson,
+    log: &Log,
+    fit: &LogFit,
+    settings: &FitSettings,
+    found: &Passes,
+) -> Result<(f64, String), String> {
+    if json.fit == "vector" || json.motor.is_some() {
+        return Err(format!(
+            "the {} fit is not refitted without them",
+            if json.motor.is_some() { "motor" } else { "vector" }
+        ));
+    }
+    let keep = found.keep(log.readings.len());
+    let kept: Vec<Vec3> = log
+        .readings
+        .iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|(r, _)| *r)
+        .collect();
+    let refit_settings = FitSettings { trials: 0, ..*settings };
+    log_fit::fit_with(&kept, fit.magnitude, fit.model, &refit_settings)
+        .map_err(|e| format!("the log without them does not fit: {e}"))
+        .and_then(|r| largest_shift(fit, &r))
 }
 
 /// The reason passes give, short: the table's `PASSES` line and the JSON's words have the list.
