@@ -262,7 +262,7 @@ fn extreme() -> impl Strategy<Value = Extreme> {
         any::<u64>(),
         (
             proptest::collection::vec(edge(&[0.0, 1e-9, 0.5, 30.0]), 1..3),
-            100usize..1500,
+            100usize..500,
         ),
     )
         .prop_map(
