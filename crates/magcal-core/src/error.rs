@@ -11,7 +11,7 @@
 #[non_exhaustive]
 pub enum ParameterError {
     /// A value that must be finite is NaN or infinite.
-    #[error("{name} must be finite, got {value}")]
+    #[error("{name} must be finite, got {}", show(*.value))]
     NonFinite {
         /// Parameter name.
         name: &'static str,
@@ -19,7 +19,7 @@ pub enum ParameterError {
         value: f64,
     },
     /// A range whose minimum is not below its maximum.
-    #[error("{name}: minimum {min} must be below maximum {max}")]
+    #[error("{name}: minimum {} must be below maximum {}", show(*.min), show(*.max))]
     EmptyRange {
         /// Parameter name.
         name: &'static str,
@@ -29,7 +29,7 @@ pub enum ParameterError {
         max: f64,
     },
     /// A value that must be strictly positive is not.
-    #[error("{name} must be positive, got {value}")]
+    #[error("{name} must be positive, got {}", show(*.value))]
     NotPositive {
         /// Parameter name.
         name: &'static str,
@@ -37,7 +37,7 @@ pub enum ParameterError {
         value: f64,
     },
     /// A value that must not be negative is.
-    #[error("{name} must not be negative, got {value}")]
+    #[error("{name} must not be negative, got {}", show(*.value))]
     Negative {
         /// Parameter name.
         name: &'static str,
@@ -65,7 +65,7 @@ pub enum ParameterError {
         value: usize,
     },
     /// A value outside an open or closed interval.
-    #[error("{name} must lie in {allowed}, got {value}")]
+    #[error("{name} must lie in {allowed}, got {}", show(*.value))]
     OutOfRange {
         /// Parameter name.
         name: &'static str,
@@ -76,7 +76,7 @@ pub enum ParameterError {
     },
     /// A date outside the five-year validity window of a World Magnetic Model release
     /// ([`crate::wmm::field_ned`]); the parameter is `year`.
-    #[error("year must lie in the model's validity window (epoch to epoch + 5 years), got {year}")]
+    #[error("year must lie in the model's validity window (epoch to epoch + 5 years), got {}", show(*.year))]
     OutsideValidityWindow {
         /// The model asked for.
         model: crate::wmm::Model,
@@ -145,5 +145,16 @@ pub(crate) fn finite(name: &'static str, value: f64) -> Result<f64, ParameterErr
         Ok(value)
     } else {
         Err(ParameterError::NonFinite { name, value })
+    }
+}
+
+/// A number as a person wrote it, for messages that echo one: `-60`, `0.25`, `1e308`, `5e-324`
+/// (never the 309 digits of `1e308` in plain notation).
+pub fn show(x: f64) -> String {
+    let a = x.abs();
+    if x != 0.0 && a.is_finite() && !(1e-4..1e16).contains(&a) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
     }
 }

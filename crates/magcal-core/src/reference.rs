@@ -81,6 +81,21 @@ pub enum ReferenceError {
         /// The field.
         value: Vec3,
     },
+    /// A calibrated field whose square overflows: readings near the top of the range of `f64`
+    /// (units far from the field's, or damage), which no alignment can square and sum.
+    #[error("reading {index}: the calibrated field ({:e}, {:e}, {:e}) is too large to align (the sum of squares overflows)", value[0], value[1], value[2])]
+    FieldTooLarge {
+        /// Index of the reading (0-based).
+        index: usize,
+        /// The field.
+        value: Vec3,
+    },
+    /// Every calibrated field is zero: there is no direction to align with the attitudes.
+    #[error("all {count} calibrated fields are zero: there is no field to align with the attitudes")]
+    FieldAllZero {
+        /// Readings given.
+        count: usize,
+    },
     /// An attitude is not a rotation: not finite, not orthonormal within
     /// [`ROTATION_TOLERANCE`], or a reflection.
     #[error("reading {index}: the attitude is not a rotation (|C^T C - I| = {deviation:.3e}, det {determinant:.6})")]
@@ -392,6 +407,10 @@ fn validate_each(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), Referenc
         if !b.iter().all(|v| v.is_finite()) {
             return Err(ReferenceError::NonFiniteField { index, value: *b });
         }
+        // Summed over every reading in the moments: that sum must stay finite too.
+        if !(dot(*b, *b) * calibrated.len() as f64).is_finite() {
+            return Err(ReferenceError::FieldTooLarge { index, value: *b });
+        }
         let deviation = orthonormality(c);
         let determinant = det(c);
         if !(deviation <= ROTATION_TOLERANCE && determinant > 0.0) {
@@ -401,6 +420,11 @@ fn validate_each(calibrated: &[Vec3], attitudes: &[Mat3]) -> Result<(), Referenc
                 determinant,
             });
         }
+    }
+    if calibrated.iter().all(|b| b.iter().all(|v| *v == 0.0)) {
+        return Err(ReferenceError::FieldAllZero {
+            count: calibrated.len(),
+        });
     }
     Ok(())
 }
@@ -882,6 +906,17 @@ mod tests {
         assert!(matches!(
             align(&bad, &turned, &settings),
             Err(ReferenceError::NonFiniteField { index: 1, .. })
+        ));
+        // Zero readings hold no direction; readings whose squares overflow cannot be summed.
+        assert_eq!(
+            align(&[[0.0; 3]; 3], &turned, &settings),
+            Err(ReferenceError::FieldAllZero { count: 3 })
+        );
+        let mut huge = b;
+        huge[2] = [1e300, -2e300, 3e299];
+        assert!(matches!(
+            align(&huge, &turned, &settings),
+            Err(ReferenceError::FieldTooLarge { index: 2, .. })
         ));
         let mut mirrored = turned;
         mirrored[2][2] = mirrored[2][2].map(|v| -v);

@@ -69,15 +69,7 @@ pub const MAX_BIAS_NT: f64 = 1e7;
 /// Slack of the explicit attitudes' box check, degrees (1e-8 rad, as the core's check).
 pub const BOX_SLACK_DEG: f64 = 5.8e-7;
 
-/// A number as a person wrote it: `-60`, `0.25`, `1e308`, `5e-324` (never 309 digits).
-pub fn show(x: f64) -> String {
-    let a = x.abs();
-    if x != 0.0 && a.is_finite() && !(1e-4..1e16).contains(&a) {
-        format!("{x:e}")
-    } else {
-        format!("{x}")
-    }
-}
+pub use magcal_core::error::show;
 
 /// `text`, cut to `max` characters (with "...") for an error message.
 pub fn excerpt(text: &str, max: usize) -> String {
@@ -116,34 +108,112 @@ impl std::fmt::Display for StreamBound {
 
 impl std::error::Error for StreamBound {}
 
-/// A reader of `inner` that fails, naming `shown`, once more than `max` bytes have come through
-/// it: how a log that is not a regular file is read ([`MAX_STREAM_BYTES`]).
-pub struct Bounded<R> {
-    inner: R,
+/// The longest a log that is not a regular file may send nothing before its reader gives up:
+/// 30 s. A FIFO with no writer, or a writer that stalls, would otherwise hold the command forever.
+pub const MAX_STREAM_IDLE: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// A log file being read: a regular file as it is; anything else (a pipe, a FIFO, a device) as a
+/// stream that fails, naming `shown`, once more than `max` bytes have come through it
+/// ([`MAX_STREAM_BYTES`]) or when it sends nothing for `idle` ([`MAX_STREAM_IDLE`]).
+pub struct Bounded {
+    inner: std::fs::File,
+    stream: bool,
     left: u64,
     max: u64,
+    idle: std::time::Duration,
     shown: String,
 }
 
-impl<R: Read> Bounded<R> {
-    /// `inner`, bounded at `max` bytes where `regular` is false (a regular file has its size).
-    pub fn new(inner: R, regular: bool, max: u64, shown: &str) -> Self {
-        let max = if regular { u64::MAX } else { max };
-        Self {
+impl Bounded {
+    /// Opens `path` (`shown` in errors) and says whether it is a regular file. A stream is opened
+    /// without waiting for a writer, so that a FIFO nobody writes to ends at the idle bound
+    /// rather than in `open`.
+    ///
+    /// # Errors
+    /// A file that cannot be opened, or a directory.
+    pub fn open(path: &Path, shown: &str, max: u64, idle: std::time::Duration) -> Result<Self> {
+        let meta = std::fs::metadata(path).with_context(|| format!("{shown}: cannot read the log"))?;
+        if meta.is_dir() {
+            bail!("{shown}: is a directory, not a log");
+        }
+        let stream = !meta.is_file();
+        let mut options = std::fs::OpenOptions::new();
+        options.read(true);
+        #[cfg(unix)]
+        if stream {
+            use std::os::unix::fs::OpenOptionsExt;
+            options.custom_flags(libc::O_NONBLOCK);
+        }
+        let inner = options
+            .open(path)
+            .with_context(|| format!("{shown}: cannot read the log"))?;
+        Ok(Self {
             inner,
-            left: max,
+            stream,
+            left: if stream { max } else { u64::MAX },
             max,
+            idle,
             shown: shown.to_string(),
+        })
+    }
+
+    /// Whether the file is a stream rather than a regular file.
+    pub fn is_stream(&self) -> bool {
+        self.stream
+    }
+
+    /// Waits until the stream has bytes or has ended, at most `idle`.
+    #[cfg(unix)]
+    fn wait(&self) -> std::io::Result<()> {
+        use rustix::event::{PollFd, PollFlags, Timespec, poll};
+        let timeout = Timespec {
+            tv_sec: i64::try_from(self.idle.as_secs()).unwrap_or(i64::MAX),
+            tv_nsec: i64::from(self.idle.subsec_nanos()),
+        };
+        loop {
+            let mut fds = [PollFd::new(&self.inner, PollFlags::IN)];
+            match poll(&mut fds, Some(&timeout)) {
+                Ok(0) => {
+                    return Err(std::io::Error::other(StreamBound(format!(
+                        "{}: nothing came from the stream (a pipe or a device, not a regular file) for {} s; save the log to a file",
+                        self.shown,
+                        self.idle.as_secs_f64()
+                    ))));
+                }
+                Ok(_) => return Ok(()),
+                Err(rustix::io::Errno::INTR) => {}
+                Err(e) => return Err(e.into()),
+            }
+        }
+    }
+
+    #[cfg(not(unix))]
+    fn wait(&self) -> std::io::Result<()> {
+        Ok(())
+    }
+
+    /// One read of the file; a stream is waited for first, and a read that would block (the
+    /// stream was opened without blocking) waits again.
+    fn read_once(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if !self.stream {
+            return self.inner.read(buf);
+        }
+        loop {
+            self.wait()?;
+            match self.inner.read(buf) {
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                r => return r,
+            }
         }
     }
 }
 
-impl<R: Read> Read for Bounded<R> {
+impl Read for Bounded {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         if self.left == 0 {
             // One byte more than the bound says whether the stream goes on.
             let mut probe = [0u8; 1];
-            return match self.inner.read(&mut probe)? {
+            return match self.read_once(&mut probe)? {
                 0 => Ok(0),
                 _ => Err(std::io::Error::other(StreamBound(format!(
                     "{}: more than {} from a stream (a pipe or a device, not a regular file), which is all magcal reads of one; save the log to a file",
@@ -153,7 +223,7 @@ impl<R: Read> Read for Bounded<R> {
             };
         }
         let n = buf.len().min(usize::try_from(self.left).unwrap_or(usize::MAX));
-        let k = self.inner.read(&mut buf[..n])?;
+        let k = self.read_once(&mut buf[..n])?;
         self.left -= k as u64;
         Ok(k)
     }
@@ -285,6 +355,69 @@ mod tests {
                 .to_string()
                 .contains("is a directory")
         );
+    }
+
+    /// A FIFO at `dir/name`.
+    #[cfg(unix)]
+    fn fifo(dir: &Path, name: &str) -> std::path::PathBuf {
+        let p = dir.join(name);
+        let c = std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        p
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_stream_ends_at_its_bounds_in_bytes_and_in_time_without_progress() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let idle = std::time::Duration::from_millis(300);
+        // No writer at all: the open does not wait for one, the read waits `idle`.
+        let lonely = fifo(dir.path(), "lonely");
+        let mut f = Bounded::open(&lonely, "lonely", 1 << 20, idle).unwrap();
+        assert!(f.is_stream());
+        let started = std::time::Instant::now();
+        let e = f.read_to_end(&mut Vec::new()).unwrap_err().to_string();
+        assert!(
+            e == "lonely: nothing came from the stream (a pipe or a device, not a regular file) for 0.3 s; save the log to a file",
+            "{e}"
+        );
+        assert!(started.elapsed() >= idle, "{:?}", started.elapsed());
+        // A writer that sends five bytes and stalls: the bytes are read, then the wait ends it.
+        let stalled = fifo(dir.path(), "stalled");
+        let writer = {
+            let p = stalled.clone();
+            std::thread::spawn(move || {
+                use std::io::Write;
+                let mut w = std::fs::OpenOptions::new().write(true).open(p).unwrap();
+                w.write_all(b"hello").unwrap();
+                std::thread::sleep(std::time::Duration::from_millis(1500));
+            })
+        };
+        let mut f = Bounded::open(&stalled, "stalled", 1 << 20, idle).unwrap();
+        let mut got = Vec::new();
+        let e = f.read_to_end(&mut got).unwrap_err().to_string();
+        assert!(e.contains("nothing came from the stream"), "{e}");
+        assert_eq!(got, b"hello");
+        writer.join().unwrap();
+        // A writer that closes: the end of the stream, read as the end of the log.
+        let closed = fifo(dir.path(), "closed");
+        let writer = {
+            let p = closed.clone();
+            std::thread::spawn(move || std::fs::write(p, b"abc").unwrap())
+        };
+        let mut f = Bounded::open(&closed, "closed", 1 << 20, std::time::Duration::from_secs(10)).unwrap();
+        let mut got = Vec::new();
+        f.read_to_end(&mut got).unwrap();
+        writer.join().unwrap();
+        assert_eq!(got, b"abc");
+        // A device that never ends: the byte bound.
+        let mut f = Bounded::open(Path::new("/dev/zero"), "zero", 1 << 16, idle).unwrap();
+        let e = f.read_to_end(&mut Vec::new()).unwrap_err().to_string();
+        assert!(e.starts_with("zero: more than 0.1 MiB from a stream"), "{e}");
+        // A regular file is no stream.
+        let p = dir.path().join("f");
+        std::fs::write(&p, [1u8; 10]).unwrap();
+        assert!(!Bounded::open(&p, "f", 4, idle).unwrap().is_stream());
     }
 
     #[test]

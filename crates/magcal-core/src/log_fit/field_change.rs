@@ -128,7 +128,7 @@ impl Default for FieldChangeSettings {
 #[non_exhaustive]
 pub enum FieldChangeError {
     /// A setting out of its range.
-    #[error("{name} = {value}: {why}")]
+    #[error("{name} = {}: {why}", crate::error::show(*.value))]
     InvalidSetting {
         /// The setting.
         name: &'static str,

@@ -72,7 +72,10 @@ pub enum MotorError {
         value: f64,
     },
     /// Every input value is the same: the interference is confounded with the bias.
-    #[error("the motor input is {value} at every reading: its interference cannot be told from the bias")]
+    #[error(
+        "the motor input is {} at every reading: its interference cannot be told from the bias",
+        crate::error::show(*.value)
+    )]
     ConstantInput {
         /// The value.
         value: f64,

@@ -194,7 +194,7 @@ pub enum DateError {
         day: i64,
     },
     /// A year outside [[`MIN_YEAR`], [`MAX_YEAR`]].
-    #[error("year {0} is outside [{MIN_YEAR}, {MAX_YEAR}]")]
+    #[error("year {} is outside [{MIN_YEAR}, {MAX_YEAR}]", crate::error::show(*.0))]
     OutOfRange(f64),
 }
 

@@ -521,12 +521,18 @@ fn baseline_consistency(f: &mut Findings, summary: &[SummaryRow], trials: &[Tria
             .collect();
         let s = Summary::new(&values, rows.len() - ok.len());
         let defined = |x: f64| (!x.is_nan()).then_some(x);
+        let rms =
+            (!values.is_empty()).then(|| (values.iter().map(|x| x * x).sum::<f64>() / values.len() as f64).sqrt());
+        // The standard error too: it sets the tolerance of every comparison above, so a baseline
+        // whose standard errors were widened would pass any run.
         for (quantity, b, n) in [
             ("mean", real(row.mean), defined(s.mean)),
             ("std", real(row.std), defined(s.std)),
             ("median", real(row.median), defined(s.median)),
             ("p05", real(row.p05), defined(s.p05)),
             ("p95", real(row.p95), defined(s.p95)),
+            ("se_mean", real(row.se_mean), defined(s.se_mean)),
+            ("rms", real(row.rms), rms),
         ] {
             f.value(&key, quantity, b, n, 1e-9 * b.map_or(0.0, f64::abs));
         }

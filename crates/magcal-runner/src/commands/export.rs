@@ -275,7 +275,7 @@ fn convert(args: &ExportArgs, cal: &CalibrationJson, shown: &str) -> Result<Conv
         bail!(
             "{shown}: bias {:?} and magnitude {} overflow in {unit_label}",
             cal.bias,
-            cal.magnitude
+            crate::limits::show(cal.magnitude)
         );
     }
     Ok(Converted {

@@ -48,8 +48,9 @@ fn simulate_inner(args: &SimulateArgs) -> Result<()> {
     let sigma = args.sigma_nt.unwrap_or(scenario.sigmas_nt[0]);
     if !(sigma.is_finite() && (0.0..=crate::limits::MAX_SIGMA_NT).contains(&sigma)) {
         bail!(
-            "--sigma-nt {sigma}: must lie in [0, {}] nT",
-            crate::limits::MAX_SIGMA_NT
+            "--sigma-nt {}: must lie in [0, {}] nT",
+            crate::limits::show(sigma),
+            crate::limits::show(crate::limits::MAX_SIGMA_NT)
         );
     }
     let Some(index) = scenario.designs.iter().position(|d| d.name == args.design) else {

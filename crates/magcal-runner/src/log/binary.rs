@@ -3,7 +3,6 @@
 //! may hold ([`Budget`]).
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 
@@ -20,7 +19,7 @@ const CHUNK: usize = 1 << 20;
 /// [`Chunks::window`], at least as many as the last [`Chunks::fill`] asked for (fewer only at the
 /// end of the file). Every byte read is hashed.
 pub struct Chunks {
-    file: limits::Bounded<File>,
+    file: limits::Bounded,
     shown: String,
     buf: Vec<u8>,
     /// Index in `buf` of the current position.
@@ -40,13 +39,8 @@ impl Chunks {
     /// A file that cannot be opened, or a directory.
     pub fn open(path: &Path) -> Result<Self> {
         let shown = path.display().to_string();
-        let file = File::open(path).with_context(|| format!("{shown}: cannot read"))?;
-        let meta = file.metadata().with_context(|| format!("{shown}: cannot read"))?;
-        if meta.is_dir() {
-            bail!("{shown}: is a directory");
-        }
         Ok(Self {
-            file: limits::Bounded::new(file, meta.is_file(), limits::MAX_STREAM_BYTES, &shown),
+            file: limits::Bounded::open(path, &shown, limits::MAX_STREAM_BYTES, limits::MAX_STREAM_IDLE)?,
             shown,
             buf: vec![0; CHUNK],
             pos: 0,

@@ -723,17 +723,20 @@ impl CalibrationJson {
             self.columns.join(", "),
             self.units.as_ref().map_or(String::new(), |u| format!(" in {u}"))
         );
-        Some(if (1.0 / SITE_RATIO..=SITE_RATIO).contains(&ratio) {
+        let magnitude = crate::limits::show(self.magnitude);
+        Some(if !ratio.is_finite() {
             format!(
-                "its median radius under the calibration is {} times the magnitude {} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
+                "its readings, calibrated, have no median radius (they are not finite numbers): other units or the wrong log or columns ({made_from})"
+            )
+        } else if (1.0 / SITE_RATIO..=SITE_RATIO).contains(&ratio) {
+            format!(
+                "its median radius under the calibration is {} times the magnitude {magnitude} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
                 magcal_core::log_fit::significant(ratio, 5),
-                self.magnitude
             )
         } else {
             format!(
-                "its median radius under the calibration is {} times the magnitude {}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
+                "its median radius under the calibration is {} times the magnitude {magnitude}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
                 magcal_core::log_fit::significant(ratio, 5),
-                self.magnitude
             )
         })
     }

@@ -169,11 +169,12 @@ where
     F: FnMut(usize, Vec3, &[Option<f64>]) -> Result<()>,
 {
     let shown = path.display().to_string();
-    let meta = std::fs::metadata(path).with_context(|| format!("{shown}: cannot read the log"))?;
-    if meta.is_dir() {
-        bail!("{shown}: is a directory, not a log");
-    }
-    let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read the log"))?;
+    let file = crate::limits::Bounded::open(
+        path,
+        &shown,
+        crate::limits::MAX_STREAM_BYTES,
+        crate::limits::MAX_STREAM_IDLE,
+    )?;
     let budget = Budget::new(held_bytes_per_reading);
     let mut hashing = Hashing::new(file);
     let mut s = read_from(
@@ -382,6 +383,10 @@ impl<R: BufRead> Lines<R> {
             let chunk = match self.inner.fill_buf() {
                 Ok(c) => c,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                // A stream's bound names the file in its own words.
+                Err(e) if e.get_ref().is_some_and(|r| r.is::<crate::limits::StreamBound>()) => {
+                    bail!("{e} (at line {})", self.line + 1)
+                }
                 Err(e) => bail!("{shown}: line {}: cannot read: {e}", self.line + 1),
             };
             if chunk.is_empty() {
@@ -819,6 +824,10 @@ fn column_name(names: &[String], i: usize) -> String {
 /// quotes, byte-order mark, comments and blank lines. `None` when the file cannot be read, holds
 /// no row, or its first row cannot be split ([`stream`] then says why).
 pub fn first_row(path: &Path) -> Option<(bool, Vec<String>)> {
+    // A stream is read once, by the reader: its first row is not taken from it here.
+    if !std::fs::metadata(path).ok()?.is_file() {
+        return None;
+    }
     let file = std::fs::File::open(path).ok()?;
     let mut lines = Lines::new(BufReader::with_capacity(1 << 16, file));
     let mut buf = Vec::new();

@@ -25,6 +25,7 @@ use magcal_core::small::Mat3;
 use super::flight::{FlightLog, Format, InForce, Selection, Series};
 use super::parameters::LogParameters;
 use super::read::{self, Extra, RowFilter};
+use crate::limits::show;
 use crate::scenario::site::Units;
 
 /// The least gap accepted between a reading and the sample matched to it, seconds.
@@ -406,18 +407,22 @@ fn check_flags(args: &LogArgs, format: Format) -> Result<()> {
         if let Some(v) = v
             && !v.is_finite()
         {
-            bail!("{flag} {v}: must be a finite time in seconds");
+            bail!("{flag} {}: must be a finite time in seconds", show(v));
         }
     }
     if let (Some(a), Some(b)) = (args.from, args.to)
         && a >= b
     {
-        bail!("--from {a} --to {b}: the window is empty (--from must be before --to)");
+        bail!(
+            "--from {} --to {}: the window is empty (--from must be before --to)",
+            show(a),
+            show(b)
+        );
     }
     if let Some(r) = args.rate
         && !(r.is_finite() && r > 0.0)
     {
-        bail!("--rate {r}: must be a positive number of readings per second");
+        bail!("--rate {}: must be a positive number of readings per second", show(r));
     }
     Ok(())
 }
@@ -717,7 +722,8 @@ fn from_flight(f: FlightLog) -> Log {
 
 /// Cuts `log` to the window `--from`..`--to` and thins it to `--rate`, noting what went.
 fn cut(log: &mut Log, args: &LogArgs) -> Result<()> {
-    let Some(times) = log.times.clone() else {
+    let Some(times) = log.times.clone().filter(|t| !t.is_empty()) else {
+        // No readings at all: nothing to cut, and what follows says why there are none.
         return Ok(());
     };
     let before = times.len();
@@ -726,12 +732,16 @@ fn cut(log: &mut Log, args: &LogArgs) -> Result<()> {
     let in_window = keep.iter().filter(|k| **k).count();
     if in_window == 0 {
         let [a, b] = log.origin.span.unwrap_or([f64::NAN; 2]);
-        bail!("no reading between --from {from} and --to {to} s: the log's readings span {a:.3} to {b:.3} s");
+        bail!(
+            "no reading between --from {} and --to {} s: the log's readings span {a:.3} to {b:.3} s",
+            show(from),
+            show(to)
+        );
     }
     if args.from.is_some() || args.to.is_some() {
         let bounds: Vec<String> = [("from", args.from), ("to", args.to)]
             .iter()
-            .filter_map(|(w, v)| v.map(|v| format!("{w} {v} s")))
+            .filter_map(|(w, v)| v.map(|v| format!("{w} {} s", show(v))))
             .collect();
         log.origin
             .notes
@@ -740,10 +750,11 @@ fn cut(log: &mut Log, args: &LogArgs) -> Result<()> {
     if let Some(rate) = args.rate {
         if let Some(w) = times.windows(2).position(|w| w[1] < w[0]) {
             bail!(
-                "--rate {rate}: the log's times go back at reading {} ({} s after {} s); thinning needs times in order",
+                "--rate {}: the log's times go back at reading {} ({} s after {} s); thinning needs times in order",
+                show(rate),
                 w + 2,
-                times[w + 1],
-                times[w]
+                show(times[w + 1]),
+                show(times[w])
             );
         }
         let step = 1.0 / rate;

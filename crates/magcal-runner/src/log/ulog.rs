@@ -196,12 +196,12 @@ pub fn read(path: &Path, selection: &Selection) -> Result<FlightLog> {
 /// As [`read`].
 pub fn read_px4(path: &Path, selection: &Selection) -> Result<Px4Log> {
     let shown = path.display().to_string();
-    let meta = std::fs::metadata(path).with_context(|| format!("{shown}: cannot read the log"))?;
-    if meta.is_dir() {
-        bail!("{shown}: is a directory, not a log");
-    }
-    let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read the log"))?;
-    let file = crate::limits::Bounded::new(file, meta.is_file(), crate::limits::MAX_STREAM_BYTES, &shown);
+    let file = crate::limits::Bounded::open(
+        path,
+        &shown,
+        crate::limits::MAX_STREAM_BYTES,
+        crate::limits::MAX_STREAM_IDLE,
+    )?;
     read_from(BufReader::with_capacity(1 << 16, file), &shown, selection)
 }
 

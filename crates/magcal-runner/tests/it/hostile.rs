@@ -11,7 +11,7 @@ use magcal_runner::digest::sha256_hex;
 use tempfile::TempDir;
 
 use crate::browser::{chromium, open};
-use crate::common::{magcal, magcal_process};
+use crate::common::{magcal, magcal_process, run_into, smoke};
 use crate::report::report;
 
 /// What a hostile string holds: the HTML parser's script-data escapes, a script, an event
@@ -59,11 +59,16 @@ fn edit_and_reseal(set: &Path, name: &str, edit: impl FnOnce(&mut serde_json::Va
     let path = set.join(name);
     let mut v: serde_json::Value = serde_json::from_slice(&fs::read(&path).unwrap()).unwrap();
     edit(&mut v);
-    let bytes = serde_json::to_vec_pretty(&v).unwrap();
-    fs::write(&path, &bytes).unwrap();
+    reseal(set, name, &serde_json::to_vec_pretty(&v).unwrap());
+}
+
+/// Writes `bytes` as the set's file `name`, records their SHA-256 in the manifest and seals the
+/// manifest again.
+fn reseal(set: &Path, name: &str, bytes: &[u8]) {
+    fs::write(set.join(name), bytes).unwrap();
     let manifest = set.join("manifest.json");
     let mut m: serde_json::Value = serde_json::from_slice(&fs::read(&manifest).unwrap()).unwrap();
-    m["file_sha256"][name] = serde_json::Value::String(sha256_hex(&bytes));
+    m["file_sha256"][name] = serde_json::Value::String(sha256_hex(bytes));
     m.as_object_mut().unwrap().remove("manifest_sha256");
     let text = serde_json::to_string_pretty(&m).unwrap();
     let body = text.strip_suffix("\n}").unwrap();
@@ -525,4 +530,173 @@ fn skip_bad_drops_a_row_whose_attitude_is_partly_missing() {
         (Some(1), Some(599)),
         "{j}"
     );
+}
+
+#[test]
+fn check_refuses_a_resealed_baseline_whose_standard_errors_were_widened() {
+    // The standard errors of summary.csv set check's tolerances: widened a thousandfold and the
+    // manifest resealed, the baseline would pass any run. Its trials.csv says what they are.
+    let tmp = TempDir::new().unwrap();
+    let base = tmp.path().join("base");
+    run_into(&base, 7);
+    let text = fs::read_to_string(base.join("summary.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let se = header.split(',').position(|h| h == "se_mean").unwrap();
+    let mut widened = format!("{header}\n");
+    for line in lines {
+        let mut cells: Vec<String> = line.split(',').map(str::to_string).collect();
+        if let Ok(v) = cells[se].parse::<f64>() {
+            cells[se] = format!("{}", v * 1000.0);
+        }
+        widened.push_str(&cells.join(","));
+        widened.push('\n');
+    }
+    reseal(&base, "summary.csv", widened.as_bytes());
+    let out = magcal()
+        .args(["check", "--quiet", "--baseline"])
+        .arg(&base)
+        .arg(smoke())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("baseline trials.csv vs summary.csv") && stderr.contains("se_mean"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("edited since it was written"), "{stderr}");
+}
+
+/// `magcal ARGS`: exit code and stderr, from strings.
+fn run_str(args: &[&str]) -> (Option<i32>, String) {
+    let args: Vec<&std::ffi::OsStr> = args.iter().map(std::ffi::OsStr::new).collect();
+    run(&args)
+}
+
+/// Asserts a refusal in one short line that holds `needle`.
+fn one_short_line(code: Option<i32>, stderr: &str, want_code: i32, needle: &str) {
+    assert_eq!(code, Some(want_code), "{stderr}");
+    let last = stderr.lines().last().unwrap_or_default();
+    assert!(last.contains(needle), "{stderr}");
+    assert!(
+        last.chars().count() <= 300,
+        "{} characters: {last}",
+        last.chars().count()
+    );
+    assert!(!last.contains("NaN") || needle.contains("NaN"), "{last}");
+}
+
+#[test]
+fn messages_name_the_cause_in_a_line_a_person_can_read() {
+    let tmp = TempDir::new().unwrap();
+    let dir = tmp.path();
+    let log = sphere_log(dir);
+    // The sphere with a time, a current (NaN at line 12) and an attitude turning about two axes.
+    let text = fs::read_to_string(&log).unwrap();
+    let mut rows = text.lines();
+    let mut wide = format!("{},t,amps,qw,qx,qy,qz\n", rows.next().unwrap());
+    let mut zero = String::from("x,y,z,qw,qx,qy,qz\n");
+    let mut huge = zero.clone();
+    for (i, r) in rows.enumerate() {
+        let amps = if i == 10 {
+            "NaN".to_string()
+        } else {
+            format!("{}", (i % 7) as f64)
+        };
+        let (a, b) = (0.01 * i as f64, 0.023 * i as f64);
+        let q = [
+            a.cos() * b.cos(),
+            a.sin() * b.cos(),
+            a.cos() * b.sin(),
+            a.sin() * b.sin(),
+        ];
+        let q = format!("{},{},{},{}", q[0], q[1], q[2], q[3]);
+        wide.push_str(&format!("{r},{},{amps},{q}\n", i as f64 * 0.1));
+        zero.push_str(&format!("0,0,0,{q}\n"));
+        huge.push_str(&format!("1e300,-2e300,3e299,{q}\n"));
+    }
+    let wide_log = dir.join("wide.csv");
+    fs::write(&wide_log, wide).unwrap();
+    let w = wide_log.to_str().unwrap();
+    // A window far outside the log: the number as written, not its 309 digits.
+    let (code, stderr) = run_str(&["calibrate", w, "--time", "t", "--from", "1e308"]);
+    one_short_line(
+        code,
+        &stderr,
+        2,
+        "no reading between --from 1e308 and --to inf s: the log's readings span 0.000 to 59.900 s",
+    );
+    let (code, stderr) = run_str(&["calibrate", w, "--time", "t", "--from", "5", "--to=-1e300"]);
+    one_short_line(code, &stderr, 2, "--from 5 --to -1e300: the window is empty");
+    let (code, stderr) = run_str(&["calibrate", w, "--magnitude=-1e308"]);
+    one_short_line(code, &stderr, 2, "--magnitude -1e308: must be positive and finite");
+    // A current that is not a number names its line (the CSV reader reads NaN as no value).
+    let (code, stderr) = run_str(&[
+        "calibrate",
+        w,
+        "--current",
+        "amps",
+        "--motor",
+        "current",
+        "--trials",
+        "20",
+    ]);
+    one_short_line(
+        code,
+        &stderr,
+        2,
+        "--motor current: 1 of 600 readings have no battery current (the first at line 12: its cell is empty or not a number)",
+    );
+    // Readings that are all zero, or whose squares overflow, against attitudes that turn: the
+    // readings are the cause, not the attitudes.
+    for (name, text, needle) in [
+        (
+            "zero.csv",
+            &zero,
+            "all 600 calibrated fields are zero: there is no field to align with the attitudes",
+        ),
+        (
+            "huge.csv",
+            &huge,
+            "is too large to align (the sum of squares overflows)",
+        ),
+    ] {
+        let p = dir.join(name);
+        fs::write(&p, text).unwrap();
+        let (code, stderr) = run_str(&["evaluate", "--raw", p.to_str().unwrap(), "--quaternion", "qw,qx,qy,qz"]);
+        assert!(!stderr.contains("one axis"), "{stderr}");
+        one_short_line(code, &stderr, 2, needle);
+    }
+    // A flight log whose readings the reader skipped says so in the reason, not only a count.
+    for (kind, needle) in [
+        (
+            "nan",
+            "0 readings, at least 9 are needed (skipped messages with values that are not finite numbers: 300 MAG)",
+        ),
+        (
+            "back",
+            "2 readings, at least 9 are needed (skipped messages whose time goes back (a reboot or damage): 298 MAG)",
+        ),
+    ] {
+        let mut w = crate::dataflash::Writer::new();
+        w.fmt(0x82, "MAG", "QBfff", "TimeUS,I,MagX,MagY,MagZ");
+        for i in 0..300u32 {
+            let t = if kind == "back" && i % 2 == 1 {
+                1e6 + f64::from(300 - i) * 1e5
+            } else {
+                1e6 + f64::from(i) * 1e5
+            };
+            let v = if kind == "nan" {
+                f64::NAN
+            } else {
+                400.0 * (f64::from(i) * 0.7).sin()
+            };
+            use crate::dataflash::V;
+            w.msg(0x82, &[V::N(t), V::N(0.0), V::N(v), V::N(-v), V::N(v * 0.5)]);
+        }
+        let p = w.save(dir, &format!("{kind}.bin"));
+        let (code, stderr) = run_str(&["calibrate", p.to_str().unwrap()]);
+        one_short_line(code, &stderr, 3, needle);
+    }
 }

@@ -289,7 +289,7 @@ fn positive_options(args: &CalibrateArgs) -> anyhow::Result<()> {
         if let Some(v) = value
             && !(v.is_finite() && v > 0.0)
         {
-            anyhow::bail!("{name} {v}: must be positive and finite");
+            anyhow::bail!("{name} {}: must be positive and finite", crate::limits::show(v));
         }
     }
     Ok(())

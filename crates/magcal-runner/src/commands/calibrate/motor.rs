@@ -34,14 +34,32 @@ pub fn inputs(log: &Log, motor: Motor) -> Result<Vec<f64>> {
         );
     };
     let missing = series.iter().filter(|v| v.is_none()).count();
-    if missing > 0 {
+    if let Some(first) = series.iter().position(Option::is_none) {
+        let at = format!("the first at {} {}", log.origin.position_name(), log.lines[first]);
+        if log.origin.format == crate::log::flight::Format::Csv {
+            bail!(
+                "--motor {}: {missing} of {} readings have no {kind} ({at}: its cell is empty or not a number); fill it, or cut the log (--from, --to, --where)",
+                name(motor),
+                series.len()
+            );
+        }
         bail!(
-            "--motor {}: {missing} of {} readings have no {kind} near them in time; cut the log to where it has one (--from, --to)",
+            "--motor {}: {missing} of {} readings have no {kind} near them in time ({at}); cut the log to where it has one (--from, --to)",
             name(motor),
             series.len()
         );
     }
-    Ok(series.iter().flatten().copied().collect())
+    let u: Vec<f64> = series.iter().flatten().copied().collect();
+    if let Some(i) = u.iter().position(|v| !v.is_finite()) {
+        bail!(
+            "--motor {}: the {kind} of the reading at {} {} is {}, not a finite number",
+            name(motor),
+            log.origin.position_name(),
+            log.lines[i],
+            u[i]
+        );
+    }
+    Ok(u)
 }
 
 /// The joint fit of `log` under the model of `fit`, at its magnitude, then `log`'s readings with

@@ -38,6 +38,8 @@ struct NoCalibrationJson {
     time_span_s: Option<[f64; 2]>,
     /// What the log's attitudes visited, where it has them.
     flown: Option<Flown>,
+    /// What the reader noted of the log (messages it skipped, and why).
+    log_notes: Vec<String>,
 }
 
 /// Prints (and with `--out` writes) the report that `log` has no calibration, `why`; exit 3.
@@ -49,6 +51,20 @@ pub fn report(
     rejected: usize,
     why: String,
 ) -> Result<(), Failure> {
+    // Readings a flight log's reader skipped (times going back, values not finite) are often
+    // why too few are left: the reason says so rather than leave a count that looks like the log's.
+    let skipped_notes: Vec<String> = log
+        .origin
+        .notes
+        .iter()
+        .filter_map(|n| n.strip_prefix("Skipped "))
+        .map(|n| format!("skipped {}", n.trim_end_matches('.')))
+        .collect();
+    let why = if skipped_notes.is_empty() {
+        why
+    } else {
+        format!("{why} ({})", skipped_notes.join("; "))
+    };
     let json = NoCalibrationJson {
         log: args.log.display().to_string(),
         format: NO_CALIBRATION_FORMAT,
@@ -63,6 +79,7 @@ pub fn report(
         reasons: vec![why],
         time_span_s: log.times.as_ref().and_then(|t| Some([*t.first()?, *t.last()?])),
         flown: log.attitudes.as_ref().and_then(|a| flown(a, None)),
+        log_notes: log.origin.notes.clone(),
     };
     if let Some(mut set) = set {
         let mut text = serde_json::to_vec_pretty(&json).context("JSON")?;
@@ -87,6 +104,9 @@ pub fn report(
                 json.skipped,
                 json.rejected
             )?;
+            for note in &json.log_notes {
+                writeln!(w, "  note: {note}")?;
+            }
             writeln!(w, "NO CALIBRATION under {}", json.reasons.join("; "))?;
             if let Some(f) = &json.flown {
                 super::print_flown(w, f, json.samples, None)?;

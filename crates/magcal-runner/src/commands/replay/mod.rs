@@ -360,13 +360,16 @@ fn check_flags(args: &ReplayArgs) -> Result<()> {
     if !(args.within_deg.is_finite() && args.within_deg > 0.0 && args.within_deg <= 90.0) {
         bail!(
             "--within-deg {}: must be above 0 and at most 90 degrees",
-            args.within_deg
+            crate::limits::show(args.within_deg)
         );
     }
     if let Some(n) = args.noise
         && !(n.is_finite() && n > 0.0)
     {
-        bail!("--noise {n}: must be finite and positive (the log's units)");
+        bail!(
+            "--noise {}: must be finite and positive (the log's units)",
+            crate::limits::show(n)
+        );
     }
     if args.models.is_empty() {
         bail!("--models: name at least one model");
