@@ -108,9 +108,18 @@ impl std::fmt::Display for StreamBound {
 
 impl std::error::Error for StreamBound {}
 
-/// The longest a log that is not a regular file may send nothing before its reader gives up:
+/// The longest a file that is not a regular file may send nothing before its reader gives up:
 /// 30 s. A FIFO with no writer, or a writer that stalls, would otherwise hold the command forever.
 pub const MAX_STREAM_IDLE: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// [`MAX_STREAM_IDLE`], or for tests `MAGCAL_TEST_STREAM_IDLE_MS` milliseconds (so that a test of
+/// a FIFO nobody writes to ends in a moment).
+pub fn stream_idle() -> std::time::Duration {
+    std::env::var("MAGCAL_TEST_STREAM_IDLE_MS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map_or(MAX_STREAM_IDLE, std::time::Duration::from_millis)
+}
 
 /// A log file being read: a regular file as it is; anything else (a pipe, a FIFO, a device) as a
 /// stream that fails, naming `shown`, once more than `max` bytes have come through it
@@ -175,7 +184,7 @@ impl Bounded {
             match poll(&mut fds, Some(&timeout)) {
                 Ok(0) => {
                     return Err(std::io::Error::other(StreamBound(format!(
-                        "{}: nothing came from the stream (a pipe or a device, not a regular file) for {} s; save the log to a file",
+                        "{}: nothing came from the stream (a pipe or a device, not a regular file) for {} s; save it to a file",
                         self.shown,
                         self.idle.as_secs_f64()
                     ))));
@@ -235,19 +244,22 @@ impl Read for Bounded {
 /// # Errors
 /// An unreadable file, a directory, or a file larger than `max`.
 pub fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>> {
-    let shown = path.display();
-    let file = std::fs::File::open(path).with_context(|| format!("{shown}: cannot read"))?;
-    let meta = file.metadata().with_context(|| format!("{shown}: cannot read"))?;
+    let shown = path.display().to_string();
+    let meta = std::fs::metadata(path).with_context(|| format!("{shown}: cannot read"))?;
     if meta.is_dir() {
         bail!("{shown}: is a directory");
     }
     if meta.len() > max {
         bail!("{shown}: {} bytes; at most {} are read", meta.len(), bytes(max));
     }
+    // A FIFO is opened without waiting for a writer and read for as long as it sends.
+    let file = Bounded::open(path, &shown, u64::MAX, stream_idle())?;
     let mut out = Vec::with_capacity(meta.len() as usize);
-    file.take(max + 1)
-        .read_to_end(&mut out)
-        .with_context(|| format!("{shown}: cannot read"))?;
+    match file.take(max + 1).read_to_end(&mut out) {
+        Ok(_) => {}
+        Err(e) if e.get_ref().is_some_and(|r| r.is::<StreamBound>()) => bail!("{e}"),
+        Err(e) => return Err(e).with_context(|| format!("{shown}: cannot read")),
+    }
     if out.len() as u64 > max {
         bail!(
             "{shown}: more than {} bytes (not a regular file?); at most that is read",
@@ -378,7 +390,7 @@ mod tests {
         let started = std::time::Instant::now();
         let e = f.read_to_end(&mut Vec::new()).unwrap_err().to_string();
         assert!(
-            e == "lonely: nothing came from the stream (a pipe or a device, not a regular file) for 0.3 s; save the log to a file",
+            e == "lonely: nothing came from the stream (a pipe or a device, not a regular file) for 0.3 s; save it to a file",
             "{e}"
         );
         assert!(started.elapsed() >= idle, "{:?}", started.elapsed());

@@ -173,7 +173,7 @@ where
         path,
         &shown,
         crate::limits::MAX_STREAM_BYTES,
-        crate::limits::MAX_STREAM_IDLE,
+        crate::limits::stream_idle(),
     )?;
     let budget = Budget::new(held_bytes_per_reading);
     let mut hashing = Hashing::new(file);

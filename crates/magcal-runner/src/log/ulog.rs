@@ -200,7 +200,7 @@ pub fn read_px4(path: &Path, selection: &Selection) -> Result<Px4Log> {
         path,
         &shown,
         crate::limits::MAX_STREAM_BYTES,
-        crate::limits::MAX_STREAM_IDLE,
+        crate::limits::stream_idle(),
     )?;
     read_from(BufReader::with_capacity(1 << 16, file), &shown, selection)
 }

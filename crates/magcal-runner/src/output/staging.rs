@@ -103,6 +103,14 @@ impl ResultSet {
                 );
             }
         }
+        if kind == Target::Owned && std::fs::symlink_metadata(target).is_ok_and(|m| m.is_dir()) {
+            // A set's `plots/` is replaced whole: only when it holds nothing but magcal's figures.
+            let foreign = foreign_figures(target)?
+                .into_iter()
+                .map(|f| f.trim_start_matches("plots/").to_string())
+                .collect();
+            refuse_foreign(target, foreign, "magcal did not draw", "the figures are replaced whole")?;
+        }
         std::fs::create_dir_all(&parent).with_context(|| format!("{}: cannot create", parent.display()))?;
         recover(&parent, &name, target)?;
         let staging = parent.join(format!(".{name}.{STAGING}.{}", std::process::id()));
@@ -251,51 +259,97 @@ fn check_replaceable(target: &Path, want: SetKind) -> Result<()> {
             kind.as_str(),
             want.as_str()
         ),
-        Some(_) => check_own(target),
+        Some(kind) => check_own(target, kind),
     }
 }
 
-/// Files of a set's directory that magcal writes without listing them in the manifest: the
-/// manifest itself and a run's record of how it went.
-const UNLISTED: [&str; 2] = ["manifest.json", "run.json"];
-
-/// Refuses a set that holds what it did not write (a file the user put there), naming it: the
-/// set is replaced whole, which would delete it. A set's own files are those its manifest lists,
-/// [`UNLISTED`], and in `plots/` the figures magcal draws (`.svg`, `.png`).
-fn check_own(target: &Path) -> Result<()> {
-    #[derive(serde::Deserialize)]
-    struct Listed {
-        #[serde(default)]
-        files: Vec<String>,
+/// The files a set of `kind` may hold at its top, beside `plots/`: those its command writes. A
+/// name outside them is the user's, whatever the manifest lists (a manifest can be edited and
+/// resealed by anyone).
+fn own_files(kind: SetKind) -> &'static [&'static str] {
+    match kind {
+        SetKind::Run => &[
+            "manifest.json",
+            "run.json",
+            "designs.csv",
+            "design_metrics.csv",
+            "approximate.csv",
+            "certificate.csv",
+            "advice.csv",
+            "summary.csv",
+            "crb.csv",
+            "pso_runs.csv",
+            "trials.csv",
+        ],
+        SetKind::Calibration => &[
+            "manifest.json",
+            "calibration.json",
+            "residuals.csv",
+            "no_calibration.json",
+        ],
+        SetKind::Replay => &[
+            "manifest.json",
+            "realisation.csv",
+            "summary.csv",
+            "whole_log.csv",
+            "trials.csv",
+        ],
     }
-    let manifest = crate::limits::set_member(target, "manifest.json")?;
-    let bytes = crate::limits::read_bounded(&manifest, crate::limits::MAX_MANIFEST_BYTES)?;
-    let listed: Listed =
-        serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal manifest", manifest.display()))?;
-    let mut foreign = Vec::new();
-    let names = |dir: &Path| -> Result<Vec<(String, std::fs::FileType)>> {
-        let mut out = Vec::new();
-        for entry in std::fs::read_dir(dir).with_context(|| format!("{}: cannot read", dir.display()))? {
-            let entry = entry.with_context(|| format!("{}: cannot read", dir.display()))?;
-            let kind = entry
-                .file_type()
-                .with_context(|| format!("{}: cannot read", entry.path().display()))?;
-            out.push((entry.file_name().to_string_lossy().into_owned(), kind));
-        }
-        Ok(out)
+}
+
+/// Whether `name` is a figure magcal draws into a set's `plots/` (`plots.rs`): a metric's
+/// (run and replay sets), a replay's heading and direction, a noise sweep's, the PSO runs', or a
+/// design's, as `.svg` or `.png`.
+pub fn is_figure(name: &str) -> bool {
+    let Some(stem) = name.strip_suffix(".svg").or_else(|| name.strip_suffix(".png")) else {
+        return false;
     };
-    for (name, kind) in names(target)? {
-        if name == "plots" && kind.is_dir() {
-            for (figure, kind) in names(&target.join("plots"))? {
-                let drawn = kind.is_file() && (figure.ends_with(".svg") || figure.ends_with(".png"));
-                if !drawn {
-                    foreign.push(format!("plots/{figure}"));
-                }
-            }
-        } else if !(kind.is_file() && (UNLISTED.contains(&name.as_str()) || listed.files.contains(&name))) {
+    let metric = |m: &str| crate::pipeline::Metric::ALL.iter().any(|x| x.as_str() == m);
+    metric(stem)
+        || ["pso_runs", "heading_rms", "direction_rms"].contains(&stem)
+        || stem.strip_prefix("noise_sweep_").is_some_and(metric)
+        || stem.strip_prefix("design_").is_some_and(|d| !d.is_empty())
+}
+
+/// The entries of `dir`: names and kinds.
+fn entries(dir: &Path) -> Result<Vec<(String, std::fs::FileType)>> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).with_context(|| format!("{}: cannot read", dir.display()))? {
+        let entry = entry.with_context(|| format!("{}: cannot read", dir.display()))?;
+        let kind = entry
+            .file_type()
+            .with_context(|| format!("{}: cannot read", entry.path().display()))?;
+        out.push((entry.file_name().to_string_lossy().into_owned(), kind));
+    }
+    Ok(out)
+}
+
+/// The entries of a set's `plots/` that are not figures magcal draws, as `plots/NAME`.
+fn foreign_figures(plots: &Path) -> Result<Vec<String>> {
+    Ok(entries(plots)?
+        .into_iter()
+        .filter(|(name, kind)| !(kind.is_file() && is_figure(name)))
+        .map(|(name, _)| format!("plots/{name}"))
+        .collect())
+}
+
+/// Refuses a set of `kind` that holds what it did not write (a file the user put there), naming
+/// it: the set is replaced whole, which would delete it. A set's own files are those of
+/// [`own_files`] and, in `plots/`, the figures of [`is_figure`].
+fn check_own(target: &Path, kind: SetKind) -> Result<()> {
+    let mut foreign = Vec::new();
+    for (name, entry) in entries(target)? {
+        if name == "plots" && entry.is_dir() {
+            foreign.extend(foreign_figures(&target.join("plots"))?);
+        } else if !(entry.is_file() && own_files(kind).contains(&name.as_str())) {
             foreign.push(name);
         }
     }
+    refuse_foreign(target, foreign, "the set did not write", "the set is replaced whole")
+}
+
+/// Refuses `target` when `foreign` names anything, naming at most five of them.
+fn refuse_foreign(target: &Path, mut foreign: Vec<String>, what: &str, why: &str) -> Result<()> {
     if foreign.is_empty() {
         return Ok(());
     }
@@ -307,7 +361,7 @@ fn check_own(target: &Path) -> Result<()> {
         String::new()
     };
     bail!(
-        "{}: holds {} the set did not write ({}{more}); the set is replaced whole, which would delete them: move them out, or give another --out",
+        "{}: holds {} {what} ({}{more}); {why}, which would delete them: move them out, or give another --out",
         target.display(),
         if foreign.len() == 1 { "a file" } else { "files" },
         shown.join(", ")
@@ -357,6 +411,15 @@ fn recover(parent: &Path, name: &str, target: &Path) -> Result<()> {
             continue;
         }
         let path = entry.path();
+        // Only what magcal could have written there: a directory of the user's under such a
+        // name is left as it is.
+        if !looks_ours(&path) {
+            crate::output::stderr::to_stderr!(
+                "magcal: note: {} is named as magcal's temporary directories are but holds what magcal does not write: left as it is",
+                path.display()
+            );
+            continue;
+        }
         if what == OLD && std::fs::symlink_metadata(target).is_err() {
             rename(&path, target)?;
         } else {
@@ -364,6 +427,32 @@ fn recover(parent: &Path, name: &str, target: &Path) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Whether `dir` is a directory (not a link) holding only what a killed run of magcal leaves:
+/// the files of a set of some kind ([`own_files`]), figures ([`is_figure`]), and a `plots/` of
+/// figures.
+fn looks_ours(dir: &Path) -> bool {
+    let is_dir = std::fs::symlink_metadata(dir).is_ok_and(|m| m.is_dir());
+    let Ok(list) = entries(dir)
+        .map_err(|_| ())
+        .and_then(|l| if is_dir { Ok(l) } else { Err(()) })
+    else {
+        return false;
+    };
+    let any_own = |name: &str| {
+        [SetKind::Run, SetKind::Calibration, SetKind::Replay]
+            .iter()
+            .any(|k| own_files(*k).contains(&name))
+            || is_figure(name)
+    };
+    list.iter().all(|(name, kind)| {
+        if name == "plots" && kind.is_dir() {
+            foreign_figures(&dir.join("plots")).is_ok_and(|f| f.is_empty())
+        } else {
+            kind.is_file() && any_own(name)
+        }
+    })
 }
 
 /// Whether process `pid` runs (Linux: it has a `/proc` entry; elsewhere assumed not).
@@ -440,7 +529,8 @@ mod tests {
     const DEAD: u32 = 4_194_305;
 
     /// The manifest of a run set as [`SetKind::of`] recognises it (a name and a scenario hash).
-    const RUN_MANIFEST: &str = r#"{"name":"s","scenario_sha256":"0","files":["a.csv","b.csv","new.csv","raced.csv"]}"#;
+    const RUN_MANIFEST: &str =
+        r#"{"name":"s","scenario_sha256":"0","files":["summary.csv","trials.csv","designs.csv","crb.csv"]}"#;
 
     /// Every file below `dir`, relative path -> text.
     fn files(dir: &Path) -> BTreeMap<String, String> {
@@ -497,15 +587,16 @@ mod tests {
         );
         assert_eq!(set.target(), target);
         set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
-        set.put("a.csv", b"1\n").unwrap();
-        set.put_with("plots/f.svg", |w| Ok(w.write_all(b"<svg/>")?)).unwrap();
+        set.put("summary.csv", b"1\n").unwrap();
+        set.put_with("plots/eta_psi.svg", |w| Ok(w.write_all(b"<svg/>")?))
+            .unwrap();
         // Nothing at the target until the commit.
         assert!(!target.exists());
         set.commit().unwrap();
         let first = [
             ("manifest.json", RUN_MANIFEST),
-            ("a.csv", "1\n"),
-            ("plots/f.svg", "<svg/>"),
+            ("summary.csv", "1\n"),
+            ("plots/eta_psi.svg", "<svg/>"),
         ];
         assert_eq!(files(&target), map(&first));
         assert_eq!(names(tmp.path()), ["out"]);
@@ -513,13 +604,13 @@ mod tests {
         // A second set replaces the first whole: none of its files survive.
         let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
         set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
-        set.put("b.csv", b"2\n").unwrap();
+        set.put("trials.csv", b"2\n").unwrap();
         // The old set stays whole while the new one is staged.
         assert_eq!(files(&target), map(&first));
         set.commit().unwrap();
         assert_eq!(
             files(&target),
-            map(&[("manifest.json", RUN_MANIFEST), ("b.csv", "2\n")])
+            map(&[("manifest.json", RUN_MANIFEST), ("trials.csv", "2\n")])
         );
         assert_eq!(names(tmp.path()), ["out"]);
     }
@@ -528,20 +619,20 @@ mod tests {
     fn a_failed_write_or_an_abandoned_set_leaves_the_old_set_and_no_staging() {
         let tmp = tempfile::TempDir::new().unwrap();
         let target = tmp.path().join("out");
-        let old = [("manifest.json", RUN_MANIFEST), ("a.csv", "old\n")];
+        let old = [("manifest.json", RUN_MANIFEST), ("summary.csv", "old\n")];
         make(&target, &old);
 
         let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
-        set.put("a.csv", b"new\n").unwrap();
+        set.put("summary.csv", b"new\n").unwrap();
         let e = set
-            .put_with("b.csv", |w| {
+            .put_with("trials.csv", |w| {
                 w.write_all(b"partial")?;
                 Err(std::io::Error::new(std::io::ErrorKind::StorageFull, "disk full").into())
             })
             .unwrap_err();
         assert_eq!(
             message(&e),
-            format!("{}: cannot write: disk full", target.join("b.csv").display())
+            format!("{}: cannot write: disk full", target.join("trials.csv").display())
         );
         drop(set);
         assert_eq!(files(&target), map(&old));
@@ -550,7 +641,7 @@ mod tests {
         // A file where a directory of the set must go.
         let mut set = ResultSet::begin(&target, Target::Results, &[]).unwrap();
         set.put("plots", b"").unwrap();
-        let e = set.put("plots/f.svg", b"<svg/>").unwrap_err();
+        let e = set.put("plots/eta_psi.svg", b"<svg/>").unwrap_err();
         assert!(message(&e).contains("plots: cannot create"), "{e:#}");
         drop(set);
         assert_eq!(files(&target), map(&old));
@@ -653,15 +744,47 @@ mod tests {
     }
 
     #[test]
-    fn an_owned_part_is_replaced_whatever_it_holds() {
+    fn an_owned_part_is_replaced_only_when_it_holds_only_magcals_figures() {
         let tmp = tempfile::TempDir::new().unwrap();
         let plots = tmp.path().join("plots");
-        make(&plots, &[("old.svg", "old"), ("deep/old.png", "old")]);
+        make(&plots, &[("eta_psi.svg", "old"), ("design_a.png", "old")]);
         let mut set = ResultSet::begin(&plots, Target::Owned, &[]).unwrap();
-        set.put("new.svg", b"new").unwrap();
+        set.put("eta_s.svg", b"new").unwrap();
         set.commit().unwrap();
-        assert_eq!(files(&plots), map(&[("new.svg", "new")]));
+        assert_eq!(files(&plots), map(&[("eta_s.svg", "new")]));
         assert_eq!(names(tmp.path()), ["plots"]);
+        // A file of the user's, a figure's name on a directory, a PNG magcal never draws.
+        for (name, shown) in [
+            ("notes.txt", "\"notes.txt\""),
+            ("pso_runs.svg/x.svg", "\"pso_runs.svg\""),
+            ("mine.png", "\"mine.png\""),
+        ] {
+            make(&plots, &[(name, "mine")]);
+            let e = ResultSet::begin(&plots, Target::Owned, &[]).unwrap_err();
+            assert_eq!(
+                message(&e),
+                format!(
+                    "{}: holds a file magcal did not draw ({shown}); the figures are replaced whole, which would delete them: move them out, or give another --out",
+                    plots.display()
+                )
+            );
+            remove_any(&plots.join(name.split('/').next().unwrap())).unwrap();
+        }
+        assert_eq!(files(&plots), map(&[("eta_s.svg", "new")]));
+    }
+
+    #[test]
+    fn a_set_holds_only_the_names_its_command_writes_whatever_its_manifest_lists() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let target = tmp.path().join("out");
+        let listed = r#"{"name":"s","scenario_sha256":"0","files":["mine.csv"]}"#;
+        make(&target, &[("manifest.json", listed), ("mine.csv", "mine")]);
+        let e = ResultSet::begin(&target, Target::Results, &[]).unwrap_err();
+        assert!(
+            message(&e).contains("holds a file the set did not write (\"mine.csv\")"),
+            "{e:#}"
+        );
+        assert_eq!(files(&target).len(), 2);
     }
 
     #[test]
@@ -684,12 +807,12 @@ mod tests {
         let other = tmp.path().join("other");
         let mut set = ResultSet::begin(&other, Target::Results, &[]).unwrap();
         set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
-        set.put("new.csv", b"new").unwrap();
-        make(&other, &[("manifest.json", RUN_MANIFEST), ("raced.csv", "raced")]);
+        set.put("designs.csv", b"new").unwrap();
+        make(&other, &[("manifest.json", RUN_MANIFEST), ("crb.csv", "raced")]);
         set.commit().unwrap();
         assert_eq!(
             files(&other),
-            map(&[("manifest.json", RUN_MANIFEST), ("new.csv", "new")])
+            map(&[("manifest.json", RUN_MANIFEST), ("designs.csv", "new")])
         );
         assert_eq!(names(tmp.path()), ["other", "out"]);
     }
@@ -698,16 +821,16 @@ mod tests {
     fn what_killed_runs_left_is_removed_or_put_back_and_live_runs_are_left_alone() {
         let tmp = tempfile::TempDir::new().unwrap();
         let at = |name: &str| tmp.path().join(name);
-        let old = [("manifest.json", RUN_MANIFEST), ("a.csv", "old")];
+        let old = [("manifest.json", RUN_MANIFEST), ("summary.csv", "old")];
         // A run killed between setting the old set aside and renaming the new one in: the target
         // is missing, and the set aside is put back.
         make(&at(&format!(".out.magcal-old.{DEAD}")), &old);
-        make(&at(&format!(".out.magcal-staging.{DEAD}")), &[("half.csv", "")]);
+        make(&at(&format!(".out.magcal-staging.{DEAD}")), &[("summary.csv", "")]);
         // A running process's staging (pid 1 runs on every Linux), another target's, and a
         // name that only looks like one.
-        make(&at(".out.magcal-staging.1"), &[("live.csv", "")]);
-        make(&at(&format!(".other.magcal-staging.{DEAD}")), &[("x", "")]);
-        make(&at(".out.magcal-staging.x"), &[("x", "")]);
+        make(&at(".out.magcal-staging.1"), &[("summary.csv", "")]);
+        make(&at(&format!(".other.magcal-staging.{DEAD}")), &[("trials.csv", "")]);
+        make(&at(".out.magcal-staging.x"), &[("trials.csv", "")]);
         let set = ResultSet::begin(&at("out"), Target::Results, &[]).unwrap();
         assert_eq!(files(&at("out")), map(&old));
         drop(set);
@@ -723,12 +846,23 @@ mod tests {
         assert_eq!(names(tmp.path()), left);
 
         // With the target present, a set aside by a dead run is removed.
-        make(&at(&format!(".out.magcal-old.{DEAD}")), &[("stale.csv", "")]);
+        make(&at(&format!(".out.magcal-old.{DEAD}")), &[("crb.csv", "")]);
+        // A directory of the user's under such a name is left as it is.
+        make(
+            &at(&format!(".out.magcal-staging.{}", DEAD + 1)),
+            &[("important.txt", "mine")],
+        );
         let mut set = ResultSet::begin(&at("out"), Target::Results, &[]).unwrap();
         assert!(!at(&format!(".out.magcal-old.{DEAD}")).exists());
         set.put("manifest.json", RUN_MANIFEST.as_bytes()).unwrap();
         set.commit().unwrap();
         assert_eq!(files(&at("out")), map(&[("manifest.json", RUN_MANIFEST)]));
+        left.push(format!(".out.magcal-staging.{}", DEAD + 1));
+        left.sort();
         assert_eq!(names(tmp.path()), left);
+        assert_eq!(
+            files(&at(&format!(".out.magcal-staging.{}", DEAD + 1))),
+            map(&[("important.txt", "mine")])
+        );
     }
 }

@@ -700,3 +700,62 @@ fn messages_name_the_cause_in_a_line_a_person_can_read() {
         one_short_line(code, &stderr, 3, needle);
     }
 }
+
+#[cfg(unix)]
+#[test]
+fn a_fifo_nobody_writes_to_ends_in_every_place_a_file_is_read() {
+    // The idle bound, 30 s in use, at 300 ms here: every reader of a file that is not regular
+    // opens it without waiting for a writer and gives up when nothing comes.
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let set = tmp.path().join("cal");
+    calibrated_set(&log, &[], &set);
+    let cal = set.join("calibration.json");
+    let fifo = tmp.path().join("fifo");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let smoke = crate::common::smoke();
+    let baseline = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../results/smoke");
+    let f = fifo.as_os_str();
+    let cases: Vec<Vec<&std::ffi::OsStr>> = vec![
+        vec!["calibrate".as_ref(), f],
+        vec!["calibrate".as_ref(), f, "--format".as_ref(), "dataflash".as_ref()],
+        vec!["calibrate".as_ref(), f, "--format".as_ref(), "ulog".as_ref()],
+        vec!["apply".as_ref(), f, log.as_os_str()],
+        vec!["apply".as_ref(), cal.as_os_str(), f],
+        vec!["export".as_ref(), f, "--to".as_ref(), "px4".as_ref()],
+        vec!["evaluate".as_ref(), "--raw".as_ref(), f],
+        vec!["run".as_ref(), f, "--quiet".as_ref()],
+        vec!["check".as_ref(), f, "--baseline".as_ref(), baseline.as_os_str()],
+        vec![
+            "next".as_ref(),
+            cal.as_os_str(),
+            log.as_os_str(),
+            "--scenario".as_ref(),
+            f,
+        ],
+        vec!["check".as_ref(), smoke.as_os_str(), "--baseline".as_ref(), f],
+    ];
+    for args in cases {
+        let started = Instant::now();
+        let mut child = magcal_process()
+            .args(&args)
+            .env("MAGCAL_TEST_STREAM_IDLE_MS", "300")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        while child.try_wait().unwrap().is_none() {
+            if started.elapsed() > Duration::from_secs(20) {
+                child.kill().unwrap();
+                panic!("magcal {args:?} still runs after 20 s");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.contains("fifo"), "{args:?}: {stderr}");
+    }
+}
