@@ -143,7 +143,11 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(Failure::Input(e)) => {
-            to_stderr!("magcal: error: {}", format!("{e:#}").replace('\n', " "));
+            // What an input held may be in the message: never as bytes a terminal acts on.
+            to_stderr!(
+                "magcal: error: {}",
+                crate::limits::printable(&format!("{e:#}").replace('\n', " "))
+            );
             ExitCode::from(2)
         }
         Err(Failure::Regression(table)) => {
@@ -151,7 +155,10 @@ pub fn main() -> ExitCode {
             ExitCode::from(1)
         }
         Err(Failure::Unusable(why)) => {
-            to_stderr!("magcal: not a calibration to use: {}", why.replace('\n', " "));
+            to_stderr!(
+                "magcal: not a calibration to use: {}",
+                crate::limits::printable(&why.replace('\n', " "))
+            );
             ExitCode::from(3)
         }
     }

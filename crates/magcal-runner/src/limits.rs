@@ -71,6 +71,50 @@ pub const BOX_SLACK_DEG: f64 = 5.8e-7;
 
 pub use magcal_core::error::show;
 
+/// A flag's number: any that parses as `f64` and is finite (`nan`, `inf` and numbers beyond
+/// 1.8e308 are refused here, by name, rather than as a range they are "outside").
+///
+/// # Errors
+/// Text that is not a number, or a number that is not finite.
+pub fn finite(text: &str) -> std::result::Result<f64, String> {
+    let v: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{} is not a number", excerpt(text, 40)))?;
+    if v.is_nan() {
+        return Err("NaN is not a number".into());
+    }
+    if v.is_infinite() && text.to_ascii_lowercase().contains("inf") {
+        return Err(format!("{} is not finite", excerpt(text, 40)));
+    }
+    if v.is_infinite() {
+        return Err(format!("{} is beyond the largest number (1.8e308)", excerpt(text, 40)));
+    }
+    Ok(v)
+}
+
+/// `text` with what a terminal would act on escaped: control characters (an escape sequence in a
+/// cell never reaches the terminal as one), line and paragraph separators, and the marks that
+/// reorder text (which could make a message read other than it is).
+pub fn printable(text: &str) -> String {
+    let acts = |c: char| {
+        c.is_control()
+            || matches!(c, '\u{2028}' | '\u{2029}' | '\u{200e}' | '\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
+    };
+    if !text.chars().any(acts) {
+        return text.to_string();
+    }
+    text.chars()
+        .map(|c| {
+            if acts(c) {
+                c.escape_unicode().to_string()
+            } else {
+                c.to_string()
+            }
+        })
+        .collect()
+}
+
 /// `text`, cut to `max` characters (with "...") for an error message.
 pub fn excerpt(text: &str, max: usize) -> String {
     match text.char_indices().nth(max) {
@@ -430,6 +474,21 @@ mod tests {
         let p = dir.path().join("f");
         std::fs::write(&p, [1u8; 10]).unwrap();
         assert!(!Bounded::open(&p, "f", 4, idle).unwrap().is_stream());
+    }
+
+    #[test]
+    fn what_a_terminal_acts_on_is_escaped_and_numbers_are_checked() {
+        assert_eq!(printable("a\u{1b}[2Jb\u{7}"), "a\\u{1b}[2Jb\\u{7}");
+        assert_eq!(printable("x\u{2028}y\u{202e}z"), "x\\u{2028}y\\u{202e}z");
+        assert_eq!(printable("plain é 😀"), "plain é 😀");
+        assert_eq!(finite("2.5"), Ok(2.5));
+        assert_eq!(finite("nan"), Err("NaN is not a number".into()));
+        assert_eq!(finite("-inf"), Err("-inf is not finite".into()));
+        assert_eq!(
+            finite("1e400"),
+            Err("1e400 is beyond the largest number (1.8e308)".into())
+        );
+        assert_eq!(finite("x"), Err("x is not a number".into()));
     }
 
     #[test]

@@ -208,8 +208,19 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         compare_summaries(&mut f, &base, &now, &shown)?;
         if manifest.lists("trials.csv") {
             let trials: Vec<TrialRow> = read_csv(&limits::set_member(baseline, "trials.csv")?)?;
+            let mut damage = Findings::default();
+            baseline_consistency(&mut damage, &base, &trials);
+            if let Some(first) = damage.0.first() {
+                bail!(
+                    "{shown}: damaged: its statistics are not those of its trials.csv ({} of them, the first {}: {} {}, {} from the trials); remove the set and make it again",
+                    damage.0.len(),
+                    first.key.trim_start_matches("baseline trials.csv vs summary.csv "),
+                    first.quantity,
+                    first.baseline.map_or("missing".to_string(), crate::limits::show),
+                    first.now.map_or("none".to_string(), crate::limits::show)
+                );
+            }
             compare_statuses(&mut f, &trials, out);
-            baseline_consistency(&mut f, &base, &trials);
         }
     }
     compare_designs(&mut f, out, baseline, manifest)?;
@@ -541,7 +552,16 @@ fn baseline_consistency(f: &mut Findings, summary: &[SummaryRow], trials: &[Tria
 
 /// A readable table of what moved.
 pub fn report(moved: &[Moved]) -> String {
-    let show = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.6}"));
+    // Six decimals, or six significant digits where that would be long (1e308 has 309 digits).
+    let show = |v: Option<f64>| {
+        v.map_or("-".to_string(), |v| {
+            if v.is_finite() && v != 0.0 && !(1e-3..1e9).contains(&v.abs()) {
+                format!("{v:.6e}")
+            } else {
+                format!("{v:.6}")
+            }
+        })
+    };
     let mut s = String::new();
     let _ = writeln!(
         s,

@@ -20,7 +20,7 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub design: String,
     /// Noise per component, nT (default: the scenario's first `sigma_nt`).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::limits::finite)]
     pub sigma_nt: Option<f64>,
     /// Seed of the noise (default: the scenario's).
     #[arg(long)]

@@ -517,6 +517,9 @@ pub const FORMAT: &str = "magcal-calibration-1";
 /// or nearly singular matrix, not a calibration.
 pub const MAX_CONDITION: f64 = 1e3;
 
+/// The largest bias component of a usable calibration, in magnitudes of the field: 1e6.
+pub const MAX_BIAS_RATIO: f64 = 1e6;
+
 /// The Earth's main field at the surface lies between about 22,000 and 67,000 nT (WMM), so a log
 /// of the calibrated sensor from any site has a median calibrated radius within a factor
 /// 67 / 22 = 3.05 of the calibration's magnitude. Beyond this factor no site explains the log:
@@ -571,7 +574,23 @@ impl CalibrationJson {
             }
         }
         if !(self.magnitude.is_finite() && self.magnitude > 0.0) {
-            return Err(format!("magnitude {}: must be finite and positive", self.magnitude));
+            return Err(format!(
+                "magnitude {}: must be finite and positive",
+                crate::limits::show(self.magnitude)
+            ));
+        }
+        // A usable calibration's bias is a hard-iron field: a magnet on the board is a few
+        // hundred times the Earth's field, never a million; beyond that it is an edited or
+        // garbled file whose calibrated readings would be meaningless numbers.
+        let largest = self.bias.iter().fold(0.0_f64, |a, b| a.max(b.abs()));
+        if self.usable && largest > MAX_BIAS_RATIO * self.magnitude {
+            return Err(format!(
+                "bias ({}): {} times the magnitude {}; a usable calibration's is at most {} times it (a magnet beside the sensor gives a few hundred)",
+                self.bias.map(crate::limits::show).join(", "),
+                magcal_core::log_fit::significant(largest / self.magnitude, 3),
+                magcal_core::log_fit::significant(self.magnitude, 7),
+                crate::limits::show(MAX_BIAS_RATIO)
+            ));
         }
         // The noise is `null` where the log cannot give it (an exact fit without --noise).
         for (name, v) in [("noise", self.noise), ("residual_rms", Some(self.residual_rms))] {

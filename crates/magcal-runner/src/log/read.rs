@@ -701,7 +701,19 @@ fn row_value(
             None | Some(b"") => bad = Some(format!("no value in column {} ({})", c + 1, names[c])),
             Some(cell) => match number(cell, separator) {
                 Some(v) if v.is_finite() => value[j] = v,
-                Some(v) => bad = Some(format!("column {} ({}) is {v}", c + 1, names[c])),
+                // A number written as such but beyond the range of f64 reads as infinite: say
+                // which, rather than call 1e400 "inf".
+                Some(v) if v.is_nan() || cell_says_non_finite(cell) => {
+                    bad = Some(format!("column {} ({}) is {v}", c + 1, names[c]));
+                }
+                Some(_) => {
+                    bad = Some(format!(
+                        "column {} ({}) is {}, beyond the largest number (1.8e308)",
+                        c + 1,
+                        names[c],
+                        excerpt(cell)
+                    ));
+                }
                 None => {
                     let why = if decimal_comma(cell) {
                         " (a decimal comma cannot be read where the comma separates cells; use decimal points, or ';' between cells)"
@@ -719,6 +731,14 @@ fn row_value(
         }
     }
     Ok((value, bad))
+}
+
+/// Whether a cell names a value that is not finite (`inf`, `-Infinity`, `NaN`) rather than a
+/// number too large to hold.
+fn cell_says_non_finite(cell: &[u8]) -> bool {
+    let t = String::from_utf8_lossy(cell).trim().to_ascii_lowercase();
+    let t = t.trim_start_matches(['+', '-']);
+    t.starts_with("inf") || t.starts_with("nan")
 }
 
 /// The value of an extra column in a data row: `None` where the cell is empty or not finite; a
@@ -1345,7 +1365,11 @@ mod tests {
             (&b"x,y,z\n1,2\n"[..], "line 2: no value in column 3 (z)"),
             (b"x,y,z\n1,,3\n", "line 2: no value in column 2 (y)"),
             (b"x,y,z\n-inf,2,3\n", "line 2: column 1 (x) is -inf"),
-            (b"x,y,z\n1,2,1e999\n", "line 2: column 3 (z) is inf"),
+            (
+                b"x,y,z\n1,2,1e999\n",
+                "line 2: column 3 (z) is \"1e999\", beyond the largest number (1.8e308)",
+            ),
+            (b"x,y,z\n1,2,-inf\n", "line 2: column 3 (z) is -inf"),
         ] {
             assert_eq!(error(text, None), format!("t.csv: {reason}{skip}"));
         }

@@ -110,14 +110,14 @@ pub struct LogArgs {
     pub compass: Option<u8>,
     /// Only readings at or after this time, seconds on the log's clock (flight logs: time since
     /// boot; CSV: the `--time` column).
-    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true)]
+    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = crate::limits::finite)]
     pub from: Option<f64>,
     /// Only readings at or before this time, seconds on the log's clock.
-    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true)]
+    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = crate::limits::finite)]
     pub to: Option<f64>,
     /// At most this many readings per second, thinned evenly in time (a reading is kept when it
     /// lies at least 1/HZ after the last one kept).
-    #[arg(long, value_name = "HZ")]
+    #[arg(long, value_name = "HZ", value_parser = crate::limits::finite)]
     pub rate: Option<f64>,
     /// CSV: the column of each reading's time, in order (a time earlier than the row before it is
     /// refused: windows, holds, `--from`/`--to` and `--rate` read the log in time order).

@@ -324,6 +324,11 @@ pub fn csv_bytes<T: Serialize + Default>(rows: impl IntoIterator<Item = T>) -> R
     Ok(buf)
 }
 
+/// `text` for a message: quoted and cut to 80 characters, control characters escaped.
+fn quoted_text(text: &str) -> String {
+    format!("\"{}\"", crate::limits::printable(&crate::limits::excerpt(text, 80)))
+}
+
 /// Reads a CSV file of `T` rows; an error names the file, the line, the column and the value.
 pub fn read_csv<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
     let bytes = crate::limits::read_bounded(path, crate::limits::max_result_file_bytes())?;
@@ -339,22 +344,27 @@ pub fn parse_csv<T: DeserializeOwned>(bytes: &[u8], what: &str) -> Result<Vec<T>
     }
     let mut rows = Vec::new();
     for record in reader.records() {
-        let record = record.map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+        let record = record.map_err(|e| anyhow::anyhow!("{what}: {}", crate::limits::printable(&e.to_string())))?;
         let line = record.position().map_or(0, |p| p.line());
         let row = record.deserialize::<T>(Some(&headers)).map_err(|e| {
             let (column, message) = match e.kind() {
                 csv::ErrorKind::Deserialize { err, .. } => {
                     let column = err.field().map_or(String::new(), |f| {
-                        let name = headers.get(f as usize).unwrap_or("?");
-                        let value = record.get(f as usize).unwrap_or("");
-                        format!("{name} = {value:?}: ")
+                        let name = crate::limits::printable(&crate::limits::excerpt(
+                            headers.get(f as usize).unwrap_or("?"),
+                            80,
+                        ));
+                        let value = quoted_text(record.get(f as usize).unwrap_or(""));
+                        format!("{name} = {value}: ")
                     });
                     let message = match err.kind() {
                         // With a header, a missing field is a column the header does not have.
                         csv::DeserializeErrorKind::Message(m) if m.starts_with("missing field") => {
                             format!("{m}: the header has no such column (a file of another magcal version?)")
                         }
-                        csv::DeserializeErrorKind::Message(m) => m.clone(),
+                        csv::DeserializeErrorKind::Message(m) => {
+                            crate::limits::printable(&crate::limits::excerpt(m, 200))
+                        }
                         csv::DeserializeErrorKind::ParseFloat(_) => "not a number".into(),
                         other => other.to_string(),
                     };

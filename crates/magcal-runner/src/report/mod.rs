@@ -203,6 +203,23 @@ fn plotly_text(value: &mut Value) {
     }
 }
 
+/// `value` with every string made plain text for a 3D scene, whose axis titles are drawn in
+/// WebGL without reading entities: `<`, `>` and `&` as their full-width forms, which read the
+/// same and are no markup anywhere.
+fn webgl_text(value: &mut Value) {
+    match value {
+        Value::String(s) if s.contains(['&', '<', '>']) => {
+            *s = s
+                .replace('&', "\u{ff06}")
+                .replace('<', "\u{ff1c}")
+                .replace('>', "\u{ff1e}");
+        }
+        Value::Array(items) => items.iter_mut().for_each(webgl_text),
+        Value::Object(map) => map.values_mut().for_each(webgl_text),
+        _ => {}
+    }
+}
+
 impl Page {
     /// An empty page with a title and a line under it (what it shows, from which files).
     pub fn new(title: impl Into<String>, subtitle: impl Into<String>) -> Self {
@@ -247,6 +264,12 @@ impl Page {
         // draws it when it comes near the screen: a page of many WebGL views opens at once
         // instead of building every view before it shows anything.
         let mut figure: Value = serde_json::from_str(&plot.to_json()).expect("plotly writes JSON");
+        if let Some(layout) = figure.get_mut("layout").and_then(Value::as_object_mut) {
+            layout
+                .iter_mut()
+                .filter(|(key, _)| key.starts_with("scene"))
+                .for_each(|(_, scene)| webgl_text(scene));
+        }
         plotly_text(&mut figure);
         let figure = script_json(&figure);
         let html = format!(
@@ -431,6 +454,16 @@ mod tests {
         let text = script_json(&v);
         assert!(!text.contains(['<', '>', '&', '\u{2028}', '\u{2029}']), "{text}");
         assert_eq!(serde_json::from_str::<Value>(&text).unwrap(), v, "the same JSON");
+    }
+
+    #[test]
+    fn a_scenes_text_is_plain_without_entities() {
+        let mut v = serde_json::json!({"xaxis": {"title": {"text": "x, <b>uT</b> & more"}}, "n": 1});
+        webgl_text(&mut v);
+        assert_eq!(
+            v,
+            serde_json::json!({"xaxis": {"title": {"text": "x, \u{ff1c}b\u{ff1e}uT\u{ff1c}/b\u{ff1e} \u{ff06} more"}}, "n": 1})
+        );
     }
 
     #[test]

@@ -61,6 +61,11 @@ impl std::str::FromStr for Site {
             [lat, lon, alt] => (lat, lon, alt),
             _ => return Err("give LAT,LON or LAT,LON,ALT_M (degrees, metres)".into()),
         };
+        for (name, v) in [("latitude", lat), ("longitude", lon), ("height", alt)] {
+            if !v.is_finite() {
+                return Err(format!("{name} {} is not a finite number", show(v)));
+            }
+        }
         if !(-90.0..=90.0).contains(&lat) {
             return Err(format!("latitude {} is outside [-90, 90] degrees", show(lat)));
         }
@@ -214,7 +219,8 @@ mod tests {
             ("north", "in numbers"),
             ("1,2,3,4", "give LAT,LON"),
             ("91,0", "latitude 91 is outside"),
-            ("NaN,0", "latitude NaN is outside"),
+            ("NaN,0", "latitude NaN is not a finite number"),
+            ("0,inf", "longitude inf is not a finite number"),
             ("0,400", "longitude 400 is outside"),
             ("0,0,1e7", "height 10000000 m is outside"),
         ] {

@@ -896,19 +896,29 @@ fn noise_reject_site_date_and_count_flags_outside_their_range_are_refused() {
         (cal(&["--noise", "0"]), vec!["--noise 0: must be positive and finite"]),
         (
             cal(&["--noise", "nan"]),
-            vec!["--noise NaN: must be positive and finite"],
+            vec!["invalid value 'nan' for '--noise <SIGMA>': NaN is not a number"],
         ),
         (cal(&["--noise=-1"]), vec!["--noise -1: must be positive and finite"]),
         (
             cal(&["--noise", "inf"]),
-            vec!["--noise inf: must be positive and finite"],
+            vec!["invalid value 'inf' for '--noise <SIGMA>': inf is not finite"],
         ),
         (
             cal(&["--reject", "1"]),
             vec!["log.csv: --reject 1: K = 1: must be at least 2"],
         ),
-        (cal(&["--reject", "nan"]), vec!["log.csv: --reject NaN: K = NaN"]),
-        (cal(&["--reject", "inf"]), vec!["log.csv: --reject inf: K = inf"]),
+        (
+            cal(&["--reject", "nan"]),
+            vec!["invalid value 'nan' for '--reject <K>': NaN is not a number"],
+        ),
+        (
+            cal(&["--reject", "1e400"]),
+            vec!["invalid value '1e400' for '--reject <K>': 1e400 is beyond the largest number (1.8e308)"],
+        ),
+        (
+            wmm(&["--site", "nan,0", "--date", "2013.0"]),
+            vec!["'--site", "latitude NaN is not a finite number"],
+        ),
         (
             wmm(&["--site", "0,0,1e9", "--date", "2013.0"]),
             vec!["'--site", "height 1000000000 m is outside"],
@@ -1041,6 +1051,7 @@ fn edited_calibration_files_are_refused_naming_the_field() {
     edited("mag.json", &|v| v["magnitude"] = (-1.0).into());
     edited("fmt.json", &|v| v["format"] = "magcal-calibration/99".into());
     edited("cols.json", &|v| v["columns"] = serde_json::json!(["mx", "my"]));
+    edited("bias.json", &|v| v["bias"][0] = 1e308.into());
     // JSON has no NaN: a calibration file holding one is not JSON, named by line and column.
     let text = serde_json::to_string_pretty(&json).unwrap();
     let p00 = json["p"][0][0].to_string();
@@ -1070,6 +1081,14 @@ fn edited_calibration_files_are_refused_naming_the_field() {
         (
             vec!["apply", "nan.json", "log.csv"],
             vec!["nan.json: not a magcal calibration", "line ", "column "],
+        ),
+        (
+            vec!["apply", "bias.json", "log.csv"],
+            vec![
+                "bias.json: bias (1e308, ",
+                "times the magnitude",
+                "a usable calibration's is at most 1e6 times it",
+            ],
         ),
         (next("nan.json"), vec!["nan.json: not a magcal calibration"]),
         (next("p0.json"), vec!["p0.json: p [[0.0, ", "diagonal entry 1 is 0"]),

@@ -533,7 +533,7 @@ fn skip_bad_drops_a_row_whose_attitude_is_partly_missing() {
 }
 
 #[test]
-fn check_refuses_a_resealed_baseline_whose_standard_errors_were_widened() {
+fn check_refuses_a_resealed_baseline_whose_statistics_are_not_its_trials() {
     // The standard errors of summary.csv set check's tolerances: widened a thousandfold and the
     // manifest resealed, the baseline would pass any run. Its trials.csv says what they are.
     let tmp = TempDir::new().unwrap();
@@ -560,9 +560,10 @@ fn check_refuses_a_resealed_baseline_whose_standard_errors_were_widened() {
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(
-        stderr.contains("baseline trials.csv vs summary.csv") && stderr.contains("se_mean"),
+        stderr.contains("summary.csv: damaged: its statistics are not those of its trials.csv (")
+            && stderr.contains("se_mean"),
         "{stderr}"
     );
     assert!(!stderr.contains("edited since it was written"), "{stderr}");

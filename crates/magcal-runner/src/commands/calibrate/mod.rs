@@ -111,7 +111,7 @@ pub struct CalibrateArgs {
     pub input: LogArgs,
     /// The field magnitude in the log's units (default: the fitted mean radius, and scale factors
     /// relative to it).
-    #[arg(long, conflicts_with = "units")]
+    #[arg(long, conflicts_with = "units", value_parser = crate::limits::finite)]
     pub magnitude: Option<f64>,
     /// The magnitude from the World Magnetic Model at a site: `LAT,LON[,ALT_M]` (WGS 84 degrees,
     /// metres above the ellipsoid; default 0); needs `--date`, and `--units` unless `--magnitude`
@@ -136,12 +136,12 @@ pub struct CalibrateArgs {
     /// (1.4826 median absolute deviations) from the median, refit, and repeat until the kept set
     /// does not change; `rejected` counts them. K is at least 2, and at most a tenth of the log
     /// may go; the noise and standard errors are corrected for the truncation. Off by default.
-    #[arg(long, value_name = "K")]
+    #[arg(long, value_name = "K", value_parser = crate::limits::finite)]
     pub reject: Option<f64>,
     /// The readings' noise per component, in the log's units (a data sheet, a stationary
     /// recording): the standard errors rest on it, and the readings' scatter is tested against
     /// it. Default: estimated from the residuals (unknown when the fit is exact).
-    #[arg(long, value_name = "SIGMA")]
+    #[arg(long, value_name = "SIGMA", value_parser = crate::limits::finite)]
     pub noise: Option<f64>,
     /// The residual every model minimises: `readings` (each reading's distance from the fitted
     /// ellipsoid, as designs are judged) or `paper` (the paper's `|P (raw - bias)| - R`, which runs

@@ -63,7 +63,7 @@ pub struct ReplayArgs {
     pub hold: Option<u64>,
     /// The largest angle, degrees, between a design attitude's field direction in the sensor
     /// frame and that of a window of the log that may realise it.
-    #[arg(long, default_value_t = 5.0, value_name = "DEG", allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 5.0, value_name = "DEG", allow_hyphen_values = true, value_parser = crate::limits::finite)]
     pub within_deg: f64,
     /// At most this many candidate windows per design attitude, the nearest.
     #[arg(long, default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
@@ -76,7 +76,7 @@ pub struct ReplayArgs {
     pub truth: Truth,
     /// The noise of one reading per component, in the log's units (default: from the whole
     /// log's full fit).
-    #[arg(long, value_name = "SIGMA", allow_hyphen_values = true)]
+    #[arg(long, value_name = "SIGMA", allow_hyphen_values = true, value_parser = crate::limits::finite)]
     pub noise: Option<f64>,
     /// Turn each design as a whole to where the log has readings (`fit`: the rotation that brings
     /// its farthest direction nearest to the log's; a design's information does not change under
