@@ -52,12 +52,12 @@ pub enum RejectError {
         k: f64,
     },
     /// A round's fit failed.
-    #[error("no calibration of the {kept} readings kept: {source}")]
+    #[error("no calibration of the {kept} readings kept: {why}")]
     Fit {
         /// Readings kept in that round.
         kept: usize,
-        /// Why.
-        source: CalibrationError,
+        /// Why (a field, not an error source: the message already holds it once).
+        why: CalibrationError,
     },
 }
 
@@ -151,10 +151,7 @@ pub fn reject_outliers(
             .filter(|(_, k)| **k)
             .map(|(s, _)| *s)
             .collect();
-        let f = fit(&kept).map_err(|source| RejectError::Fit {
-            kept: kept.len(),
-            source,
-        })?;
+        let f = fit(&kept).map_err(|why| RejectError::Fit { kept: kept.len(), why })?;
         let r: Vec<f64> = readings.iter().map(|s| distance(&f, *s)).collect();
         let centre = median(&r);
         let spread = 1.4826 * median(&r.iter().map(|x| (x - centre).abs()).collect::<Vec<_>>());

@@ -760,3 +760,87 @@ fn a_fifo_nobody_writes_to_ends_in_every_place_a_file_is_read() {
         assert!(stderr.contains("fifo"), "{args:?}: {stderr}");
     }
 }
+
+/// Strings a page must show as text: pieces of markup, script-data escapes, entities, quotes and
+/// characters outside ASCII, joined by single spaces (the DOM's text keeps single spaces).
+fn page_string() -> impl proptest::strategy::Strategy<Value = String> {
+    use proptest::prelude::*;
+    let piece = prop_oneof![
+        proptest::sample::select(
+            &[
+                "<!--",
+                "-->",
+                "<script>",
+                "</script",
+                "</script>",
+                "<img src=x onerror=document.title='pwned'>",
+                "<span style=\"background:url(http://127.0.0.1:9/x)\">",
+                "&amp;",
+                "&lt;",
+                "&",
+                "<",
+                ">",
+                "\"",
+                "'",
+                "`",
+                "${x}",
+                "{{x}}",
+                "</style>",
+                "<b>",
+                "\\",
+                "é",
+                "😀",
+                "uT",
+                "\u{2028}",
+                "\u{202e}",
+            ][..]
+        )
+        .prop_map(str::to_string),
+        "[a-zA-Z0-9<>&\"'=/!:;-]{1,12}",
+    ];
+    proptest::collection::vec(piece, 1..8).prop_map(|p| p.join(" "))
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::test_runner::Config {
+        cases: std::env::var("MAGCAL_FUZZ_PAGE_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(4),
+        failure_persistence: None,
+        ..proptest::test_runner::Config::default()
+    })]
+
+    /// Random strings in the fields a calibration page shows (its units, in tables and figure
+    /// titles; its log's name, in the title; the fit's reason and the columns, in its data):
+    /// the page runs no script, fetches nothing, and holds each string as text.
+    #[test]
+    fn fuzzed_fields_of_a_page_are_its_text(units in page_string(), log in page_string(), reason in page_string()) {
+        let tmp = TempDir::new().unwrap();
+        let log_path = sphere_log(tmp.path());
+        let set = tmp.path().join("cal");
+        calibrated_set(&log_path, &["--units", "uT"], &set);
+        let log_name = log.replace(['/', '\\'], "|");
+        edit_and_reseal(&set, "calibration.json", |c| {
+            c["units"] = units.clone().into();
+            c["fit_reason"] = reason.clone().into();
+            c["log"] = log_name.clone().into();
+        });
+        let page_path = tmp.path().join("page.html");
+        report(&set, &page_path);
+        let Some(browser) = chromium() else { return Ok(()) };
+        let page = open(&browser, &page_path, Duration::from_secs(60));
+        proptest::prop_assert!(page.errors.is_empty(), "{:?}", page.errors);
+        proptest::prop_assert!(page.remote_requests(&page_path.canonicalize().unwrap()).is_empty(), "{:?}", page.requests);
+        let title = page.eval("document.title");
+        proptest::prop_assert_ne!(title.as_str(), Some("pwned"));
+        let data = page.eval("JSON.parse(document.getElementById('magcal-data').textContent).calibration");
+        proptest::prop_assert_eq!(data["units"].as_str(), Some(units.as_str()));
+        proptest::prop_assert_eq!(data["fit_reason"].as_str(), Some(reason.as_str()));
+        // The text nodes outside script and style elements, as they are (not as rendered).
+        let text = page.eval(
+            "Array.from(document.body.querySelectorAll('*')).filter(e => !['SCRIPT', 'STYLE'].includes(e.tagName)).map(e => Array.from(e.childNodes).filter(n => n.nodeType === 3).map(n => n.nodeValue).join('')).join('\\n')",
+        );
+        let text = text.as_str().unwrap_or_default();
+        proptest::prop_assert!(text.contains(&units), "units {:?} not in the page's text", units);
+        proptest::prop_assert!(text.contains(&log_name), "log {:?} not in the page's text", log_name);
+        proptest::prop_assert_eq!(page.eval("document.querySelectorAll('[onerror], [onload], span[style]').length"), 0);
+    }
+}
