@@ -517,7 +517,8 @@ pub const FORMAT: &str = "magcal-calibration-1";
 /// or nearly singular matrix, not a calibration.
 pub const MAX_CONDITION: f64 = 1e3;
 
-/// The largest bias component of a usable calibration, in magnitudes of the field: 1e6.
+/// The largest bias component of a usable calibration, in the field's raw size (the magnitude
+/// times the largest scale factor): 1e6.
 pub const MAX_BIAS_RATIO: f64 = 1e6;
 
 /// The Earth's main field at the surface lies between about 22,000 and 67,000 nT (WMM), so a log
@@ -558,14 +559,15 @@ impl CalibrationJson {
         {
             return Err(format!("format {:?}: this magcal reads {FORMAT:?}", excerpt(f, 40)));
         }
-        let show = |m: &Mat3| format!("{m:?}");
         for (name, m) in [
             ("p", &self.p),
             ("k", &self.k),
             ("soft_iron_inverse", &self.soft_iron_inverse),
         ] {
-            if !m.iter().flatten().all(|v| v.is_finite()) {
-                return Err(format!("{name} {}: not finite", show(m)));
+            if let Some(v) = m.iter().flatten().find(|v| !v.is_finite()) {
+                return Err(format!(
+                    "{name}: an entry is {v}, not finite (numbers beyond the range of f64)"
+                ));
             }
         }
         for (name, v) in [("bias", self.bias), ("scale", self.scale), ("psi_deg", self.psi_deg)] {
@@ -579,17 +581,22 @@ impl CalibrationJson {
                 crate::limits::show(self.magnitude)
             ));
         }
-        // A usable calibration's bias is a hard-iron field: a magnet on the board is a few
-        // hundred times the Earth's field, never a million; beyond that it is an edited or
-        // garbled file whose calibrated readings would be meaningless numbers.
+        // A usable calibration's bias is a hard-iron field, in the raw readings' units: a magnet
+        // on the board is a few hundred times the field's raw size (its magnitude times the
+        // scale factors), never a million; beyond that it is an edited or garbled file whose
+        // calibrated readings would be meaningless numbers.
         let largest = self.bias.iter().fold(0.0_f64, |a, b| a.max(b.abs()));
-        if self.usable && largest > MAX_BIAS_RATIO * self.magnitude {
+        let raw_size = self.magnitude * self.scale.iter().fold(0.0_f64, |a, s| a.max(s.abs()));
+        if self.usable && largest > MAX_BIAS_RATIO * raw_size {
             return Err(format!(
-                "bias ({}): {} times the magnitude {}; a usable calibration's is at most {} times it (a magnet beside the sensor gives a few hundred)",
+                "bias ({}): {} times the field's raw size {} (magnitude times the largest scale factor); a usable calibration's is at most {MAX_BIAS_RATIO:e} times it (a magnet beside the sensor gives a few hundred)",
                 self.bias.map(crate::limits::show).join(", "),
-                magcal_core::log_fit::significant(largest / self.magnitude, 3),
-                magcal_core::log_fit::significant(self.magnitude, 7),
-                crate::limits::show(MAX_BIAS_RATIO)
+                Some(largest / raw_size)
+                    .filter(|r| r.is_finite())
+                    .map_or("more than 1e308".to_string(), |r| magcal_core::log_fit::significant(
+                        r, 3
+                    )),
+                magcal_core::log_fit::significant(raw_size, 7),
             ));
         }
         // The noise is `null` where the log cannot give it (an exact fit without --noise).
@@ -661,7 +668,13 @@ impl CalibrationJson {
         // singular `p` is refused there.
         let cond = self.condition();
         let limit = if self.usable { MAX_CONDITION } else { f64::MAX };
-        if cond.is_nan() || cond > limit {
+        if cond.is_nan() {
+            return Err(format!(
+                "p {}: its condition number is not a number (singular, or beyond the range of f64)",
+                show(p)
+            ));
+        }
+        if cond > limit {
             return Err(format!(
                 "p {}: condition number {cond:.3e} above {limit:e} (singular or garbled: it would amplify a reading's error by as much)",
                 show(p)

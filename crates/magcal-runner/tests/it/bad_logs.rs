@@ -1086,7 +1086,7 @@ fn edited_calibration_files_are_refused_naming_the_field() {
             vec!["apply", "bias.json", "log.csv"],
             vec![
                 "bias.json: bias (1e308, ",
-                "times the magnitude",
+                "times the field's raw size",
                 "a usable calibration's is at most 1e6 times it",
             ],
         ),

@@ -671,7 +671,7 @@ fn files_that_are_not_dataflash_are_refused() {
         );
     }
     let e = read(dir.path(), &pick(None)).unwrap_err().to_string();
-    assert!(e.ends_with("is a directory"), "{e}");
+    assert!(e.ends_with("is a directory, not a log"), "{e}");
     let mut w = Writer::new();
     w.fmt(0x81, "PARM", "QNf", "TimeUS,Name,Value");
     let p = w.save(dir.path(), "nomag.bin");

@@ -341,8 +341,12 @@ fn export_refuses_a_value_no_target_can_hold() {
         // Converted to mGauss it overflows before it is a parameter: refused all the same.
         ("bias", f64::MAX, ""),
     ] {
+        // Not marked usable (a usable calibration's bias is at most 1e6 magnitudes, refused
+        // before export looks at it), and written with --force, which still refuses these.
         let mut c = cal.clone();
         c[field][0] = value.into();
+        c["usable"] = false.into();
+        c["reasons"] = serde_json::json!(["edited"]);
         let edited = tmp.path().join("edited.json");
         fs::write(&edited, serde_json::to_vec(&c).unwrap()).unwrap();
         for to in ["ardupilot", "px4", "motioncal", "magneto", "c"] {
@@ -354,6 +358,7 @@ fn export_refuses_a_value_no_target_can_hold() {
                 to.as_ref(),
                 "--out".as_ref(),
                 out.as_os_str(),
+                "--force".as_ref(),
             ]);
             assert_eq!(code, Some(2), "{to}: {stderr}");
             assert!(
