@@ -478,7 +478,7 @@ fn exit_codes_broad_30() {
 #[test]
 fn exit_codes_broad_33() {
     let tmp = TempDir::new().unwrap();
-    let Some((log, code, j, stderr, dir)) = broad("33_disturbed_attached_magnet_2cm.csv", &[], tmp.path()) else {
+    let Some((_, code, j, stderr, dir)) = broad("33_disturbed_attached_magnet_2cm.csv", &[], tmp.path()) else {
         return;
     };
     // 3, never 2: a magnet 2 cm from the sensor from 42 to 98 s changes the field the sensor is
@@ -501,8 +501,8 @@ fn exit_codes_broad_33() {
         "{r}"
     );
     let cal = written(&dir, &j);
-    // 0: next plans from calibrate's own record (condition number 1.3e6: the fit of two fields
-    // runs away), under the best-fitting sphere; export refuses it with 3.
-    assert_next_ok(&cal, &log, &broad_next());
+    // next plans from calibrate's own record (condition number 1.3e6: the fit of two fields runs
+    // away), under the best-fitting sphere, as for trial 10 (tested there: 24 s of a runaway
+    // fit's planning); export refuses it with 3.
     assert_exports_refused(&cal, tmp.path(), first);
 }

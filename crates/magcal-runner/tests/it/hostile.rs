@@ -806,6 +806,28 @@ fn page_string() -> impl proptest::strategy::Strategy<Value = String> {
     proptest::collection::vec(piece, 1..8).prop_map(|p| p.join(" "))
 }
 
+/// The calibration set the page fuzz edits (one calibrate for every case).
+fn page_fuzz_set() -> &'static Path {
+    static SET: std::sync::OnceLock<(TempDir, PathBuf)> = std::sync::OnceLock::new();
+    &SET.get_or_init(|| {
+        let tmp = TempDir::new().unwrap();
+        let log = sphere_log(tmp.path());
+        let set = tmp.path().join("cal");
+        calibrated_set(&log, &["--units", "uT"], &set);
+        (tmp, set)
+    })
+    .1
+}
+
+/// Copies the regular files of `from` into a new directory `to`.
+fn copy_dir(from: &Path, to: &Path) {
+    fs::create_dir(to).unwrap();
+    for e in fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        fs::copy(e.path(), to.join(e.file_name())).unwrap();
+    }
+}
+
 proptest::proptest! {
     #![proptest_config(proptest::test_runner::Config {
         cases: std::env::var("MAGCAL_FUZZ_PAGE_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(4),
@@ -819,9 +841,8 @@ proptest::proptest! {
     #[test]
     fn fuzzed_fields_of_a_page_are_its_text(units in page_string(), log in page_string(), reason in page_string()) {
         let tmp = TempDir::new().unwrap();
-        let log_path = sphere_log(tmp.path());
         let set = tmp.path().join("cal");
-        calibrated_set(&log_path, &["--units", "uT"], &set);
+        copy_dir(page_fuzz_set(), &set);
         let log_name = log.replace(['/', '\\'], "|");
         edit_and_reseal(&set, "calibration.json", |c| {
             c["units"] = units.clone().into();
@@ -848,4 +869,40 @@ proptest::proptest! {
         proptest::prop_assert!(text.contains(&log_name), "log {:?} not in the page's text", log_name);
         proptest::prop_assert_eq!(page.eval("document.querySelectorAll('[onerror], [onload], span[style]').length"), 0);
     }
+}
+
+#[test]
+fn a_glitch_reading_is_named_and_reject_drops_it() {
+    // The sphere with one row a flipped exponent: no calibration fits it (the fit runs off or
+    // its matrix loses rank), which is the glitch's doing, not the log's.
+    let tmp = TempDir::new().unwrap();
+    let log = sphere_log(tmp.path());
+    let text = fs::read_to_string(&log).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines[200] = "1e20,1,2";
+    let glitched = tmp.path().join("glitch.csv");
+    fs::write(&glitched, lines.join("\n") + "\n").unwrap();
+    let g = glitched.to_str().unwrap();
+    let (code, stderr) = run_str(&["calibrate", g, "--trials", "20"]);
+    assert_eq!(code, Some(3), "{stderr}");
+    assert!(
+        stderr.contains("1 reading is a glitch, more than 1000 times the readings' own size")
+            && stderr.contains("line 201 (1e20, 1, 2); --reject K drops them"),
+        "{stderr}"
+    );
+    // --reject drops it first, counts it, and the rest calibrates.
+    let out = magcal()
+        .args(["calibrate", g, "--reject", "5", "--trials", "20", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(j["rejected"].as_u64() >= Some(1), "{}", j["rejected"]);
+    assert_eq!(j["samples"].as_u64().unwrap() + j["rejected"].as_u64().unwrap(), 600);
+    let notes = j["log_notes"].to_string();
+    assert!(
+        notes.contains("--reject dropped the glitches first: 1 reading is a glitch"),
+        "{notes}"
+    );
 }

@@ -1,5 +1,6 @@
 //! `magcal calibrate LOG`: fit a log (docs/conventions.md "Real data" and its calibration forms).
 
+mod glitch;
 pub mod heading;
 mod motor;
 mod no_fit;
@@ -208,16 +209,11 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         motor::inputs(&log, m).with_context(|| shown.clone())?;
     }
     let mut settings = fit_settings(args, &log);
-    let rejected = match args.reject {
-        Some(k) => {
-            let r = reject(&mut log, k, args.fit, &settings).with_context(|| format!("{shown}: --reject {k}"))?;
-            // A zero spread (readings on the fit to rounding, as an exact fit of a few readings
-            // gives) truncates nothing to correct for; the core takes only a positive width.
-            settings.truncation = Some(r.half_width).filter(|h| h.is_finite() && *h > 0.0);
-            r.dropped
-        }
-        None => 0,
-    };
+    let glitches = glitch::find(&log.readings);
+    // Without --reject the glitches stay in the log, named first among the reasons.
+    let glitch_reason = (args.reject.is_none() && !glitches.is_empty())
+        .then(|| format!("{}; --reject K drops them", glitches.words(&log)));
+    let rejected = rejected(args, &mut log, &mut settings, &glitches).with_context(|| shown.clone())?;
     let place = args.site.zip(args.date).map(|(site, date)| Place {
         site,
         date,
@@ -227,7 +223,10 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let (fit, why, source) = match fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?
     {
         Ok(fitted) => fitted,
-        Err(why) => return no_fit::report(args, set, &log, rows, rejected, why),
+        Err(why) => {
+            let why = glitch_reason.map_or(why.clone(), |g| format!("{why}; {g}"));
+            return no_fit::report(args, set, &log, rows, rejected, why);
+        }
     };
     let (mut fit, vector) = vector::instead(args, &log, fit, units, place.as_ref())?;
     let joint = match args.motor {
@@ -246,6 +245,10 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     json.heading_vs_log = heading::check(&log, &fit);
     one_field::judge(&mut json, &log, &fit, &settings);
     json.rejected = rejected;
+    if let Some(g) = glitch_reason {
+        json.usable = false;
+        json.reasons.insert(0, g);
+    }
     if let Some(n) = json.noise_estimate.as_mut() {
         n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
     }
@@ -281,6 +284,25 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             json.reasons.join("; ")
         )))
     }
+}
+
+/// With `--reject K`: drops the glitches, then the readings the robust fit rejects, and sets the
+/// truncation the noise estimate corrects for; how many went.
+fn rejected(
+    args: &CalibrateArgs,
+    log: &mut Log,
+    settings: &mut FitSettings,
+    glitches: &glitch::Glitches,
+) -> Result<usize> {
+    let Some(k) = args.reject else {
+        return Ok(0);
+    };
+    let dropped = glitches.drop_from(log);
+    let r = reject(log, k, args.fit, settings).with_context(|| format!("--reject {}", crate::limits::show(k)))?;
+    // A zero spread (readings on the fit to rounding, as an exact fit of a few readings gives)
+    // truncates nothing to correct for; the core takes only a positive width.
+    settings.truncation = Some(r.half_width).filter(|h| h.is_finite() && *h > 0.0);
+    Ok(dropped + r.dropped)
 }
 
 /// `--magnitude` and `--noise`, when given, are positive and finite.
