@@ -29,7 +29,7 @@ pub struct NextArgs {
     /// A scenario file giving the vehicle's attitude box (`[attitude_box]`), the site
     /// (`[field]`, for the field's direction) and the search (`[certificate]`); or the flags
     /// below.
-    #[arg(long, required_unless_present = "site", conflicts_with = "site")]
+    #[arg(long, required_unless_present = "site", conflicts_with_all = ["site", "date", "wmm", "roll", "pitch", "yaw"])]
     pub scenario: Option<PathBuf>,
     #[command(flatten)]
     pub attitude: BoxFlags,

@@ -710,7 +710,11 @@ impl Pass {
             "int32_t" => Param::Int(i32::from_le_bytes(bytes)),
             _ => bail!(
                 "{}",
-                msg.error(&format!("parameter {} of type {}", excerpt(pname), excerpt(ty)))
+                msg.error(&format!(
+                    "parameter {} of type {}, which ULog does not have (float and int32_t): a damaged log",
+                    excerpt(pname),
+                    excerpt(ty)
+                ))
             ),
         };
         if msg.kind == b'P' {
