@@ -806,11 +806,12 @@ fn page_string() -> impl proptest::strategy::Strategy<Value = String> {
     proptest::collection::vec(piece, 1..8).prop_map(|p| p.join(" "))
 }
 
-/// The calibration set the page fuzz edits (one calibrate for every case).
+/// The calibration set the page fuzz edits (one calibrate for every case), under cargo's
+/// temporary directory for tests (a static is never dropped, so it is not left in /tmp).
 fn page_fuzz_set() -> &'static Path {
     static SET: std::sync::OnceLock<(TempDir, PathBuf)> = std::sync::OnceLock::new();
     &SET.get_or_init(|| {
-        let tmp = TempDir::new().unwrap();
+        let tmp = TempDir::new_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
         let log = sphere_log(tmp.path());
         let set = tmp.path().join("cal");
         calibrated_set(&log, &["--units", "uT"], &set);
