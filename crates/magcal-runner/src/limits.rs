@@ -210,6 +210,14 @@ impl Bounded {
         })
     }
 
+    /// [`Self::open`] with the bounds of a log: [`MAX_STREAM_BYTES`] and [`stream_idle`].
+    ///
+    /// # Errors
+    /// As [`Self::open`].
+    pub fn open_log(path: &Path, shown: &str) -> Result<Self> {
+        Self::open(path, shown, MAX_STREAM_BYTES, stream_idle())
+    }
+
     /// Whether the file is a stream rather than a regular file.
     pub fn is_stream(&self) -> bool {
         self.stream

@@ -40,7 +40,7 @@ impl Chunks {
     pub fn open(path: &Path) -> Result<Self> {
         let shown = path.display().to_string();
         Ok(Self {
-            file: limits::Bounded::open(path, &shown, limits::MAX_STREAM_BYTES, limits::stream_idle())?,
+            file: crate::limits::Bounded::open_log(path, &shown)?,
             shown,
             buf: vec![0; CHUNK],
             pos: 0,

@@ -169,12 +169,7 @@ where
     F: FnMut(usize, Vec3, &[Option<f64>]) -> Result<()>,
 {
     let shown = path.display().to_string();
-    let file = crate::limits::Bounded::open(
-        path,
-        &shown,
-        crate::limits::MAX_STREAM_BYTES,
-        crate::limits::stream_idle(),
-    )?;
+    let file = crate::limits::Bounded::open_log(path, &shown)?;
     let budget = Budget::new(held_bytes_per_reading);
     let mut hashing = Hashing::new(file);
     let mut s = read_from(

@@ -196,12 +196,7 @@ pub fn read(path: &Path, selection: &Selection) -> Result<FlightLog> {
 /// As [`read`].
 pub fn read_px4(path: &Path, selection: &Selection) -> Result<Px4Log> {
     let shown = path.display().to_string();
-    let file = crate::limits::Bounded::open(
-        path,
-        &shown,
-        crate::limits::MAX_STREAM_BYTES,
-        crate::limits::stream_idle(),
-    )?;
+    let file = crate::limits::Bounded::open_log(path, &shown)?;
     read_from(BufReader::with_capacity(1 << 16, file), &shown, selection)
 }
 
