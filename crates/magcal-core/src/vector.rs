@@ -312,31 +312,72 @@ pub fn fit_vector_in(
         readings,
         attitudes,
         scale,
+        fields: None,
     };
     let (fit, iterations) = match given {
-        Some(f) => {
-            let mut unit = Unit {
-                k: [[0.0; 3]; 3],
-                o: [0.0; 3],
-                f,
-            };
-            // Linear: one step from zero solves it; a second removes the rounding of the first.
-            let mut iterations = 0;
-            for _ in 0..2 {
-                let n = NormalEquations::of(&data, &unit, false);
-                let step = n.solve()?;
-                unit.step(&step, 1.0, false);
-                iterations += 1;
-            }
-            let d = det(&unit.k);
-            if d.is_nan() || d <= 0.0 {
-                return Err(VectorError::LeftHanded { determinant: d });
-            }
-            (unit, iterations)
-        }
+        Some(f) => linear(&data, f)?,
         None => gauss_newton(&data, start(&data))?,
     };
     Ok(assess(&data, fit, given.is_none(), scale, iterations, order))
+}
+
+/// [`fit_vector_in`] against a field given for each reading, `fields[t]` in the reference frame
+/// (z up) in the readings' units: the World Magnetic Model along a vehicle's track, which
+/// changes by several nanotesla per kilometre. The fit is the given field's (12 unknowns);
+/// [`VectorFit::field`] is the mean of `fields`.
+///
+/// # Errors
+/// As [`fit_vector`]; `fields` of another length than `readings`, or one that is zero or not
+/// finite ([`VectorError::InvalidField`]).
+pub fn fit_vector_along(
+    readings: &[Vec3],
+    attitudes: &[Mat3],
+    fields: &[Vec3],
+    order: crate::log_fit::Order,
+) -> Result<VectorFit, VectorError> {
+    if fields.len() != readings.len() {
+        return Err(VectorError::LengthMismatch {
+            readings: readings.len(),
+            attitudes: fields.len(),
+        });
+    }
+    if let Some(bad) = fields.iter().find(|f| !(norm(**f).is_finite() && norm(**f) > 0.0)) {
+        return Err(VectorError::InvalidField { value: *bad });
+    }
+    let mean: Vec3 = std::array::from_fn(|i| fields.iter().map(|f| f[i]).sum::<f64>() / fields.len().max(1) as f64);
+    let (scale, given) = validate(readings, attitudes, ReferenceField::Given(mean))?;
+    let data = Data {
+        readings,
+        attitudes,
+        scale,
+        fields: Some(fields.iter().map(|f| f.map(|v| v / scale)).collect()),
+    };
+    let f = given.unwrap_or([0.0, 0.0, 1.0]);
+    let (fit, iterations) = linear(&data, f)?;
+    Ok(assess(&data, fit, false, scale, iterations, order))
+}
+
+/// The fit with the field given (`f`, units of the scale; per reading where `data` has them):
+/// linear in `K` and `O`, one step from zero solves it and a second removes the rounding of the
+/// first.
+fn linear(data: &Data, f: Vec3) -> Result<(Unit, usize), VectorError> {
+    let mut unit = Unit {
+        k: [[0.0; 3]; 3],
+        o: [0.0; 3],
+        f,
+    };
+    let mut iterations = 0;
+    for _ in 0..2 {
+        let n = NormalEquations::of(data, &unit, false);
+        let step = n.solve()?;
+        unit.step(&step, 1.0, false);
+        iterations += 1;
+    }
+    let d = det(&unit.k);
+    if d.is_nan() || d <= 0.0 {
+        return Err(VectorError::LeftHanded { determinant: d });
+    }
+    Ok((unit, iterations))
 }
 
 /// Checks the inputs; the magnitude the readings are divided by and a given field's direction.
@@ -400,6 +441,9 @@ struct Data<'a> {
     readings: &'a [Vec3],
     attitudes: &'a [Mat3],
     scale: f64,
+    /// The field of each reading in units of `scale`, where it is given per reading (the model
+    /// along a track); else every reading has the one field of the fit.
+    fields: Option<Vec<Vec3>>,
 }
 
 impl Data<'_> {
@@ -408,6 +452,13 @@ impl Data<'_> {
             .iter()
             .map(|r| r.map(|v| v / self.scale))
             .zip(self.attitudes)
+    }
+
+    /// Each reading, its attitude and its field: its own where given per reading, else `f`.
+    fn iter_with(&self, f: Vec3) -> impl Iterator<Item = (Vec3, &Mat3, Vec3)> {
+        self.iter()
+            .enumerate()
+            .map(move |(t, (m, c))| (m, c, self.fields.as_ref().map_or(f, |fs| fs[t])))
     }
 }
 
@@ -438,9 +489,9 @@ impl Unit {
 
     /// `sum_t |m_t / |F| - K C_t^T f - o|^2`.
     fn rss(&self, data: &Data) -> f64 {
-        data.iter()
-            .map(|(m, c)| {
-                let r = sub(m, crate::small::add(mat_vec(&self.k, mat_t_vec(c, self.f)), self.o));
+        data.iter_with(self.f)
+            .map(|(m, c, f)| {
+                let r = sub(m, crate::small::add(mat_vec(&self.k, mat_t_vec(c, f)), self.o));
                 dot(r, r)
             })
             .sum()
@@ -498,8 +549,8 @@ impl NormalEquations {
         let mut jtr = vec![0.0; p];
         let [u, v] = tangent(unit.f);
         let mut rows = [[0.0; 14]; 3];
-        for (m, c) in data.iter() {
-            let b = mat_t_vec(c, unit.f);
+        for (m, c, f) in data.iter_with(unit.f) {
+            let b = mat_t_vec(c, f);
             let r = sub(m, crate::small::add(mat_vec(&unit.k, b), unit.o));
             let (ku, kv) = (mat_vec(&unit.k, mat_t_vec(c, u)), mat_vec(&unit.k, mat_t_vec(c, v)));
             for i in 0..3 {
@@ -871,9 +922,9 @@ fn assess(
 /// Each reading's residual along the calibrated field, `r . w`, `w = K C^T f / |K C^T f|`: the
 /// series whose lag-one autocorrelation chooses the batch length.
 fn radial_residuals(data: &Data, unit: &Unit) -> Vec<f64> {
-    data.iter()
-        .map(|(m, c)| {
-            let model = mat_vec(&unit.k, mat_t_vec(c, unit.f));
+    data.iter_with(unit.f)
+        .map(|(m, c, f)| {
+            let model = mat_vec(&unit.k, mat_t_vec(c, f));
             let r = sub(m, crate::small::add(model, unit.o));
             dot(r, model) / norm(model)
         })
@@ -895,9 +946,9 @@ fn long_run(
     let p = if fitted { 14 } else { 12 };
     let [u, v] = tangent(unit.f);
     let scores: Vec<[f64; 14]> = data
-        .iter()
-        .map(|(m, c)| {
-            let b = mat_t_vec(c, unit.f);
+        .iter_with(unit.f)
+        .map(|(m, c, f)| {
+            let b = mat_t_vec(c, f);
             let r = sub(m, crate::small::add(mat_vec(&unit.k, b), unit.o));
             let (ku, kv) = (mat_vec(&unit.k, mat_t_vec(c, u)), mat_vec(&unit.k, mat_t_vec(c, v)));
             let mut s = [0.0; 14];
@@ -1175,6 +1226,57 @@ mod tests {
             }
             assert!(fit.rms_residual <= tol * magnitude);
         }
+    }
+
+    #[test]
+    fn a_field_given_per_reading_is_fitted_as_given_and_one_field_is_not_enough() {
+        // A field that grows by 2 % and turns by about a degree over the log (a track of some
+        // hundred kilometres): noise-free readings give the sensor back to rounding against
+        // the fields per reading; against their mean the fit is left with residuals of the
+        // fields' spread.
+        let (model, _, k) = truth();
+        let mut rng = stream_rng(23, 0);
+        let c = attitudes(60, &mut rng);
+        let n = c.len();
+        let fields: Vec<Vec3> = (0..n)
+            .map(|t| {
+                let s = t as f64 / (n - 1) as f64;
+                [
+                    FIELD_ENU[0] + 300.0 * s,
+                    FIELD_ENU[1] * (1.0 + 0.02 * s),
+                    FIELD_ENU[2] * (1.0 + 0.01 * s),
+                ]
+            })
+            .collect();
+        let m: Vec<Vec3> = c
+            .iter()
+            .zip(&fields)
+            .map(|(c, f)| crate::small::add(mat_vec(&k, mat_t_vec(c, *f)), model.bias_nt()))
+            .collect();
+        let magnitude = norm(FIELD_ENU);
+        let fit = fit_vector_along(&m, &c, &fields, crate::log_fit::Order::Unknown).unwrap();
+        let tol = 1e3 * f64::EPSILON;
+        assert!(max_abs_diff(&fit.k, &k) <= tol, "{:?}", fit.k);
+        assert!(fit.rms_residual <= tol * magnitude, "{}", fit.rms_residual);
+        for i in 0..3 {
+            assert!((fit.bias[i] - model.bias_nt()[i]).abs() <= tol * magnitude);
+        }
+        let mean = fit.field;
+        let one = fit_vector(&m, &c, ReferenceField::Given(mean)).unwrap();
+        // The fields depart from their mean by up to 1 % of the magnitude (500 nT): one field
+        // leaves residuals of that order.
+        assert!(one.rms_residual > 50.0, "{}", one.rms_residual);
+        // Lengths and fields are checked.
+        assert!(matches!(
+            fit_vector_along(&m, &c, &fields[1..], crate::log_fit::Order::Unknown),
+            Err(VectorError::LengthMismatch { .. })
+        ));
+        let mut zero = fields.clone();
+        zero[3] = [0.0; 3];
+        assert!(matches!(
+            fit_vector_along(&m, &c, &zero, crate::log_fit::Order::Unknown),
+            Err(VectorError::InvalidField { .. })
+        ));
     }
 
     #[test]

@@ -100,6 +100,11 @@ pub struct CalibrationJson {
     pub magnitude: f64,
     /// `given`, `fitted mean radius (...)` or `radius of the best-fitting sphere (...)`.
     pub magnitude_source: String,
+    /// Where the site and date of the World Magnetic Model's field come from: `--site` and
+    /// `--date`, or the log's GPS fixes (which fix, which message), or why the log's GPS gives
+    /// none; `null` where there is neither.
+    #[serde(default)]
+    pub place_source: Option<String>,
     pub bias: [f64; 3],
     pub psi_deg: [f64; 3],
     pub scale: [f64; 3],
@@ -357,6 +362,22 @@ pub struct PassesJson {
     pub unusable: bool,
     /// What was found, in words.
     pub words: String,
+}
+
+impl PassesJson {
+    /// What a usable calibration's verdict adds where the log passes through another field: the
+    /// field where it was taken is not one field everywhere, so a heading taken near the passes is
+    /// off whatever the calibration. `None` without passes.
+    pub fn flag(&self) -> Option<String> {
+        let n = self.passes.len();
+        (n > 0).then(|| {
+            format!(
+                "FLAGGED: the log passes through another field {n} time{} ({} readings; a magnet or iron near the path, named under passes): the calibration without them is the same within its standard errors; a heading taken where they were is off",
+                if n == 1 { "" } else { "s" },
+                self.readings
+            )
+        })
+    }
 }
 
 /// One pass through another field.
@@ -950,8 +971,46 @@ impl RadiusMedian {
 
 #[cfg(test)]
 mod tests {
-    use super::RadiusMedian;
+    use super::{PassJson, PassesJson, RadiusMedian};
     use crate::limits::excerpt;
+
+    #[test]
+    fn passes_flag_a_usable_verdict_and_count_their_readings() {
+        let pass = |readings| PassJson {
+            at: 10,
+            position: "line".into(),
+            from_s: None,
+            to_s: None,
+            readings,
+            peak_percent: -20.0,
+        };
+        let mut p = PassesJson {
+            magnitude: 44.0,
+            noise: 0.8,
+            threshold: 4.4,
+            share_percent: 10.0,
+            sigmas: 5.0,
+            edge_sigmas: 1.0,
+            passes: Vec::new(),
+            readings: 0,
+            shift_std_errors: None,
+            shift_parameter: None,
+            shift_limit: 1.0,
+            unusable: false,
+            words: String::new(),
+        };
+        assert_eq!(p.flag(), None);
+        p.passes = vec![pass(18)];
+        p.readings = 18;
+        assert!(
+            p.flag()
+                .unwrap()
+                .starts_with("FLAGGED: the log passes through another field 1 time (18 readings;")
+        );
+        p.passes.push(pass(26));
+        p.readings = 44;
+        assert!(p.flag().unwrap().contains("another field 2 times (44 readings;"));
+    }
 
     #[test]
     fn the_histogram_median_is_the_median_to_half_a_bin() {

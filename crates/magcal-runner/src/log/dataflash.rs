@@ -21,6 +21,9 @@
 //!   writes every parameter as `PARM` when it starts), and the last `COMPASS_OFFS_MAX`.
 //! - `ATT` (`Roll, Pitch, Yaw`, degrees) as a quaternion ([`super::binary::quaternion_of_euler`]);
 //!   `BAT` (`Curr`, amperes, instance 0); `CTUN` (`ThO`, 0 to 1).
+//! - `GPS` (instance 0: field `I`, or the message `GPS` where older logs name a second receiver
+//!   `GPS2`): `Status` (the fix type), `Lat`, `Lng` (1e-7 degrees), `Alt` (metres above mean sea
+//!   level), `GWk`, `GMS` (GPS week and milliseconds of the week: the UTC date).
 //!
 //! # The calibration undone
 //! With the values in force at each reading ([`super::ardupilot`]): `OFS` from `PARM` where it
@@ -47,7 +50,7 @@ use anyhow::{Result, bail};
 
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
 use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
-use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
+use super::flight::{Fix, FlightLog, Format, InForce, Sample, Selection, Series, utc_of_gps_week};
 use super::parameters::LogParameters;
 use crate::scenario::site::Units;
 
@@ -189,6 +192,14 @@ enum Role {
         time: Time,
         throttle: Field,
     },
+    Gps {
+        time: Time,
+        instance: Option<Field>,
+        status: Field,
+        week: Option<Field>,
+        ms: Option<Field>,
+        lat_lon_alt: [Field; 3],
+    },
 }
 
 /// A message type as its `FMT` defines it.
@@ -232,6 +243,8 @@ struct Data {
     att_source: Option<String>,
     bat_source: Option<String>,
     ctun_source: Option<String>,
+    gps: Series<Fix>,
+    gps_source: Option<String>,
 }
 
 fn parse(chunks: &mut Chunks, shown: &str, selection: &Selection, budget: &mut Budget, log: &mut Parsed) -> Result<()> {
@@ -309,7 +322,7 @@ fn hex(b: &[u8]) -> String {
 
 /// The names of messages this reader uses.
 fn used(name: &str) -> bool {
-    matches!(name, "MAG" | "PARM" | "ATT" | "BAT" | "CTUN")
+    matches!(name, "MAG" | "PARM" | "ATT" | "BAT" | "CTUN" | "GPS")
         || name.strip_prefix("MAG").is_some_and(|n| matches!(n, "2" | "3"))
 }
 
@@ -396,6 +409,14 @@ fn role(name: &str, f: &HashMap<&str, Field>) -> Result<Role, String> {
             instance: ["Inst", "Instance", "I"].iter().find_map(|l| f.get(l).copied()),
             current: numeric(get("Curr")?)?,
         },
+        "GPS" => Role::Gps {
+            time: time()?,
+            instance: f.get("I").copied().map(numeric).transpose()?,
+            status: numeric(get("Status")?)?,
+            week: f.get("GWk").copied().map(numeric).transpose()?,
+            ms: f.get("GMS").copied().map(numeric).transpose()?,
+            lat_lon_alt: [numeric(get("Lat")?)?, numeric(get("Lng")?)?, numeric(get("Alt")?)?],
+        },
         "CTUN" => match f.get("ThO") {
             Some(&throttle) => Role::Ctun {
                 time: time()?,
@@ -463,6 +484,40 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
             });
             let c = current.get(p);
             at.push_series(&mut data.current, time.get(p), c, c.is_finite(), "BAT")?;
+        }
+        Role::Gps {
+            time,
+            instance,
+            status,
+            week,
+            ms,
+            lat_lon_alt,
+        } => {
+            // The first receiver: instance 0 (older logs name a second one GPS2).
+            if instance.is_some_and(|f| f.get(p) != 0.0) {
+                return Ok(());
+            }
+            data.gps_source.get_or_insert_with(|| {
+                format!(
+                    "GPS{}: Status, Lat, Lng, Alt{}",
+                    if instance.is_some() { " (instance 0)" } else { "" },
+                    if week.is_some() && ms.is_some() {
+                        ", GWk, GMS (UTC)"
+                    } else {
+                        ""
+                    }
+                )
+            });
+            let [lat_deg, lon_deg, alt_m] = lat_lon_alt.map(|f| f.get(p));
+            let fix = Fix {
+                lat_deg,
+                lon_deg,
+                alt_m,
+                fix_type: status.get(p).clamp(0.0, 255.0) as u8,
+                utc_s: week.zip(*ms).and_then(|(w, m)| utc_of_gps_week(w.get(p), m.get(p))),
+            };
+            let finite = lat_deg.is_finite() && lon_deg.is_finite() && alt_m.is_finite();
+            at.push_series(&mut data.gps, time.get(p), fix, finite, "GPS")?;
         }
         Role::Ctun { time, throttle } => {
             data.ctun_source.get_or_insert_with(|| "CTUN: ThO (0 to 1)".into());
@@ -600,7 +655,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
     notes.extend(dropped.notes());
     let mut messages = vec![inst.source.clone(), format!("PARM: {}", undone.params)];
     messages.extend(
-        [data.att_source, data.bat_source, data.ctun_source]
+        [data.att_source, data.bat_source, data.ctun_source, data.gps_source]
             .into_iter()
             .flatten(),
     );
@@ -617,6 +672,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         attitude: (!data.attitude.times.is_empty()).then_some(data.attitude),
         current: (!data.current.times.is_empty()).then_some(data.current),
         throttle: (!data.throttle.times.is_empty()).then_some(data.throttle),
+        gps: (!data.gps.times.is_empty()).then_some(data.gps),
         to_body: Some(IDENTITY),
         calibration: InForce::Undone(undone.words),
         notes,

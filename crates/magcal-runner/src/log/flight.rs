@@ -88,6 +88,52 @@ pub struct Series<T> {
     pub values: Vec<T>,
 }
 
+/// A position fix of the vehicle's GPS receiver (the default: no fix).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Fix {
+    /// Latitude, degrees north.
+    pub lat_deg: f64,
+    /// Longitude, degrees east.
+    pub lon_deg: f64,
+    /// Altitude above mean sea level, metres. The WMM takes the height above the ellipsoid,
+    /// which differs by the geoid's undulation (at most about 100 m; the field's vertical
+    /// gradient is about 0.025 nT/m, so at most 2.5 nT, below a compass's noise).
+    pub alt_m: f64,
+    /// The fix type as every autopilot numbers it (MAVLink `GPS_FIX_TYPE`): 0 or 1 no fix, 2 a
+    /// 2D fix, 3 a 3D fix, 4 DGPS, 5 RTK float, 6 RTK fixed.
+    pub fix_type: u8,
+    /// UTC of the fix, seconds since 1970, where the receiver gave the time.
+    pub utc_s: Option<f64>,
+}
+
+/// The fix type a position must have to be used: a 3D fix.
+pub const MIN_FIX_TYPE: u8 = 3;
+
+impl Fix {
+    /// A fix of at least [`MIN_FIX_TYPE`] with a position on the globe (receivers log zeros or
+    /// NaN before their first fix).
+    pub fn usable(&self) -> bool {
+        self.fix_type >= MIN_FIX_TYPE
+            && self.lat_deg.is_finite()
+            && self.lon_deg.is_finite()
+            && self.alt_m.is_finite()
+            && self.lat_deg.abs() <= 90.0
+            && self.lon_deg.abs() <= 360.0
+            && !(self.lat_deg == 0.0 && self.lon_deg == 0.0)
+    }
+}
+
+/// GPS week 0 began at 1980-01-06 00:00 UTC: 315,964,800 s after 1970.
+pub const GPS_EPOCH_UNIX_S: f64 = 315_964_800.0;
+
+/// UTC seconds since 1970 of a GPS week and milliseconds of the week (ArduPilot's `GWk`, `GMS`);
+/// `None` for week 0 (no time yet). GPS time runs ahead of UTC by the leap seconds since 1980
+/// (18 from 2017 on): they are subtracted, as the date is what is wanted and a second does not
+/// move it.
+pub fn utc_of_gps_week(week: f64, ms: f64) -> Option<f64> {
+    (week.is_finite() && ms.is_finite() && week > 0.0).then_some(GPS_EPOCH_UNIX_S + week * 604_800.0 + ms * 1e-3 - 18.0)
+}
+
 /// The calibration the logged field carries, and what the reader did about it.
 #[derive(Debug, Clone, PartialEq)]
 pub enum InForce {
@@ -124,6 +170,9 @@ pub struct FlightLog {
     pub current: Option<Series<f64>>,
     /// Throttle, 0 to 1, where the log has it.
     pub throttle: Option<Series<f64>>,
+    /// The GPS receiver's fixes (the first receiver), where the log has them; every fix as
+    /// logged, those without a position included ([`Fix::usable`] tells them apart).
+    pub gps: Option<Series<Fix>>,
     /// Rotation of [`Self::frame`] into the body frame of [`Self::attitude`], where known.
     pub to_body: Option<Mat3>,
     pub calibration: InForce,

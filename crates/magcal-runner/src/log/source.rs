@@ -22,7 +22,7 @@ use magcal_core::Vec3;
 use magcal_core::aviation::{NavFrame, dcm_of_euler, dcm_of_quaternion, to_ned};
 use magcal_core::small::Mat3;
 
-use super::flight::{FlightLog, Format, InForce, Selection, Series};
+use super::flight::{Fix, FlightLog, Format, InForce, Selection, Series};
 use super::parameters::LogParameters;
 use super::read::{self, Extra, RowFilter};
 use crate::limits::show;
@@ -234,6 +234,10 @@ pub struct Log {
     pub currents: Option<Vec<Option<f64>>>,
     /// Each reading's throttle (0 to 1), where the log has it.
     pub throttles: Option<Vec<Option<f64>>>,
+    /// The GPS receiver's fixes on the log's clock, where the log has them (every fix, not cut
+    /// to the readings' window: the track's field is taken at the readings' times), and the
+    /// message they come from.
+    pub gps: Option<(Series<Fix>, String)>,
 }
 
 /// The entries of `items` where `keep` is true.
@@ -634,6 +638,7 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         attitudes,
         currents,
         throttles,
+        gps: None,
     })
 }
 
@@ -690,6 +695,13 @@ fn from_flight(f: FlightLog) -> Log {
     });
     let currents = f.current.as_ref().map(|c| match_series(&times, c));
     let throttles = f.throttle.as_ref().map(|c| match_series(&times, c));
+    let gps_message = match f.format {
+        Format::DataFlash => "GPS",
+        Format::Tlog => "GPS_RAW_INT",
+        _ if f.messages.iter().any(|m| m.starts_with("vehicle_gps_position")) => "vehicle_gps_position",
+        _ => "sensor_gps",
+    };
+    let gps = f.gps.map(|g| (g, gps_message.to_string()));
     let origin = Origin {
         format: f.format,
         messages: f.messages,
@@ -717,6 +729,7 @@ fn from_flight(f: FlightLog) -> Log {
         attitudes,
         currents,
         throttles,
+        gps,
     }
 }
 

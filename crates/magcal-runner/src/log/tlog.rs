@@ -24,12 +24,14 @@
 //! - `ATTITUDE` (roll, pitch, yaw, radians) as a quaternion
 //!   ([`super::binary::quaternion_of_euler`]); `SYS_STATUS.current_battery` (cA; else
 //!   `BATTERY_STATUS` of battery 0); `VFR_HUD.throttle` (percent, as 0 to 1).
+//! - `GPS_RAW_INT`: `fix_type`, `lat`, `lon` (1e-7 degrees), `alt` (mm above mean sea level),
+//!   `time_usec` (the fix's UTC where after 2000, as ArduPilot sends it).
 //!
 //! # Times
 //! On the vehicle's clock (seconds since boot): `RAW_IMU.time_usec`, `SCALED_IMU*.time_boot_ms`
 //! and `ATTITUDE.time_boot_ms` as sent, so that readings and attitudes match as the vehicle
 //! measured them, not as the radio delivered them. Messages without a time of their own
-//! (`SYS_STATUS`, `BATTERY_STATUS`, `VFR_HUD`) take their reception time moved onto the vehicle's
+//! (`SYS_STATUS`, `BATTERY_STATUS`, `VFR_HUD`, `GPS_RAW_INT`, whose `time_usec` is UTC) take their reception time moved onto the vehicle's
 //! clock by the difference of the last message with both.
 //!
 //! # The calibration undone
@@ -56,7 +58,7 @@ use mavlink::{MavlinkVersion, Message, calculate_crc};
 
 use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
 use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
-use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
+use super::flight::{Fix, FlightLog, Format, InForce, Sample, Selection, Series};
 use super::parameters::LogParameters;
 use crate::scenario::site::Units;
 
@@ -209,6 +211,7 @@ struct Data {
     sys_current: Series<f64>,
     battery_current: Series<f64>,
     throttle: Series<f64>,
+    gps: Series<Fix>,
     /// Vehicle time minus reception time of the last message that has both.
     clock: Option<f64>,
     untimed: u64,
@@ -334,8 +337,11 @@ struct Received<'a> {
     received: f64,
 }
 
+/// 2000-01-01 00:00 UTC, seconds since 1970: a GPS time before it is a time since boot.
+const UTC_2000_S: f64 = 946_684_800.0;
+
 /// Message ids of what this reader takes (besides `HEARTBEAT`, 0).
-const USED: [u32; 10] = [1, 22, 26, 27, 30, 74, 116, 129, 147, 150];
+const USED: [u32; 11] = [1, 22, 24, 26, 27, 30, 74, 116, 129, 147, 150];
 
 /// Takes what a valid frame carries.
 fn take(
@@ -430,6 +436,22 @@ fn take(
         }
         MavMessage::VFR_HUD(d) => {
             untimed(data, at, m.received, f64::from(d.throttle) / 100.0, Untimed::Throttle)?;
+        }
+        MavMessage::GPS_RAW_INT(d) => {
+            // ArduPilot sends the fix's UTC (microseconds since 1970) as `time_usec`; a time
+            // before 2000 is a time since boot, which gives no date.
+            let utc = d.time_usec as f64 * 1e-6;
+            let fix = Fix {
+                lat_deg: f64::from(d.lat) * 1e-7,
+                lon_deg: f64::from(d.lon) * 1e-7,
+                alt_m: f64::from(d.alt) * 1e-3,
+                fix_type: u8::try_from(d.fix_type as u32).unwrap_or(u8::MAX),
+                utc_s: (utc >= UTC_2000_S).then_some(utc),
+            };
+            match data.clock {
+                Some(clock) => at.push_series(&mut data.gps, m.received + clock, fix, true, "GPS_RAW_INT")?,
+                None => data.untimed += 1,
+            }
         }
         _ => {}
     }
@@ -546,7 +568,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
     }
     if data.untimed > 0 {
         notes.push(format!(
-            "{} SYS_STATUS, BATTERY_STATUS or VFR_HUD messages came before any message with the vehicle's time and were skipped.",
+            "{} SYS_STATUS, BATTERY_STATUS, VFR_HUD or GPS_RAW_INT messages came before any message with the vehicle's time and were skipped.",
             data.untimed
         ));
     }
@@ -570,6 +592,9 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
     if present(&data.throttle) {
         messages.push("VFR_HUD: throttle (%)".into());
     }
+    if !data.gps.times.is_empty() {
+        messages.push("GPS_RAW_INT: fix_type, lat, lon, alt, time_usec (UTC)".into());
+    }
     let listed = data.indices.whole().then(|| data.params.keys());
     let parameters = LogParameters::ardupilot("PARAM_VALUE", listed, data.offs_max);
     Ok(FlightLog {
@@ -583,6 +608,7 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         attitude: (!data.attitude.times.is_empty()).then_some(data.attitude),
         current: present(&current).then_some(current),
         throttle: present(&data.throttle).then_some(data.throttle),
+        gps: (!data.gps.times.is_empty()).then_some(data.gps),
         to_body: Some(IDENTITY),
         calibration: InForce::Undone(undone.words),
         notes,

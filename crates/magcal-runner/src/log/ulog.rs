@@ -29,6 +29,9 @@
 //!   `CAL_MAG_COMP_TYP = 3`, else 0), and throttle from `actuator_controls_0.control[3]` (PX4's
 //!   `INDEX_THROTTLE`, what its throttle compensation uses) or, in logs without it,
 //!   `vehicle_thrust_setpoint` as the norm of `xyz` (PX4's battery model's throttle).
+//! - `vehicle_gps_position` (else `sensor_gps`), multi_id 0: `fix_type`, the position (`lat`,
+//!   `lon` in 1e-7 degrees and `alt` in mm before PX4 1.14; `latitude_deg`, `longitude_deg`,
+//!   `altitude_msl_m` after) and `time_utc_usec` (0 before the receiver has a time).
 //!
 //! # Rate
 //! PX4's default logging profile records `sensor_mag` at 1 Hz. A note says so when the log holds
@@ -80,7 +83,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use magcal_core::small::Mat3;
 
-use super::flight::{FlightLog, Format, InForce, Sample, Selection, Series};
+use super::flight::{Fix, FlightLog, Format, InForce, Sample, Selection, Series};
 use super::parameters::LogParameters;
 use crate::digest::Hashing;
 use crate::limits;
@@ -155,6 +158,8 @@ const HELD_PER_READING: u64 = 2 * (32 + std::mem::size_of::<Sample>() as u64);
 const HELD_PER_ATTITUDE: u64 = 2 * (24 + 40);
 /// Memory a kept scalar of a series costs (kept and handed over, doubled), bytes.
 const HELD_PER_SCALAR: u64 = 2 * (16 + 16);
+/// Bytes held per GPS fix: as logged, then as a series.
+const HELD_PER_FIX: u64 = 2 * (16 + std::mem::size_of::<Fix>() as u64);
 /// Memory a kept parameter change or format costs beyond its bytes, bytes: measured, a million
 /// one-field formats (21 MB of log) held 457 MB, two entries each.
 const HELD_PER_ENTRY: u64 = 256;
@@ -252,6 +257,10 @@ enum Topic {
     Battery,
     Controls,
     Thrust,
+    /// `vehicle_gps_position`: the receiver PX4 selected (or blended).
+    Gps,
+    /// `sensor_gps`: a receiver's own topic, read where the log has no `vehicle_gps_position`.
+    SensorGps,
 }
 
 impl Topic {
@@ -263,6 +272,8 @@ impl Topic {
             "battery_status" => Self::Battery,
             "actuator_controls_0" => Self::Controls,
             "vehicle_thrust_setpoint" => Self::Thrust,
+            "vehicle_gps_position" => Self::Gps,
+            "sensor_gps" => Self::SensorGps,
             _ => return None,
         })
     }
@@ -275,6 +286,8 @@ impl Topic {
             Self::Battery => "battery_status",
             Self::Controls => "actuator_controls_0",
             Self::Thrust => "vehicle_thrust_setpoint",
+            Self::Gps => "vehicle_gps_position",
+            Self::SensorGps => "sensor_gps",
         }
     }
 
@@ -287,6 +300,8 @@ impl Topic {
             Self::Battery => ("current_a", 1, 0),
             Self::Controls => ("control", 1, 3),
             Self::Thrust => ("xyz", 3, 0),
+            // Decoded by their own layout ([`GpsLayout`]).
+            Self::Gps | Self::SensorGps => ("", 0, 0),
         }
     }
 }
@@ -301,8 +316,106 @@ struct Decoder {
     values: [usize; 4],
     n: usize,
     device_id: Option<usize>,
+    /// Where a GPS topic's fields lie.
+    gps: Option<GpsLayout>,
     /// Shortest payload that holds every field read.
     need: usize,
+}
+
+/// A number of a GPS topic: a 32-bit integer in units of `scale`, or a `double`.
+#[derive(Debug, Clone, Copy)]
+enum Number {
+    Int32 { at: usize, scale: f64 },
+    Double { at: usize },
+}
+
+impl Number {
+    fn get(self, data: &[u8]) -> f64 {
+        match self {
+            Self::Int32 { at, scale } => {
+                f64::from(i32::from_le_bytes(data[at..at + 4].try_into().expect("4 bytes"))) * scale
+            }
+            Self::Double { at } => f64::from_le_bytes(data[at..at + 8].try_into().expect("8 bytes")),
+        }
+    }
+
+    fn end(self) -> usize {
+        match self {
+            Self::Int32 { at, .. } => at + 4,
+            Self::Double { at } => at + 8,
+        }
+    }
+}
+
+/// The fields of `vehicle_gps_position` or `sensor_gps`: `lat`, `lon` (1e-7 degrees), `alt`
+/// (mm) before PX4 1.14, `latitude_deg`, `longitude_deg`, `altitude_msl_m` (doubles) after;
+/// `fix_type` (uint8), `time_utc_usec` (uint64, 0 before a time).
+#[derive(Debug, Clone, Copy)]
+struct GpsLayout {
+    lat: Number,
+    lon: Number,
+    alt: Number,
+    fix_type: usize,
+    utc: Option<usize>,
+}
+
+/// The layout of a GPS topic in `formats`.
+fn gps_layout(
+    name: &str,
+    formats: &HashMap<String, Vec<FieldDef>>,
+    sizes: &mut HashMap<String, u64>,
+) -> std::result::Result<GpsLayout, String> {
+    let mut number = |old: &str, scale: f64, new: &str| -> std::result::Result<Number, String> {
+        if let Some(a) = locate(name, old, "int32_t", formats, sizes)? {
+            return Ok(Number::Int32 { at: a.offset, scale });
+        }
+        locate(name, new, "double", formats, sizes)?
+            .map(|a| Number::Double { at: a.offset })
+            .ok_or_else(|| format!("{name} has neither {old} nor {new}"))
+    };
+    let lat = number("lat", 1e-7, "latitude_deg")?;
+    let lon = number("lon", 1e-7, "longitude_deg")?;
+    let alt = number("alt", 1e-3, "altitude_msl_m")?;
+    let fix_type = locate(name, "fix_type", "uint8_t", formats, sizes)?
+        .ok_or_else(|| format!("{name} has no fix_type"))?
+        .offset;
+    let utc = locate(name, "time_utc_usec", "uint64_t", formats, sizes)?.map(|a| a.offset);
+    Ok(GpsLayout {
+        lat,
+        lon,
+        alt,
+        fix_type,
+        utc,
+    })
+}
+
+impl GpsLayout {
+    fn need(&self) -> usize {
+        [
+            self.lat.end(),
+            self.lon.end(),
+            self.alt.end(),
+            self.fix_type + 1,
+            self.utc.map_or(0, |u| u + 8),
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(0)
+    }
+
+    /// The fix a message holds; UTC where the receiver has given a time (0 before).
+    fn fix(&self, data: &[u8]) -> Fix {
+        let utc_us = self
+            .utc
+            .map_or(0, |u| u64::from_le_bytes(data[u..u + 8].try_into().expect("8 bytes")));
+        Fix {
+            lat_deg: self.lat.get(data),
+            lon_deg: self.lon.get(data),
+            alt_m: self.alt.get(data),
+            fix_type: data[self.fix_type],
+            utc_s: (utc_us > 0).then_some(utc_us as f64 * 1e-6),
+        }
+    }
 }
 
 /// A kept magnetometer reading as logged.
@@ -329,6 +442,8 @@ struct Raw {
     battery: BTreeMap<u8, Vec<(u64, f32, u64)>>,
     controls: Vec<(u64, f32, u64)>,
     thrust: Vec<(u64, f32, u64)>,
+    vehicle_gps: Vec<(u64, Fix, u64)>,
+    sensor_gps: Vec<(u64, Fix, u64)>,
     dropouts: usize,
     dropout_ms: u64,
     unknown: BTreeMap<u8, usize>,
@@ -944,6 +1059,19 @@ fn decoder(
     let timestamp = locate(name, "timestamp", "uint64_t", formats, sizes)?
         .ok_or_else(|| format!("{name} has no timestamp"))?
         .offset;
+    if matches!(topic, Topic::Gps | Topic::SensorGps) {
+        let gps = gps_layout(name, formats, sizes)?;
+        return Ok(Decoder {
+            topic,
+            multi_id,
+            timestamp,
+            values: [0; 4],
+            n: 0,
+            device_id: None,
+            need: gps.need().max(timestamp + 8),
+            gps: Some(gps),
+        });
+    }
     let (field, n, first) = topic.value_field();
     let mut values = [0usize; 4];
     if topic == Topic::SensorMag {
@@ -983,6 +1111,7 @@ fn decoder(
         values,
         n,
         device_id,
+        gps: None,
         need,
     })
 }
@@ -1031,6 +1160,17 @@ fn keep(raw: &mut Raw, d: &Decoder, data: &[u8], at: u64, budget: &mut Budget, s
             if d.multi_id == 0 {
                 budget.charge(HELD_PER_SCALAR, shown, at)?;
                 raw.controls.push((t_us, v[0], at));
+            }
+        }
+        Topic::Gps | Topic::SensorGps => {
+            if let (0, Some(g)) = (d.multi_id, &d.gps) {
+                budget.charge(HELD_PER_FIX, shown, at)?;
+                let list = if d.topic == Topic::Gps {
+                    &mut raw.vehicle_gps
+                } else {
+                    &mut raw.sensor_gps
+                };
+                list.push((t_us, g.fix(data), at));
             }
         }
         Topic::Thrust => {
@@ -1131,6 +1271,7 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
         attitude: beside.attitude,
         current: beside.current,
         throttle: beside.throttle,
+        gps: beside.gps,
         to_body,
         calibration,
         notes,
@@ -1411,6 +1552,7 @@ struct Beside {
     attitude: Option<Series<[f64; 4]>>,
     current: Option<Series<f64>>,
     throttle: Option<Series<f64>>,
+    gps: Option<Series<Fix>>,
 }
 
 /// The attitude, the current of the battery `CAL_MAG_COMP_TYP` = `comp_type` names, and the
@@ -1439,10 +1581,22 @@ fn beside(raw: &Raw, shown: &str, comp_type: f64, messages: &mut Vec<String>) ->
     } else {
         None
     };
+    let (topic, fixes) = if raw.vehicle_gps.is_empty() {
+        ("sensor_gps", &raw.sensor_gps)
+    } else {
+        ("vehicle_gps_position", &raw.vehicle_gps)
+    };
+    let gps = series_of(fixes, shown, topic, |f| f)?;
+    if gps.is_some() {
+        messages.push(format!(
+            "{topic} (multi_id 0): fix_type, latitude, longitude, altitude (mean sea level), time_utc_usec"
+        ));
+    }
     Ok(Beside {
         attitude,
         current,
         throttle,
+        gps,
     })
 }
 
@@ -1705,6 +1859,14 @@ where
 /// Values whose every component is finite.
 trait Finite {
     fn finite(&self) -> bool;
+}
+
+impl Finite for Fix {
+    /// A fix without a position (NaN before the first one in some firmware) is still a fix:
+    /// [`Fix::usable`] tells it apart.
+    fn finite(&self) -> bool {
+        true
+    }
 }
 
 impl Finite for f64 {

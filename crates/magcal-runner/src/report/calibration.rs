@@ -14,7 +14,7 @@ use serde_json::json;
 
 use super::sphere::{coverage_plot, mesh};
 use super::{Cell, Page, Table, drawn, thin, thinned_note};
-use crate::log::calibration::{CalibrationJson, parse_calibration};
+use crate::log::calibration::{CalibrationJson, PassesJson, parse_calibration};
 use crate::output::log_rows::ResidualRow;
 use crate::output::manifest::{CalibrationManifest, verify};
 use crate::output::parse_csv;
@@ -127,7 +127,12 @@ fn file_name(log: &str) -> &str {
 
 fn verdict(page: &mut Page, cal: &CalibrationJson) {
     let text = if cal.usable {
-        format!("USABLE: {}", cal.verdict)
+        let flag = cal.passes.as_ref().and_then(PassesJson::flag);
+        format!(
+            "USABLE: {}{}",
+            cal.verdict,
+            flag.map_or(String::new(), |f| format!("; {f}"))
+        )
     } else {
         format!(
             "NOT USABLE: {}",

@@ -9,13 +9,49 @@ use magcal_core::aviation::z_up_of_ned;
 use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
-use magcal_core::vector::{ReferenceField, VectorError, VectorFit, fit_vector_in};
+use magcal_core::vector::{ReferenceField, VectorError, VectorFit, fit_vector_along, fit_vector_in};
 
 use super::CalibrateArgs;
 use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson};
+use crate::log::flight::{Fix, Series};
+use crate::log::gps;
 use crate::log::source::Log;
 use crate::log::vehicle::Place;
-use crate::scenario::site::{Units, wmm_field};
+use crate::scenario::site::{Units, wmm_field, wmm_pick};
+
+/// The WMM field (east, north, up) at each of `times` along the used fixes of `gps`, on the date
+/// and by the model of `place`, in the log's units (or scaled so that their mean has the length
+/// `--magnitude`), and where it comes from in words.
+fn track_fields(
+    args: &CalibrateArgs,
+    place: &Place,
+    gps: &Series<Fix>,
+    message: &str,
+    times: &[f64],
+    units: Option<Units>,
+) -> Result<(Vec<Vec3>, String)> {
+    let (_, label) = wmm_field(&place.site, place.date, place.model)?;
+    let (_, model, _) = wmm_pick(&place.site, place.date, place.model)?;
+    let t = gps::track(gps, times, place.date.year, model).with_context(|| args.log.display().to_string())?;
+    let n = t.enu_nt.len().max(1) as f64;
+    let mean: Vec3 = std::array::from_fn(|k| t.enu_nt.iter().map(|v| v[k]).sum::<f64>() / n);
+    let (factor, unit) = match (units, args.magnitude) {
+        (_, Some(r)) => (r / norm(mean), format!("scaled to --magnitude {r} on average")),
+        (Some(u), None) => (1.0 / u.nt(), "in the log's units".to_string()),
+        (None, None) => bail!("--fit vector along a GPS track: give --units (the log's) or --magnitude"),
+    };
+    let fields = t.enu_nt.iter().map(|v| v.map(|x| x * factor)).collect();
+    let words = format!(
+        "given along the track: {} at each of {} fixes of type 3 (3D) or better ({message}; {:.1} km of track), linear in time between them, {:.1} to {:.1} nT, turning by up to {:.3} deg (east, north, up; {unit}); the first: {label}",
+        model.name(),
+        t.fixes,
+        t.length_m / 1000.0,
+        t.magnitude_nt.0,
+        t.magnitude_nt.1,
+        t.turn_deg
+    );
+    Ok((fields, words))
+}
 
 /// A vector calibration of a log and what it was fitted to.
 pub struct Vector {
@@ -39,11 +75,12 @@ pub fn instead(
     scalar: LogFit,
     units: Option<Units>,
     place: Option<&Place>,
+    along: bool,
 ) -> Result<(LogFit, Option<Vector>)> {
     if args.fit != super::Fit::Vector {
         return Ok((scalar, None));
     }
-    match fit(args, log, &scalar, units, place) {
+    match fit(args, log, &scalar, units, place, along) {
         Ok(v) => Ok((v.as_log_fit(&scalar, log), Some(v))),
         // What the readings and attitudes do not determine is the log's, not bad input: the
         // scalar fit is reported, not usable, with the reason (exit 3).
@@ -70,8 +107,9 @@ pub fn instead(
     }
 }
 
-/// The vector fit of `log`: against the WMM field of `--site` and `--date` (in the log's units,
-/// or scaled to `--magnitude`), else with `F` fitted at the scalar fit's magnitude.
+/// The vector fit of `log`: against the WMM field along the log's GPS track where `along` (the
+/// place came from the log's fixes), else at the site and date of `place` (in the log's units, or
+/// scaled to `--magnitude`), else with `F` fitted at the scalar fit's magnitude.
 ///
 /// # Errors
 /// A log without attitudes, `--motor` (not fitted jointly), or a fit the core refuses (too few
@@ -82,6 +120,7 @@ pub fn fit(
     scalar: &LogFit,
     units: Option<Units>,
     place: Option<&Place>,
+    along: bool,
 ) -> Result<Vector> {
     let shown = args.log.display();
     if args.motor.is_some() {
@@ -92,14 +131,45 @@ pub fn fit(
             "{shown}: --fit vector needs a reference attitude per reading: name the log's attitude columns with --quaternion or --euler (and --attitude-frame)"
         );
     };
-    // Sized once: the copies cost 96 bytes per reading, within the held reading's budget.
+    // Sized once: the copies cost 104 bytes per reading, within the held reading's budget.
     let with = logged.iter().filter(|c| c.is_some()).count();
     let (mut readings, mut attitudes) = (Vec::with_capacity(with), Vec::with_capacity(with));
-    for (r, c) in log.readings.iter().zip(logged) {
+    let mut times = Vec::with_capacity(if log.times.is_some() { with } else { 0 });
+    for (i, (r, c)) in log.readings.iter().zip(logged).enumerate() {
         if let Some(c) = c {
             readings.push(*r);
             attitudes.push(z_up_of_ned(c));
+            if let Some(t) = &log.times {
+                times.push(t[i]);
+            }
         }
+    }
+    let order = if log.times.is_some() {
+        magcal_core::log_fit::Order::Time
+    } else {
+        magcal_core::log_fit::Order::Unknown
+    };
+    let track = if along && log.times.is_some() {
+        log.gps.as_ref()
+    } else {
+        None
+    };
+    if let (Some(p), Some((gps, message))) = (place, track) {
+        let (fields, field_source) = track_fields(args, p, gps, message, &times, units)?;
+        let fit = fit_vector_along(&readings, &attitudes, &fields, order).with_context(|| {
+            format!(
+                "{shown}: --fit vector ({} of {} readings with an attitude)",
+                readings.len(),
+                log.readings.len()
+            )
+        })?;
+        return Ok(Vector {
+            fit,
+            readings,
+            attitudes,
+            field_source,
+            magnitude_given: args.magnitude.is_some(),
+        });
     }
     let (field, field_source) = match place {
         Some(p) => {
@@ -124,11 +194,6 @@ pub fn fit(
                 significant(scalar.magnitude, 7)
             ),
         ),
-    };
-    let order = if log.times.is_some() {
-        magcal_core::log_fit::Order::Time
-    } else {
-        magcal_core::log_fit::Order::Unknown
     };
     let fit = fit_vector_in(&readings, &attitudes, field, order).with_context(|| {
         format!(
