@@ -64,6 +64,7 @@ pub mod calibration;
 pub mod design;
 pub mod error;
 pub mod field;
+pub mod flight;
 pub mod heading;
 pub mod identifiability;
 pub mod linear_model;

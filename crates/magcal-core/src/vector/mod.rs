@@ -50,6 +50,10 @@
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod track;
+
+pub use track::{VectorModel, fit_track};
+
 use crate::identifiability::PhysicalScales;
 use crate::reference::det;
 use crate::sensor::ErrorModel;
@@ -198,6 +202,13 @@ pub struct VectorFit {
     pub rms_residual: f64,
     /// Gauss-Newton iterations.
     pub iterations: usize,
+    /// The model of `K` fitted ([`VectorModel::Full`] but for [`fit_track`]).
+    pub model: VectorModel,
+    /// The motor interference `d` per unit of input (`m = K C^T F + O + d u`), the readings'
+    /// units, where it was fitted ([`fit_track`] with inputs), with its standard errors.
+    pub motor: Option<Vec3>,
+    /// The standard errors of [`Self::motor`].
+    pub std_motor: Option<Vec3>,
 }
 
 impl VectorFit {
@@ -522,6 +533,8 @@ fn cross(a: Vec3, b: Vec3) -> Vec3 {
 struct NormalEquations {
     jtj: Vec<Vec<f64>>,
     jtr: Vec<f64>,
+    /// The unknowns' names, in order, for what the readings leave open.
+    names: &'static [&'static str],
 }
 
 /// The names of the unknowns, in order.
@@ -579,7 +592,11 @@ impl NormalEquations {
                 jtj[b][a] = jtj[a][b];
             }
         }
-        Self { jtj, jtr }
+        Self {
+            jtj,
+            jtr,
+            names: &NAMES,
+        }
     }
 
     /// The eigendecomposition of the information in correlation form: `(d, values, vectors)`
@@ -589,7 +606,7 @@ impl NormalEquations {
         let d: Vec<f64> = (0..p).map(|a| self.jtj[a][a]).collect();
         if let Some(a) = (0..p).find(|&a| !(d[a] > 0.0 && d[a].is_finite())) {
             return Err(VectorError::NotDetermined {
-                weakest: format!("the readings do not move {} at all", NAMES[a]),
+                weakest: format!("the readings do not move {} at all", self.names[a]),
             });
         }
         let s: Vec<f64> = d.iter().map(|v| v.sqrt()).collect();
@@ -616,7 +633,7 @@ impl NormalEquations {
         let regular = values[0] > SINGULAR * values[p - 1];
         if !regular {
             return Err(VectorError::NotDetermined {
-                weakest: weakest(&vectors[0]),
+                weakest: weakest(&vectors[0], self.names),
             });
         }
         Ok((0..p)
@@ -651,8 +668,8 @@ fn dot_slices(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// The unknowns that carry most of a (correlation-form) eigenvector, in words.
-fn weakest(v: &[f64]) -> String {
-    let mut parts: Vec<(f64, &str)> = v.iter().zip(NAMES).map(|(x, n)| (x.abs(), n)).collect();
+fn weakest(v: &[f64], names: &[&'static str]) -> String {
+    let mut parts: Vec<(f64, &str)> = v.iter().zip(names).map(|(x, n)| (x.abs(), *n)).collect();
     parts.sort_by(|a, b| b.0.total_cmp(&a.0));
     let named: Vec<String> = parts
         .iter()
@@ -870,7 +887,6 @@ fn assess(
     let rss = unit.rss(data);
     let dof = 3 * m - p_count;
     let noise_unit = (rss / dof as f64).sqrt();
-    let (p, alignment) = decompose(&unit.k).unwrap_or(([[f64::NAN; 3]; 3], [[f64::NAN; 3]; 3]));
     let inverse = NormalEquations::of(data, &unit, fitted).inverse().ok();
     let serial = match order {
         crate::log_fit::Order::Unknown => None,
@@ -891,6 +907,27 @@ fn assess(
         .as_ref()
         .filter(|_| noise_unit.is_finite())
         .and_then(|cov| std_errors(&unit, cov, fitted, scale));
+    let fit = assess_parts(&unit, scale, noise_unit, dof, serial, m, rss, std_error, fitted);
+    VectorFit { iterations, ..fit }
+}
+
+/// A fit of the given field from its unknowns `unit`, the noise and degrees of freedom, the
+/// residuals' correlation, the readings, the residual sum of squares (units of `scale`) and the
+/// standard errors, whether `F` was fitted: the decomposition of `K`, the verdict ([`judge`]),
+/// two iterations and no motor (the callers set what differs).
+#[allow(clippy::too_many_arguments)]
+fn assess_parts(
+    unit: &Unit,
+    scale: f64,
+    noise_unit: f64,
+    dof: usize,
+    serial: Option<crate::log_fit::Serial>,
+    m: usize,
+    rss: f64,
+    std_error: Option<VectorStdError>,
+    fitted: bool,
+) -> VectorFit {
+    let (p, alignment) = decompose(&unit.k).unwrap_or(([[f64::NAN; 3]; 3], [[f64::NAN; 3]; 3]));
     let model = ErrorModel::from_k(&upper_triangular_inverse(&p).unwrap_or([[f64::NAN; 3]; 3]), [0.0; 3]);
     let (identifiable, verdict) = judge(std_error.as_ref(), &model, scale, fitted, m);
     VectorFit {
@@ -915,7 +952,10 @@ fn assess(
         identifiable,
         verdict,
         rms_residual: (rss / (3 * m) as f64).sqrt() * scale,
-        iterations,
+        iterations: 2,
+        model: VectorModel::Full,
+        motor: None,
+        std_motor: None,
     }
 }
 
