@@ -22,7 +22,10 @@ function and its own key of the JSON file (this script rewrites only the keys it
 Writes crates/magcal-runner/tests/flightlogs.json.
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install pymavlink pyulog numpy
-    /tmp/venv/bin/python scripts/crosscheck-flightlogs.py
+    /tmp/venv/bin/python scripts/crosscheck-flightlogs.py [--only ardupilot|px4|ardupilot_tlog|gps]
+
+- `gps` (`gps()`): the GPS fixes of the DataFlash and ULog fixtures (pymavlink's DFReader,
+  pyulog): count, and the first, second, middle and last fix. Read by tests/it/gps.rs.
 """
 
 import json
@@ -326,11 +329,63 @@ def ardupilot_tlog():
     }
 
 
+def gps():
+    """The GPS fixes of the fixtures as pymavlink's DFReader and pyulog read them: per file, the
+    count and the fixes at the first, second, middle and last message (time on the log's clock,
+    fix type, latitude, longitude, altitude above mean sea level, UTC seconds or None)."""
+    from pymavlink import DFReader
+    from pyulog import ULog
+
+    def pick(fixes):
+        n = len(fixes)
+        idx = sorted({0, min(1, n - 1), n // 2, n - 1}) if n else []
+        return {"count": n, "at": idx, "fixes": [fixes[i] for i in idx]}
+
+    out = {}
+    log = DFReader.DFReader_binary(str(DATA / "ardupilot" / "pymavlink_test.BIN"))
+    fixes = []
+    while True:
+        m = log.recv_match(type="GPS")
+        if m is None:
+            break
+        if getattr(m, "I", 0) != 0:
+            continue
+        # UTC from the GPS week and milliseconds, less the 18 leap seconds since 2017.
+        utc = 315964800 + m.GWk * 604800 + m.GMS * 1e-3 - 18 if m.GWk > 0 else None
+        fixes.append([m.TimeUS * 1e-6, m.Status, m.Lat, m.Lng, m.Alt, utc])
+    out["ardupilot/pymavlink_test.BIN"] = pick(fixes)
+    for name in ["esc_status_log.ulg", "quadrotor_local.ulg", "sample_log_small.ulg"]:
+        u = ULog(str(DATA / "px4" / name))
+        by = {(d.name, d.multi_id): d for d in u.data_list}
+        d = by.get(("vehicle_gps_position", 0)) or by.get(("sensor_gps", 0))
+        if d is None:
+            continue
+        x = d.data
+        new = "latitude_deg" in x
+        fixes = []
+        for i in range(len(x["timestamp"])):
+            lat = float(x["latitude_deg"][i]) if new else int(x["lat"][i]) * 1e-7
+            lon = float(x["longitude_deg"][i]) if new else int(x["lon"][i]) * 1e-7
+            alt = float(x["altitude_msl_m"][i]) if new else int(x["alt"][i]) * 1e-3
+            utc = int(x["time_utc_usec"][i])
+            fixes.append([int(x["timestamp"][i]) * 1e-6, int(x["fix_type"][i]), lat, lon, alt, utc * 1e-6 if utc > 0 else None])
+        out["px4/" + name] = {"topic": d.name, **pick(fixes)}
+    return out
+
+
 def main():
+    import sys
+
     out = json.loads(OUT.read_text()) if OUT.exists() else {}
-    out["ardupilot"] = ardupilot_dataflash()
-    out["px4"] = px4()
-    out["ardupilot_tlog"] = ardupilot_tlog()
+    only = sys.argv[sys.argv.index("--only") + 1] if "--only" in sys.argv else None
+    if only in (None, "ardupilot"):
+        out["ardupilot"] = ardupilot_dataflash()
+    if only in (None, "px4"):
+        out["px4"] = px4()
+    if only in (None, "ardupilot_tlog"):
+        out["ardupilot_tlog"] = ardupilot_tlog()
+    if only in (None, "gps"):
+        out["gps"] = gps()
     OUT.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     print(f"wrote {OUT.relative_to(ROOT)}")
 

@@ -332,42 +332,6 @@ pub fn fit_vector_in(
     Ok(assess(&data, fit, given.is_none(), scale, iterations, order))
 }
 
-/// [`fit_vector_in`] against a field given for each reading, `fields[t]` in the reference frame
-/// (z up) in the readings' units: the World Magnetic Model along a vehicle's track, which
-/// changes by several nanotesla per kilometre. The fit is the given field's (12 unknowns);
-/// [`VectorFit::field`] is the mean of `fields`.
-///
-/// # Errors
-/// As [`fit_vector`]; `fields` of another length than `readings`, or one that is zero or not
-/// finite ([`VectorError::InvalidField`]).
-pub fn fit_vector_along(
-    readings: &[Vec3],
-    attitudes: &[Mat3],
-    fields: &[Vec3],
-    order: crate::log_fit::Order,
-) -> Result<VectorFit, VectorError> {
-    if fields.len() != readings.len() {
-        return Err(VectorError::LengthMismatch {
-            readings: readings.len(),
-            attitudes: fields.len(),
-        });
-    }
-    if let Some(bad) = fields.iter().find(|f| !(norm(**f).is_finite() && norm(**f) > 0.0)) {
-        return Err(VectorError::InvalidField { value: *bad });
-    }
-    let mean: Vec3 = std::array::from_fn(|i| fields.iter().map(|f| f[i]).sum::<f64>() / fields.len().max(1) as f64);
-    let (scale, given) = validate(readings, attitudes, ReferenceField::Given(mean))?;
-    let data = Data {
-        readings,
-        attitudes,
-        scale,
-        fields: Some(fields.iter().map(|f| f.map(|v| v / scale)).collect()),
-    };
-    let f = given.unwrap_or([0.0, 0.0, 1.0]);
-    let (fit, iterations) = linear(&data, f)?;
-    Ok(assess(&data, fit, false, scale, iterations, order))
-}
-
 /// The fit with the field given (`f`, units of the scale; per reading where `data` has them):
 /// linear in `K` and `O`, one step from zero solves it and a second removes the rounding of the
 /// first.
@@ -1294,7 +1258,7 @@ mod tests {
             .map(|(c, f)| crate::small::add(mat_vec(&k, mat_t_vec(c, *f)), model.bias_nt()))
             .collect();
         let magnitude = norm(FIELD_ENU);
-        let fit = fit_vector_along(&m, &c, &fields, crate::log_fit::Order::Unknown).unwrap();
+        let fit = fit_track(&m, &c, &fields, None, VectorModel::Full, crate::log_fit::Order::Unknown).unwrap();
         let tol = 1e3 * f64::EPSILON;
         assert!(max_abs_diff(&fit.k, &k) <= tol, "{:?}", fit.k);
         assert!(fit.rms_residual <= tol * magnitude, "{}", fit.rms_residual);
@@ -1308,13 +1272,20 @@ mod tests {
         assert!(one.rms_residual > 50.0, "{}", one.rms_residual);
         // Lengths and fields are checked.
         assert!(matches!(
-            fit_vector_along(&m, &c, &fields[1..], crate::log_fit::Order::Unknown),
+            fit_track(
+                &m,
+                &c,
+                &fields[1..],
+                None,
+                VectorModel::Full,
+                crate::log_fit::Order::Unknown
+            ),
             Err(VectorError::LengthMismatch { .. })
         ));
         let mut zero = fields.clone();
         zero[3] = [0.0; 3];
         assert!(matches!(
-            fit_vector_along(&m, &c, &zero, crate::log_fit::Order::Unknown),
+            fit_track(&m, &c, &zero, None, VectorModel::Full, crate::log_fit::Order::Unknown),
             Err(VectorError::InvalidField { .. })
         ));
     }

@@ -216,6 +216,8 @@ impl Writer {
                 (b'h', V::N(x)) => self.bytes.extend((x as i16).to_le_bytes()),
                 (b'H', V::N(x)) => self.bytes.extend((x as u16).to_le_bytes()),
                 (b'c', V::N(x)) => self.bytes.extend(((x * 100.0).round() as i16).to_le_bytes()),
+                (b'e', V::N(x)) => self.bytes.extend(((x * 100.0).round() as i32).to_le_bytes()),
+                (b'L', V::N(x)) => self.bytes.extend(((x * 1e7).round() as i32).to_le_bytes()),
                 (b'C', V::N(x)) => self.bytes.extend(((x * 100.0).round() as u16).to_le_bytes()),
                 (b'i', V::N(x)) => self.bytes.extend((x as i32).to_le_bytes()),
                 (b'I', V::N(x)) => self.bytes.extend((x as u32).to_le_bytes()),

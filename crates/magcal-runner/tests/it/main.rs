@@ -17,6 +17,7 @@ mod evaluate;
 mod exit_codes;
 mod export;
 mod fuzz;
+mod gps;
 mod hostile;
 mod log_outputs;
 mod loop_design_log;

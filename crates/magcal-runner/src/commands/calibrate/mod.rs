@@ -52,6 +52,13 @@ pub enum Fit {
     /// misalignment with the body included, and the bias; the field from `--site` and `--date`,
     /// else fitted (docs/conventions.md "Vector calibration").
     Vector,
+    /// Against the log's attitudes and the field given (`--site` and `--date`, or along the
+    /// log's GPS track): `K = diag(s)`, scale factors and offsets in the body frame (what an
+    /// ordinary flight, level legs and turns, determines).
+    VectorDiagonal,
+    /// As `vector-diagonal` with `K = I`: offsets only, the readings taken as the field in the
+    /// body frame.
+    VectorOffsets,
 }
 
 impl Fit {
@@ -63,6 +70,19 @@ impl Fit {
             Fit::Offset => "offset",
             Fit::Auto => "auto",
             Fit::Vector => "vector",
+            Fit::VectorDiagonal => "vector-diagonal",
+            Fit::VectorOffsets => "vector-offsets",
+        }
+    }
+
+    /// The model of `K` of a vector fit; `None` for a scalar one.
+    pub fn vector_model(self) -> Option<magcal_core::vector::VectorModel> {
+        use magcal_core::vector::VectorModel;
+        match self {
+            Fit::Vector => Some(VectorModel::Full),
+            Fit::VectorDiagonal => Some(VectorModel::Diagonal),
+            Fit::VectorOffsets => Some(VectorModel::Offsets),
+            _ => None,
         }
     }
 
@@ -76,7 +96,7 @@ impl Fit {
         let model = match self {
             Fit::Auto => return log_fit::fit_auto(readings, magnitude, settings),
             // The vector fit starts from the scalar full fit, whose magnitude it takes.
-            Fit::Full | Fit::Vector => FitModel::Full,
+            Fit::Full | Fit::Vector | Fit::VectorDiagonal | Fit::VectorOffsets => FitModel::Full,
             Fit::Diagonal => FitModel::Diagonal,
             Fit::Offset => FitModel::Offset,
         };
@@ -227,7 +247,8 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let along = place_source.as_ref().is_some_and(|s| s.from_log);
     let (mut fit, vector) = vector::instead(args, &log, fit, units, place.as_ref(), along)?;
-    let joint = match args.motor {
+    // A vector fit fits the interference with the calibration itself.
+    let joint = match args.motor.filter(|_| vector.is_none()) {
         Some(m) => {
             let (refit, joint) = motor::refit(&mut log, &fit, m, &settings).with_context(|| shown.clone())?;
             fit = refit;
@@ -378,7 +399,7 @@ fn fit_settings(args: &CalibrateArgs, log: &Log) -> FitSettings {
         },
         // A vector fit replaces the scalar fit it starts from, and has no check by trials of
         // its own: the scalar fit's would be run for nothing.
-        trials: if args.fit == Fit::Vector {
+        trials: if args.fit.vector_model().is_some() {
             0
         } else {
             args.trials as usize
@@ -984,7 +1005,7 @@ fn magnitude_of(args: &CalibrateArgs, units: Option<Units>, place: Option<&Place
             bail!("--site: give --units (the log's) for the WMM magnitude, or --magnitude");
         }
         // A vector fit takes the site's field direction, scaled to --magnitude.
-        (Some(_), None) if !args.attitude.any() && args.fit != Fit::Vector => {
+        (Some(_), None) if !args.attitude.any() && args.fit.vector_model().is_none() => {
             bail!(
                 "--site with --magnitude: the site would give only the box flags' field direction; add --roll and --pitch, or drop --site"
             );

@@ -85,7 +85,7 @@ pub fn refit(log: &mut Log, fit: &LogFit, motor: Motor, settings: &FitSettings) 
     Ok((refit, joint))
 }
 
-fn name(motor: Motor) -> &'static str {
+pub fn name(motor: Motor) -> &'static str {
     match motor {
         Motor::Current => "current",
         Motor::Throttle => "throttle",

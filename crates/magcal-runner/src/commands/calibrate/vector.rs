@@ -9,15 +9,34 @@ use magcal_core::aviation::z_up_of_ned;
 use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
-use magcal_core::vector::{ReferenceField, VectorError, VectorFit, fit_vector_along, fit_vector_in};
+use magcal_core::vector::{ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in};
 
 use super::CalibrateArgs;
-use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson};
+use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson, MotorJson};
 use crate::log::flight::{Fix, Series};
 use crate::log::gps;
 use crate::log::source::Log;
 use crate::log::vehicle::Place;
 use crate::scenario::site::{Units, wmm_field, wmm_pick};
+
+/// The WMM field (east, north, up) at the site and date of `place`, in the log's units (or scaled
+/// to `--magnitude`), and where it comes from in words.
+fn site_field(args: &CalibrateArgs, place: &Place, units: Option<Units>) -> Result<(Vec3, String)> {
+    let (ned, label) = wmm_field(&place.site, place.date, place.model)?;
+    let enu = [ned[1], ned[0], -ned[2]];
+    let (f, unit) = match (units, args.magnitude) {
+        (_, Some(r)) => (enu.map(|v| v * r / norm(enu)), format!("scaled to --magnitude {r}")),
+        (Some(u), None) => (enu.map(|v| v / u.nt()), "in the log's units".to_string()),
+        (None, None) => bail!(
+            "--fit {} with --site: give --units (the log's) or --magnitude",
+            args.fit.name()
+        ),
+    };
+    Ok((
+        f,
+        format!("given: {label} (east, north, up; {unit}); the attitudes' frame must be geographic"),
+    ))
+}
 
 /// The WMM field (east, north, up) at each of `times` along the used fixes of `gps`, on the date
 /// and by the model of `place`, in the log's units (or scaled so that their mean has the length
@@ -62,6 +81,10 @@ pub struct Vector {
     field_source: String,
     /// Whether `--magnitude` gave the field magnitude (else the scalar fit's, or the WMM's).
     magnitude_given: bool,
+    /// `--fit`'s name.
+    fit_name: &'static str,
+    /// The motor's input (`current` or `throttle`) and its range, where fitted.
+    motor: Option<(&'static str, [f64; 2])>,
 }
 
 /// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
@@ -77,7 +100,7 @@ pub fn instead(
     place: Option<&Place>,
     along: bool,
 ) -> Result<(LogFit, Option<Vector>)> {
-    if args.fit != super::Fit::Vector {
+    if args.fit.vector_model().is_none() {
         return Ok((scalar, None));
     }
     match fit(args, log, &scalar, units, place, along) {
@@ -107,13 +130,17 @@ pub fn instead(
     }
 }
 
-/// The vector fit of `log`: against the WMM field along the log's GPS track where `along` (the
+/// The vector fit of `log` under the model of `--fit`, with the motor's interference where
+/// `--motor` asks for it: against the WMM field along the log's GPS track where `along` (the
 /// place came from the log's fixes), else at the site and date of `place` (in the log's units, or
-/// scaled to `--magnitude`), else with `F` fitted at the scalar fit's magnitude.
+/// scaled to `--magnitude`), else (the full model without `--motor` only) with `F` fitted at the
+/// scalar fit's magnitude.
 ///
 /// # Errors
-/// A log without attitudes, `--motor` (not fitted jointly), or a fit the core refuses (too few
-/// readings with an attitude, attitudes that do not determine it, a left-handed frame).
+/// A log without attitudes, a reduced model or `--motor` without a given field, a reduced model
+/// on readings in a sensor frame the body's is turned from, a motor input missing, or a fit the
+/// core refuses (too few readings with an attitude, attitudes that do not determine it, a
+/// left-handed frame).
 pub fn fit(
     args: &CalibrateArgs,
     log: &Log,
@@ -123,9 +150,27 @@ pub fn fit(
     along: bool,
 ) -> Result<Vector> {
     let shown = args.log.display();
-    if args.motor.is_some() {
-        bail!("--motor with --fit vector: the motor interference is fitted with the scalar models only");
+    let model = args.fit.vector_model().unwrap_or(VectorModel::Full);
+    let reduced = model != VectorModel::Full;
+    if reduced || args.motor.is_some() {
+        if place.is_none() {
+            bail!(
+                "{shown}: --fit {}{} needs the field given: --site and --date, or a flight log with GPS fixes",
+                args.fit.name(),
+                if args.motor.is_some() { " with --motor" } else { "" }
+            );
+        }
+        if reduced
+            && let Some(r) = log.origin.to_body
+            && (0..3).any(|i| (0..3).any(|j| (r[i][j] - f64::from(u8::from(i == j))).abs() > 1e-12))
+        {
+            bail!(
+                "{shown}: --fit {} takes the readings as the field along the body's axes, and this log's readings are in a sensor frame turned from the body's: use --fit vector (the full matrix, which holds the turn)",
+                args.fit.name()
+            );
+        }
     }
+    let inputs_all = args.motor.map(|m| super::motor::inputs(log, m)).transpose()?;
     let Some(logged) = &log.attitudes else {
         bail!(
             "{shown}: --fit vector needs a reference attitude per reading: name the log's attitude columns with --quaternion or --euler (and --attitude-frame)"
@@ -135,12 +180,16 @@ pub fn fit(
     let with = logged.iter().filter(|c| c.is_some()).count();
     let (mut readings, mut attitudes) = (Vec::with_capacity(with), Vec::with_capacity(with));
     let mut times = Vec::with_capacity(if log.times.is_some() { with } else { 0 });
+    let mut inputs = inputs_all.as_ref().map(|_| Vec::with_capacity(with));
     for (i, (r, c)) in log.readings.iter().zip(logged).enumerate() {
         if let Some(c) = c {
             readings.push(*r);
             attitudes.push(z_up_of_ned(c));
             if let Some(t) = &log.times {
                 times.push(t[i]);
+            }
+            if let (Some(u), Some(all)) = (inputs.as_mut(), &inputs_all) {
+                u.push(all[i]);
             }
         }
     }
@@ -154,11 +203,24 @@ pub fn fit(
     } else {
         None
     };
-    if let (Some(p), Some((gps, message))) = (place, track) {
-        let (fields, field_source) = track_fields(args, p, gps, message, &times, units)?;
-        let fit = fit_vector_along(&readings, &attitudes, &fields, order).with_context(|| {
+    let given = match (place, track) {
+        (Some(p), Some((gps, message))) => Some(track_fields(args, p, gps, message, &times, units)?),
+        (Some(p), None) if reduced || inputs.is_some() => {
+            let (f, words) = site_field(args, p, units)?;
+            Some((vec![f; readings.len()], words))
+        }
+        _ => None,
+    };
+    let motor = args.motor.zip(inputs.as_ref()).map(|(m, u)| {
+        let lo = u.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = u.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (super::motor::name(m), [lo, hi])
+    });
+    if let Some((fields, field_source)) = given {
+        let fit = fit_track(&readings, &attitudes, &fields, inputs.as_deref(), model, order).with_context(|| {
             format!(
-                "{shown}: --fit vector ({} of {} readings with an attitude)",
+                "{shown}: --fit {} ({} of {} readings with an attitude)",
+                args.fit.name(),
                 readings.len(),
                 log.readings.len()
             )
@@ -169,21 +231,14 @@ pub fn fit(
             attitudes,
             field_source,
             magnitude_given: args.magnitude.is_some(),
+            fit_name: args.fit.name(),
+            motor,
         });
     }
     let (field, field_source) = match place {
         Some(p) => {
-            let (ned, label) = wmm_field(&p.site, p.date, p.model)?;
-            let enu = [ned[1], ned[0], -ned[2]];
-            let (f, unit) = match (units, args.magnitude) {
-                (_, Some(r)) => (enu.map(|v| v * r / norm(enu)), format!("scaled to --magnitude {r}")),
-                (Some(u), None) => (enu.map(|v| v / u.nt()), "in the log's units".to_string()),
-                (None, None) => bail!("--fit vector with --site: give --units (the log's) or --magnitude"),
-            };
-            (
-                ReferenceField::Given(f),
-                format!("given: {label} (east, north, up; {unit}); the attitudes' frame must be geographic"),
-            )
+            let (f, words) = site_field(args, p, units)?;
+            (ReferenceField::Given(f), words)
         }
         None => (
             ReferenceField::Fitted {
@@ -208,6 +263,8 @@ pub fn fit(
         attitudes,
         field_source,
         magnitude_given: args.magnitude.is_some(),
+        fit_name: args.fit.name(),
+        motor: None,
     })
 }
 
@@ -292,7 +349,15 @@ impl Vector {
     pub fn record(&self, json: &mut CalibrationJson) {
         let v = &self.fit;
         let std = v.std_error.as_ref();
-        json.fit = "vector".to_string();
+        json.fit = self.fit_name.to_string();
+        if let (Some(d), Some(input)) = (v.motor, self.motor) {
+            json.motor = Some(MotorJson {
+                input: input.0.to_string(),
+                per_unit: d,
+                std_error: v.std_motor,
+                input_range: input.1,
+            });
+        }
         // The scalar fit's magnitude, but the vector fit's own scale factors: their product is
         // not 1 in general, and the source must not say it is.
         let product: f64 = v.error_model().scale().iter().product();

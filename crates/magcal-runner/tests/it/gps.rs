@@ -1,0 +1,306 @@
+//! Position and time from flight logs (`log::gps`): the fixtures' GPS fixes against pymavlink's
+//! and pyulog's reading of them (`tests/flightlogs.json`, key `gps`, written by
+//! `scripts/crosscheck-flightlogs.py --only gps`), the site and date `calibrate` takes from them,
+//! and an ordinary flight written as a DataFlash log (level legs and turns, 20 km from 60 N) whose
+//! compass `calibrate --fit vector-diagonal --motor current` recovers against the field along
+//! its track.
+
+use std::path::Path;
+
+use magcal_core::aviation::dcm_of_euler;
+use magcal_core::flight::{FlightPlan, fly};
+use magcal_core::rng::stream_rng;
+use magcal_core::wmm;
+use magcal_runner::log::flight::{FlightLog, Selection};
+use rand_distr::{Distribution, StandardNormal};
+use tempfile::TempDir;
+
+use crate::common::{calibrate_json, data};
+use crate::dataflash::{V, Writer};
+
+fn expected() -> serde_json::Value {
+    let text = include_str!("../flightlogs.json");
+    serde_json::from_str::<serde_json::Value>(text).unwrap()["gps"].clone()
+}
+
+/// The fixes of `log` at the indices the expectations list match them: time, fix type,
+/// position and UTC.
+fn check(log: &FlightLog, want: &serde_json::Value, name: &str) {
+    let gps = log.gps.as_ref().unwrap_or_else(|| panic!("{name}: no GPS read"));
+    assert_eq!(gps.times.len() as u64, want["count"].as_u64().unwrap(), "{name}");
+    for (i, w) in want["at"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(want["fixes"].as_array().unwrap())
+    {
+        let i = i.as_u64().unwrap() as usize;
+        let (t, f) = (gps.times[i], gps.values[i]);
+        let w: Vec<Option<f64>> = w.as_array().unwrap().iter().map(serde_json::Value::as_f64).collect();
+        assert!(
+            (t - w[0].unwrap()).abs() <= 1e-9 * t.abs(),
+            "{name} {i}: time {t} {w:?}"
+        );
+        assert_eq!(f64::from(f.fix_type), w[1].unwrap(), "{name} {i}");
+        // Degrees from 1e-7 integers or doubles, metres from millimetres or centimetres: the
+        // same doubles to a few ulps.
+        for (got, want) in [(f.lat_deg, w[2]), (f.lon_deg, w[3]), (f.alt_m, w[4])] {
+            assert!(
+                (got - want.unwrap()).abs() <= 1e-12 * want.unwrap().abs().max(1.0),
+                "{name} {i}: {got} {want:?}"
+            );
+        }
+        match (f.utc_s, w[5]) {
+            (Some(a), Some(b)) => assert!((a - b).abs() < 1e-6, "{name} {i}: utc {a} {b}"),
+            (a, b) => assert_eq!(a, b, "{name} {i}"),
+        }
+    }
+}
+
+#[test]
+fn fixtures_read_their_fixes_as_pymavlink_and_pyulog_read_them() {
+    let want = expected();
+    let pick = Selection { instance: None };
+    if let Some(path) = data("ardupilot/pymavlink_test.BIN") {
+        let log = magcal_runner::log::dataflash::read(&path, &pick).unwrap();
+        check(&log, &want["ardupilot/pymavlink_test.BIN"], "pymavlink_test.BIN");
+    }
+    for name in ["esc_status_log.ulg", "quadrotor_local.ulg", "sample_log_small.ulg"] {
+        let Some(path) = data(&format!("px4/{name}")) else {
+            continue;
+        };
+        let log = magcal_runner::log::ulog::read(&path, &pick).unwrap();
+        let w = &want[format!("px4/{name}").as_str()];
+        check(&log, w, name);
+        assert!(
+            log.messages.iter().any(|m| m.starts_with(w["topic"].as_str().unwrap())),
+            "{:?}",
+            log.messages
+        );
+    }
+}
+
+#[test]
+fn calibrate_takes_site_and_date_from_the_fixed_part_or_says_why_not() {
+    // esc_status: a 3D fix from its first message (Zurich, 13 May 2019); quadrotor_local: 926
+    // messages, none with a fix (a simulator without GPS): no site, and the output says so.
+    if let Some(path) = data("px4/esc_status_log.ulg") {
+        let (_, c, _) = calibrate_json(&path, &["--trials", "20"]);
+        let p = c.place_source.unwrap();
+        assert!(
+            p.starts_with("the log's GPS (vehicle_gps_position): site 47.3565765, 8.5189121, 428.9 m")
+                && p.contains("date 2019-05-13 (2019.363)"),
+            "{p}"
+        );
+        assert!(
+            c.magnitude_source
+                .starts_with("WMM2015v2 at 47.3565765, 8.5189121, 428.924 m, 2019.363"),
+            "{}",
+            c.magnitude_source
+        );
+    }
+    if let Some(path) = data("px4/quadrotor_local.ulg") {
+        let (_, c, _) = calibrate_json(&path, &["--trials", "20"]);
+        let p = c.place_source.unwrap();
+        assert!(p.starts_with("none: the log's GPS (vehicle_gps_position) has no fix of type 3 (3D) or better with a position among its 926 messages (best type 0); give --site and --date"), "{p}");
+        // No site: the scalar fit's own radius.
+        assert!(
+            c.magnitude_source.starts_with("radius of the best-fitting sphere"),
+            "{}",
+            c.magnitude_source
+        );
+    }
+}
+
+/// The compass of the synthetic flights: `raw = K b + O + d u` in the body frame, mGauss, `u` the
+/// battery current in amperes.
+const K_DIAG: [f64; 3] = [1.04, 0.97, 1.02];
+const O: [f64; 3] = [2.5, -1.2, 4.0];
+const D: [f64; 3] = [0.06, -0.04, 0.15];
+/// Noise per component, mGauss (100 nT).
+const SIGMA: f64 = 1.0;
+
+/// UTC of the flight's start: 2026-06-01 10:00.
+const START_UTC_S: f64 = 1_780_308_000.0;
+
+/// The default ordinary flight of `seed` as an ArduPilot DataFlash log: `MAG` (mGauss as int16,
+/// no calibration in force), `ATT` and `BAT` at 10 Hz, `GPS` at 5 Hz with its week and
+/// milliseconds, every `COMPASS_*` parameter at its default.
+fn flight_log(dir: &Path, seed: u64) -> std::path::PathBuf {
+    let plan = FlightPlan::default();
+    let f = fly(&plan, seed);
+    let mut rng = stream_rng(seed, 0xDF);
+    let mut w = Writer::new();
+    w.fmt(0x81, "PARM", "QNf", "TimeUS,Name,Value");
+    w.fmt(
+        0x82,
+        "MAG",
+        "QBhhhhhhhhhBI",
+        "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S",
+    );
+    w.fmt(
+        0x83,
+        "ATT",
+        "QccccCCCC",
+        "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw",
+    );
+    w.fmt(0x84, "BAT", "QBfff", "TimeUS,Inst,Volt,Curr,CurrTot");
+    w.fmt(
+        0x85,
+        "GPS",
+        "QBIHBcLLefffB",
+        "TimeUS,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,U",
+    );
+    for (name, v) in [
+        ("COMPASS_OFS_X", 0.0),
+        ("COMPASS_OFS_Y", 0.0),
+        ("COMPASS_OFS_Z", 0.0),
+        ("COMPASS_DIA_X", 1.0),
+        ("COMPASS_DIA_Y", 1.0),
+        ("COMPASS_DIA_Z", 1.0),
+        ("COMPASS_ODI_X", 0.0),
+        ("COMPASS_ODI_Y", 0.0),
+        ("COMPASS_ODI_Z", 0.0),
+        ("COMPASS_SCALE", 1.0),
+    ] {
+        w.msg(0x81, &[V::N(1000.0), V::S(name), V::N(v)]);
+    }
+    let gps_epoch = 315_964_800.0;
+    for (i, s) in f.iter().enumerate() {
+        let t_us = 1e6 * (s.time_s + 60.0);
+        // Attitudes at whole hundredths of a degree, as ATT stores them.
+        let [roll, pitch, yaw] = [s.roll_deg, s.pitch_deg, s.heading_deg].map(|x| (x * 100.0).round() / 100.0);
+        let site = wmm::Site {
+            lat_deg: s.lat_deg,
+            lon_deg: s.lon_deg,
+            alt_m: s.alt_m,
+            year: 2026.414,
+        };
+        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
+        let c = dcm_of_euler(roll.to_radians(), pitch.to_radians(), yaw.to_radians());
+        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
+        let raw: [f64; 3] = std::array::from_fn(|a| {
+            K_DIAG[a] * b[a]
+                + O[a]
+                + D[a] * s.current_a
+                + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
+        });
+        w.msg(
+            0x83,
+            &[
+                V::N(t_us - 100.0),
+                V::N(0.0),
+                V::N(roll),
+                V::N(0.0),
+                V::N(pitch),
+                V::N(0.0),
+                V::N(yaw),
+                V::N(0.0),
+                V::N(0.0),
+            ],
+        );
+        w.msg(
+            0x84,
+            &[V::N(t_us - 50.0), V::N(0.0), V::N(15.0), V::N(s.current_a), V::N(0.0)],
+        );
+        if i % 2 == 0 {
+            let utc = START_UTC_S + s.time_s;
+            let gps_s = utc + 18.0 - gps_epoch;
+            let week = (gps_s / 604_800.0).floor();
+            let ms = ((gps_s - week * 604_800.0) * 1000.0).round();
+            w.msg(
+                0x85,
+                &[
+                    V::N(t_us - 70.0),
+                    V::N(3.0),
+                    V::N(ms),
+                    V::N(week),
+                    V::N(12.0),
+                    V::N(0.8),
+                    V::N(s.lat_deg),
+                    V::N(s.lon_deg),
+                    V::N(s.alt_m),
+                    V::N(plan.speed_m_s),
+                    V::N(s.heading_deg),
+                    V::N(0.0),
+                    V::N(1.0),
+                ],
+            );
+        }
+        // ArduPilot's int16 casts truncate towards zero.
+        let mut vals = vec![V::N(t_us), V::N(0.0)];
+        vals.extend(raw.map(|x| V::N(x.trunc())));
+        vals.extend([0.0; 6].map(V::N));
+        vals.extend([V::N(1.0), V::N(t_us)]);
+        w.msg(0x82, &vals);
+    }
+    w.save(dir, &format!("flight{seed}.bin"))
+}
+
+#[test]
+fn an_ordinary_dataflash_flight_calibrates_against_the_field_along_its_track() {
+    // Level legs and full turns at 10 degrees of bank, 20 km from 60 N, 10,000 readings: the
+    // field changes along the track by tens of nT. The diagonal model with the current's
+    // interference: every estimate within 4 standard errors of the truth (the 50-seed study of
+    // the same flights is the core's `ordinary_flights_give_the_sensor_...`).
+    let dir = TempDir::new().unwrap();
+    let log = flight_log(dir.path(), 7);
+    let (code, c, stderr) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current"]);
+    assert_eq!(code, Some(0), "{stderr} {:?}", c.reasons);
+    assert_eq!(c.fit, "vector-diagonal");
+    let place = c.place_source.clone().unwrap();
+    assert!(
+        place.starts_with("the log's GPS (GPS): site 60.0000000, 10.0000000, 300.0 m")
+            && place.contains("date 2026-06-01"),
+        "{place}"
+    );
+    let a = c.alignment.clone().unwrap();
+    assert!(
+        a.field_source
+            .starts_with("given along the track: WMM2025 at each of 5000 fixes"),
+        "{}",
+        a.field_source
+    );
+    let se = c.std_error.bias.unwrap();
+    let ses = c.std_error.scale.unwrap();
+    let m = c.motor.clone().unwrap();
+    let sd = m.std_error.unwrap();
+    for i in 0..3 {
+        let z = [
+            (c.bias[i] - O[i]) / se[i],
+            (c.scale[i] - K_DIAG[i]) / ses[i],
+            (m.per_unit[i] - D[i]) / sd[i],
+        ];
+        assert!(
+            z.iter().all(|z| z.abs() < 4.0),
+            "axis {i}: z {z:?}; bias {:?} scale {:?} motor {:?}",
+            c.bias,
+            c.scale,
+            m.per_unit
+        );
+    }
+    assert_eq!(m.input, "current");
+    // The same log with one site for the whole flight (its start) is told so.
+    let (_, one, _) = calibrate_json(
+        &log,
+        &[
+            "--fit",
+            "vector-diagonal",
+            "--motor",
+            "current",
+            "--site",
+            "60,10,300",
+            "--date",
+            "2026-06-01",
+        ],
+    );
+    assert!(
+        one.place_source
+            .unwrap()
+            .starts_with("--site and --date (the log's GPS fixes are not used")
+    );
+    // Measured: along the track (2.459, -1.214, 3.952) mGauss, standard errors (0.062, 0.045,
+    // 0.39); at one site (2.606, -1.245, 5.266): its z offset 3.2 standard errors off.
+    let off = |b: [f64; 3]| (0..3).map(|i| (b[i] - O[i]).powi(2)).sum::<f64>().sqrt();
+    assert!(off(one.bias) > 5.0 * off(c.bias), "{:?} {:?}", one.bias, c.bias);
+}
