@@ -105,6 +105,10 @@ pub struct CalibrationJson {
     /// none; `null` where there is neither.
     #[serde(default)]
     pub place_source: Option<String>,
+    /// Where a flight log's attitudes' heading comes from (`--heading-from`), in words; `null`
+    /// for logs without attitudes or CSV logs.
+    #[serde(default)]
+    pub heading_source: Option<String>,
     pub bias: [f64; 3],
     pub psi_deg: [f64; 3],
     pub scale: [f64; 3],

@@ -23,7 +23,10 @@
 //!   `BAT` (`Curr`, amperes, instance 0); `CTUN` (`ThO`, 0 to 1).
 //! - `GPS` (instance 0: field `I`, or the message `GPS` where older logs name a second receiver
 //!   `GPS2`): `Status` (the fix type), `Lat`, `Lng` (1e-7 degrees), `Alt` (metres above mean sea
-//!   level), `GWk`, `GMS` (GPS week and milliseconds of the week: the UTC date).
+//!   level), `GWk`, `GMS` (GPS week and milliseconds of the week: the UTC date), and `Yaw`
+//!   (degrees; a moving-baseline receiver's heading, 0 where it has none) in logs that have it.
+//! - `XKY0` (core 0): `YC`, the yaw of EKF3's Gaussian sum filter of GPS velocities (degrees), an
+//!   estimate that does not use the compass.
 //!
 //! # The calibration undone
 //! With the values in force at each reading ([`super::ardupilot`]): `OFS` from `PARM` where it
@@ -192,9 +195,15 @@ enum Role {
         time: Time,
         throttle: Field,
     },
+    Gsf {
+        time: Time,
+        core: Option<Field>,
+        yaw: Field,
+    },
     Gps {
         time: Time,
         instance: Option<Field>,
+        yaw: Option<Field>,
         status: Field,
         week: Option<Field>,
         ms: Option<Field>,
@@ -245,6 +254,8 @@ struct Data {
     ctun_source: Option<String>,
     gps: Series<Fix>,
     gps_source: Option<String>,
+    gps_yaw: Series<f64>,
+    gsf_yaw: Series<f64>,
 }
 
 fn parse(chunks: &mut Chunks, shown: &str, selection: &Selection, budget: &mut Budget, log: &mut Parsed) -> Result<()> {
@@ -322,7 +333,7 @@ fn hex(b: &[u8]) -> String {
 
 /// The names of messages this reader uses.
 fn used(name: &str) -> bool {
-    matches!(name, "MAG" | "PARM" | "ATT" | "BAT" | "CTUN" | "GPS")
+    matches!(name, "MAG" | "PARM" | "ATT" | "BAT" | "CTUN" | "GPS" | "XKY0")
         || name.strip_prefix("MAG").is_some_and(|n| matches!(n, "2" | "3"))
 }
 
@@ -412,10 +423,16 @@ fn role(name: &str, f: &HashMap<&str, Field>) -> Result<Role, String> {
         "GPS" => Role::Gps {
             time: time()?,
             instance: f.get("I").copied().map(numeric).transpose()?,
+            yaw: f.get("Yaw").copied().map(numeric).transpose()?,
             status: numeric(get("Status")?)?,
             week: f.get("GWk").copied().map(numeric).transpose()?,
             ms: f.get("GMS").copied().map(numeric).transpose()?,
             lat_lon_alt: [numeric(get("Lat")?)?, numeric(get("Lng")?)?, numeric(get("Alt")?)?],
+        },
+        "XKY0" => Role::Gsf {
+            time: time()?,
+            core: f.get("C").copied().map(numeric).transpose()?,
+            yaw: numeric(get("YC")?)?,
         },
         "CTUN" => match f.get("ThO") {
             Some(&throttle) => Role::Ctun {
@@ -485,9 +502,23 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
             let c = current.get(p);
             at.push_series(&mut data.current, time.get(p), c, c.is_finite(), "BAT")?;
         }
+        Role::Gsf { time, core, yaw } => {
+            if core.is_some_and(|f| f.get(p) != 0.0) {
+                return Ok(());
+            }
+            let y = yaw.get(p);
+            at.push_series(
+                &mut data.gsf_yaw,
+                time.get(p),
+                y.rem_euclid(360.0),
+                y.is_finite(),
+                "XKY0",
+            )?;
+        }
         Role::Gps {
             time,
             instance,
+            yaw,
             status,
             week,
             ms,
@@ -518,6 +549,12 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
             };
             let finite = lat_deg.is_finite() && lon_deg.is_finite() && alt_m.is_finite();
             at.push_series(&mut data.gps, time.get(p), fix, finite, "GPS")?;
+            // A receiver without a yaw logs 0: a moving-baseline yaw of exactly 0 is taken as none.
+            if let Some(y) = yaw.map(|f| f.get(p)).filter(|y| *y != 0.0 && y.is_finite())
+                && fix.fix_type >= 3
+            {
+                at.push_series(&mut data.gps_yaw, time.get(p), y.rem_euclid(360.0), true, "GPS")?;
+            }
         }
         Role::Ctun { time, throttle } => {
             data.ctun_source.get_or_insert_with(|| "CTUN: ThO (0 to 1)".into());
@@ -673,6 +710,8 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         current: (!data.current.times.is_empty()).then_some(data.current),
         throttle: (!data.throttle.times.is_empty()).then_some(data.throttle),
         gps: (!data.gps.times.is_empty()).then_some(data.gps),
+        gps_yaw: (!data.gps_yaw.times.is_empty()).then(|| (data.gps_yaw, "GPS.Yaw (moving baseline)".to_string())),
+        gsf_yaw: (!data.gsf_yaw.times.is_empty()).then(|| (data.gsf_yaw, "XKY0.YC (core 0)".to_string())),
         to_body: Some(IDENTITY),
         calibration: InForce::Undone(undone.words),
         notes,

@@ -173,6 +173,13 @@ pub struct FlightLog {
     /// The GPS receiver's fixes (the first receiver), where the log has them; every fix as
     /// logged, those without a position included ([`Fix::usable`] tells them apart).
     pub gps: Option<Series<Fix>>,
+    /// A heading that does not come from the compass, degrees clockwise from north, where the log
+    /// has one: a moving-baseline GPS receiver's yaw (DataFlash `GPS.Yaw`, MAVLink
+    /// `GPS_RAW_INT.yaw`, ULog `heading`), with the message it comes from.
+    pub gps_yaw: Option<(Series<f64>, String)>,
+    /// ArduPilot's yaw from the Gaussian sum filter of GPS velocities (`XKY0.YC`, core 0): an
+    /// estimate without the compass, degrees, where the log has it.
+    pub gsf_yaw: Option<(Series<f64>, String)>,
     /// Rotation of [`Self::frame`] into the body frame of [`Self::attitude`], where known.
     pub to_body: Option<Mat3>,
     pub calibration: InForce,

@@ -145,10 +145,32 @@ pub struct LogArgs {
     /// CSV: the column of the throttle, 0 to 1 (for `calibrate --motor throttle`).
     #[arg(long, value_name = "COLUMN")]
     pub throttle: Option<String>,
+    /// Flight logs: where the attitudes' heading comes from. `auto`: a moving-baseline GPS
+    /// receiver's yaw where the log has one, else the autopilot's; `autopilot`: the autopilot's
+    /// estimate (whose yaw used the compass being calibrated); `gps`: the receiver's yaw;
+    /// `gsf`: ArduPilot's yaw from GPS velocities (`XKY0`; its spread is degrees). Roll and pitch
+    /// are the autopilot's in every case.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub heading_from: HeadingFrom,
     /// Whether the command fits the motors (`calibrate --motor`): `--current` and `--throttle`
     /// mean nothing without it. Set by the command, not a flag.
     #[arg(skip)]
     pub motor: bool,
+}
+
+/// `--heading-from`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Default)]
+pub enum HeadingFrom {
+    /// A moving-baseline GPS yaw where the log has one, else the autopilot's.
+    #[default]
+    Auto,
+    /// The autopilot's attitude estimate.
+    Autopilot,
+    /// A moving-baseline GPS receiver's yaw (DataFlash `GPS.Yaw`, MAVLink `GPS_RAW_INT.yaw`, ULog
+    /// `heading`).
+    Gps,
+    /// ArduPilot's yaw from the Gaussian sum filter of GPS velocities (`XKY0.YC`).
+    Gsf,
 }
 
 /// Where a log's readings came from, and what the reader and the cut did to them.
@@ -176,6 +198,8 @@ pub struct Origin {
     pub notes: Vec<String>,
     /// What a flight log says of its firmware's parameters (`log_parameters` of calibration.json).
     pub parameters: Option<LogParameters>,
+    /// Where a flight log's attitudes' heading comes from, in words (`--heading-from`).
+    pub heading_source: Option<String>,
 }
 
 impl Origin {
@@ -193,6 +217,7 @@ impl Origin {
             span: None,
             notes: Vec::new(),
             parameters: None,
+            heading_source: None,
         }
     }
 
@@ -288,7 +313,7 @@ pub fn open(path: &Path, args: &LogArgs, held_bytes_per_reading: u64) -> Result<
         Format::Csv => read_csv(path, args, held_bytes_per_reading)?,
         _ => {
             let selection = Selection { instance: args.compass };
-            from_flight(reader(format)?(path, &selection)?)
+            from_flight(reader(format)?(path, &selection)?, args.heading_from).with_context(|| shown.clone())?
         }
     };
     cut(&mut log, args).with_context(|| shown.clone())?;
@@ -400,6 +425,11 @@ fn check_flags(args: &LogArgs, format: Format) -> Result<()> {
         }
         if args.compass.is_some() {
             bail!("--compass applies to flight logs; a CSV log holds one magnetometer (choose it with --columns)");
+        }
+        if args.heading_from != HeadingFrom::Auto {
+            bail!(
+                "--heading-from applies to flight logs; a CSV log's attitude columns are its attitudes (--euler, --quaternion)"
+            );
         }
         if args.time.is_none() && (args.from.is_some() || args.to.is_some() || args.rate.is_some()) {
             bail!("--from, --to and --rate need the CSV log's times: name their column with --time");
@@ -685,14 +715,79 @@ pub fn match_series<T: Copy>(times: &[f64], series: &Series<T>) -> Vec<Option<T>
         .collect()
 }
 
-fn from_flight(f: FlightLog) -> Log {
-    let times: Vec<f64> = f.samples.iter().map(|s| s.time_s).collect();
-    let attitudes = f.attitude.as_ref().map(|a| {
-        match_series(&times, a)
+/// The heading reference `--heading-from` asks for among what `f` holds: its series (degrees)
+/// and words; `None` for the autopilot's own.
+///
+/// # Errors
+/// `gps` or `gsf` asked for and the log has none.
+fn heading_reference(f: &FlightLog, from: HeadingFrom) -> Result<Option<&(Series<f64>, String)>> {
+    Ok(match from {
+        HeadingFrom::Autopilot => None,
+        HeadingFrom::Auto => f.gps_yaw.as_ref(),
+        HeadingFrom::Gps => Some(f.gps_yaw.as_ref().ok_or_else(|| {
+            anyhow::anyhow!(
+                "--heading-from gps: the log has no GPS yaw (a moving-baseline receiver's: DataFlash GPS.Yaw, MAVLink GPS_RAW_INT.yaw, ULog heading)"
+            )
+        })?),
+        HeadingFrom::Gsf => Some(f.gsf_yaw.as_ref().ok_or_else(|| {
+            anyhow::anyhow!("--heading-from gsf: the log has no GSF yaw (ArduPilot's XKY0, logged by EKF3)")
+        })?),
+    })
+}
+
+/// Each reading's attitude: the autopilot's, its heading replaced by `reference` (degrees) where
+/// given (a reading without a reference heading near it in time has none); and where the
+/// heading came from, in words.
+fn attitudes_of(
+    f: &FlightLog,
+    times: &[f64],
+    reference: Option<&(Series<f64>, String)>,
+) -> (Option<Vec<Option<Mat3>>>, Option<String>) {
+    let Some(a) = f.attitude.as_ref() else {
+        return (None, None);
+    };
+    let own: Vec<Option<Mat3>> = match_series(times, a)
+        .into_iter()
+        .map(|q| q.and_then(dcm_of_quaternion))
+        .collect();
+    let Some((yaw, name)) = reference else {
+        let others: Vec<&str> = [f.gps_yaw.as_ref(), f.gsf_yaw.as_ref()]
             .into_iter()
-            .map(|q| q.and_then(dcm_of_quaternion))
-            .collect()
-    });
+            .flatten()
+            .map(|(_, n)| n.as_str())
+            .collect();
+        let words = format!(
+            "the autopilot's attitude estimate, whose heading used the compass being calibrated: a vector calibration's offsets and that heading share an error{}",
+            if others.is_empty() {
+                " (the log has no independent heading)".to_string()
+            } else {
+                format!(" (the log also has {}: --heading-from)", others.join(", "))
+            }
+        );
+        return (Some(own), Some(words));
+    };
+    let matched = match_series(times, yaw);
+    let rebuilt: Vec<Option<Mat3>> = own
+        .iter()
+        .zip(&matched)
+        .map(|(c, y)| {
+            let (c, y) = ((*c)?, (*y)?);
+            let [roll, pitch, _] = magcal_core::aviation::euler_of_dcm(&c);
+            Some(magcal_core::aviation::dcm_of_euler(roll, pitch, y.to_radians()))
+        })
+        .collect();
+    let with = rebuilt.iter().filter(|c| c.is_some()).count();
+    let words = format!(
+        "roll and pitch the autopilot's, heading from {name}, independent of the compass ({with} of {} readings have one)",
+        times.len()
+    );
+    (Some(rebuilt), Some(words))
+}
+
+fn from_flight(f: FlightLog, heading_from: HeadingFrom) -> Result<Log> {
+    let times: Vec<f64> = f.samples.iter().map(|s| s.time_s).collect();
+    let reference = heading_reference(&f, heading_from)?;
+    let (attitudes, heading_source) = attitudes_of(&f, &times, reference);
     let currents = f.current.as_ref().map(|c| match_series(&times, c));
     let throttles = f.throttle.as_ref().map(|c| match_series(&times, c));
     let gps_message = match f.format {
@@ -715,8 +810,9 @@ fn from_flight(f: FlightLog) -> Log {
         span: span(&times),
         notes: f.notes,
         parameters: f.parameters,
+        heading_source,
     };
-    Log {
+    Ok(Log {
         readings: f.samples.iter().map(|s| s.raw).collect(),
         lines: f.samples.iter().map(|s| s.offset as usize).collect(),
         skipped: Vec::new(),
@@ -730,7 +826,7 @@ fn from_flight(f: FlightLog) -> Log {
         currents,
         throttles,
         gps,
-    }
+    })
 }
 
 /// Cuts `log` to the window `--from`..`--to` and thins it to `--rate`, noting what went.

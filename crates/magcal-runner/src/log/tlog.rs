@@ -25,7 +25,8 @@
 //!   ([`super::binary::quaternion_of_euler`]); `SYS_STATUS.current_battery` (cA; else
 //!   `BATTERY_STATUS` of battery 0); `VFR_HUD.throttle` (percent, as 0 to 1).
 //! - `GPS_RAW_INT`: `fix_type`, `lat`, `lon` (1e-7 degrees), `alt` (mm above mean sea level),
-//!   `time_usec` (the fix's UTC where after 2000, as ArduPilot sends it).
+//!   `time_usec` (the fix's UTC where after 2000, as ArduPilot sends it), `yaw` (centidegrees, 0
+//!   for none: a moving-baseline receiver's heading).
 //!
 //! # Times
 //! On the vehicle's clock (seconds since boot): `RAW_IMU.time_usec`, `SCALED_IMU*.time_boot_ms`
@@ -212,6 +213,7 @@ struct Data {
     battery_current: Series<f64>,
     throttle: Series<f64>,
     gps: Series<Fix>,
+    gps_yaw: Series<f64>,
     /// Vehicle time minus reception time of the last message that has both.
     clock: Option<f64>,
     untimed: u64,
@@ -449,7 +451,18 @@ fn take(
                 utc_s: (utc >= UTC_2000_S).then_some(utc),
             };
             match data.clock {
-                Some(clock) => at.push_series(&mut data.gps, m.received + clock, fix, true, "GPS_RAW_INT")?,
+                Some(clock) => {
+                    at.push_series(&mut data.gps, m.received + clock, fix, true, "GPS_RAW_INT")?;
+                    // The extension field `yaw` (centidegrees; 0 unknown, 36000 north) at bytes 50
+                    // and 51 of the payload (the dialect is built without extensions), zeros
+                    // where MAVLink 2 truncated them.
+                    let byte = |i: usize| m.payload.get(i).copied().unwrap_or(0);
+                    let yaw = u16::from_le_bytes([byte(50), byte(51)]);
+                    if yaw > 0 && fix.fix_type >= 3 {
+                        let y = (f64::from(yaw) / 100.0).rem_euclid(360.0);
+                        at.push_series(&mut data.gps_yaw, m.received + clock, y, true, "GPS_RAW_INT")?;
+                    }
+                }
                 None => data.untimed += 1,
             }
         }
@@ -609,6 +622,8 @@ fn assemble(parsed: Parsed, shown: &str, selection: &Selection, sha256: String, 
         current: present(&current).then_some(current),
         throttle: present(&data.throttle).then_some(data.throttle),
         gps: (!data.gps.times.is_empty()).then_some(data.gps),
+        gps_yaw: (!data.gps_yaw.times.is_empty()).then(|| (data.gps_yaw, "GPS_RAW_INT.yaw".to_string())),
+        gsf_yaw: None,
         to_body: Some(IDENTITY),
         calibration: InForce::Undone(undone.words),
         notes,

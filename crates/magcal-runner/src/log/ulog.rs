@@ -31,7 +31,8 @@
 //!   `vehicle_thrust_setpoint` as the norm of `xyz` (PX4's battery model's throttle).
 //! - `vehicle_gps_position` (else `sensor_gps`), multi_id 0: `fix_type`, the position (`lat`,
 //!   `lon` in 1e-7 degrees and `alt` in mm before PX4 1.14; `latitude_deg`, `longitude_deg`,
-//!   `altitude_msl_m` after) and `time_utc_usec` (0 before the receiver has a time).
+//!   `altitude_msl_m` after), `time_utc_usec` (0 before the receiver has a time) and `heading`
+//!   (radians, NaN without one: a moving-baseline receiver's yaw).
 //!
 //! # Rate
 //! PX4's default logging profile records `sensor_mag` at 1 Hz. A note says so when the log holds
@@ -357,6 +358,8 @@ struct GpsLayout {
     alt: Number,
     fix_type: usize,
     utc: Option<usize>,
+    /// `heading` (float, radians, NaN without one): a moving-baseline receiver's yaw.
+    heading: Option<usize>,
 }
 
 /// The layout of a GPS topic in `formats`.
@@ -380,12 +383,14 @@ fn gps_layout(
         .ok_or_else(|| format!("{name} has no fix_type"))?
         .offset;
     let utc = locate(name, "time_utc_usec", "uint64_t", formats, sizes)?.map(|a| a.offset);
+    let heading = locate(name, "heading", "float", formats, sizes)?.map(|a| a.offset);
     Ok(GpsLayout {
         lat,
         lon,
         alt,
         fix_type,
         utc,
+        heading,
     })
 }
 
@@ -397,6 +402,7 @@ impl GpsLayout {
             self.alt.end(),
             self.fix_type + 1,
             self.utc.map_or(0, |u| u + 8),
+            self.heading.map_or(0, |h| h + 4),
         ]
         .into_iter()
         .max()
@@ -444,6 +450,8 @@ struct Raw {
     thrust: Vec<(u64, f32, u64)>,
     vehicle_gps: Vec<(u64, Fix, u64)>,
     sensor_gps: Vec<(u64, Fix, u64)>,
+    vehicle_gps_heading: Vec<(u64, f32, u64)>,
+    sensor_gps_heading: Vec<(u64, f32, u64)>,
     dropouts: usize,
     dropout_ms: u64,
     unknown: BTreeMap<u8, usize>,
@@ -1165,12 +1173,18 @@ fn keep(raw: &mut Raw, d: &Decoder, data: &[u8], at: u64, budget: &mut Budget, s
         Topic::Gps | Topic::SensorGps => {
             if let (0, Some(g)) = (d.multi_id, &d.gps) {
                 budget.charge(HELD_PER_FIX, shown, at)?;
-                let list = if d.topic == Topic::Gps {
-                    &mut raw.vehicle_gps
+                let (list, headings) = if d.topic == Topic::Gps {
+                    (&mut raw.vehicle_gps, &mut raw.vehicle_gps_heading)
                 } else {
-                    &mut raw.sensor_gps
+                    (&mut raw.sensor_gps, &mut raw.sensor_gps_heading)
                 };
-                list.push((t_us, g.fix(data), at));
+                let fix = g.fix(data);
+                list.push((t_us, fix, at));
+                if let Some(h) = g.heading.map(|o| f32_at(data, o)).filter(|h| h.is_finite())
+                    && fix.fix_type >= 3
+                {
+                    headings.push((t_us, h, at));
+                }
             }
         }
         Topic::Thrust => {
@@ -1272,6 +1286,8 @@ fn assemble(raw: Raw, shown: &str, selection: &Selection, sha256: String, bytes:
         current: beside.current,
         throttle: beside.throttle,
         gps: beside.gps,
+        gps_yaw: beside.gps_yaw,
+        gsf_yaw: None,
         to_body,
         calibration,
         notes,
@@ -1553,6 +1569,7 @@ struct Beside {
     current: Option<Series<f64>>,
     throttle: Option<Series<f64>>,
     gps: Option<Series<Fix>>,
+    gps_yaw: Option<(Series<f64>, String)>,
 }
 
 /// The attitude, the current of the battery `CAL_MAG_COMP_TYP` = `comp_type` names, and the
@@ -1581,11 +1598,13 @@ fn beside(raw: &Raw, shown: &str, comp_type: f64, messages: &mut Vec<String>) ->
     } else {
         None
     };
-    let (topic, fixes) = if raw.vehicle_gps.is_empty() {
-        ("sensor_gps", &raw.sensor_gps)
+    let (topic, fixes, headings) = if raw.vehicle_gps.is_empty() {
+        ("sensor_gps", &raw.sensor_gps, &raw.sensor_gps_heading)
     } else {
-        ("vehicle_gps_position", &raw.vehicle_gps)
+        ("vehicle_gps_position", &raw.vehicle_gps, &raw.vehicle_gps_heading)
     };
+    let gps_yaw = series_of(headings, shown, topic, |h| f64::from(h).to_degrees().rem_euclid(360.0))?
+        .map(|s| (s, format!("{topic}.heading (moving baseline)")));
     let gps = series_of(fixes, shown, topic, |f| f)?;
     if gps.is_some() {
         messages.push(format!(
@@ -1597,6 +1616,7 @@ fn beside(raw: &Raw, shown: &str, comp_type: f64, messages: &mut Vec<String>) ->
         current,
         throttle,
         gps,
+        gps_yaw,
     })
 }
 

@@ -127,6 +127,13 @@ const START_UTC_S: f64 = 1_780_308_000.0;
 /// no calibration in force), `ATT` and `BAT` at 10 Hz, `GPS` at 5 Hz with its week and
 /// milliseconds, every `COMPASS_*` parameter at its default.
 fn flight_log(dir: &Path, seed: u64) -> std::path::PathBuf {
+    flight_log_with(dir, seed, 0.0, false)
+}
+
+/// [`flight_log`] with the autopilot's yaw (`ATT.Yaw`) off by `yaw_bias_deg` (a wrong heading
+/// estimate) and, where `gps_yaw`, the newer `GPS` message (instance field `I`) with a
+/// moving-baseline receiver's true `Yaw`.
+fn flight_log_with(dir: &Path, seed: u64, yaw_bias_deg: f64, gps_yaw: bool) -> std::path::PathBuf {
     let plan = FlightPlan::default();
     let f = fly(&plan, seed);
     let mut rng = stream_rng(seed, 0xDF);
@@ -145,12 +152,21 @@ fn flight_log(dir: &Path, seed: u64) -> std::path::PathBuf {
         "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw",
     );
     w.fmt(0x84, "BAT", "QBfff", "TimeUS,Inst,Volt,Curr,CurrTot");
-    w.fmt(
-        0x85,
-        "GPS",
-        "QBIHBcLLefffB",
-        "TimeUS,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,U",
-    );
+    if gps_yaw {
+        w.fmt(
+            0x85,
+            "GPS",
+            "QBBIHBcLLeffffB",
+            "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
+        );
+    } else {
+        w.fmt(
+            0x85,
+            "GPS",
+            "QBIHBcLLefffB",
+            "TimeUS,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,U",
+        );
+    }
     for (name, v) in [
         ("COMPASS_OFS_X", 0.0),
         ("COMPASS_OFS_Y", 0.0),
@@ -194,7 +210,7 @@ fn flight_log(dir: &Path, seed: u64) -> std::path::PathBuf {
                 V::N(0.0),
                 V::N(pitch),
                 V::N(0.0),
-                V::N(yaw),
+                V::N((yaw + yaw_bias_deg).rem_euclid(360.0)),
                 V::N(0.0),
                 V::N(0.0),
             ],
@@ -208,24 +224,28 @@ fn flight_log(dir: &Path, seed: u64) -> std::path::PathBuf {
             let gps_s = utc + 18.0 - gps_epoch;
             let week = (gps_s / 604_800.0).floor();
             let ms = ((gps_s - week * 604_800.0) * 1000.0).round();
-            w.msg(
-                0x85,
-                &[
-                    V::N(t_us - 70.0),
-                    V::N(3.0),
-                    V::N(ms),
-                    V::N(week),
-                    V::N(12.0),
-                    V::N(0.8),
-                    V::N(s.lat_deg),
-                    V::N(s.lon_deg),
-                    V::N(s.alt_m),
-                    V::N(plan.speed_m_s),
-                    V::N(s.heading_deg),
-                    V::N(0.0),
-                    V::N(1.0),
-                ],
-            );
+            let mut v = vec![V::N(t_us - 70.0)];
+            if gps_yaw {
+                v.push(V::N(0.0));
+            }
+            v.extend([
+                V::N(3.0),
+                V::N(ms),
+                V::N(week),
+                V::N(12.0),
+                V::N(0.8),
+                V::N(s.lat_deg),
+                V::N(s.lon_deg),
+                V::N(s.alt_m),
+                V::N(plan.speed_m_s),
+                V::N(s.heading_deg),
+                V::N(0.0),
+            ]);
+            if gps_yaw {
+                v.push(V::N(yaw));
+            }
+            v.push(V::N(1.0));
+            w.msg(0x85, &v);
         }
         // ArduPilot's int16 casts truncate towards zero.
         let mut vals = vec![V::N(t_us), V::N(0.0)];
@@ -303,4 +323,48 @@ fn an_ordinary_dataflash_flight_calibrates_against_the_field_along_its_track() {
     // 0.39); at one site (2.606, -1.245, 5.266): its z offset 3.2 standard errors off.
     let off = |b: [f64; 3]| (0..3).map(|i| (b[i] - O[i]).powi(2)).sum::<f64>().sqrt();
     assert!(off(one.bias) > 5.0 * off(c.bias), "{:?} {:?}", one.bias, c.bias);
+}
+
+#[test]
+fn a_gps_yaw_is_the_reference_where_the_autopilots_yaw_is_wrong() {
+    // The autopilot's yaw 3 degrees off (a compass offset it flew with), a moving-baseline
+    // receiver's yaw true. By default the GPS yaw is the heading: the sensor comes back within
+    // 4 standard errors, and the output names it. Against the autopilot's yaw the offsets are
+    // many standard errors off, and the output says that heading shares the compass's error.
+    let dir = TempDir::new().unwrap();
+    let log = flight_log_with(dir.path(), 11, 3.0, true);
+    let (code, c, stderr) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current"]);
+    assert_eq!(code, Some(0), "{stderr} {:?}", c.reasons);
+    let h = c.heading_source.clone().unwrap();
+    assert!(h.starts_with("roll and pitch the autopilot's, heading from GPS.Yaw (moving baseline), independent of the compass (10000 of 10000 readings have one)"), "{h}");
+    let se = c.std_error.bias.unwrap();
+    let z = |b: [f64; 3]| -> f64 { (0..3).map(|i| ((b[i] - O[i]) / se[i]).abs()).fold(0.0, f64::max) };
+    assert!(z(c.bias) < 4.0, "{:?} {se:?}", c.bias);
+    let (_, biased, _) = calibrate_json(
+        &log,
+        &[
+            "--fit",
+            "vector-diagonal",
+            "--motor",
+            "current",
+            "--heading-from",
+            "autopilot",
+        ],
+    );
+    let hb = biased.heading_source.unwrap();
+    assert!(
+        hb.starts_with("the autopilot's attitude estimate, whose heading used the compass being calibrated")
+            && hb.contains("the log also has GPS.Yaw (moving baseline): --heading-from"),
+        "{hb}"
+    );
+    // The largest |z| of the bias fitted against the biased heading, in the GPS-yaw fit's
+    // standard errors.
+    assert!(z(biased.bias) > 20.0, "{:?} {:?}", biased.bias, c.bias);
+    println!(
+        "GPS yaw: bias {:?} (|z| {:.2}); autopilot's yaw: {:?} (|z| {:.1})",
+        c.bias,
+        z(c.bias),
+        biased.bias,
+        z(biased.bias)
+    );
 }

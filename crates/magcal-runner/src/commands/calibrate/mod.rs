@@ -458,6 +458,7 @@ fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log
     });
     json.log_notes.clone_from(&o.notes);
     json.log_parameters.clone_from(&o.parameters);
+    json.heading_source.clone_from(&o.heading_source);
     json.time_span_s = log
         .times
         .as_ref()
@@ -497,6 +498,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         magnitude: fit.magnitude,
         magnitude_source: source,
         place_source: None,
+        heading_source: None,
         bias: fit.bias,
         psi_deg: fit.errors.psi_deg(),
         scale: fit.errors.scale(),
@@ -673,6 +675,9 @@ fn print_origin(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     }
     if let Some(p) = &j.place_source {
         writeln!(w, "  site and date: {p}")?;
+    }
+    if let Some(h) = &j.heading_source {
+        writeln!(w, "  attitudes: {h}")?;
     }
     for note in &j.log_notes {
         writeln!(w, "  note: {note}")?;
