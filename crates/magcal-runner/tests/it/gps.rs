@@ -368,3 +368,305 @@ fn a_gps_yaw_is_the_reference_where_the_autopilots_yaw_is_wrong() {
         z(biased.bias)
     );
 }
+
+/// The default ordinary flight of `seed` as a PX4 ULog (firmware 1.14: raw `sensor_mag` in Gauss,
+/// the sensor along the body's axes): `sensor_mag`, `vehicle_attitude` and `battery_status` at
+/// 10 Hz, `vehicle_gps_position` at 5 Hz (the layout with doubles, its UTC); the compass of
+/// [`flight_log`] in Gauss.
+fn flight_ulog(dir: &Path, seed: u64) -> std::path::PathBuf {
+    use crate::ulog::Writer;
+    let plan = FlightPlan::default();
+    let f = fly(&plan, seed);
+    let mut rng = stream_rng(seed, 0xDF);
+    let mut w = Writer::new();
+    w.flag_bits(0, 0);
+    for fmt in [
+        "sensor_mag:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;float temperature;uint32_t error_count;",
+        "vehicle_attitude:uint64_t timestamp;uint64_t timestamp_sample;float[4] q;float[4] delta_q_reset;uint8_t quat_reset_counter;uint8_t[7] _padding0;",
+        "battery_status:uint64_t timestamp;float voltage_v;float current_a;",
+        "vehicle_gps_position:uint64_t timestamp;uint64_t timestamp_sample;double latitude_deg;double longitude_deg;double altitude_msl_m;uint64_t time_utc_usec;float heading;uint8_t fix_type;uint8_t[3] _padding0;",
+    ] {
+        w.format(fmt);
+    }
+    let device: u32 = 396_809;
+    w.info_u32("ver_sw_release", 0x010E_00FF);
+    w.param_i32("CAL_MAG0_ID", device as i32);
+    w.param_i32("CAL_MAG0_ROT", 0);
+    w.param_i32("SENS_BOARD_ROT", 0);
+    w.param_i32("CAL_MAG_COMP_TYP", 2);
+    for (i, topic) in [
+        "sensor_mag",
+        "vehicle_attitude",
+        "battery_status",
+        "vehicle_gps_position",
+    ]
+    .iter()
+    .enumerate()
+    {
+        w.add_logged(0, i as u16, topic);
+    }
+    for (i, s) in f.iter().enumerate() {
+        let t = 60_000_000 + (s.time_s * 1e6).round() as u64;
+        let c = dcm_of_euler(
+            s.roll_deg.to_radians(),
+            s.pitch_deg.to_radians(),
+            s.heading_deg.to_radians(),
+        );
+        let q = quaternion_of(&c).map(|x| x as f32);
+        let site = wmm::Site {
+            lat_deg: s.lat_deg,
+            lon_deg: s.lon_deg,
+            alt_m: s.alt_m,
+            year: 2026.414,
+        };
+        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 1e5);
+        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
+        let raw: [f32; 3] = std::array::from_fn(|a| {
+            (K_DIAG[a] * b[a]
+                + (O[a]
+                    + D[a] * s.current_a
+                    + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
+                    / 1000.0) as f32
+        });
+        let mut att = Vec::new();
+        for x in q.iter().chain(&[0.0f32; 4]) {
+            att.extend_from_slice(&x.to_le_bytes());
+        }
+        w.data(
+            1,
+            &[&(t - 200).to_le_bytes(), &(t - 200).to_le_bytes(), &att, &[0], &[0; 7]],
+        );
+        w.data(
+            2,
+            &[
+                &(t - 100).to_le_bytes(),
+                &15.0f32.to_le_bytes(),
+                &(s.current_a as f32).to_le_bytes(),
+            ],
+        );
+        if i % 2 == 0 {
+            let utc = ((START_UTC_S + s.time_s) * 1e6).round() as u64;
+            w.data(
+                3,
+                &[
+                    &(t - 300).to_le_bytes(),
+                    &(t - 300).to_le_bytes(),
+                    &s.lat_deg.to_le_bytes(),
+                    &s.lon_deg.to_le_bytes(),
+                    &s.alt_m.to_le_bytes(),
+                    &utc.to_le_bytes(),
+                    &f32::NAN.to_le_bytes(),
+                    &[3],
+                    &[0; 3],
+                ],
+            );
+        }
+        w.data(
+            0,
+            &[
+                &t.to_le_bytes(),
+                &t.to_le_bytes(),
+                &device.to_le_bytes(),
+                &raw.map(f32::to_le_bytes).concat(),
+                &25f32.to_le_bytes(),
+                &0u32.to_le_bytes(),
+            ],
+        );
+    }
+    let path = dir.join(format!("flight{seed}.ulg"));
+    std::fs::write(&path, &w.buf).unwrap();
+    path
+}
+
+/// The unit quaternion `[w, x, y, z]` of a rotation matrix (Shepperd's method, largest pivot).
+fn quaternion_of(c: &[[f64; 3]; 3]) -> [f64; 4] {
+    let t = c[0][0] + c[1][1] + c[2][2];
+    let q = if t > 0.0 {
+        let s = (t + 1.0).sqrt() * 2.0;
+        [
+            0.25 * s,
+            (c[2][1] - c[1][2]) / s,
+            (c[0][2] - c[2][0]) / s,
+            (c[1][0] - c[0][1]) / s,
+        ]
+    } else if c[0][0] > c[1][1] && c[0][0] > c[2][2] {
+        let s = (1.0 + c[0][0] - c[1][1] - c[2][2]).sqrt() * 2.0;
+        [
+            (c[2][1] - c[1][2]) / s,
+            0.25 * s,
+            (c[0][1] + c[1][0]) / s,
+            (c[0][2] + c[2][0]) / s,
+        ]
+    } else if c[1][1] > c[2][2] {
+        let s = (1.0 + c[1][1] - c[0][0] - c[2][2]).sqrt() * 2.0;
+        [
+            (c[0][2] - c[2][0]) / s,
+            (c[0][1] + c[1][0]) / s,
+            0.25 * s,
+            (c[1][2] + c[2][1]) / s,
+        ]
+    } else {
+        let s = (1.0 + c[2][2] - c[0][0] - c[1][1]).sqrt() * 2.0;
+        [
+            (c[1][0] - c[0][1]) / s,
+            (c[0][2] + c[2][0]) / s,
+            (c[1][2] + c[2][1]) / s,
+            0.25 * s,
+        ]
+    };
+    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+    q.map(|x| x / n)
+}
+
+#[test]
+fn an_ordinary_px4_flight_calibrates_against_the_field_along_its_track() {
+    // The flight of the DataFlash test as PX4 logs it (Gauss, raw sensor_mag, float32): the same
+    // compass comes back within 4 standard errors, from the ULog's own GPS.
+    let dir = TempDir::new().unwrap();
+    let log = flight_ulog(dir.path(), 7);
+    let (code, c, stderr) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current"]);
+    assert_eq!(code, Some(0), "{stderr} {:?}", c.reasons);
+    let place = c.place_source.clone().unwrap();
+    assert!(
+        place.starts_with("the log's GPS (vehicle_gps_position): site 60.0000000, 10.0000000, 300.0 m")
+            && place.contains("date 2026-06-01"),
+        "{place}"
+    );
+    let se = c.std_error.bias.unwrap();
+    let ses = c.std_error.scale.unwrap();
+    let m = c.motor.clone().unwrap();
+    let sd = m.std_error.unwrap();
+    for i in 0..3 {
+        let z = [
+            (c.bias[i] - O[i] / 1000.0) / se[i],
+            (c.scale[i] - K_DIAG[i]) / ses[i],
+            (m.per_unit[i] - D[i] / 1000.0) / sd[i],
+        ];
+        assert!(
+            z.iter().all(|z| z.abs() < 4.0),
+            "axis {i}: z {z:?}; bias {:?} scale {:?} motor {:?}",
+            c.bias,
+            c.scale,
+            m.per_unit
+        );
+    }
+}
+
+/// The default ordinary flight of `seed` as a MAVLink telemetry log of ArduPilot (protocol 2):
+/// `RAW_IMU` (mGauss as int16, no calibration in force), `ATTITUDE` and `SYS_STATUS` at 10 Hz,
+/// `GPS_RAW_INT` at 5 Hz with the fix's UTC; the compass of [`flight_log`].
+fn flight_tlog(dir: &Path, seed: u64) -> std::path::PathBuf {
+    use mavlink::MavlinkVersion::V2;
+    use mavlink::dialects::ardupilotmega::{
+        ATTITUDE_DATA, GPS_RAW_INT_DATA, GpsFixType, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavType, RAW_IMU_DATA,
+        SYS_STATUS_DATA,
+    };
+
+    use crate::tlog::Tlog;
+    let plan = FlightPlan::default();
+    let f = fly(&plan, seed);
+    let mut rng = stream_rng(seed, 0xDF);
+    let mut w = Tlog::default();
+    let hb = HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_FIXED_WING,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ..HEARTBEAT_DATA::default()
+    };
+    w.push(100, 1, V2, &MavMessage::HEARTBEAT(hb));
+    for a in ["X", "Y", "Z"] {
+        w.param(200, &format!("COMPASS_OFS_{a}"), 0.0);
+        w.param(200, &format!("COMPASS_DIA_{a}"), 1.0);
+        w.param(200, &format!("COMPASS_ODI_{a}"), 0.0);
+    }
+    w.param(200, "COMPASS_SCALE", 1.0);
+    for (i, s) in f.iter().enumerate() {
+        let t_us = 60_000_000 + (s.time_s * 1e6).round() as u64;
+        let att = ATTITUDE_DATA {
+            time_boot_ms: (t_us / 1000) as u32 - 20,
+            roll: s.roll_deg.to_radians() as f32,
+            pitch: s.pitch_deg.to_radians() as f32,
+            yaw: s.heading_deg.to_radians() as f32,
+            ..ATTITUDE_DATA::default()
+        };
+        // The field at the attitude as sent (float32 radians).
+        let c = dcm_of_euler(f64::from(att.roll), f64::from(att.pitch), f64::from(att.yaw));
+        w.push(t_us - 20_000, 1, V2, &MavMessage::ATTITUDE(att));
+        let site = wmm::Site {
+            lat_deg: s.lat_deg,
+            lon_deg: s.lon_deg,
+            alt_m: s.alt_m,
+            year: 2026.414,
+        };
+        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
+        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
+        let current = (s.current_a * 100.0).round() / 100.0;
+        let raw: [f64; 3] = std::array::from_fn(|a| {
+            K_DIAG[a] * b[a]
+                + O[a]
+                + D[a] * current
+                + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
+        });
+        let sys = SYS_STATUS_DATA {
+            current_battery: (current * 100.0).round() as i16,
+            ..SYS_STATUS_DATA::default()
+        };
+        w.push(t_us - 10_000, 1, V2, &MavMessage::SYS_STATUS(sys));
+        if i % 2 == 0 {
+            let gps = GPS_RAW_INT_DATA {
+                time_usec: ((START_UTC_S + s.time_s) * 1e6).round() as u64,
+                lat: (s.lat_deg * 1e7).round() as i32,
+                lon: (s.lon_deg * 1e7).round() as i32,
+                alt: (s.alt_m * 1e3).round() as i32,
+                fix_type: GpsFixType::GPS_FIX_TYPE_3D_FIX,
+                satellites_visible: 12,
+                ..GPS_RAW_INT_DATA::default()
+            };
+            w.push(t_us - 5_000, 1, V2, &MavMessage::GPS_RAW_INT(gps));
+        }
+        let imu = RAW_IMU_DATA {
+            time_usec: t_us,
+            xmag: raw[0] as i16,
+            ymag: raw[1] as i16,
+            zmag: raw[2] as i16,
+            ..RAW_IMU_DATA::default()
+        };
+        w.push(t_us, 1, V2, &MavMessage::RAW_IMU(imu));
+    }
+    let path = dir.join(format!("flight{seed}.tlog"));
+    std::fs::write(&path, &w.bytes).unwrap();
+    path
+}
+
+#[test]
+fn an_ordinary_mavlink_flight_calibrates_against_the_field_along_its_track() {
+    // The flight of the DataFlash test as a ground station records it: the same compass comes
+    // back within 4 standard errors from the telemetry's own GPS_RAW_INT.
+    let dir = TempDir::new().unwrap();
+    let log = flight_tlog(dir.path(), 7);
+    let (code, c, stderr) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current"]);
+    assert_eq!(code, Some(0), "{stderr} {:?}", c.reasons);
+    let place = c.place_source.clone().unwrap();
+    assert!(
+        place.starts_with("the log's GPS (GPS_RAW_INT): site 60.0000000, 10.0000000, 300.0 m")
+            && place.contains("date 2026-06-01"),
+        "{place}"
+    );
+    let se = c.std_error.bias.unwrap();
+    let ses = c.std_error.scale.unwrap();
+    let m = c.motor.clone().unwrap();
+    let sd = m.std_error.unwrap();
+    for i in 0..3 {
+        let z = [
+            (c.bias[i] - O[i]) / se[i],
+            (c.scale[i] - K_DIAG[i]) / ses[i],
+            (m.per_unit[i] - D[i]) / sd[i],
+        ];
+        assert!(
+            z.iter().all(|z| z.abs() < 4.0),
+            "axis {i}: z {z:?}; bias {:?} scale {:?} motor {:?}",
+            c.bias,
+            c.scale,
+            m.per_unit
+        );
+    }
+}

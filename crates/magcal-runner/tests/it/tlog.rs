@@ -24,21 +24,21 @@ use crate::dataflash::{M3, c_bn, check_outcome, damage, euler_deg, inverse, mv, 
 const NOT_TLOG: &str = "not a MAVLink telemetry log";
 
 /// The ground station's clock at the vehicle's boot, microseconds since 1970.
-const EPOCH_US: u64 = 1_700_000_000_000_000;
+pub const EPOCH_US: u64 = 1_700_000_000_000_000;
 /// The radio's delay, microseconds.
 const DELAY_US: u64 = 35_000;
 
 /// A telemetry log being written: records of a big-endian time stamp and one frame.
 #[derive(Default, Clone)]
-struct Tlog {
-    bytes: Vec<u8>,
+pub struct Tlog {
+    pub bytes: Vec<u8>,
     /// Byte offsets of the records and of their frames' payloads (for damaging them).
     records: Vec<usize>,
     payloads: Vec<usize>,
 }
 
 impl Tlog {
-    fn push(&mut self, vehicle_us: u64, system: u8, version: MavlinkVersion, msg: &MavMessage) {
+    pub fn push(&mut self, vehicle_us: u64, system: u8, version: MavlinkVersion, msg: &MavMessage) {
         self.records.push(self.bytes.len());
         self.bytes.extend((EPOCH_US + vehicle_us + DELAY_US).to_be_bytes());
         let header = MavHeader {
@@ -52,7 +52,7 @@ impl Tlog {
             .push(at + if version == MavlinkVersion::V1 { 6 } else { 10 });
     }
 
-    fn param(&mut self, t_us: u64, name: &str, v: f32) {
+    pub fn param(&mut self, t_us: u64, name: &str, v: f32) {
         let msg = MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
             param_value: v,
             param_count: 1000,

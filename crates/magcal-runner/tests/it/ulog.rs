@@ -222,19 +222,19 @@ fn fixtures_say_what_their_readings_carry() {
 
 /// A ULog writer: the messages of the specification, little-endian.
 #[derive(Default)]
-struct Writer {
-    buf: Vec<u8>,
+pub struct Writer {
+    pub buf: Vec<u8>,
 }
 
 impl Writer {
-    fn new() -> Self {
+    pub fn new() -> Self {
         let mut w = Self::default();
         w.buf.extend_from_slice(b"ULog\x01\x12\x35\x01");
         w.buf.extend_from_slice(&1_000u64.to_le_bytes());
         w
     }
 
-    fn msg(&mut self, kind: u8, body: &[u8]) -> usize {
+    pub fn msg(&mut self, kind: u8, body: &[u8]) -> usize {
         let at = self.buf.len();
         self.buf.extend_from_slice(&(body.len() as u16).to_le_bytes());
         self.buf.push(kind);
@@ -242,18 +242,18 @@ impl Writer {
         at
     }
 
-    fn flag_bits(&mut self, incompat0: u8, appended: u64) {
+    pub fn flag_bits(&mut self, incompat0: u8, appended: u64) {
         let mut b = vec![0u8; 40];
         b[8] = incompat0;
         b[16..24].copy_from_slice(&appended.to_le_bytes());
         self.msg(b'B', &b);
     }
 
-    fn format(&mut self, text: &str) {
+    pub fn format(&mut self, text: &str) {
         self.msg(b'F', text.as_bytes());
     }
 
-    fn info_u32(&mut self, key: &str, v: u32) {
+    pub fn info_u32(&mut self, key: &str, v: u32) {
         let key = format!("uint32_t {key}");
         let mut b = vec![key.len() as u8];
         b.extend_from_slice(key.as_bytes());
@@ -261,29 +261,29 @@ impl Writer {
         self.msg(b'I', &b);
     }
 
-    fn param(&mut self, name: &str, v: f32) -> usize {
+    pub fn param(&mut self, name: &str, v: f32) -> usize {
         self.param_bytes(&format!("float {name}"), v.to_le_bytes())
     }
 
-    fn param_i32(&mut self, name: &str, v: i32) -> usize {
+    pub fn param_i32(&mut self, name: &str, v: i32) -> usize {
         self.param_bytes(&format!("int32_t {name}"), v.to_le_bytes())
     }
 
-    fn param_bytes(&mut self, key: &str, v: [u8; 4]) -> usize {
+    pub fn param_bytes(&mut self, key: &str, v: [u8; 4]) -> usize {
         let mut b = vec![key.len() as u8];
         b.extend_from_slice(key.as_bytes());
         b.extend_from_slice(&v);
         self.msg(b'P', &b)
     }
 
-    fn add_logged(&mut self, multi_id: u8, id: u16, topic: &str) {
+    pub fn add_logged(&mut self, multi_id: u8, id: u16, topic: &str) {
         let mut b = vec![multi_id];
         b.extend_from_slice(&id.to_le_bytes());
         b.extend_from_slice(topic.as_bytes());
         self.msg(b'A', &b);
     }
 
-    fn data(&mut self, id: u16, fields: &[&[u8]]) -> usize {
+    pub fn data(&mut self, id: u16, fields: &[&[u8]]) -> usize {
         let mut b = id.to_le_bytes().to_vec();
         for f in fields {
             b.extend_from_slice(f);
