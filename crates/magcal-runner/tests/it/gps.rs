@@ -178,6 +178,12 @@ fn flight_log_with(dir: &Path, seed: u64, yaw_bias_deg: f64, gps_yaw: bool) -> s
         ("COMPASS_ODI_Y", 0.0),
         ("COMPASS_ODI_Z", 0.0),
         ("COMPASS_SCALE", 1.0),
+        // What pymavlink's magfit_WMM.py reads (scripts/peers-flight.py runs it on these logs).
+        ("COMPASS_MOTCT", 0.0),
+        ("AHRS_EKF_TYPE", 3.0),
+        ("AHRS_TRIM_X", 0.0),
+        ("AHRS_TRIM_Y", 0.0),
+        ("AHRS_TRIM_Z", 0.0),
     ] {
         w.msg(0x81, &[V::N(1000.0), V::S(name), V::N(v)]);
     }
@@ -669,4 +675,18 @@ fn an_ordinary_mavlink_flight_calibrates_against_the_field_along_its_track() {
             m.per_unit
         );
     }
+}
+
+#[test]
+#[ignore = "a generator: writes the synthetic flights that scripts/peers-flight.py compares with pymavlink's magfit_WMM.py"]
+fn write_flights_for_the_peers() {
+    // MAGCAL_FLIGHTS_DIR: where; MAGCAL_FLIGHTS: how many (seeds 1 to N). Beside them, truth.json.
+    let dir = std::path::PathBuf::from(std::env::var("MAGCAL_FLIGHTS_DIR").expect("MAGCAL_FLIGHTS_DIR"));
+    let n: u64 = std::env::var("MAGCAL_FLIGHTS").map_or(5, |v| v.parse().unwrap());
+    std::fs::create_dir_all(&dir).unwrap();
+    for seed in 1..=n {
+        flight_log(&dir, seed);
+    }
+    let truth = serde_json::json!({"scale": K_DIAG, "bias": O, "motor_per_amp": D, "noise": SIGMA, "units": "mGauss", "frame": "body (forward, right, down)"});
+    std::fs::write(dir.join("truth.json"), truth.to_string()).unwrap();
 }
