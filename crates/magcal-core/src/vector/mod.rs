@@ -52,7 +52,7 @@
 
 mod track;
 
-pub use track::{VectorModel, fit_track};
+pub use track::{Manoeuvre, VectorModel, fit_track, next_manoeuvres};
 
 use crate::identifiability::PhysicalScales;
 use crate::reference::det;

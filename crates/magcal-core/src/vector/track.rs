@@ -371,6 +371,183 @@ fn assess_track(
     fit
 }
 
+/// A manoeuvre a pilot can fly, and what it would make of the calibration of a flight
+/// ([`next_manoeuvres`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Manoeuvre {
+    /// In a pilot's words: `a full turn at 20 degrees of bank`, `a straight leg heading 120`.
+    pub words: String,
+    /// Readings it adds (at the log's rate: a turn of 120 readings, a leg of 60).
+    pub readings: usize,
+    /// Whether the log with it determines the calibration.
+    pub identifiable: bool,
+    /// The verdict of the log with it, in words.
+    pub verdict: String,
+    /// The gain in `ln det` of the information ([P1]'s D-criterion, eq. (12)).
+    pub ln_det_gain: f64,
+    /// The bias's standard errors with it (white noise at the noise given, the readings' units);
+    /// `None` where its information is singular.
+    pub bias_std: Option<Vec3>,
+}
+
+/// Bank angles of the turns offered, degrees.
+const TURN_BANKS_DEG: [f64; 3] = [10.0, 20.0, 30.0];
+/// Readings of a turn (one every 3 degrees of heading) and of a straight leg.
+const TURN_READINGS: usize = 120;
+const LEG_READINGS: usize = 60;
+
+/// `ln det` of a symmetric positive definite matrix by its Cholesky factor; `-inf` where it is
+/// not positive definite.
+fn ln_det(a: &[Vec<f64>]) -> f64 {
+    let p = a.len();
+    let m = faer::Mat::from_fn(p, p, |i, j| a[i][j]);
+    match m.llt(faer::Side::Lower) {
+        Ok(l) => (0..p).map(|i| 2.0 * l.L()[(i, i)].ln()).sum(),
+        Err(_) => f64::NEG_INFINITY,
+    }
+}
+
+/// The manoeuvres that would determine the track fit of a flight (attitudes body to z up, the
+/// field of each reading, the motor's input where fitted) under `model`, at the noise `noise`
+/// (the readings' units) and about the sensor `k` (the fit's `K`: the delta method of the
+/// derived standard errors needs one): of full turns at 10, 20 and 30 degrees of bank and
+/// straight legs every 30 degrees of heading, each added alone to the log's information (which
+/// does not depend on the estimate: the model is linear), the `best` of largest gain in `ln det`
+/// of the information (the D-optimal increment), with the verdict and the bias's standard errors
+/// they would give. The log's own bias standard errors are those of the first with no gain:
+/// compute them from [`fit_track`].
+///
+/// # Errors
+/// As [`fit_track`]'s checks of its inputs.
+#[allow(clippy::too_many_arguments)]
+pub fn next_manoeuvres(
+    readings: &[Vec3],
+    attitudes: &[Mat3],
+    fields: &[Vec3],
+    inputs: Option<&[f64]>,
+    model: VectorModel,
+    noise: f64,
+    k: Mat3,
+    best: usize,
+) -> Result<Vec<Manoeuvre>, VectorError> {
+    let layout = Layout {
+        model,
+        motor: inputs.is_some(),
+    };
+    let n = fields.len().max(1) as f64;
+    let mean: Vec3 = std::array::from_fn(|i| fields.iter().map(|f| f[i]).sum::<f64>() / n);
+    let (scale, _) = validate(readings, attitudes, super::ReferenceField::Given(mean))?;
+    let unit_fields: Vec<Vec3> = fields.iter().map(|f| f.map(|v| v / scale)).collect();
+    let f_unit = mean.map(|v| v / scale);
+    let u_typical = inputs.map_or(0.0, |u| {
+        let mut v = u.to_vec();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    });
+    let p = layout.p();
+    let info_of = |cs: &mut dyn Iterator<Item = (Mat3, Vec3, f64)>| {
+        let mut jtj = vec![vec![0.0; p]; p];
+        for (c, f, u) in cs {
+            let rows = layout.rows(mat_t_vec(&c, f), u);
+            for row in &rows {
+                for a in 0..p {
+                    for b in 0..p {
+                        jtj[a][b] += row[a] * row[b];
+                    }
+                }
+            }
+        }
+        jtj
+    };
+    let base = info_of(
+        &mut attitudes
+            .iter()
+            .zip(&unit_fields)
+            .enumerate()
+            .map(|(t, (c, f))| (*c, *f, inputs.map_or(0.0, |u| u[t]))),
+    );
+    let base_ln_det = ln_det(&base);
+    let sigma = noise / scale;
+    let unit = Unit {
+        k,
+        o: [0.0; 3],
+        f: f_unit,
+    };
+    let up = |c: Mat3| crate::aviation::z_up_of_ned(&c);
+    let mut candidates: Vec<(String, Vec<Mat3>)> = TURN_BANKS_DEG
+        .iter()
+        .map(|&bank| {
+            let turn = (0..TURN_READINGS)
+                .map(|i| {
+                    up(crate::aviation::dcm_of_euler(
+                        bank.to_radians(),
+                        0.0,
+                        (3.0 * i as f64).to_radians(),
+                    ))
+                })
+                .collect();
+            (format!("a full turn at {bank:.0} degrees of bank"), turn)
+        })
+        .collect();
+    candidates.extend((0..12).map(|h| {
+        let heading = 30.0 * f64::from(h);
+        let leg = (0..LEG_READINGS)
+            .map(|_| up(crate::aviation::dcm_of_euler(0.0, 0.0, heading.to_radians())))
+            .collect();
+        (format!("a straight leg heading {heading:.0}"), leg)
+    }));
+    let mut out: Vec<Manoeuvre> = candidates
+        .into_iter()
+        .map(|(words, cs)| {
+            let added = info_of(&mut cs.iter().map(|c| (*c, f_unit, u_typical)));
+            let total: Vec<Vec<f64>> = (0..p)
+                .map(|a| (0..p).map(|b| base[a][b] + added[a][b]).collect())
+                .collect();
+            let ln_det_gain = ln_det(&total) - base_ln_det;
+            let ne = NormalEquations {
+                jtj: total,
+                jtr: vec![0.0; p],
+                names: layout.names(),
+            };
+            let mut bias_std = None;
+            let (identifiable, verdict) = match ne.inverse() {
+                Ok(inv) => {
+                    let mut full = vec![vec![0.0; 12]; 12];
+                    for a in 0..p {
+                        for b in 0..p {
+                            if let (Some(x), Some(y)) = (layout.full_index(a), layout.full_index(b)) {
+                                full[x][y] = inv[a][b] * sigma * sigma;
+                            }
+                        }
+                    }
+                    let std = std_errors(&unit, &full, false, scale);
+                    bias_std = Some(std::array::from_fn(|i| full[9 + i][9 + i].max(0.0).sqrt() * scale));
+                    let model_k = crate::sensor::ErrorModel::from_k(
+                        &crate::small::upper_triangular_inverse(
+                            &super::decompose(&k).map_or([[f64::NAN; 3]; 3], |d| d.0),
+                        )
+                        .unwrap_or([[f64::NAN; 3]; 3]),
+                        [0.0; 3],
+                    );
+                    super::judge(std.as_ref(), &model_k, scale, false, readings.len() + cs.len())
+                }
+                Err(e) => (false, e.to_string()),
+            };
+            Manoeuvre {
+                words,
+                readings: cs.len(),
+                identifiable,
+                verdict,
+                ln_det_gain,
+                bias_std,
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| b.ln_det_gain.total_cmp(&a.ln_det_gain));
+    out.truncate(best);
+    Ok(out)
+}
+
 /// `n / (n - p) A^-1 B A^-1` with its diagonal at least the white covariance's.
 fn sandwich(inv: &[Vec<f64>], b: &[[f64; 15]; 15], white: &[Vec<f64>], n: usize) -> Vec<Vec<f64>> {
     let p = inv.len();
@@ -571,6 +748,38 @@ mod tests {
         }
         let rms = |x: f64| (x / (3 * seeds) as f64).sqrt();
         (worst, held as f64 / n as f64, n, rms(se_track), rms(se_origin))
+    }
+
+    #[test]
+    fn a_leg_alone_hardly_determines_the_full_model_and_a_turn_would() {
+        // The flight's first 100 s: one straight leg, heading 340, turbulence only. Offsets are
+        // determined to a few nT (the field and the attitude are known); the full matrix hardly:
+        // the body's field barely turns, and the bias's standard errors are thousands of nT. The
+        // manoeuvre of largest gain in information is named, from the information alone (the
+        // model is linear: no estimate enters it).
+        let f = flown(5, &K, O, D);
+        let cut = 1000;
+        let (m, c, fe, u) = (
+            &f.readings[..cut],
+            &f.attitudes[..cut],
+            &f.along[..cut],
+            &f.currents[..cut],
+        );
+        let offsets = fit_track(m, c, fe, None, VectorModel::Offsets, crate::log_fit::Order::Time).unwrap();
+        assert!(offsets.identifiable, "{}", offsets.verdict);
+        let full = fit_track(m, c, fe, Some(u), VectorModel::Full, crate::log_fit::Order::Time);
+        let next = next_manoeuvres(m, c, fe, Some(u), VectorModel::Full, SIGMA_NT, K, 3).unwrap();
+        // Measured: the leg's bias standard errors are 4,434 nT; a full turn at 30 degrees of
+        // bank would bring them to 237 nT (20 degrees: 402; 10 degrees: 477).
+        let before = full.as_ref().map_or(f64::INFINITY, |f| {
+            f.std_error
+                .map_or(f64::INFINITY, |s| s.bias.iter().copied().fold(0.0, f64::max))
+        });
+        let after = next[0].bias_std.unwrap().iter().copied().fold(0.0, f64::max);
+        println!("{before} -> {next:#?}");
+        assert_eq!(next[0].words, "a full turn at 30 degrees of bank");
+        assert!(next[0].identifiable && after < before / 10.0, "{before} {after}");
+        assert!(next.windows(2).all(|w| w[0].ln_det_gain >= w[1].ln_det_gain));
     }
 
     #[test]

@@ -109,6 +109,14 @@ pub struct CalibrationJson {
     /// for logs without attitudes or CSV logs.
     #[serde(default)]
     pub heading_source: Option<String>,
+    /// A vector fit against a field given per reading: the heading's standard error the bias's
+    /// largest standard error leaves, degrees (`atan(std O / horizontal field)`).
+    #[serde(default)]
+    pub heading_std_deg: Option<f64>,
+    /// Where that heading is worse than a usable compass's: the manoeuvres of largest gain in
+    /// information, in a pilot's words, with the bias's standard errors each would give.
+    #[serde(default)]
+    pub next_manoeuvres: Vec<String>,
     pub bias: [f64; 3],
     pub psi_deg: [f64; 3],
     pub scale: [f64; 3],

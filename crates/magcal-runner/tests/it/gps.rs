@@ -690,3 +690,32 @@ fn write_flights_for_the_peers() {
     let truth = serde_json::json!({"scale": K_DIAG, "bias": O, "motor_per_amp": D, "noise": SIGMA, "units": "mGauss", "frame": "body (forward, right, down)"});
     std::fs::write(dir.join("truth.json"), truth.to_string()).unwrap();
 }
+
+#[test]
+fn a_flight_too_straight_to_point_the_compass_is_told_what_to_fly() {
+    // The first 100 s of the flight (one leg, heading 340): the diagonal model's bias is known
+    // to 4.4 mGauss only, 1.7 degrees of heading: not usable (exit 3), and the manoeuvre of
+    // largest gain in information is named with the standard errors it would give.
+    let dir = TempDir::new().unwrap();
+    let log = flight_log(dir.path(), 7);
+    let (code, c, _) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current", "--to", "160"]);
+    assert_eq!(code, Some(3));
+    let h = c.heading_std_deg.unwrap();
+    assert!(h > 1.0 && h < 3.0, "{h}");
+    assert!(
+        c.reasons.iter().any(|r| r.contains("a heading error of about")
+            && r.contains("fly a full turn at 30 degrees of bank (120 readings)")),
+        "{:?}",
+        c.reasons
+    );
+    assert_eq!(c.next_manoeuvres.len(), 3);
+    assert!(
+        c.next_manoeuvres[0].starts_with("a full turn at 30 degrees of bank (120 readings): bias standard errors"),
+        "{:?}",
+        c.next_manoeuvres
+    );
+    // The whole flight points it: no manoeuvre to suggest.
+    let (code, whole, _) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current"]);
+    assert_eq!(code, Some(0));
+    assert!(whole.heading_std_deg.unwrap() < 0.3 && whole.next_manoeuvres.is_empty());
+}

@@ -499,6 +499,8 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         magnitude_source: source,
         place_source: None,
         heading_source: None,
+        heading_std_deg: None,
+        next_manoeuvres: Vec::new(),
         bias: fit.bias,
         psi_deg: fit.errors.psi_deg(),
         scale: fit.errors.scale(),
@@ -804,6 +806,17 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
     }
     if let Some(c) = &j.check {
         writeln!(w, "{}: {}", if c.passed { "check" } else { "CHECK FAILED" }, c.words)?;
+    }
+    if let Some(h) = j.heading_std_deg {
+        writeln!(
+            w,
+            "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
+            significant(h, 3),
+            vector::MAX_HEADING_STD_DEG
+        )?;
+    }
+    for m in &j.next_manoeuvres {
+        writeln!(w, "  next: fly {m}")?;
     }
     if j.usable {
         writeln!(

@@ -9,7 +9,9 @@ use magcal_core::aviation::z_up_of_ned;
 use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
-use magcal_core::vector::{ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in};
+use magcal_core::vector::{
+    Manoeuvre, ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in, next_manoeuvres,
+};
 
 use super::CalibrateArgs;
 use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson, MotorJson};
@@ -85,6 +87,54 @@ pub struct Vector {
     fit_name: &'static str,
     /// The motor's input (`current` or `throttle`) and its range, where fitted.
     motor: Option<(&'static str, [f64; 2])>,
+    /// A fit against a field given per reading ([`fit_track`]): how well it points the compass,
+    /// and the manoeuvres that would improve it.
+    track: Option<TrackVerdict>,
+}
+
+/// The largest heading standard error a usable calibration of an ordinary flight may leave,
+/// degrees: the bias's largest standard error against the horizontal field. A compass's heading
+/// is what a flight needs it for; an autopilot's own checks (ArduPilot's compass consistency)
+/// work in degrees of that order.
+pub const MAX_HEADING_STD_DEG: f64 = 1.0;
+
+/// How well a track fit points the compass, and what to fly next.
+pub struct TrackVerdict {
+    /// The bias's largest standard error, the log's units.
+    bias_std_max: f64,
+    /// The horizontal field (the mean over the readings), the log's units.
+    horizontal: f64,
+    /// `atan(bias_std_max / horizontal)`, degrees.
+    heading_std_deg: f64,
+    /// The manoeuvres of largest gain in information ([`next_manoeuvres`]).
+    next: Vec<Manoeuvre>,
+}
+
+/// The verdict of a track fit and, where its heading is not good enough, the manoeuvres that
+/// would improve it.
+fn track_verdict(
+    fit: &VectorFit,
+    readings: &[Vec3],
+    attitudes: &[Mat3],
+    fields: &[Vec3],
+    inputs: Option<&[f64]>,
+    model: VectorModel,
+) -> Option<TrackVerdict> {
+    let std = fit.std_error.as_ref()?;
+    let bias_std_max = std.bias.iter().copied().fold(0.0, f64::max);
+    let horizontal = fit.field[0].hypot(fit.field[1]);
+    let heading_std_deg = (bias_std_max / horizontal).atan().to_degrees();
+    let next = if heading_std_deg > MAX_HEADING_STD_DEG {
+        next_manoeuvres(readings, attitudes, fields, inputs, model, fit.noise?, fit.k, 3).unwrap_or_default()
+    } else {
+        Vec::new()
+    };
+    Some(TrackVerdict {
+        bias_std_max,
+        horizontal,
+        heading_std_deg,
+        next,
+    })
 }
 
 /// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
@@ -225,6 +275,7 @@ pub fn fit(
                 log.readings.len()
             )
         })?;
+        let track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model);
         return Ok(Vector {
             fit,
             readings,
@@ -233,6 +284,7 @@ pub fn fit(
             magnitude_given: args.magnitude.is_some(),
             fit_name: args.fit.name(),
             motor,
+            track,
         });
     }
     let (field, field_source) = match place {
@@ -265,6 +317,7 @@ pub fn fit(
         magnitude_given: args.magnitude.is_some(),
         fit_name: args.fit.name(),
         motor: None,
+        track: None,
     })
 }
 
@@ -314,6 +367,17 @@ impl Vector {
         if !v.identifiable {
             f.reasons.push(format!("not identifiable: {}", v.verdict));
         }
+        if let Some(t) = &self.track
+            && t.heading_std_deg > MAX_HEADING_STD_DEG
+        {
+            f.reasons.push(format!(
+                "the bias is determined to {} only (its largest standard error), {} of the horizontal field: a heading error of about {} degrees (at most {MAX_HEADING_STD_DEG} for a usable compass){}",
+                significant(t.bias_std_max, 3),
+                significant(t.bias_std_max / t.horizontal, 3),
+                significant(t.heading_std_deg, 3),
+                t.next.first().map_or(String::new(), |m| format!("; fly {} ({} readings): see next manoeuvres", m.words, m.readings))
+            ));
+        }
         // The magnitude that K shares with a fitted F comes from the scalar fit: only a scalar
         // fit that determines it may give it.
         if v.field_fitted && !self.magnitude_given && !scalar.identifiable {
@@ -350,6 +414,27 @@ impl Vector {
         let v = &self.fit;
         let std = v.std_error.as_ref();
         json.fit = self.fit_name.to_string();
+        if let Some(t) = &self.track {
+            json.heading_std_deg = Some(t.heading_std_deg);
+            json.next_manoeuvres = t
+                .next
+                .iter()
+                .map(|m| {
+                    format!(
+                        "{} ({} readings): bias standard errors {} (white noise; {})",
+                        m.words,
+                        m.readings,
+                        m.bias_std
+                            .map_or("unknown".to_string(), |b| b.map(|x| significant(x, 3)).join(", ")),
+                        if m.identifiable {
+                            "identifiable"
+                        } else {
+                            "still not identifiable"
+                        }
+                    )
+                })
+                .collect();
+        }
         if let (Some(d), Some(input)) = (v.motor, self.motor) {
             json.motor = Some(MotorJson {
                 input: input.0.to_string(),
