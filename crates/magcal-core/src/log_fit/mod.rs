@@ -73,7 +73,7 @@ pub use field_change::{
     Candidate, FIELD_CHANGE_STEP, FIELD_CHANGE_Z, FieldChange, FieldChangeError, FieldChangeSettings, Segment,
     best_sphere, field_segments,
 };
-pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit};
+pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit, show_p};
 pub use passes::{PASS_EDGE_SIGMAS, PASS_FALSE_ALARM, PASS_SHARE, PASS_SHIFT, Pass, Passes, pass_sigmas, passes};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 pub use serial::Serial;

@@ -371,6 +371,37 @@ fn assess_track(
     fit
 }
 
+/// The lack-of-fit test of a reduced track fit against the full one of the same readings:
+/// `F = ((Q_r - Q_f) / (p_f - p_r)) / (Q_f / (3 m - p_f))` on `(p_f - p_r, 3 m - p_f)` degrees of
+/// freedom, `Q` the residual sums of squares; `(F, degrees of freedom, p-value)`. The log rejects
+/// the reduced model when the p-value is below [`crate::log_fit::LACK_OF_FIT_LEVEL`] (a compass
+/// whose scale factors or soft iron the reduced model holds at one would be calibrated wrong).
+/// Residuals correlated in time make it reject more often than its level: a rejection on a real
+/// log says the richer model fits better, not by how much it matters.
+pub fn lack_of_fit(reduced: &VectorFit, full: &VectorFit) -> Option<(f64, (usize, usize), f64)> {
+    use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+    let m3 = reduced.dof + unknowns(reduced);
+    let (p_r, p_f) = (unknowns(reduced), unknowns(full));
+    if p_f <= p_r || m3 <= p_f {
+        return None;
+    }
+    let q = |f: &VectorFit| f.rms_residual * f.rms_residual * m3 as f64;
+    let (q_r, q_f) = (q(reduced), q(full));
+    let dof = (p_f - p_r, m3 - p_f);
+    let f = ((q_r - q_f).max(0.0) / dof.0 as f64) / (q_f / dof.1 as f64);
+    let p = FisherSnedecor::new(dof.0 as f64, dof.1 as f64).ok()?.sf(f);
+    Some((f, dof, p))
+}
+
+/// The unknowns of a track fit.
+fn unknowns(fit: &VectorFit) -> usize {
+    let layout = Layout {
+        model: fit.model,
+        motor: fit.motor.is_some(),
+    };
+    layout.p()
+}
+
 /// A manoeuvre a pilot can fly, and what it would make of the calibration of a flight
 /// ([`next_manoeuvres`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -701,7 +732,7 @@ mod tests {
     /// `(|z| max, share of 95 % intervals holding the truth, intervals)` of the bias, motor and
     /// (diagonal model) scale factors of fits of `seeds` flights under `model`, and the rms
     /// error of the bias over them with the field along the track and at its first fix.
-    fn study(model: VectorModel, seeds: u64) -> (f64, f64, usize, f64, f64) {
+    fn study(model: VectorModel, seeds: u64) -> (f64, f64, usize, f64, f64, usize) {
         let k = if model == VectorModel::Offsets {
             [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
         } else {
@@ -709,6 +740,7 @@ mod tests {
         };
         let (mut worst, mut held, mut n) = (0.0_f64, 0, 0);
         let (mut se_track, mut se_origin) = (0.0, 0.0);
+        let mut rejected = 0;
         for seed in 0..seeds {
             let f = flown(seed, &k, O, D);
             let fit = fit_track(
@@ -734,6 +766,18 @@ mod tests {
                 held += usize::from(e.abs() <= q * s);
                 n += 1;
             }
+            if model != VectorModel::Full {
+                let full = fit_track(
+                    &f.readings,
+                    &f.attitudes,
+                    &f.along,
+                    Some(&f.currents),
+                    VectorModel::Full,
+                    crate::log_fit::Order::Time,
+                )
+                .unwrap();
+                rejected += usize::from(lack_of_fit(&fit, &full).unwrap().2 < crate::log_fit::LACK_OF_FIT_LEVEL);
+            }
             let one = fit_track(
                 &f.readings,
                 &f.attitudes,
@@ -747,7 +791,14 @@ mod tests {
             se_origin += (0..3).map(|i| (one.bias[i] - O[i]).powi(2)).sum::<f64>();
         }
         let rms = |x: f64| (x / (3 * seeds) as f64).sqrt();
-        (worst, held as f64 / n as f64, n, rms(se_track), rms(se_origin))
+        (
+            worst,
+            held as f64 / n as f64,
+            n,
+            rms(se_track),
+            rms(se_origin),
+            rejected,
+        )
     }
 
     #[test]
@@ -798,10 +849,13 @@ mod tests {
             (VectorModel::Diagonal, 2.0),
             (VectorModel::Full, 1.5),
         ] {
-            let (worst, coverage, n, track, origin) = study(model, 50);
+            let (worst, coverage, n, track, origin, rejected) = study(model, 50);
             println!(
-                "{model:?}: worst |z| {worst:.2}, 95 % coverage {coverage:.3} of {n}; bias rms error {track:.1} nT along the track, {origin:.1} at one origin"
+                "{model:?}: worst |z| {worst:.2}, 95 % coverage {coverage:.3} of {n}; bias rms error {track:.1} nT along the track, {origin:.1} at one origin; rejected against the full matrix {rejected} of 50"
             );
+            // The lack-of-fit test at its level 0.001 of a model that is the truth: 50 flights
+            // reject it 0.05 times on average; 2 or more has a chance of about 1e-3.
+            assert!(rejected <= 1, "{model:?} {rejected}");
             assert!(worst < 4.0, "{model:?} {worst}");
             assert!(coverage >= 0.91, "{model:?} {coverage}");
             assert!(origin > ratio * track, "{model:?} {origin} {track}");

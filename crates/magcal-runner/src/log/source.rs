@@ -698,6 +698,33 @@ pub fn max_gap(times: &[f64]) -> f64 {
     (2.0 * *median).max(MIN_GAP_S)
 }
 
+/// The heading (degrees) of `series` at each of `times`: linear in time between the samples
+/// around it (the shorter way round the circle) where both lie within [`max_gap`] of it, else the
+/// nearest within it, else none. A receiver's yaw at 5 Hz is 0.2 s apart: a vehicle turning at 5
+/// degrees per second turns 1 degree between its samples, which the nearest one would leave as
+/// an error of up to half a degree.
+fn interpolate_headings(times: &[f64], series: &Series<f64>) -> Vec<Option<f64>> {
+    let gap = max_gap(&series.times);
+    let (t, v) = (&series.times, &series.values);
+    let nearest = match_series(times, series);
+    times
+        .iter()
+        .zip(nearest)
+        .map(|(&at, near)| {
+            let i = t.partition_point(|&s| s <= at);
+            if i == 0 || i == t.len() {
+                return near;
+            }
+            let (t0, t1) = (t[i - 1], t[i]);
+            if at - t0 > gap || t1 - at > gap || t1 <= t0 {
+                return near;
+            }
+            let turn = (v[i] - v[i - 1] + 180.0).rem_euclid(360.0) - 180.0;
+            Some((v[i - 1] + turn * (at - t0) / (t1 - t0)).rem_euclid(360.0))
+        })
+        .collect()
+}
+
 /// The sample of `series` nearest in time to each of `times`, within [`max_gap`].
 pub fn match_series<T: Copy>(times: &[f64], series: &Series<T>) -> Vec<Option<T>> {
     let gap = max_gap(&series.times);
@@ -766,7 +793,7 @@ fn attitudes_of(
         );
         return (Some(own), Some(words));
     };
-    let matched = match_series(times, yaw);
+    let matched = interpolate_headings(times, yaw);
     let rebuilt: Vec<Option<Mat3>> = own
         .iter()
         .zip(&matched)

@@ -329,6 +329,15 @@ fn an_ordinary_dataflash_flight_calibrates_against_the_field_along_its_track() {
     // 0.39); at one site (2.606, -1.245, 5.266): its z offset 3.2 standard errors off.
     let off = |b: [f64; 3]| (0..3).map(|i| (b[i] - O[i]).powi(2)).sum::<f64>().sqrt();
     assert!(off(one.bias) > 5.0 * off(c.bias), "{:?} {:?}", one.bias, c.bias);
+    // Offsets alone do not describe a compass with scale errors of 3 to 4 %: the log rejects them.
+    let (code, offsets, _) = calibrate_json(&log, &["--fit", "vector-offsets", "--motor", "current"]);
+    assert_eq!(code, Some(3));
+    assert!(
+        offsets.reasons[0].starts_with("the log rejects the vector-offsets model: lack-of-fit F = ")
+            && offsets.reasons[0].ends_with("fit --fit vector-diagonal or --fit vector"),
+        "{:?}",
+        offsets.reasons
+    );
 }
 
 #[test]

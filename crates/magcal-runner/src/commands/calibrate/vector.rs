@@ -10,7 +10,8 @@ use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
 use magcal_core::vector::{
-    Manoeuvre, ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in, next_manoeuvres,
+    Manoeuvre, ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in, lack_of_fit,
+    next_manoeuvres,
 };
 
 use super::CalibrateArgs;
@@ -108,6 +109,8 @@ pub struct TrackVerdict {
     heading_std_deg: f64,
     /// The manoeuvres of largest gain in information ([`next_manoeuvres`]).
     next: Vec<Manoeuvre>,
+    /// A reduced model against the full matrix: `(F, degrees of freedom, p-value)`.
+    lack_of_fit: Option<(f64, (usize, usize), f64)>,
 }
 
 /// The verdict of a track fit and, where its heading is not good enough, the manoeuvres that
@@ -134,6 +137,7 @@ fn track_verdict(
         horizontal,
         heading_std_deg,
         next,
+        lack_of_fit: None,
     })
 }
 
@@ -275,7 +279,20 @@ pub fn fit(
                 log.readings.len()
             )
         })?;
-        let track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model);
+        let mut track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model);
+        if model != VectorModel::Full
+            && let Some(t) = track.as_mut()
+            && let Ok(full) = fit_track(
+                &readings,
+                &attitudes,
+                &fields,
+                inputs.as_deref(),
+                VectorModel::Full,
+                order,
+            )
+        {
+            t.lack_of_fit = lack_of_fit(&fit, &full);
+        }
         return Ok(Vector {
             fit,
             readings,
@@ -366,6 +383,24 @@ impl Vector {
         f.reasons.clear();
         if !v.identifiable {
             f.reasons.push(format!("not identifiable: {}", v.verdict));
+        }
+        if let Some((fv, dof, p)) = self.track.as_ref().and_then(|t| t.lack_of_fit)
+            && p < magcal_core::log_fit::LACK_OF_FIT_LEVEL
+        {
+            f.reasons.push(format!(
+                "the log rejects the {} model: lack-of-fit F = {} on ({}, {}) degrees of freedom against the full matrix, p {} (below {}): fit {}",
+                self.fit_name,
+                significant(fv, 4),
+                dof.0,
+                dof.1,
+                magcal_core::log_fit::show_p(p),
+                magcal_core::log_fit::LACK_OF_FIT_LEVEL,
+                if self.fit_name == "vector-offsets" {
+                    "--fit vector-diagonal or --fit vector"
+                } else {
+                    "--fit vector"
+                }
+            ));
         }
         if let Some(t) = &self.track
             && t.heading_std_deg > MAX_HEADING_STD_DEG
