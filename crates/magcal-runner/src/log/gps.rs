@@ -56,6 +56,23 @@ pub fn utc_day(utc_s: f64) -> String {
     format!("{y:04}-{m:02}-{d:02}")
 }
 
+/// Seconds since 1970 at the middle of the day a decimal year names (the inverse of
+/// [`wmm::decimal_year`] to within the day: a date typed for fixes without a time).
+pub fn utc_of_year(year: f64) -> f64 {
+    let y = year.floor();
+    let leap = wmm::is_leap_year(y as i64);
+    let days_in_year = if leap { 366.0 } else { 365.0 };
+    // Days from 1970-01-01 to January 1 of year y.
+    let days_before = (1970..y as i64)
+        .map(|k| if wmm::is_leap_year(k) { 366.0 } else { 365.0 })
+        .sum::<f64>()
+        - (y as i64..1970)
+            .map(|k| if wmm::is_leap_year(k) { 366.0 } else { 365.0 })
+            .sum::<f64>();
+    let day = ((year - y) * days_in_year).floor();
+    (days_before + day + 0.5) * 86_400.0
+}
+
 /// The site and date of `gps` (see the module documentation).
 pub fn place_of(gps: Option<&Series<Fix>>, model: Option<wmm::Model>, source: &str) -> PlaceOfLog {
     let Some(gps) = gps else {
@@ -225,6 +242,14 @@ mod tests {
         assert_eq!(utc_day(1_557_756_559.6), "2019-05-13");
         assert_eq!(utc_day(951_782_400.0), "2000-02-29");
         assert_eq!(utc_day(-86_400.0), "1969-12-31");
+    }
+
+    #[test]
+    fn a_typed_date_is_that_day() {
+        for day in ["2026-06-01", "2024-02-29", "2000-01-01", "2019-12-31", "1999-07-04"] {
+            let y = wmm::decimal_year(day).unwrap();
+            assert_eq!(utc_day(utc_of_year(y)), day);
+        }
     }
 
     #[test]

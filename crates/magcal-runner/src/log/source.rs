@@ -145,6 +145,14 @@ pub struct LogArgs {
     /// CSV: the column of the throttle, 0 to 1 (for `calibrate --motor throttle`).
     #[arg(long, value_name = "COLUMN")]
     pub throttle: Option<String>,
+    /// CSV: the columns of the vehicle's position, `LAT,LON,ALT` (degrees north and east, metres
+    /// above mean sea level): the site of the World Magnetic Model's field, and the field along
+    /// the track for a vector fit (a row with all three is a 3D fix).
+    #[arg(long, value_name = "LAT,LON,ALT")]
+    pub position: Option<String>,
+    /// CSV: the column of the positions' UTC time, seconds since 1970 (the date; else `--date`).
+    #[arg(long, value_name = "COLUMN", requires = "position")]
+    pub utc: Option<String>,
     /// Flight logs: where the attitudes' heading comes from. `auto`: a moving-baseline GPS
     /// receiver's yaw where the log has one, else the autopilot's; `autopilot`: the autopilot's
     /// estimate (whose yaw used the compass being calibrated); `gps`: the receiver's yaw;
@@ -405,6 +413,8 @@ fn check_flags(args: &LogArgs, format: Format) -> Result<()> {
         ("--attitude-frame", args.attitude_frame != FrameArg::Ned),
         ("--current", args.current.is_some()),
         ("--throttle", args.throttle.is_some()),
+        ("--position", args.position.is_some()),
+        ("--utc", args.utc.is_some()),
     ];
     if format == Format::Csv {
         if args.attitude_frame != FrameArg::Ned && args.euler.is_none() && args.quaternion.is_none() {
@@ -425,6 +435,11 @@ fn check_flags(args: &LogArgs, format: Format) -> Result<()> {
         }
         if args.compass.is_some() {
             bail!("--compass applies to flight logs; a CSV log holds one magnetometer (choose it with --columns)");
+        }
+        if args.position.is_some() && args.time.is_none() {
+            bail!(
+                "--position needs the CSV log's times (the field along the track is taken at them): name their column with --time"
+            );
         }
         if args.heading_from != HeadingFrom::Auto {
             bail!(
@@ -481,6 +496,8 @@ struct CsvExtras<'a> {
     quaternion: Option<usize>,
     current: Option<usize>,
     throttle: Option<usize>,
+    position: Option<usize>,
+    utc: Option<usize>,
 }
 
 impl<'a> CsvExtras<'a> {
@@ -500,6 +517,8 @@ impl<'a> CsvExtras<'a> {
         let quaternion = add("--quaternion", &args.quaternion, 4)?;
         let current = add("--current", &args.current, 1)?;
         let throttle = add("--throttle", &args.throttle, 1)?;
+        let position = add("--position", &args.position, 3)?;
+        let utc = add("--utc", &args.utc, 1)?;
         Ok(Self {
             extras,
             time,
@@ -507,6 +526,8 @@ impl<'a> CsvExtras<'a> {
             quaternion,
             current,
             throttle,
+            position,
+            utc,
         })
     }
 
@@ -581,6 +602,7 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
     let mut attitudes = (x.euler.is_some() || x.quaternion.is_some()).then(Vec::new);
     let mut currents = x.current.map(|_| Vec::new());
     let mut throttles = x.throttle.map(|_| Vec::new());
+    let mut fixes: Option<Series<Fix>> = x.position.map(|_| Series::default());
     let mut missing_time = None;
     let mut previous: Option<(usize, f64)> = None;
     // Rows dropped here by --skip-bad: an attitude with some of its values missing.
@@ -625,6 +647,21 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
                     s.push(v[at]);
                 }
             }
+            // A row's position is a fix where it has all three values, on the row's time (the
+            // track's field is taken at the readings' times: a CSV with positions needs --time).
+            if let (Some(g), Some(at), Some(t)) = (&mut fixes, x.position, times.as_ref().and_then(|t| t.last()))
+                && let (Some(lat), Some(lon), Some(alt)) = (v[at], v[at + 1], v[at + 2])
+                && g.times.last().is_none_or(|last| last < t)
+            {
+                g.times.push(*t);
+                g.values.push(Fix {
+                    lat_deg: lat,
+                    lon_deg: lon,
+                    alt_m: alt,
+                    fix_type: 3,
+                    utc_s: x.utc.and_then(|u| v[u]),
+                });
+            }
             readings.push(r);
             lines.push(line);
             Ok(())
@@ -640,6 +677,8 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         ("attitude (quaternion)", &args.quaternion),
         ("current", &args.current),
         ("throttle", &args.throttle),
+        ("position", &args.position),
+        ("UTC", &args.utc),
     ] {
         if let Some(c) = list {
             messages.push(format!("{what}: {c}"));
@@ -668,7 +707,9 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
         attitudes,
         currents,
         throttles,
-        gps: None,
+        gps: fixes
+            .filter(|g| !g.times.is_empty())
+            .map(|g| (g, format!("columns {}", args.position.as_deref().unwrap_or("")))),
     })
 }
 

@@ -728,3 +728,114 @@ fn a_flight_too_straight_to_point_the_compass_is_told_what_to_fly() {
     assert_eq!(code, Some(0));
     assert!(whole.heading_std_deg.unwrap() < 0.3 && whole.next_manoeuvres.is_empty());
 }
+
+#[test]
+fn a_csv_log_with_positions_calibrates_along_its_track() {
+    // The flight as a CSV with an Euler attitude (NED, degrees), the position columns and no
+    // time of day: the date is typed, the site and the field along the track are the rows'.
+    let plan = FlightPlan::default();
+    let f = fly(&plan, 9);
+    let mut rng = stream_rng(9, 0xC5);
+    let mut text = String::from("t,mx,my,mz,roll,pitch,yaw,lat,lon,alt,current\n");
+    for s in &f {
+        let site = wmm::Site {
+            lat_deg: s.lat_deg,
+            lon_deg: s.lon_deg,
+            alt_m: s.alt_m,
+            year: 2026.414,
+        };
+        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
+        let c = dcm_of_euler(
+            s.roll_deg.to_radians(),
+            s.pitch_deg.to_radians(),
+            s.heading_deg.to_radians(),
+        );
+        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
+        let raw: [f64; 3] = std::array::from_fn(|a| {
+            K_DIAG[a] * b[a]
+                + O[a]
+                + D[a] * s.current_a
+                + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
+        });
+        text.push_str(&format!(
+            "{:.2},{:.4},{:.4},{:.4},{:.6},{:.6},{:.6},{:.8},{:.8},{:.2},{:.4}\n",
+            s.time_s,
+            raw[0],
+            raw[1],
+            raw[2],
+            s.roll_deg,
+            s.pitch_deg,
+            s.heading_deg,
+            s.lat_deg,
+            s.lon_deg,
+            s.alt_m,
+            s.current_a
+        ));
+    }
+    let dir = TempDir::new().unwrap();
+    let log = dir.path().join("flight.csv");
+    std::fs::write(&log, text).unwrap();
+    let args = [
+        "--columns",
+        "mx,my,mz",
+        "--time",
+        "t",
+        "--euler",
+        "roll,pitch,yaw",
+        "--position",
+        "lat,lon,alt",
+        "--current",
+        "current",
+        "--units",
+        "mG",
+        "--fit",
+        "vector-diagonal",
+        "--motor",
+        "current",
+    ];
+    let (code, c, stderr) = calibrate_json(&log, &[&args[..], &["--date", "2026-06-01"]].concat());
+    assert_eq!(code, Some(0), "{stderr} {:?}", c.reasons);
+    let place = c.place_source.clone().unwrap();
+    assert!(
+        place.starts_with("the log's GPS (columns lat,lon,alt): site 60.0000000, 10.0000000, 300.0 m")
+            && place.contains("date 2026-06-01"),
+        "{place}"
+    );
+    let se = c.std_error.bias.unwrap();
+    for i in 0..3 {
+        assert!(((c.bias[i] - O[i]) / se[i]).abs() < 4.0, "{:?} {se:?}", c.bias);
+    }
+    // Without a date the rows give none, and the fit that needs the field says what to give.
+    let out = crate::common::magcal()
+        .arg("calibrate")
+        .arg(&log)
+        .args(args)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains(
+        "needs the field given: --site and --date, a flight log with GPS fixes, or a CSV's --position with --utc or --date"
+    ));
+    // A scalar fit runs, and says why it has no site.
+    let (_, undated, _) = calibrate_json(&log, &args[..8]);
+    assert!(
+        undated
+            .place_source
+            .unwrap()
+            .contains("gives no UTC time with its fixes, so no date")
+    );
+    // A date and no positions is refused by name.
+    let out = crate::common::magcal()
+        .args([
+            "calibrate",
+            log.to_str().unwrap(),
+            "--columns",
+            "mx,my,mz",
+            "--date",
+            "2026-06-01",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--date without --site"));
+}

@@ -23,6 +23,7 @@ use crate::log::calibration::{
     LackOfFitJson, NoiseJson, PassesJson, StdError,
 };
 use crate::log::flight::InForce;
+use crate::log::flight::{Fix, Series};
 use crate::log::flown::{Bounds, Flown, SECTOR_DEG, flown};
 use crate::log::gps;
 use crate::log::read::HELD_BYTES_PER_READING;
@@ -140,8 +141,9 @@ pub struct CalibrateArgs {
     /// gives the magnitude (the site then serves the box flags' field direction only).
     #[arg(long, requires = "date", allow_hyphen_values = true, value_name = "LAT,LON[,ALT_M]")]
     pub site: Option<Site>,
-    /// The date of the log: `YYYY-MM-DD` or a decimal year (with `--site`).
-    #[arg(long, requires = "site", value_name = "DATE")]
+    /// The date of the log: `YYYY-MM-DD` or a decimal year (with `--site`, or with a log's
+    /// positions that carry no time: a CSV's `--position` without `--utc`).
+    #[arg(long, value_name = "DATE")]
     pub date: Option<Date>,
     /// The log's units: recorded in the calibration (for `export`), and with `--site` they give
     /// the WMM magnitude. A flight log's format fixes them (mG for ArduPilot, G for PX4).
@@ -235,7 +237,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     let glitch_reason = (args.reject.is_none() && !glitches.is_empty())
         .then(|| format!("{}; --reject K drops them", glitches.words(&log)));
     let rejected = rejected(args, &mut log, &mut settings, &glitches).with_context(|| shown.clone())?;
-    let (place, place_source) = place_of(args, &log);
+    let (place, place_source) = place_of(args, &log)?;
     let units = units_of(args, &log)?;
     let (fit, why, source) = match fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?
     {
@@ -315,7 +317,10 @@ struct PlaceSource {
 
 /// The site and date: `--site` and `--date` where given, else the log's GPS fixes where they
 /// give both ([`gps::place_of`]); where the log has GPS messages that do not, why in words.
-fn place_of(args: &CalibrateArgs, log: &Log) -> (Option<Place>, Option<PlaceSource>) {
+///
+/// # Errors
+/// `--date` without `--site` for a log without positions.
+fn place_of(args: &CalibrateArgs, log: &Log) -> Result<(Option<Place>, Option<PlaceSource>)> {
     if let Some((site, date)) = args.site.zip(args.date) {
         let words = format!(
             "--site and --date{}",
@@ -330,13 +335,35 @@ fn place_of(args: &CalibrateArgs, log: &Log) -> (Option<Place>, Option<PlaceSour
             date,
             model: args.wmm,
         };
-        return (Some(place), Some(PlaceSource { from_log: false, words }));
+        return Ok((Some(place), Some(PlaceSource { from_log: false, words })));
     }
     let (gps, message) = match &log.gps {
         Some((g, m)) => (Some(g), m.as_str()),
         None => (None, ""),
     };
-    match gps::place_of(gps, args.wmm, message) {
+    // A date typed without a site dates the log's fixes (a CSV's positions without times).
+    let dated;
+    let gps = match (gps, args.date) {
+        (Some(g), Some(d)) => {
+            dated = Series {
+                times: g.times.clone(),
+                values: g
+                    .values
+                    .iter()
+                    .map(|f| Fix {
+                        utc_s: Some(gps::utc_of_year(d.year)),
+                        ..*f
+                    })
+                    .collect(),
+            };
+            Some(&dated)
+        }
+        _ => gps,
+    };
+    Ok(match gps::place_of(gps, args.wmm, message) {
+        gps::PlaceOfLog::NoGps if args.date.is_some() => {
+            bail!("--date without --site: the log has no positions to take the site from; give --site too")
+        }
         gps::PlaceOfLog::NoGps => (None, None),
         gps::PlaceOfLog::Lacking(why) => (
             None,
@@ -352,7 +379,7 @@ fn place_of(args: &CalibrateArgs, log: &Log) -> (Option<Place>, Option<PlaceSour
                 words: f.words,
             }),
         ),
-    }
+    })
 }
 
 /// With `--reject K`: drops the glitches, then the readings the robust fit rejects, and sets the

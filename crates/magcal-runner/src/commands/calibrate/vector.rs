@@ -209,7 +209,7 @@ pub fn fit(
     if reduced || args.motor.is_some() {
         if place.is_none() {
             bail!(
-                "{shown}: --fit {}{} needs the field given: --site and --date, or a flight log with GPS fixes",
+                "{shown}: --fit {}{} needs the field given: --site and --date, a flight log with GPS fixes, or a CSV's --position with --utc or --date",
                 args.fit.name(),
                 if args.motor.is_some() { " with --motor" } else { "" }
             );
