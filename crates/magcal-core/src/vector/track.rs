@@ -414,7 +414,7 @@ pub struct Manoeuvre {
     pub identifiable: bool,
     /// The verdict of the log with it, in words.
     pub verdict: String,
-    /// The gain in `ln det` of the information ([P1]'s D-criterion, eq. (12)).
+    /// The gain in `ln det` of the information (\[P1\]'s D-criterion, eq. (12)).
     pub ln_det_gain: f64,
     /// The bias's standard errors with it (white noise at the noise given, the readings' units);
     /// `None` where its information is singular.

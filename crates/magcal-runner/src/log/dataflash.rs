@@ -515,52 +515,61 @@ fn take(layout: &Layout, p: &[u8], selection: &Selection, at: &mut At, data: &mu
                 "XKY0",
             )?;
         }
-        Role::Gps {
-            time,
-            instance,
-            yaw,
-            status,
-            week,
-            ms,
-            lat_lon_alt,
-        } => {
-            // The first receiver: instance 0 (older logs name a second one GPS2).
-            if instance.is_some_and(|f| f.get(p) != 0.0) {
-                return Ok(());
-            }
-            data.gps_source.get_or_insert_with(|| {
-                format!(
-                    "GPS{}: Status, Lat, Lng, Alt{}",
-                    if instance.is_some() { " (instance 0)" } else { "" },
-                    if week.is_some() && ms.is_some() {
-                        ", GWk, GMS (UTC)"
-                    } else {
-                        ""
-                    }
-                )
-            });
-            let [lat_deg, lon_deg, alt_m] = lat_lon_alt.map(|f| f.get(p));
-            let fix = Fix {
-                lat_deg,
-                lon_deg,
-                alt_m,
-                fix_type: status.get(p).clamp(0.0, 255.0) as u8,
-                utc_s: week.zip(*ms).and_then(|(w, m)| utc_of_gps_week(w.get(p), m.get(p))),
-            };
-            let finite = lat_deg.is_finite() && lon_deg.is_finite() && alt_m.is_finite();
-            at.push_series(&mut data.gps, time.get(p), fix, finite, "GPS")?;
-            // A receiver without a yaw logs 0: a moving-baseline yaw of exactly 0 is taken as none.
-            if let Some(y) = yaw.map(|f| f.get(p)).filter(|y| *y != 0.0 && y.is_finite())
-                && fix.fix_type >= 3
-            {
-                at.push_series(&mut data.gps_yaw, time.get(p), y.rem_euclid(360.0), true, "GPS")?;
-            }
-        }
+        Role::Gps { .. } => take_gps(&layout.role, p, at, data)?,
         Role::Ctun { time, throttle } => {
             data.ctun_source.get_or_insert_with(|| "CTUN: ThO (0 to 1)".into());
             let v = throttle.get(p);
             at.push_series(&mut data.throttle, time.get(p), v, v.is_finite(), "CTUN")?;
         }
+    }
+    Ok(())
+}
+
+/// Takes a `GPS` message of the first receiver: its fix, and a moving-baseline receiver's yaw
+/// where the message has one.
+fn take_gps(role: &Role, p: &[u8], at: &mut At, data: &mut Data) -> Result<()> {
+    let Role::Gps {
+        time,
+        instance,
+        yaw,
+        status,
+        week,
+        ms,
+        lat_lon_alt,
+    } = role
+    else {
+        return Ok(());
+    };
+    // The first receiver: instance 0 (older logs name a second one GPS2).
+    if instance.is_some_and(|f| f.get(p) != 0.0) {
+        return Ok(());
+    }
+    data.gps_source.get_or_insert_with(|| {
+        format!(
+            "GPS{}: Status, Lat, Lng, Alt{}",
+            if instance.is_some() { " (instance 0)" } else { "" },
+            if week.is_some() && ms.is_some() {
+                ", GWk, GMS (UTC)"
+            } else {
+                ""
+            }
+        )
+    });
+    let [lat_deg, lon_deg, alt_m] = lat_lon_alt.map(|f| f.get(p));
+    let fix = Fix {
+        lat_deg,
+        lon_deg,
+        alt_m,
+        fix_type: status.get(p).clamp(0.0, 255.0) as u8,
+        utc_s: week.zip(*ms).and_then(|(w, m)| utc_of_gps_week(w.get(p), m.get(p))),
+    };
+    let finite = lat_deg.is_finite() && lon_deg.is_finite() && alt_m.is_finite();
+    at.push_series(&mut data.gps, time.get(p), fix, finite, "GPS")?;
+    // A receiver without a yaw logs 0: a moving-baseline yaw of exactly 0 is taken as none.
+    if let Some(y) = yaw.map(|f| f.get(p)).filter(|y| *y != 0.0 && y.is_finite())
+        && fix.fix_type >= 3
+    {
+        at.push_series(&mut data.gps_yaw, time.get(p), y.rem_euclid(360.0), true, "GPS")?;
     }
     Ok(())
 }

@@ -501,6 +501,26 @@ struct CsvExtras<'a> {
 }
 
 impl<'a> CsvExtras<'a> {
+    /// Appends the row's position (values `v`, time `t`) to `fixes` where it has all three
+    /// values and a time after the last fix's: a 3D fix on the row's time (the track's field is
+    /// taken at the readings' times: a CSV with positions needs `--time`).
+    fn push_fix(&self, fixes: &mut Series<Fix>, t: f64, v: &[Option<f64>]) {
+        let Some(at) = self.position else {
+            return;
+        };
+        if let (Some(lat), Some(lon), Some(alt)) = (v[at], v[at + 1], v[at + 2])
+            && fixes.times.last().is_none_or(|last| *last < t)
+        {
+            fixes.times.push(t);
+            fixes.values.push(Fix {
+                lat_deg: lat,
+                lon_deg: lon,
+                alt_m: alt,
+                fix_type: 3,
+                utc_s: self.utc.and_then(|u| v[u]),
+            });
+        }
+    }
     fn new(args: &'a LogArgs) -> Result<Self> {
         let mut extras = Vec::new();
         // Where each asked-for list starts among the extras.
@@ -647,20 +667,8 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
                     s.push(v[at]);
                 }
             }
-            // A row's position is a fix where it has all three values, on the row's time (the
-            // track's field is taken at the readings' times: a CSV with positions needs --time).
-            if let (Some(g), Some(at), Some(t)) = (&mut fixes, x.position, times.as_ref().and_then(|t| t.last()))
-                && let (Some(lat), Some(lon), Some(alt)) = (v[at], v[at + 1], v[at + 2])
-                && g.times.last().is_none_or(|last| last < t)
-            {
-                g.times.push(*t);
-                g.values.push(Fix {
-                    lat_deg: lat,
-                    lon_deg: lon,
-                    alt_m: alt,
-                    fix_type: 3,
-                    utc_s: x.utc.and_then(|u| v[u]),
-                });
+            if let (Some(g), Some(t)) = (&mut fixes, times.as_ref().and_then(|t| t.last())) {
+                x.push_fix(g, *t, v);
             }
             readings.push(r);
             lines.push(line);
@@ -670,20 +678,7 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
     if let Some(line) = missing_time {
         bail!("{shown}: line {line}: no time in the --time column");
     }
-    let mut messages = vec![format!("columns {}", s.columns.join(", "))];
-    for (what, list) in [
-        ("time", &args.time),
-        ("attitude (Euler, degrees)", &args.euler),
-        ("attitude (quaternion)", &args.quaternion),
-        ("current", &args.current),
-        ("throttle", &args.throttle),
-        ("position", &args.position),
-        ("UTC", &args.utc),
-    ] {
-        if let Some(c) = list {
-            messages.push(format!("{what}: {c}"));
-        }
-    }
+    let messages = csv_messages(args, &s.columns);
     let mut origin = Origin::csv(messages, frame);
     origin.span = times.as_deref().and_then(span);
     if let Some(note) = filter_note(&args.filter, s.filtered) {
@@ -711,6 +706,25 @@ fn read_csv(path: &Path, args: &LogArgs, held: u64) -> Result<Log> {
             .filter(|g| !g.times.is_empty())
             .map(|g| (g, format!("columns {}", args.position.as_deref().unwrap_or("")))),
     })
+}
+
+/// What a CSV log's reading used, one phrase each: the columns, then each flag's.
+fn csv_messages(args: &LogArgs, columns: &[String]) -> Vec<String> {
+    let mut messages = vec![format!("columns {}", columns.join(", "))];
+    for (what, list) in [
+        ("time", &args.time),
+        ("attitude (Euler, degrees)", &args.euler),
+        ("attitude (quaternion)", &args.quaternion),
+        ("current", &args.current),
+        ("throttle", &args.throttle),
+        ("position", &args.position),
+        ("UTC", &args.utc),
+    ] {
+        if let Some(c) = list {
+            messages.push(format!("{what}: {c}"));
+        }
+    }
+    messages
 }
 
 /// What `--where` left out, in words: `None` without a filter.

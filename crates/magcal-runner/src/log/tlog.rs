@@ -439,34 +439,45 @@ fn take(
         MavMessage::VFR_HUD(d) => {
             untimed(data, at, m.received, f64::from(d.throttle) / 100.0, Untimed::Throttle)?;
         }
-        MavMessage::GPS_RAW_INT(d) => {
-            // ArduPilot sends the fix's UTC (microseconds since 1970) as `time_usec`; a time
-            // before 2000 is a time since boot, which gives no date.
-            let utc = d.time_usec as f64 * 1e-6;
-            let fix = Fix {
-                lat_deg: f64::from(d.lat) * 1e-7,
-                lon_deg: f64::from(d.lon) * 1e-7,
-                alt_m: f64::from(d.alt) * 1e-3,
-                fix_type: u8::try_from(d.fix_type as u32).unwrap_or(u8::MAX),
-                utc_s: (utc >= UTC_2000_S).then_some(utc),
-            };
-            match data.clock {
-                Some(clock) => {
-                    at.push_series(&mut data.gps, m.received + clock, fix, true, "GPS_RAW_INT")?;
-                    // The extension field `yaw` (centidegrees; 0 unknown, 36000 north) at bytes 50
-                    // and 51 of the payload (the dialect is built without extensions), zeros
-                    // where MAVLink 2 truncated them.
-                    let byte = |i: usize| m.payload.get(i).copied().unwrap_or(0);
-                    let yaw = u16::from_le_bytes([byte(50), byte(51)]);
-                    if yaw > 0 && fix.fix_type >= 3 {
-                        let y = (f64::from(yaw) / 100.0).rem_euclid(360.0);
-                        at.push_series(&mut data.gps_yaw, m.received + clock, y, true, "GPS_RAW_INT")?;
-                    }
-                }
-                None => data.untimed += 1,
+        MavMessage::GPS_RAW_INT(d) => gps_raw_int(data, at, m, &d)?,
+        _ => {}
+    }
+    Ok(())
+}
+
+/// Appends a `GPS_RAW_INT`: its fix, and a moving-baseline receiver's yaw where it sends one, at
+/// its reception time moved onto the vehicle's clock (skipped, and counted, before the clock is
+/// known).
+fn gps_raw_int(
+    data: &mut Data,
+    at: &mut At,
+    m: &Received,
+    d: &mavlink::dialects::ardupilotmega::GPS_RAW_INT_DATA,
+) -> Result<()> {
+    // ArduPilot sends the fix's UTC (microseconds since 1970) as `time_usec`; a time
+    // before 2000 is a time since boot, which gives no date.
+    let utc = d.time_usec as f64 * 1e-6;
+    let fix = Fix {
+        lat_deg: f64::from(d.lat) * 1e-7,
+        lon_deg: f64::from(d.lon) * 1e-7,
+        alt_m: f64::from(d.alt) * 1e-3,
+        fix_type: u8::try_from(d.fix_type as u32).unwrap_or(u8::MAX),
+        utc_s: (utc >= UTC_2000_S).then_some(utc),
+    };
+    match data.clock {
+        Some(clock) => {
+            at.push_series(&mut data.gps, m.received + clock, fix, true, "GPS_RAW_INT")?;
+            // The extension field `yaw` (centidegrees; 0 unknown, 36000 north) at bytes 50
+            // and 51 of the payload (the dialect is built without extensions), zeros
+            // where MAVLink 2 truncated them.
+            let byte = |i: usize| m.payload.get(i).copied().unwrap_or(0);
+            let yaw = u16::from_le_bytes([byte(50), byte(51)]);
+            if yaw > 0 && fix.fix_type >= 3 {
+                let y = (f64::from(yaw) / 100.0).rem_euclid(360.0);
+                at.push_series(&mut data.gps_yaw, m.received + clock, y, true, "GPS_RAW_INT")?;
             }
         }
-        _ => {}
+        None => data.untimed += 1,
     }
     Ok(())
 }

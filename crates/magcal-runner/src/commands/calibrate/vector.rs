@@ -22,6 +22,77 @@ use crate::log::source::Log;
 use crate::log::vehicle::Place;
 use crate::scenario::site::{Units, wmm_field, wmm_pick};
 
+/// Refuses a reduced model or `--motor` without a given field, and a reduced model on readings in a
+/// sensor frame turned from the body's.
+fn check_model(args: &CalibrateArgs, log: &Log, place: Option<&Place>, model: VectorModel) -> Result<()> {
+    let shown = args.log.display();
+    let reduced = model != VectorModel::Full;
+    if !(reduced || args.motor.is_some()) {
+        return Ok(());
+    }
+    if place.is_none() {
+        bail!(
+            "{shown}: --fit {}{} needs the field given: --site and --date, a flight log with GPS fixes, or a CSV's --position with --utc or --date",
+            args.fit.name(),
+            if args.motor.is_some() { " with --motor" } else { "" }
+        );
+    }
+    if reduced
+        && let Some(r) = log.origin.to_body
+        && (0..3).any(|i| (0..3).any(|j| (r[i][j] - f64::from(u8::from(i == j))).abs() > 1e-12))
+    {
+        bail!(
+            "{shown}: --fit {} takes the readings as the field along the body's axes, and this log's readings are in a sensor frame turned from the body's: use --fit vector (the full matrix, which holds the turn)",
+            args.fit.name()
+        );
+    }
+    Ok(())
+}
+
+/// The readings that have an attitude, with their attitudes (body to z up), times and motor
+/// inputs.
+struct With {
+    readings: Vec<Vec3>,
+    attitudes: Vec<Mat3>,
+    times: Vec<f64>,
+    inputs: Option<Vec<f64>>,
+}
+
+/// The readings of `log` that have an attitude, and what goes with them.
+///
+/// # Errors
+/// A log without attitudes; `--motor` and a reading without its input.
+fn with_attitude(args: &CalibrateArgs, log: &Log) -> Result<With> {
+    let inputs_all = args.motor.map(|m| super::motor::inputs(log, m)).transpose()?;
+    let Some(logged) = &log.attitudes else {
+        bail!(
+            "{}: --fit vector needs a reference attitude per reading: name the log's attitude columns with --quaternion or --euler (and --attitude-frame)",
+            args.log.display()
+        );
+    };
+    // Sized once: the copies cost 104 bytes per reading, within the held reading's budget.
+    let with = logged.iter().filter(|c| c.is_some()).count();
+    let mut w = With {
+        readings: Vec::with_capacity(with),
+        attitudes: Vec::with_capacity(with),
+        times: Vec::with_capacity(if log.times.is_some() { with } else { 0 }),
+        inputs: inputs_all.as_ref().map(|_| Vec::with_capacity(with)),
+    };
+    for (i, (r, c)) in log.readings.iter().zip(logged).enumerate() {
+        if let Some(c) = c {
+            w.readings.push(*r);
+            w.attitudes.push(z_up_of_ned(c));
+            if let Some(t) = &log.times {
+                w.times.push(t[i]);
+            }
+            if let (Some(u), Some(all)) = (w.inputs.as_mut(), &inputs_all) {
+                u.push(all[i]);
+            }
+        }
+    }
+    Ok(w)
+}
+
 /// The WMM field (east, north, up) at the site and date of `place`, in the log's units (or scaled
 /// to `--magnitude`), and where it comes from in words.
 fn site_field(args: &CalibrateArgs, place: &Place, units: Option<Units>) -> Result<(Vec3, String)> {
@@ -113,8 +184,8 @@ pub struct TrackVerdict {
     lack_of_fit: Option<(f64, (usize, usize), f64)>,
 }
 
-/// The verdict of a track fit and, where its heading is not good enough, the manoeuvres that
-/// would improve it.
+/// The verdict of a track fit: a reduced model against the full matrix, and, where its heading
+/// is not good enough, the manoeuvres that would improve it.
 fn track_verdict(
     fit: &VectorFit,
     readings: &[Vec3],
@@ -122,6 +193,7 @@ fn track_verdict(
     fields: &[Vec3],
     inputs: Option<&[f64]>,
     model: VectorModel,
+    order: magcal_core::log_fit::Order,
 ) -> Option<TrackVerdict> {
     let std = fit.std_error.as_ref()?;
     let bias_std_max = std.bias.iter().copied().fold(0.0, f64::max);
@@ -132,12 +204,16 @@ fn track_verdict(
     } else {
         Vec::new()
     };
+    let lack_of_fit = (model != VectorModel::Full)
+        .then(|| fit_track(readings, attitudes, fields, inputs, VectorModel::Full, order).ok())
+        .flatten()
+        .and_then(|full| lack_of_fit(fit, &full));
     Some(TrackVerdict {
         bias_std_max,
         horizontal,
         heading_std_deg,
         next,
-        lack_of_fit: None,
+        lack_of_fit,
     })
 }
 
@@ -206,47 +282,13 @@ pub fn fit(
     let shown = args.log.display();
     let model = args.fit.vector_model().unwrap_or(VectorModel::Full);
     let reduced = model != VectorModel::Full;
-    if reduced || args.motor.is_some() {
-        if place.is_none() {
-            bail!(
-                "{shown}: --fit {}{} needs the field given: --site and --date, a flight log with GPS fixes, or a CSV's --position with --utc or --date",
-                args.fit.name(),
-                if args.motor.is_some() { " with --motor" } else { "" }
-            );
-        }
-        if reduced
-            && let Some(r) = log.origin.to_body
-            && (0..3).any(|i| (0..3).any(|j| (r[i][j] - f64::from(u8::from(i == j))).abs() > 1e-12))
-        {
-            bail!(
-                "{shown}: --fit {} takes the readings as the field along the body's axes, and this log's readings are in a sensor frame turned from the body's: use --fit vector (the full matrix, which holds the turn)",
-                args.fit.name()
-            );
-        }
-    }
-    let inputs_all = args.motor.map(|m| super::motor::inputs(log, m)).transpose()?;
-    let Some(logged) = &log.attitudes else {
-        bail!(
-            "{shown}: --fit vector needs a reference attitude per reading: name the log's attitude columns with --quaternion or --euler (and --attitude-frame)"
-        );
-    };
-    // Sized once: the copies cost 104 bytes per reading, within the held reading's budget.
-    let with = logged.iter().filter(|c| c.is_some()).count();
-    let (mut readings, mut attitudes) = (Vec::with_capacity(with), Vec::with_capacity(with));
-    let mut times = Vec::with_capacity(if log.times.is_some() { with } else { 0 });
-    let mut inputs = inputs_all.as_ref().map(|_| Vec::with_capacity(with));
-    for (i, (r, c)) in log.readings.iter().zip(logged).enumerate() {
-        if let Some(c) = c {
-            readings.push(*r);
-            attitudes.push(z_up_of_ned(c));
-            if let Some(t) = &log.times {
-                times.push(t[i]);
-            }
-            if let (Some(u), Some(all)) = (inputs.as_mut(), &inputs_all) {
-                u.push(all[i]);
-            }
-        }
-    }
+    check_model(args, log, place, model)?;
+    let With {
+        readings,
+        attitudes,
+        times,
+        inputs,
+    } = with_attitude(args, log)?;
     let order = if log.times.is_some() {
         magcal_core::log_fit::Order::Time
     } else {
@@ -279,20 +321,7 @@ pub fn fit(
                 log.readings.len()
             )
         })?;
-        let mut track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model);
-        if model != VectorModel::Full
-            && let Some(t) = track.as_mut()
-            && let Ok(full) = fit_track(
-                &readings,
-                &attitudes,
-                &fields,
-                inputs.as_deref(),
-                VectorModel::Full,
-                order,
-            )
-        {
-            t.lack_of_fit = lack_of_fit(&fit, &full);
-        }
+        let track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model, order);
         return Ok(Vector {
             fit,
             readings,
@@ -339,6 +368,42 @@ pub fn fit(
 }
 
 impl Vector {
+    /// Why a track fit is not usable beyond what a vector fit's verdict says: a reduced model the
+    /// log rejects against the full matrix, a bias that leaves more than
+    /// [`MAX_HEADING_STD_DEG`] of heading.
+    fn track_reasons(&self) -> Vec<String> {
+        let mut reasons = Vec::new();
+        if let Some((fv, dof, p)) = self.track.as_ref().and_then(|t| t.lack_of_fit)
+            && p < magcal_core::log_fit::LACK_OF_FIT_LEVEL
+        {
+            reasons.push(format!(
+                "the log rejects the {} model: lack-of-fit F = {} on ({}, {}) degrees of freedom against the full matrix, p {} (below {}): fit {}",
+                self.fit_name,
+                significant(fv, 4),
+                dof.0,
+                dof.1,
+                magcal_core::log_fit::show_p(p),
+                magcal_core::log_fit::LACK_OF_FIT_LEVEL,
+                if self.fit_name == "vector-offsets" {
+                    "--fit vector-diagonal or --fit vector"
+                } else {
+                    "--fit vector"
+                }
+            ));
+        }
+        if let Some(t) = &self.track
+            && t.heading_std_deg > MAX_HEADING_STD_DEG
+        {
+            reasons.push(format!(
+                "the bias is determined to {} only (its largest standard error), {} of the horizontal field: a heading error of about {} degrees (at most {MAX_HEADING_STD_DEG} for a usable compass){}",
+                significant(t.bias_std_max, 3),
+                significant(t.bias_std_max / t.horizontal, 3),
+                significant(t.heading_std_deg, 3),
+                t.next.first().map_or(String::new(), |m| format!("; fly {} ({} readings): see next manoeuvres", m.words, m.readings))
+            ));
+        }
+        reasons
+    }
     /// `scalar` with \[P1\]'s `P`, bias, `psi`, `S`, their standard errors, the noise and the
     /// verdict of the vector fit; the residuals `|P (raw - bias)| - R` over every reading.
     pub fn as_log_fit(&self, scalar: &LogFit, log: &Log) -> LogFit {
@@ -384,35 +449,7 @@ impl Vector {
         if !v.identifiable {
             f.reasons.push(format!("not identifiable: {}", v.verdict));
         }
-        if let Some((fv, dof, p)) = self.track.as_ref().and_then(|t| t.lack_of_fit)
-            && p < magcal_core::log_fit::LACK_OF_FIT_LEVEL
-        {
-            f.reasons.push(format!(
-                "the log rejects the {} model: lack-of-fit F = {} on ({}, {}) degrees of freedom against the full matrix, p {} (below {}): fit {}",
-                self.fit_name,
-                significant(fv, 4),
-                dof.0,
-                dof.1,
-                magcal_core::log_fit::show_p(p),
-                magcal_core::log_fit::LACK_OF_FIT_LEVEL,
-                if self.fit_name == "vector-offsets" {
-                    "--fit vector-diagonal or --fit vector"
-                } else {
-                    "--fit vector"
-                }
-            ));
-        }
-        if let Some(t) = &self.track
-            && t.heading_std_deg > MAX_HEADING_STD_DEG
-        {
-            f.reasons.push(format!(
-                "the bias is determined to {} only (its largest standard error), {} of the horizontal field: a heading error of about {} degrees (at most {MAX_HEADING_STD_DEG} for a usable compass){}",
-                significant(t.bias_std_max, 3),
-                significant(t.bias_std_max / t.horizontal, 3),
-                significant(t.heading_std_deg, 3),
-                t.next.first().map_or(String::new(), |m| format!("; fly {} ({} readings): see next manoeuvres", m.words, m.readings))
-            ));
-        }
+        f.reasons.extend(self.track_reasons());
         // The magnitude that K shares with a fitted F comes from the scalar fit: only a scalar
         // fit that determines it may give it.
         if v.field_fitted && !self.magnitude_given && !scalar.identifiable {
