@@ -50,8 +50,8 @@ pub enum Fit {
     /// The richest model this log identifies.
     Auto,
     /// Against the log's reference attitudes (`--quaternion` or `--euler`): the whole `K`, the
-    /// misalignment with the body included, and the bias; the field from `--site` and `--date`,
-    /// else fitted (docs/conventions.md "Vector calibration").
+    /// misalignment with the body included, and the bias; the field from `--site` and `--date`
+    /// or along the log's GPS track, else fitted (docs/conventions.md "Vector calibration").
     Vector,
     /// Against the log's attitudes and the field given (`--site` and `--date`, or along the
     /// log's GPS track): `K = diag(s)`, scale factors and offsets in the body frame (what an
