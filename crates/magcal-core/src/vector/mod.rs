@@ -863,7 +863,7 @@ fn assess(
             .map(|row| row.iter().map(|v| v * noise_unit * noise_unit).collect())
             .collect();
         match serial {
-            Some(s) => long_run(data, &unit, fitted, inv, &white, s.batch),
+            Some(s) => long_run(data, &unit, inv, &white, s.batch),
             None => white,
         }
     });
@@ -939,15 +939,7 @@ fn radial_residuals(data: &Data, unit: &Unit) -> Vec<f64> {
 /// over a reading's three components) by overlapping batch means of `batch` readings, times
 /// `n / (n - p)` (`n = 3 m` residuals, `p` unknowns), with the white covariance's diagonal where
 /// that is larger (see [`fit_vector_in`]).
-fn long_run(
-    data: &Data,
-    unit: &Unit,
-    fitted: bool,
-    inv: &[Vec<f64>],
-    white: &[Vec<f64>],
-    batch: usize,
-) -> Vec<Vec<f64>> {
-    let p = if fitted { 14 } else { 12 };
+fn long_run(data: &Data, unit: &Unit, inv: &[Vec<f64>], white: &[Vec<f64>], batch: usize) -> Vec<Vec<f64>> {
     let [u, v] = tangent(unit.f);
     let scores: Vec<[f64; 14]> = data
         .iter_with(unit.f)
@@ -968,7 +960,15 @@ fn long_run(
         })
         .collect();
     let b = crate::log_fit::serial::long_run_covariance(&scores, batch);
-    let n = (3 * scores.len()) as f64;
+    sandwich(inv, &b, white, 3 * scores.len())
+}
+
+/// `n / (n - p) A^-1 B A^-1` (`A^-1 = inv`, `p` its order, `B` the scores' long-run covariance
+/// padded to `N`, `n` the residuals) with its diagonal at least the white covariance's (a
+/// diagonal added where it falls short, which keeps it a covariance).
+fn sandwich<const N: usize>(inv: &[Vec<f64>], b: &[[f64; N]; N], white: &[Vec<f64>], n: usize) -> Vec<Vec<f64>> {
+    let p = inv.len();
+    let n = n as f64;
     let factor = if n > p as f64 { n / (n - p as f64) } else { f64::NAN };
     let mut cov: Vec<Vec<f64>> = (0..p)
         .map(|a| {

@@ -26,7 +26,7 @@
 //! [`super::fit_vector`] judges it, and `d` when its standard error times the input's range is
 //! within the field magnitude.
 
-use super::{Data, NormalEquations, Unit, VectorError, VectorFit, assess_parts, std_errors, validate};
+use super::{Data, NormalEquations, Unit, VectorError, VectorFit, assess_parts, sandwich, std_errors, validate};
 use crate::small::{Mat3, Vec3, dot, mat_t_vec, mat_vec, norm};
 
 /// How much of `K` a vector fit estimates.
@@ -41,15 +41,6 @@ pub enum VectorModel {
 }
 
 impl VectorModel {
-    /// The name the command line and the outputs use.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Offsets => "offsets",
-            Self::Diagonal => "diagonal",
-            Self::Full => "full",
-        }
-    }
-
     /// Unknowns of `K`.
     fn k_unknowns(self) -> usize {
         match self {
@@ -579,29 +570,6 @@ pub fn next_manoeuvres(
     Ok(out)
 }
 
-/// `n / (n - p) A^-1 B A^-1` with its diagonal at least the white covariance's.
-fn sandwich(inv: &[Vec<f64>], b: &[[f64; 15]; 15], white: &[Vec<f64>], n: usize) -> Vec<Vec<f64>> {
-    let p = inv.len();
-    let n = n as f64;
-    let factor = if n > p as f64 { n / (n - p as f64) } else { f64::NAN };
-    let mut cov: Vec<Vec<f64>> = (0..p)
-        .map(|a| {
-            (0..p)
-                .map(|d| {
-                    factor
-                        * (0..p)
-                            .map(|k| (0..p).map(|l| inv[a][k] * b[k][l] * inv[l][d]).sum::<f64>())
-                            .sum::<f64>()
-                })
-                .collect()
-        })
-        .collect();
-    for a in 0..p {
-        cov[a][a] += (white[a][a] - cov[a][a]).max(0.0);
-    }
-    cov
-}
-
 #[cfg(test)]
 mod tests {
     use rand_distr::{Distribution, StandardNormal};
@@ -743,15 +711,18 @@ mod tests {
         let mut rejected = 0;
         for seed in 0..seeds {
             let f = flown(seed, &k, O, D);
-            let fit = fit_track(
-                &f.readings,
-                &f.attitudes,
-                &f.along,
-                Some(&f.currents),
-                model,
-                crate::log_fit::Order::Time,
-            )
-            .unwrap();
+            let fit_with = |fields: &[Vec3], model| {
+                fit_track(
+                    &f.readings,
+                    &f.attitudes,
+                    fields,
+                    Some(&f.currents),
+                    model,
+                    crate::log_fit::Order::Time,
+                )
+                .unwrap()
+            };
+            let fit = fit_with(&f.along, model);
             assert!(fit.identifiable, "{model:?} {seed}: {}", fit.verdict);
             let (se, q) = (fit.std_error.unwrap(), fit.quantile95.unwrap());
             let (motor, std_motor) = (fit.motor.unwrap(), fit.std_motor.unwrap());
@@ -767,26 +738,10 @@ mod tests {
                 n += 1;
             }
             if model != VectorModel::Full {
-                let full = fit_track(
-                    &f.readings,
-                    &f.attitudes,
-                    &f.along,
-                    Some(&f.currents),
-                    VectorModel::Full,
-                    crate::log_fit::Order::Time,
-                )
-                .unwrap();
+                let full = fit_with(&f.along, VectorModel::Full);
                 rejected += usize::from(lack_of_fit(&fit, &full).unwrap().2 < crate::log_fit::LACK_OF_FIT_LEVEL);
             }
-            let one = fit_track(
-                &f.readings,
-                &f.attitudes,
-                &f.origin,
-                Some(&f.currents),
-                model,
-                crate::log_fit::Order::Time,
-            )
-            .unwrap();
+            let one = fit_with(&f.origin, model);
             se_track += (0..3).map(|i| (fit.bias[i] - O[i]).powi(2)).sum::<f64>();
             se_origin += (0..3).map(|i| (one.bias[i] - O[i]).powi(2)).sum::<f64>();
         }

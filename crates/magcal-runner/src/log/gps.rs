@@ -56,25 +56,9 @@ pub fn utc_day(utc_s: f64) -> String {
     format!("{y:04}-{m:02}-{d:02}")
 }
 
-/// Seconds since 1970 at the middle of the day a decimal year names (the inverse of
-/// [`wmm::decimal_year`] to within the day: a date typed for fixes without a time).
-pub fn utc_of_year(year: f64) -> f64 {
-    let y = year.floor();
-    let leap = wmm::is_leap_year(y as i64);
-    let days_in_year = if leap { 366.0 } else { 365.0 };
-    // Days from 1970-01-01 to January 1 of year y.
-    let days_before = (1970..y as i64)
-        .map(|k| if wmm::is_leap_year(k) { 366.0 } else { 365.0 })
-        .sum::<f64>()
-        - (y as i64..1970)
-            .map(|k| if wmm::is_leap_year(k) { 366.0 } else { 365.0 })
-            .sum::<f64>();
-    let day = ((year - y) * days_in_year).floor();
-    (days_before + day + 0.5) * 86_400.0
-}
-
-/// The site and date of `gps` (see the module documentation).
-pub fn place_of(gps: Option<&Series<Fix>>, model: Option<wmm::Model>, source: &str) -> PlaceOfLog {
+/// The site and date of `gps` (see the module documentation); `date` typed, where given, dates
+/// the log instead of its fixes' UTC (positions without a time: a CSV's `--position` alone).
+pub fn place_of(gps: Option<&Series<Fix>>, date: Option<Date>, model: Option<wmm::Model>, source: &str) -> PlaceOfLog {
     let Some(gps) = gps else {
         return PlaceOfLog::NoGps;
     };
@@ -86,15 +70,23 @@ pub fn place_of(gps: Option<&Series<Fix>>, model: Option<wmm::Model>, source: &s
             gps.times.len()
         ));
     };
-    let Some((t_date, utc)) = used().find_map(|(t, f)| f.utc_s.map(|u| (t, u))) else {
-        return PlaceOfLog::Lacking(format!(
-            "the log's GPS ({source}) gives no UTC time with its fixes, so no date"
-        ));
-    };
-    let day = utc_day(utc);
-    let year = match wmm::decimal_year(&day) {
-        Ok(y) => y,
-        Err(e) => return PlaceOfLog::Lacking(format!("the log's GPS gives the date {day}: {e}")),
+    let (year, dated) = match date {
+        Some(d) => (d.year, format!("date {:.3} from --date", d.year)),
+        None => {
+            let Some((t_date, utc)) = used().find_map(|(t, f)| f.utc_s.map(|u| (t, u))) else {
+                return PlaceOfLog::Lacking(format!(
+                    "the log's GPS ({source}) gives no UTC time with its fixes, so no date"
+                ));
+            };
+            let day = utc_day(utc);
+            match wmm::decimal_year(&day) {
+                Ok(y) => (
+                    y,
+                    format!("date {day} ({y:.3}) from the UTC of the fix at {t_date:.3} s"),
+                ),
+                Err(e) => return PlaceOfLog::Lacking(format!("the log's GPS gives the date {day}: {e}")),
+            }
+        }
     };
     // As logged: 1e-7 degrees and millimetres (not the binary fractions their products leave).
     let round = |x: f64, per_unit: f64| (x * per_unit).round() / per_unit;
@@ -105,7 +97,7 @@ pub fn place_of(gps: Option<&Series<Fix>>, model: Option<wmm::Model>, source: &s
     };
     let skipped = gps.times.iter().take_while(|t| *t < t_site).count();
     let words = format!(
-        "the log's GPS ({source}): site {:.7}, {:.7}, {:.1} m (mean sea level) from its first fix of type {MIN_FIX_TYPE} (3D) or better, at {t_site:.3} s{}; date {day} ({year:.3}) from the UTC of the fix at {t_date:.3} s",
+        "the log's GPS ({source}): site {:.7}, {:.7}, {:.1} m (mean sea level) from its first fix of type {MIN_FIX_TYPE} (3D) or better, at {t_site:.3} s{}; {dated}",
         site.lat_deg,
         site.lon_deg,
         site.alt_m,
@@ -245,14 +237,6 @@ mod tests {
     }
 
     #[test]
-    fn a_typed_date_is_that_day() {
-        for day in ["2026-06-01", "2024-02-29", "2000-01-01", "2019-12-31", "1999-07-04"] {
-            let y = wmm::decimal_year(day).unwrap();
-            assert_eq!(utc_day(utc_of_year(y)), day);
-        }
-    }
-
-    #[test]
     fn the_site_is_the_first_3d_fix_and_the_date_the_first_with_a_time() {
         let gps = Series {
             times: vec![1.0, 2.0, 3.0, 4.0],
@@ -263,7 +247,7 @@ mod tests {
                 fix(60.3, 10.4, 3, Some(1_700_000_000.0)),
             ],
         };
-        let PlaceOfLog::Found(p) = place_of(Some(&gps), None, "GPS") else {
+        let PlaceOfLog::Found(p) = place_of(Some(&gps), None, None, "GPS") else {
             panic!("a place")
         };
         assert_eq!((p.place.site.lat_deg, p.place.site.lon_deg), (60.2, 10.3));
@@ -279,7 +263,7 @@ mod tests {
             times: vec![1.0],
             values: vec![fix(60.0, 10.0, 2, Some(1.7e9))],
         };
-        let PlaceOfLog::Lacking(why) = place_of(Some(&none), None, "GPS") else {
+        let PlaceOfLog::Lacking(why) = place_of(Some(&none), None, None, "GPS") else {
             panic!("lacking")
         };
         assert!(
@@ -290,8 +274,17 @@ mod tests {
             times: vec![1.0],
             values: vec![fix(60.0, 10.0, 3, None)],
         };
-        assert!(matches!(place_of(Some(&timeless), None, "GPS"), PlaceOfLog::Lacking(w) if w.contains("no UTC")));
-        assert!(matches!(place_of(None, None, "GPS"), PlaceOfLog::NoGps));
+        assert!(matches!(place_of(Some(&timeless), None, None, "GPS"), PlaceOfLog::Lacking(w) if w.contains("no UTC")));
+        // A date typed dates fixes without a time.
+        let PlaceOfLog::Found(typed) = place_of(Some(&timeless), Some(Date { year: 2026.5 }), None, "GPS") else {
+            panic!("a place")
+        };
+        assert!(
+            typed.place.date.year == 2026.5 && typed.words.ends_with("date 2026.500 from --date"),
+            "{}",
+            typed.words
+        );
+        assert!(matches!(place_of(None, None, None, "GPS"), PlaceOfLog::NoGps));
     }
 
     #[test]

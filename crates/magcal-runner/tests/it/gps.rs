@@ -8,8 +8,8 @@
 use std::path::Path;
 
 use magcal_core::aviation::dcm_of_euler;
-use magcal_core::flight::{FlightPlan, fly};
-use magcal_core::rng::stream_rng;
+use magcal_core::flight::{FlightPlan, FlightSample, fly};
+use magcal_core::rng::{MagcalRng, stream_rng};
 use magcal_core::wmm;
 use magcal_runner::log::flight::{FlightLog, Selection};
 use rand_distr::{Distribution, StandardNormal};
@@ -120,6 +120,26 @@ const D: [f64; 3] = [0.06, -0.04, 0.15];
 /// Noise per component, mGauss (100 nT).
 const SIGMA: f64 = 1.0;
 
+/// The compass's raw reading (mGauss, body frame) at flight sample `s` with attitude `c` (body to
+/// NED) and battery current `current`: the WMM2025 field there on the flight's date, through
+/// `diag(K_DIAG)`, `O` and `D`, with [`SIGMA`] of noise per component drawn from `rng`.
+fn reading(s: &FlightSample, c: &[[f64; 3]; 3], current: f64, rng: &mut MagcalRng) -> [f64; 3] {
+    let site = wmm::Site {
+        lat_deg: s.lat_deg,
+        lon_deg: s.lon_deg,
+        alt_m: s.alt_m,
+        year: 2026.414,
+    };
+    let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
+    let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
+    std::array::from_fn(|a| {
+        K_DIAG[a] * b[a]
+            + O[a]
+            + D[a] * current
+            + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng)
+    })
+}
+
 /// UTC of the flight's start: 2026-06-01 10:00.
 const START_UTC_S: f64 = 1_780_308_000.0;
 
@@ -192,21 +212,8 @@ fn flight_log_with(dir: &Path, seed: u64, yaw_bias_deg: f64, gps_yaw: bool) -> s
         let t_us = 1e6 * (s.time_s + 60.0);
         // Attitudes at whole hundredths of a degree, as ATT stores them.
         let [roll, pitch, yaw] = [s.roll_deg, s.pitch_deg, s.heading_deg].map(|x| (x * 100.0).round() / 100.0);
-        let site = wmm::Site {
-            lat_deg: s.lat_deg,
-            lon_deg: s.lon_deg,
-            alt_m: s.alt_m,
-            year: 2026.414,
-        };
-        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
         let c = dcm_of_euler(roll.to_radians(), pitch.to_radians(), yaw.to_radians());
-        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
-        let raw: [f64; 3] = std::array::from_fn(|a| {
-            K_DIAG[a] * b[a]
-                + O[a]
-                + D[a] * s.current_a
-                + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
-        });
+        let raw = reading(s, &c, s.current_a, &mut rng);
         w.msg(
             0x83,
             &[
@@ -428,21 +435,8 @@ fn flight_ulog(dir: &Path, seed: u64) -> std::path::PathBuf {
             s.heading_deg.to_radians(),
         );
         let q = quaternion_of(&c).map(|x| x as f32);
-        let site = wmm::Site {
-            lat_deg: s.lat_deg,
-            lon_deg: s.lon_deg,
-            alt_m: s.alt_m,
-            year: 2026.414,
-        };
-        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 1e5);
-        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
-        let raw: [f32; 3] = std::array::from_fn(|a| {
-            (K_DIAG[a] * b[a]
-                + (O[a]
-                    + D[a] * s.current_a
-                    + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng))
-                    / 1000.0) as f32
-        });
+        // Gauss: a thousandth of the mGauss reading.
+        let raw = reading(s, &c, s.current_a, &mut rng).map(|x| (x / 1000.0) as f32);
         let mut att = Vec::new();
         for x in q.iter().chain(&[0.0f32; 4]) {
             att.extend_from_slice(&x.to_le_bytes());
@@ -606,21 +600,8 @@ fn flight_tlog(dir: &Path, seed: u64) -> std::path::PathBuf {
         // The field at the attitude as sent (float32 radians).
         let c = dcm_of_euler(f64::from(att.roll), f64::from(att.pitch), f64::from(att.yaw));
         w.push(t_us - 20_000, 1, V2, &MavMessage::ATTITUDE(att));
-        let site = wmm::Site {
-            lat_deg: s.lat_deg,
-            lon_deg: s.lon_deg,
-            alt_m: s.alt_m,
-            year: 2026.414,
-        };
-        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
-        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
         let current = (s.current_a * 100.0).round() / 100.0;
-        let raw: [f64; 3] = std::array::from_fn(|a| {
-            K_DIAG[a] * b[a]
-                + O[a]
-                + D[a] * current
-                + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
-        });
+        let raw = reading(s, &c, current, &mut rng);
         let sys = SYS_STATUS_DATA {
             current_battery: (current * 100.0).round() as i16,
             ..SYS_STATUS_DATA::default()
@@ -738,25 +719,12 @@ fn a_csv_log_with_positions_calibrates_along_its_track() {
     let mut rng = stream_rng(9, 0xC5);
     let mut text = String::from("t,mx,my,mz,roll,pitch,yaw,lat,lon,alt,current\n");
     for s in &f {
-        let site = wmm::Site {
-            lat_deg: s.lat_deg,
-            lon_deg: s.lon_deg,
-            alt_m: s.alt_m,
-            year: 2026.414,
-        };
-        let ned = wmm::field_ned(wmm::Model::Wmm2025, &site).unwrap().map(|v| v / 100.0);
         let c = dcm_of_euler(
             s.roll_deg.to_radians(),
             s.pitch_deg.to_radians(),
             s.heading_deg.to_radians(),
         );
-        let b: [f64; 3] = std::array::from_fn(|a| (0..3).map(|r| c[r][a] * ned[r]).sum());
-        let raw: [f64; 3] = std::array::from_fn(|a| {
-            K_DIAG[a] * b[a]
-                + O[a]
-                + D[a] * s.current_a
-                + SIGMA * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
-        });
+        let raw = reading(s, &c, s.current_a, &mut rng);
         text.push_str(&format!(
             "{:.2},{:.4},{:.4},{:.4},{:.6},{:.6},{:.6},{:.8},{:.8},{:.2},{:.4}\n",
             s.time_s,
@@ -798,7 +766,7 @@ fn a_csv_log_with_positions_calibrates_along_its_track() {
     let place = c.place_source.clone().unwrap();
     assert!(
         place.starts_with("the log's GPS (columns lat,lon,alt): site 60.0000000, 10.0000000, 300.0 m")
-            && place.contains("date 2026-06-01"),
+            && place.contains("date 2026.415 from --date"),
         "{place}"
     );
     let se = c.std_error.bias.unwrap();

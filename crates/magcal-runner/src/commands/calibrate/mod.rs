@@ -23,7 +23,6 @@ use crate::log::calibration::{
     LackOfFitJson, NoiseJson, PassesJson, StdError,
 };
 use crate::log::flight::InForce;
-use crate::log::flight::{Fix, Series};
 use crate::log::flown::{Bounds, Flown, SECTOR_DEG, flown};
 use crate::log::gps;
 use crate::log::read::HELD_BYTES_PER_READING;
@@ -342,25 +341,7 @@ fn place_of(args: &CalibrateArgs, log: &Log) -> Result<(Option<Place>, Option<Pl
         None => (None, ""),
     };
     // A date typed without a site dates the log's fixes (a CSV's positions without times).
-    let dated;
-    let gps = match (gps, args.date) {
-        (Some(g), Some(d)) => {
-            dated = Series {
-                times: g.times.clone(),
-                values: g
-                    .values
-                    .iter()
-                    .map(|f| Fix {
-                        utc_s: Some(gps::utc_of_year(d.year)),
-                        ..*f
-                    })
-                    .collect(),
-            };
-            Some(&dated)
-        }
-        _ => gps,
-    };
-    Ok(match gps::place_of(gps, args.wmm, message) {
+    Ok(match gps::place_of(gps, args.date, args.wmm, message) {
         gps::PlaceOfLog::NoGps if args.date.is_some() => {
             bail!("--date without --site: the log has no positions to take the site from; give --site too")
         }

@@ -20,7 +20,7 @@ use crate::log::flight::{Fix, Series};
 use crate::log::gps;
 use crate::log::source::Log;
 use crate::log::vehicle::Place;
-use crate::scenario::site::{Units, wmm_field, wmm_pick};
+use crate::scenario::site::{Units, wmm_field, wmm_label, wmm_pick};
 
 /// Refuses a reduced model or `--motor` without a given field, and a reduced model on readings in a
 /// sensor frame turned from the body's.
@@ -123,8 +123,8 @@ fn track_fields(
     times: &[f64],
     units: Option<Units>,
 ) -> Result<(Vec<Vec3>, String)> {
-    let (_, label) = wmm_field(&place.site, place.date, place.model)?;
-    let (_, model, _) = wmm_pick(&place.site, place.date, place.model)?;
+    let (first, model, at) = wmm_pick(&place.site, place.date, place.model)?;
+    let label = wmm_label(first, model, &at);
     let t = gps::track(gps, times, place.date.year, model).with_context(|| args.log.display().to_string())?;
     let n = t.enu_nt.len().max(1) as f64;
     let mean: Vec3 = std::array::from_fn(|k| t.enu_nt.iter().map(|v| v[k]).sum::<f64>() / n);
@@ -312,15 +312,16 @@ pub fn fit(
         let hi = u.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         (super::motor::name(m), [lo, hi])
     });
+    let what = || {
+        format!(
+            "{shown}: --fit {} ({} of {} readings with an attitude)",
+            args.fit.name(),
+            readings.len(),
+            log.readings.len()
+        )
+    };
     if let Some((fields, field_source)) = given {
-        let fit = fit_track(&readings, &attitudes, &fields, inputs.as_deref(), model, order).with_context(|| {
-            format!(
-                "{shown}: --fit {} ({} of {} readings with an attitude)",
-                args.fit.name(),
-                readings.len(),
-                log.readings.len()
-            )
-        })?;
+        let fit = fit_track(&readings, &attitudes, &fields, inputs.as_deref(), model, order).with_context(what)?;
         let track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model, order);
         return Ok(Vector {
             fit,
@@ -348,13 +349,7 @@ pub fn fit(
             ),
         ),
     };
-    let fit = fit_vector_in(&readings, &attitudes, field, order).with_context(|| {
-        format!(
-            "{shown}: --fit vector ({} of {} readings with an attitude)",
-            readings.len(),
-            log.readings.len()
-        )
-    })?;
+    let fit = fit_vector_in(&readings, &attitudes, field, order).with_context(what)?;
     Ok(Vector {
         fit,
         readings,
