@@ -208,6 +208,9 @@ pub struct Origin {
     pub parameters: Option<LogParameters>,
     /// Where a flight log's attitudes' heading comes from, in words (`--heading-from`).
     pub heading_source: Option<String>,
+    /// The independent heading reference that replaced the autopilot's yaw, by name (GPS yaw,
+    /// GSF yaw); `None` where the heading is the autopilot's own.
+    pub independent_heading: Option<String>,
 }
 
 impl Origin {
@@ -226,6 +229,7 @@ impl Origin {
             notes: Vec::new(),
             parameters: None,
             heading_source: None,
+            independent_heading: None,
         }
     }
 
@@ -870,6 +874,7 @@ fn from_flight(f: FlightLog, heading_from: HeadingFrom) -> Result<Log> {
     let times: Vec<f64> = f.samples.iter().map(|s| s.time_s).collect();
     let reference = heading_reference(&f, heading_from)?;
     let (attitudes, heading_source) = attitudes_of(&f, &times, reference);
+    let independent_heading = reference.map(|(_, name)| name.clone());
     let currents = f.current.as_ref().map(|c| match_series(&times, c));
     let throttles = f.throttle.as_ref().map(|c| match_series(&times, c));
     let gps_message = match f.format {
@@ -893,6 +898,7 @@ fn from_flight(f: FlightLog, heading_from: HeadingFrom) -> Result<Log> {
         notes: f.notes,
         parameters: f.parameters,
         heading_source,
+        independent_heading,
     };
     Ok(Log {
         readings: f.samples.iter().map(|s| s.raw).collect(),

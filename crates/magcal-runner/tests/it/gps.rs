@@ -15,7 +15,7 @@ use magcal_runner::log::flight::{FlightLog, Selection};
 use rand_distr::{Distribution, StandardNormal};
 use tempfile::TempDir;
 
-use crate::common::{calibrate_json, data};
+use crate::common::{calibrate_json, data, magcal};
 use crate::dataflash::{V, Writer};
 
 fn expected() -> serde_json::Value {
@@ -389,6 +389,67 @@ fn a_gps_yaw_is_the_reference_where_the_autopilots_yaw_is_wrong() {
         biased.bias,
         z(biased.bias)
     );
+    // `evaluate` scores against the same reference and says which: the field it fits in the
+    // reference frame points to the model's declination against the GPS yaw, and is turned by
+    // the autopilot's 3 degrees against its yaw (a constant heading error moves the field, not
+    // the heading errors).
+    let cal = dir.path().join("cal");
+    let out = magcal()
+        .args(["calibrate", "--fit", "vector-diagonal", "--motor", "current", "--out"])
+        .arg(&cal)
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let evaluated = |from: &str| -> serde_json::Value {
+        let out = magcal()
+            .args(["evaluate", "--json", "--heading-from", from])
+            .arg(cal.join("calibration.json"))
+            .arg(&log)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let (gps, autopilot) = (evaluated("auto"), evaluated("autopilot"));
+    let against = |j: &serde_json::Value| j["against"].as_str().unwrap().to_string();
+    assert!(
+        against(&gps).starts_with(
+            "roll and pitch the autopilot's, heading from GPS.Yaw (moving baseline), independent of the compass"
+        ),
+        "{}",
+        against(&gps)
+    );
+    assert!(
+        against(&autopilot).starts_with("the autopilot's own attitude estimate"),
+        "{}",
+        against(&autopilot)
+    );
+    // The field's azimuth fitted against each reference: the GPS yaw gives the model's
+    // declination, the autopilot's yaw that turned by its bias.
+    let declination = |j: &serde_json::Value| {
+        let f = &j["calibrated"]["field"];
+        f[0].as_f64().unwrap().atan2(f[1].as_f64().unwrap()).to_degrees()
+    };
+    let site = wmm::Site {
+        lat_deg: 60.0,
+        lon_deg: 10.0,
+        alt_m: 300.0,
+        year: 2026.414,
+    };
+    let model = wmm::declination_inclination_deg(wmm::Model::Wmm2025, &site)
+        .unwrap()
+        .0
+        .unwrap();
+    println!(
+        "declination: model {model:.3}, against GPS yaw {:.3}, against the autopilot's {:.3}",
+        declination(&gps),
+        declination(&autopilot)
+    );
+    // 0.05 degrees: the model's declination changes by less along the 20 km track (from its
+    // start), and 10,000 readings of 0.16 degrees' direction error give its mean to 0.002.
+    assert!((declination(&gps) - model).abs() < 0.05);
+    assert!((declination(&autopilot) - model - 3.0).abs() < 0.05);
 }
 
 /// The default ordinary flight of `seed` as a PX4 ULog (firmware 1.14: raw `sensor_mag` in Gauss,

@@ -7,16 +7,23 @@ use magcal_core::reference::{AlignSettings, Alignment, align};
 
 use crate::log::calibration::{HeadingCheckJson, HeadingFiguresJson, VersusRawJson};
 use crate::log::flight::Format;
-use crate::log::source::Log;
+use crate::log::source::{Log, Origin};
 
 /// What a log's attitudes are as a reference for the heading, in words.
-pub fn against(format: Format) -> &'static str {
-    match format {
+pub fn against(origin: &Origin) -> String {
+    if let Some(name) = &origin.independent_heading {
+        return format!(
+            "roll and pitch the autopilot's, heading from {name}, independent of the compass: a truth for the heading within that reference's own error"
+        );
+    }
+    match origin.format {
         Format::Csv => {
             "the log's attitude columns: a truth only where they come from an independent reference (motion capture, a turntable), else a figure of consistency"
+                .to_string()
         }
         _ => {
             "the autopilot's own attitude estimate, made with the calibration in force when it flew: a figure of consistency, not a truth"
+                .to_string()
         }
     }
 }
@@ -48,7 +55,7 @@ pub fn check(log: &Log, fit: &LogFit) -> Option<HeadingCheckJson> {
         .enumerate()
         .filter_map(|(i, (r, a))| Some((i, (*r, z_up_of_ned(a.as_ref()?)))))
         .unzip();
-    let against = against(log.origin.format);
+    let against = against(&log.origin);
     let aligned = |readings: &[Vec3]| align(readings, &c, &AlignSettings::default());
     let calibrated: Vec<Vec3> = raw.iter().map(|r| fit.apply(*r)).collect();
     let (after, before) = (aligned(&calibrated), aligned(&raw));

@@ -42,7 +42,7 @@ impl EvaluationJson {
             log_sha256: log.sha256.clone(),
             calibration: source.cal_shown.map(str::to_string),
             units,
-            against: against(log.origin.format).to_string(),
+            against: against(&log.origin),
             frames: format!(
                 "Q turns the calibrated frame into the body frame ({body}); F is in the reference frame with z up (east, north, up for NED attitudes)"
             ),
