@@ -52,7 +52,7 @@
 
 mod track;
 
-pub use track::{Manoeuvre, VectorModel, fit_track, lack_of_fit, next_manoeuvres};
+pub use track::{Manoeuvre, SECTOR_DEG, VectorModel, fit_track, headings_never_flown, lack_of_fit, next_manoeuvres};
 
 use crate::identifiability::PhysicalScales;
 use crate::reference::det;

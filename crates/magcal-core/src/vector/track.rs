@@ -250,6 +250,30 @@ pub fn fit_track(
     let k = layout.k(&theta);
     let det = crate::reference::det(&k);
     if det.is_nan() || det <= 0.0 {
+        // An information too weak to trust leaves any `K`, a left-handed one too: it is what the
+        // attitudes do not determine that is said, not a frame the readings do not have. Too
+        // weak: an unknown of `K` with a standard error of half its unit value or more, or of
+        // the offsets with one of the field or more (the physical scales of the verdict).
+        let ne = normal_equations(&data, &layout, &theta, inputs);
+        let inv = ne.inverse()?;
+        let rss: f64 = residuals(&data, &layout, &theta, inputs)
+            .map(|(r, _, _)| dot(r, r))
+            .sum();
+        let dof = (3 * readings.len()).saturating_sub(layout.p()).max(1);
+        let noise2 = rss / dof as f64;
+        let nk = layout.model.k_unknowns();
+        let weak = (0..nk + 3).find(|&a| {
+            let std = (inv[a][a] * noise2).max(0.0).sqrt();
+            std >= if a < nk { 0.5 } else { norm(mean) / scale }
+        });
+        if let Some(a) = weak {
+            return Err(VectorError::NotDetermined {
+                weakest: format!(
+                    "{} has a standard error beyond its physical scale (and the estimate a left-handed K, det {det:.4})",
+                    layout.names()[a]
+                ),
+            });
+        }
         return Err(VectorError::LeftHanded { determinant: det });
     }
     Ok(assess_track(&data, &layout, &theta, inputs, scale, order, mean))
@@ -405,8 +429,13 @@ pub struct Manoeuvre {
     pub identifiable: bool,
     /// The verdict of the log with it, in words.
     pub verdict: String,
-    /// The gain in `ln det` of the information (\[P1\]'s D-criterion, eq. (12)).
+    /// The gain in `ln det` of the information (\[P1\]'s D-criterion, eq. (12)); infinite where
+    /// the log's own information is singular and the manoeuvre makes it regular, `NaN` where it
+    /// stays singular.
     pub ln_det_gain: f64,
+    /// `ln det` of the information with it (`-inf` where singular): what ranks manoeuvres of
+    /// equal gain, as those that make a singular information regular are.
+    pub ln_det_with: f64,
     /// The bias's standard errors with it (white noise at the noise given, the readings' units);
     /// `None` where its information is singular.
     pub bias_std: Option<Vec3>,
@@ -488,6 +517,15 @@ pub fn next_manoeuvres(
             .enumerate()
             .map(|(t, (c, f))| (*c, *f, inputs.map_or(0.0, |u| u[t]))),
     );
+    // Singular as the fit finds it (its inverse's test of the pivots), not by `ln det`, which
+    // rounding leaves finite.
+    let base_regular = NormalEquations {
+        jtj: base.clone(),
+        jtr: vec![0.0; p],
+        names: layout.names(),
+    }
+    .inverse()
+    .is_ok();
     let base_ln_det = ln_det(&base);
     let sigma = noise / scale;
     let unit = Unit {
@@ -525,14 +563,20 @@ pub fn next_manoeuvres(
             let total: Vec<Vec<f64>> = (0..p)
                 .map(|a| (0..p).map(|b| base[a][b] + added[a][b]).collect())
                 .collect();
-            let ln_det_gain = ln_det(&total) - base_ln_det;
+            let ln_det_with = ln_det(&total);
             let ne = NormalEquations {
                 jtj: total,
                 jtr: vec![0.0; p],
                 names: layout.names(),
             };
             let mut bias_std = None;
-            let (identifiable, verdict) = match ne.inverse() {
+            let inverse = ne.inverse();
+            let ln_det_gain = match (base_regular, inverse.is_ok()) {
+                (true, _) => ln_det_with - base_ln_det,
+                (false, true) => f64::INFINITY,
+                (false, false) => f64::NAN,
+            };
+            let (identifiable, verdict) = match inverse {
                 Ok(inv) => {
                     let mut full = vec![vec![0.0; 12]; 12];
                     for a in 0..p {
@@ -561,13 +605,69 @@ pub fn next_manoeuvres(
                 identifiable,
                 verdict,
                 ln_det_gain,
+                ln_det_with,
                 bias_std,
             }
         })
         .collect();
-    out.sort_by(|a, b| b.ln_det_gain.total_cmp(&a.ln_det_gain));
+    // Largest gain first; among equal gains (infinite, from a singular log), largest information.
+    // A gain of NaN (still singular) sorts last.
+    let key = |m: &Manoeuvre| {
+        if m.ln_det_gain.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            m.ln_det_gain
+        }
+    };
+    out.sort_by(|a, b| key(b).total_cmp(&key(a)).then(b.ln_det_with.total_cmp(&a.ln_det_with)));
     out.truncate(best);
     Ok(out)
+}
+
+/// Width of the heading sectors of [`headings_never_flown`], degrees.
+pub const SECTOR_DEG: f64 = 30.0;
+
+/// The headings a flight never flew: runs of [`SECTOR_DEG`]-wide sectors (from north,
+/// clockwise) each holding no reading or fewer than `share` of them, as `[from, to)` in degrees
+/// (`to` may pass 360 where a run wraps through north). `attitudes` body (forward, right, down)
+/// to z up (east, north, up), as [`fit_track`] takes them.
+pub fn headings_never_flown(attitudes: &[Mat3], share: f64) -> Vec<[f64; 2]> {
+    let sectors = (360.0 / SECTOR_DEG).round() as usize;
+    let mut count = vec![0usize; sectors];
+    for c in attitudes {
+        // The body's forward axis in east, north, up.
+        let heading = c[0][0].atan2(c[1][0]).to_degrees().rem_euclid(360.0);
+        count[((heading / SECTOR_DEG) as usize).min(sectors - 1)] += 1;
+    }
+    let empty: Vec<bool> = count
+        .iter()
+        .map(|&k| k == 0 || (k as f64) < share * attitudes.len() as f64)
+        .collect();
+    if empty.iter().all(|&e| e) {
+        return vec![[0.0, 360.0]];
+    }
+    // Runs start after a flown sector, so a run through north is not cut in two.
+    let first_flown = empty.iter().position(|&e| !e).unwrap_or(0);
+    let mut runs = Vec::new();
+    let mut start: Option<usize> = None;
+    for step in 1..=sectors {
+        let i = (first_flown + step) % sectors;
+        let at = first_flown + step;
+        match (empty[i], start) {
+            (true, None) => start = Some(at),
+            (false, Some(a)) => {
+                runs.push([a, at]);
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    runs.into_iter()
+        .map(|[a, b]| {
+            let from = (a % sectors) as f64 * SECTOR_DEG;
+            [from, from + (b - a) as f64 * SECTOR_DEG]
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -754,6 +854,55 @@ mod tests {
             rms(se_origin),
             rejected,
         )
+    }
+
+    #[test]
+    fn headings_never_flown_are_runs_of_empty_sectors_through_north() {
+        let at = |h: f64| z_up_of_ned(&dcm_of_euler(0.0, 0.0, h.to_radians()));
+        // Flown: 95 to 115 and 305 to 325 degrees; never: 120-300 and 330-90 (through north).
+        let flown: Vec<Mat3> = (0..=20)
+            .flat_map(|d| [at(95.0 + f64::from(d)), at(305.0 + f64::from(d))])
+            .collect();
+        assert_eq!(headings_never_flown(&flown, 0.01), vec![[120.0, 300.0], [330.0, 450.0]]);
+        assert_eq!(headings_never_flown(&[], 0.01), vec![[0.0, 360.0]]);
+        let every: Vec<Mat3> = (0..360).map(|d| at(f64::from(d))).collect();
+        assert!(headings_never_flown(&every, 0.01).is_empty());
+    }
+
+    #[test]
+    fn a_log_that_determines_nothing_is_told_the_manoeuvres_that_would() {
+        // A straight, level leg without turbulence (a ship at anchor, a vehicle on a trailer):
+        // the diagonal model's information is singular (scale and bias confounded on every
+        // axis). Each full turn makes it regular; the straight legs do not.
+        let c = z_up_of_ned(&dcm_of_euler(0.0, 0.0, 0.3));
+        let f = [3_000.0, 15_000.0, -48_000.0];
+        let readings: Vec<Vec3> = (0..500).map(|_| mat_t_vec(&c, f)).collect();
+        let next = next_manoeuvres(
+            &readings,
+            &vec![c; 500],
+            &vec![f; 500],
+            None,
+            VectorModel::Diagonal,
+            SIGMA_NT,
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            15,
+        )
+        .unwrap();
+        let words: Vec<&str> = next.iter().map(|m| m.words.as_str()).collect();
+        assert_eq!(
+            &words[..3],
+            [
+                "a full turn at 30 degrees of bank",
+                "a full turn at 20 degrees of bank",
+                "a full turn at 10 degrees of bank"
+            ]
+        );
+        assert!(
+            next[..3]
+                .iter()
+                .all(|m| m.identifiable && m.ln_det_gain == f64::INFINITY)
+        );
+        assert!(next[3..].iter().all(|m| !m.identifiable && m.ln_det_gain.is_nan()));
     }
 
     #[test]

@@ -29,7 +29,9 @@ pub struct NextArgs {
     /// A scenario file giving the vehicle's attitude box (`[attitude_box]`), the site
     /// (`[field]`, for the field's direction) and the search (`[certificate]`); or the flags
     /// below.
-    #[arg(long, required_unless_present = "site", conflicts_with_all = ["site", "date", "wmm", "roll", "pitch", "yaw"])]
+    /// Not needed for a vector calibration of a flight (`calibrate --fit vector*` against the
+    /// field along its GPS track): its manoeuvres come from the vector model's information.
+    #[arg(long, conflicts_with_all = ["site", "date", "wmm", "roll", "pitch", "yaw"])]
     pub scenario: Option<PathBuf>,
     #[command(flatten)]
     pub attitude: BoxFlags,
@@ -140,6 +142,9 @@ fn planning_sensor(cal: &CalibrationJson, readings: &[Vec3]) -> (CalibrationJson
 }
 
 fn next_inner(args: &NextArgs) -> Result<()> {
+    if args.scenario.is_none() && args.site.is_none() {
+        return flight(args);
+    }
     let page = page_output(args)?;
     let (json, counts) = suggest(args)?;
     // The report is formatted in memory (a few kilobytes) and written at the end, so that a
@@ -156,6 +161,107 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         replace(path, &inputs(args), html.as_bytes()).context("--report")?;
     }
     to_stdout(|out| Ok(out.write_all(&w)?))
+}
+
+/// What a flight should fly next, for a vector calibration against the field along its track:
+/// the headings it never flew and the manoeuvres of largest gain in the information of the
+/// vector model, as `calibrate` computed them for this very log (its SHA-256 must match).
+#[derive(Debug, serde::Serialize)]
+struct FlightNextJson {
+    log: String,
+    calibration: String,
+    fit: String,
+    usable: bool,
+    heading_std_deg: Option<f64>,
+    headings_never_flown: Vec<[f64; 2]>,
+    next_manoeuvres: Vec<String>,
+}
+
+/// `next` without a box: the flight's own manoeuvres, from a vector calibration of it.
+///
+/// # Errors
+/// Not a vector calibration against a given field (give `--scenario` or `--site`), the log not
+/// the one it was fitted to, `--report` (the flight's manoeuvres are three, not a design in a
+/// box: `--count` does not apply).
+fn flight(args: &NextArgs) -> Result<()> {
+    let shown = args.calibration.display().to_string();
+    let log_shown = args.log.display().to_string();
+    let cal = read_calibration(&args.calibration)?;
+    if cal.heading_std_deg.is_none() && cal.headings_never_flown.is_empty() && cal.next_manoeuvres.is_empty() {
+        bail!(
+            "{shown}: give --scenario (the vehicle's attitude box, site and search) or --site, --date, --roll and --pitch: a box is needed unless the calibration is a vector one of a flight against the field along its track (calibrate --fit vector, vector-diagonal or vector-offsets on a log with GPS fixes), which is not ({} fit)",
+            cal.fit
+        );
+    }
+    if args.report.is_some() {
+        bail!("--report: a flight's manoeuvres have no page; the text or --json says them");
+    }
+    let file = std::fs::File::open(&args.log).with_context(|| log_shown.clone())?;
+    let mut hashing = crate::digest::Hashing::new(std::io::BufReader::new(file));
+    std::io::copy(&mut hashing, &mut std::io::sink()).with_context(|| log_shown.clone())?;
+    let sha = hashing.hex();
+    if cal.log_sha256.as_deref() != Some(sha.as_str()) {
+        bail!(
+            "{log_shown}: not the log {shown} was fitted to (SHA-256 {} here): a flight's manoeuvres are its own; calibrate this log with --fit vector to have them",
+            &sha[..12]
+        );
+    }
+    let json = FlightNextJson {
+        log: log_shown,
+        calibration: shown,
+        fit: cal.fit.clone(),
+        usable: cal.usable,
+        heading_std_deg: cal.heading_std_deg,
+        headings_never_flown: cal.headings_never_flown.clone(),
+        next_manoeuvres: cal.next_manoeuvres.clone(),
+    };
+    let mut w = Vec::new();
+    if args.json {
+        serde_json::to_writer_pretty(&mut w, &json)?;
+        writeln!(w)?;
+    } else {
+        write_flight(&mut w, &json)?;
+    }
+    to_stdout(|out| Ok(out.write_all(&w)?))
+}
+
+/// The text report of [`flight`].
+fn write_flight(w: &mut dyn Write, j: &FlightNextJson) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "{}: the flight's own next manoeuvres, from the information of its {} fit against the field along its track ({})",
+        j.log, j.fit, j.calibration
+    )?;
+    if let Some(h) = j.heading_std_deg {
+        writeln!(
+            w,
+            "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
+            log_fit::significant(h, 3),
+            super::calibrate::vector::MAX_HEADING_STD_DEG
+        )?;
+    }
+    if !j.headings_never_flown.is_empty() {
+        writeln!(
+            w,
+            "never flown: headings {} (30-degree sectors with under 1 % of the readings)",
+            super::calibrate::vector::never_flown_words(&j.headings_never_flown)
+        )?;
+    }
+    for m in &j.next_manoeuvres {
+        writeln!(w, "fly {m}")?;
+    }
+    if j.next_manoeuvres.is_empty() {
+        writeln!(
+            w,
+            "{}",
+            if j.usable {
+                "nothing to fly: the flight points the compass well enough"
+            } else {
+                "no manoeuvre of the ones tried (full turns at 10, 20, 30 degrees of bank, straight legs every 30 degrees) is needed for the heading; the calibration is not usable for other reasons: see calibrate's"
+            }
+        )?;
+    }
+    Ok(())
 }
 
 /// The files `next` reads: the calibration, the log and the scenario.

@@ -117,6 +117,10 @@ pub struct CalibrationJson {
     /// information, in a pilot's words, with the bias's standard errors each would give.
     #[serde(default)]
     pub next_manoeuvres: Vec<String>,
+    /// With them: the headings the flight never flew (30-degree sectors holding under 1 % of the
+    /// readings), `[from, to)` in degrees clockwise from north (`to` past 360 through north).
+    #[serde(default)]
+    pub headings_never_flown: Vec<[f64; 2]>,
     pub bias: [f64; 3],
     pub psi_deg: [f64; 3],
     pub scale: [f64; 3],

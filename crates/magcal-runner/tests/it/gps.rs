@@ -154,8 +154,12 @@ fn flight_log(dir: &Path, seed: u64) -> std::path::PathBuf {
 /// estimate) and, where `gps_yaw`, the newer `GPS` message (instance field `I`) with a
 /// moving-baseline receiver's true `Yaw`.
 fn flight_log_with(dir: &Path, seed: u64, yaw_bias_deg: f64, gps_yaw: bool) -> std::path::PathBuf {
-    let plan = FlightPlan::default();
-    let f = fly(&plan, seed);
+    flight_log_of(dir, seed, &FlightPlan::default(), yaw_bias_deg, gps_yaw)
+}
+
+/// [`flight_log_with`] of the flight `plan`.
+fn flight_log_of(dir: &Path, seed: u64, plan: &FlightPlan, yaw_bias_deg: f64, gps_yaw: bool) -> std::path::PathBuf {
+    let f = fly(plan, seed);
     let mut rng = stream_rng(seed, 0xDF);
     let mut w = Writer::new();
     w.fmt(0x81, "PARM", "QNf", "TimeUS,Name,Value");
@@ -769,6 +773,93 @@ fn a_flight_too_straight_to_point_the_compass_is_told_what_to_fly() {
     let (code, whole, _) = calibrate_json(&log, &["--fit", "vector-diagonal", "--motor", "current"]);
     assert_eq!(code, Some(0));
     assert!(whole.heading_std_deg.unwrap() < 0.3 && whole.next_manoeuvres.is_empty());
+}
+
+#[test]
+fn a_leg_that_determines_nothing_is_told_the_turns_and_headings_it_lacks() {
+    // The first 100 s of a flight without turbulence: one attitude, level, heading 340. The
+    // diagonal model's scale and bias are confounded on every axis: no vector calibration (exit
+    // 3), and yet the information of the vector model says what would give one: the full turns,
+    // steepest first, and the headings never flown.
+    let dir = TempDir::new().unwrap();
+    let plan = FlightPlan {
+        turbulence_deg: 0.0,
+        ..FlightPlan::default()
+    };
+    let log = flight_log_of(dir.path(), 7, &plan, 0.0, false);
+    let (code, c, stderr) = calibrate_json(&log, &["--fit", "vector-diagonal", "--to", "160"]);
+    assert_eq!(code, Some(3), "{stderr}");
+    assert!(
+        c.reasons[0].starts_with("no vector calibration: ")
+            && c.reasons[0].ends_with("fly a full turn at 30 degrees of bank (120 readings): see next manoeuvres"),
+        "{:?}",
+        c.reasons
+    );
+    let next: Vec<&str> = c
+        .next_manoeuvres
+        .iter()
+        .map(|m| m.split(" (").next().unwrap())
+        .collect();
+    assert_eq!(
+        next,
+        [
+            "a full turn at 30 degrees of bank",
+            "a full turn at 20 degrees of bank",
+            "a full turn at 10 degrees of bank"
+        ]
+    );
+    assert!(
+        c.next_manoeuvres.iter().all(|m| m.ends_with("; identifiable)")),
+        "{:?}",
+        c.next_manoeuvres
+    );
+    // Heading 340 (legs 20 degrees either side of north, the first to the west): every sector
+    // but 330-360 never flown.
+    assert_eq!(c.headings_never_flown, vec![[0.0, 330.0]]);
+    let text = crate::common::magcal()
+        .args(["calibrate", "--fit", "vector-diagonal", "--to", "160"])
+        .arg(&log)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("  never flown: headings 0 to 330 (30-degree sectors with under 1 % of the readings)"),
+        "{text}"
+    );
+    // `next` of that calibration, without a box: the flight's own manoeuvres, of this log only.
+    let out = dir.path().join("cal");
+    let run = crate::common::magcal()
+        .args(["calibrate", "--fit", "vector-diagonal", "--to", "160", "--out"])
+        .arg(&out)
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_eq!(run.status.code(), Some(3));
+    let next = crate::common::magcal()
+        .arg("next")
+        .arg(out.join("calibration.json"))
+        .arg(&log)
+        .output()
+        .unwrap();
+    assert_eq!(next.status.code(), Some(0), "{}", String::from_utf8_lossy(&next.stderr));
+    let next = String::from_utf8_lossy(&next.stdout);
+    let lines: Vec<&str> = next.lines().collect();
+    assert!(
+        lines[1] == "never flown: headings 0 to 330 (30-degree sectors with under 1 % of the readings)"
+            && lines[2].starts_with("fly a full turn at 30 degrees of bank (120 readings): bias standard errors "),
+        "{next}"
+    );
+    let other_dir = dir.path().join("other");
+    std::fs::create_dir(&other_dir).unwrap();
+    let other = flight_log_of(&other_dir, 8, &plan, 0.0, false);
+    let refused = crate::common::magcal()
+        .arg("next")
+        .arg(out.join("calibration.json"))
+        .arg(&other)
+        .output()
+        .unwrap();
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("not the log"));
 }
 
 #[test]

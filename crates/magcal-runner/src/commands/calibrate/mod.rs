@@ -247,7 +247,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         }
     };
     let along = place_source.as_ref().is_some_and(|s| s.from_log);
-    let (mut fit, vector) = vector::instead(args, &log, fit, units, place.as_ref(), along)?;
+    let (mut fit, vector, advice) = vector::instead(args, &log, fit, units, place.as_ref(), along)?;
     // A vector fit fits the interference with the calibration itself.
     let joint = match args.motor.filter(|_| vector.is_none()) {
         Some(m) => {
@@ -259,6 +259,7 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
     };
     let mut json = to_json(&args.log, &log, &fit, &why, source, args.seed);
     vector.iter().for_each(|v| v.record(&mut json));
+    advice.iter().for_each(|a| a.record(&mut json));
     if let Some(joint) = &joint {
         motor::record(&mut json, joint);
     }
@@ -509,6 +510,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         heading_source: None,
         heading_std_deg: None,
         next_manoeuvres: Vec::new(),
+        headings_never_flown: Vec::new(),
         bias: fit.bias,
         psi_deg: fit.errors.psi_deg(),
         scale: fit.errors.scale(),
@@ -821,6 +823,13 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
             "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
             significant(h, 3),
             vector::MAX_HEADING_STD_DEG
+        )?;
+    }
+    if !j.headings_never_flown.is_empty() {
+        writeln!(
+            w,
+            "  never flown: headings {} (30-degree sectors with under 1 % of the readings)",
+            vector::never_flown_words(&j.headings_never_flown)
         )?;
     }
     for m in &j.next_manoeuvres {

@@ -10,8 +10,8 @@ use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
 use magcal_core::vector::{
-    Manoeuvre, ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in, lack_of_fit,
-    next_manoeuvres,
+    Manoeuvre, ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in, headings_never_flown,
+    lack_of_fit, next_manoeuvres,
 };
 
 use super::CalibrateArgs;
@@ -178,8 +178,8 @@ pub struct TrackVerdict {
     horizontal: f64,
     /// `atan(bias_std_max / horizontal)`, degrees.
     heading_std_deg: f64,
-    /// The manoeuvres of largest gain in information ([`next_manoeuvres`]).
-    next: Vec<Manoeuvre>,
+    /// What to fly next, where the heading is not good enough.
+    advice: Advice,
     /// A reduced model against the full matrix: `(F, degrees of freedom, p-value)`.
     lack_of_fit: Option<(f64, (usize, usize), f64)>,
 }
@@ -199,10 +199,10 @@ fn track_verdict(
     let bias_std_max = std.bias.iter().copied().fold(0.0, f64::max);
     let horizontal = fit.field[0].hypot(fit.field[1]);
     let heading_std_deg = (bias_std_max / horizontal).atan().to_degrees();
-    let next = if heading_std_deg > MAX_HEADING_STD_DEG {
-        next_manoeuvres(readings, attitudes, fields, inputs, model, fit.noise?, fit.k, 3).unwrap_or_default()
+    let advice = if heading_std_deg > MAX_HEADING_STD_DEG {
+        Advice::of(readings, attitudes, fields, inputs, model, fit.noise?, fit.k)
     } else {
-        Vec::new()
+        Advice::default()
     };
     let lack_of_fit = (model != VectorModel::Full)
         .then(|| fit_track(readings, attitudes, fields, inputs, VectorModel::Full, order).ok())
@@ -212,9 +212,78 @@ fn track_verdict(
         bias_std_max,
         horizontal,
         heading_std_deg,
-        next,
+        advice,
         lack_of_fit,
     })
+}
+
+/// The share of the readings below which a heading sector counts as never flown.
+const NEVER_FLOWN_SHARE: f64 = 0.01;
+
+/// What a flight that does not point the compass well enough should fly next: the manoeuvres of
+/// largest gain in the information of the vector model ([`next_manoeuvres`]) and the headings it
+/// never flew.
+#[derive(Default)]
+pub struct Advice {
+    next: Vec<Manoeuvre>,
+    never_flown: Vec<[f64; 2]>,
+}
+
+impl Advice {
+    /// The advice for a track fit of `readings` under `model` at the noise `noise` about the
+    /// sensor `k` (see [`next_manoeuvres`]).
+    fn of(
+        readings: &[Vec3],
+        attitudes: &[Mat3],
+        fields: &[Vec3],
+        inputs: Option<&[f64]>,
+        model: VectorModel,
+        noise: f64,
+        k: Mat3,
+    ) -> Self {
+        Self {
+            next: next_manoeuvres(readings, attitudes, fields, inputs, model, noise, k, 3).unwrap_or_default(),
+            never_flown: headings_never_flown(attitudes, NEVER_FLOWN_SHARE),
+        }
+    }
+
+    /// The first manoeuvre, in words, for a reason.
+    fn first(&self) -> Option<String> {
+        self.next
+            .first()
+            .map(|m| format!("fly {} ({} readings): see next manoeuvres", m.words, m.readings))
+    }
+
+    /// Records the advice in `json`.
+    pub fn record(&self, json: &mut CalibrationJson) {
+        json.next_manoeuvres = self
+            .next
+            .iter()
+            .map(|m| {
+                format!(
+                    "{} ({} readings): bias standard errors {} (white noise; {})",
+                    m.words,
+                    m.readings,
+                    m.bias_std
+                        .map_or("unknown".to_string(), |b| b.map(|x| significant(x, 3)).join(", ")),
+                    if m.identifiable {
+                        "identifiable"
+                    } else {
+                        "still not identifiable"
+                    }
+                )
+            })
+            .collect();
+        json.headings_never_flown.clone_from(&self.never_flown);
+    }
+}
+
+/// The headings never flown in words: `120 to 300, 330 to 90, 30 to 360`.
+pub fn never_flown_words(runs: &[[f64; 2]]) -> String {
+    runs.iter()
+        .map(|[a, b]| format!("{a:.0} to {:.0}", if *b > 360.0 { b - 360.0 } else { *b }))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
@@ -229,12 +298,12 @@ pub fn instead(
     units: Option<Units>,
     place: Option<&Place>,
     along: bool,
-) -> Result<(LogFit, Option<Vector>)> {
+) -> Result<(LogFit, Option<Vector>, Option<Advice>)> {
     if args.fit.vector_model().is_none() {
-        return Ok((scalar, None));
+        return Ok((scalar, None, None));
     }
     match fit(args, log, &scalar, units, place, along) {
-        Ok(v) => Ok((v.as_log_fit(&scalar, log), Some(v))),
+        Ok(v) => Ok((v.as_log_fit(&scalar, log), Some(v), None)),
         // What the readings and attitudes do not determine is the log's, not bad input: the
         // scalar fit is reported, not usable, with the reason (exit 3).
         Err(e)
@@ -247,17 +316,92 @@ pub fn instead(
                 )
             ) =>
         {
+            // Against a given field the information does not depend on the estimate: what to
+            // fly next is known though nothing is fitted (about the nominal sensor, at the
+            // scalar fit's noise).
+            let advice = scalar.noise.value().and_then(|noise| {
+                let p = prepare(args, log, units, place, along).ok()?;
+                let (fields, _) = p.given?;
+                let w = &p.with;
+                let unit = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+                Some(Advice::of(
+                    &w.readings,
+                    &w.attitudes,
+                    &fields,
+                    w.inputs.as_deref(),
+                    p.model,
+                    noise,
+                    unit,
+                ))
+            });
             let mut f = scalar;
             f.usable = false;
             f.identifiable = false;
             f.reasons.insert(
                 0,
-                format!("no vector calibration: {e:#}; the estimates shown are the scalar full fit's"),
+                format!(
+                    "no vector calibration: {e:#}; the estimates shown are the scalar full fit's{}",
+                    advice
+                        .as_ref()
+                        .and_then(Advice::first)
+                        .map_or(String::new(), |m| format!("; {m}"))
+                ),
             );
-            Ok((f, None))
+            Ok((f, None, advice))
         }
         Err(e) => Err(e),
     }
+}
+
+/// What a vector fit of a log fits: the model of `--fit`, the readings with an attitude, their
+/// order, and the field given per reading (along the GPS track where `along`, else at the
+/// place's site where the model needs a given field) with its words.
+struct Prepared {
+    model: VectorModel,
+    with: With,
+    order: magcal_core::log_fit::Order,
+    given: Option<(Vec<Vec3>, String)>,
+}
+
+/// The [`Prepared`] fit of `log`.
+///
+/// # Errors
+/// As [`fit`]'s checks of the log and flags.
+fn prepare(
+    args: &CalibrateArgs,
+    log: &Log,
+    units: Option<Units>,
+    place: Option<&Place>,
+    along: bool,
+) -> Result<Prepared> {
+    let model = args.fit.vector_model().unwrap_or(VectorModel::Full);
+    let reduced = model != VectorModel::Full;
+    check_model(args, log, place, model)?;
+    let with = with_attitude(args, log)?;
+    let order = if log.times.is_some() {
+        magcal_core::log_fit::Order::Time
+    } else {
+        magcal_core::log_fit::Order::Unknown
+    };
+    let track = if along && log.times.is_some() {
+        log.gps.as_ref()
+    } else {
+        None
+    };
+    let given = match (place, track) {
+        (Some(p), Some((gps, message))) => Some(track_fields(args, p, gps, message, &with.times, units)?),
+        (Some(p), None) if reduced || with.inputs.is_some() => {
+            let (f, words) = site_field(args, p, units)?;
+            Some((vec![f; with.readings.len()], words))
+        }
+        _ => None,
+    };
+    Ok(Prepared {
+        model,
+        with,
+        order,
+        given,
+    })
 }
 
 /// The vector fit of `log` under the model of `--fit`, with the motor's interference where
@@ -280,33 +424,17 @@ pub fn fit(
     along: bool,
 ) -> Result<Vector> {
     let shown = args.log.display();
-    let model = args.fit.vector_model().unwrap_or(VectorModel::Full);
-    let reduced = model != VectorModel::Full;
-    check_model(args, log, place, model)?;
-    let With {
-        readings,
-        attitudes,
-        times,
-        inputs,
-    } = with_attitude(args, log)?;
-    let order = if log.times.is_some() {
-        magcal_core::log_fit::Order::Time
-    } else {
-        magcal_core::log_fit::Order::Unknown
-    };
-    let track = if along && log.times.is_some() {
-        log.gps.as_ref()
-    } else {
-        None
-    };
-    let given = match (place, track) {
-        (Some(p), Some((gps, message))) => Some(track_fields(args, p, gps, message, &times, units)?),
-        (Some(p), None) if reduced || inputs.is_some() => {
-            let (f, words) = site_field(args, p, units)?;
-            Some((vec![f; readings.len()], words))
-        }
-        _ => None,
-    };
+    let Prepared {
+        model,
+        with: With {
+            readings,
+            attitudes,
+            inputs,
+            ..
+        },
+        order,
+        given,
+    } = prepare(args, log, units, place, along)?;
     let motor = args.motor.zip(inputs.as_ref()).map(|(m, u)| {
         let lo = u.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = u.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -394,7 +522,7 @@ impl Vector {
                 significant(t.bias_std_max, 3),
                 significant(t.bias_std_max / t.horizontal, 3),
                 significant(t.heading_std_deg, 3),
-                t.next.first().map_or(String::new(), |m| format!("; fly {} ({} readings): see next manoeuvres", m.words, m.readings))
+                t.advice.first().map_or(String::new(), |m| format!("; {m}"))
             ));
         }
         reasons
@@ -483,24 +611,7 @@ impl Vector {
         json.fit = self.fit_name.to_string();
         if let Some(t) = &self.track {
             json.heading_std_deg = Some(t.heading_std_deg);
-            json.next_manoeuvres = t
-                .next
-                .iter()
-                .map(|m| {
-                    format!(
-                        "{} ({} readings): bias standard errors {} (white noise; {})",
-                        m.words,
-                        m.readings,
-                        m.bias_std
-                            .map_or("unknown".to_string(), |b| b.map(|x| significant(x, 3)).join(", ")),
-                        if m.identifiable {
-                            "identifiable"
-                        } else {
-                            "still not identifiable"
-                        }
-                    )
-                })
-                .collect();
+            t.advice.record(json);
         }
         if let (Some(d), Some(input)) = (v.motor, self.motor) {
             json.motor = Some(MotorJson {
@@ -644,4 +755,18 @@ pub fn implausible(e: &magcal_core::ErrorModel) -> Option<String> {
             psi[0], psi[1], psi[2], scale[0], scale[1], scale[2], PLAUSIBLE_SCALE[0], PLAUSIBLE_SCALE[1]
         )
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::never_flown_words;
+
+    #[test]
+    fn headings_never_flown_read_as_a_pilot_reads_them() {
+        assert_eq!(
+            never_flown_words(&[[120.0, 300.0], [330.0, 450.0], [30.0, 360.0]]),
+            "120 to 300, 330 to 90, 30 to 360"
+        );
+        assert_eq!(never_flown_words(&[[0.0, 360.0]]), "0 to 360");
+    }
 }
