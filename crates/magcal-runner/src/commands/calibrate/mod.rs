@@ -786,6 +786,29 @@ fn print_residuals_and_noise(w: &mut dyn Write, j: &CalibrationJson) -> std::io:
     Ok(())
 }
 
+/// A track fit's heading standard error, the headings its flight never flew and the manoeuvres
+/// to fly next.
+fn print_flight_advice(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
+    if let Some(h) = j.heading_std_deg {
+        writeln!(
+            w,
+            "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
+            significant(h, 3),
+            vector::MAX_HEADING_STD_DEG
+        )?;
+    }
+    if !j.headings_never_flown.is_empty() {
+        writeln!(
+            w,
+            "  never flown: headings {} (30-degree sectors with under 1 % of the readings)",
+            vector::never_flown_words(&j.headings_never_flown)
+        )?;
+    }
+    for m in &j.next_manoeuvres {
+        writeln!(w, "  next: fly {m}")?;
+    }
+    Ok(())
+}
 /// The verdicts (identifiable, lack of fit, ellipsoid, usable) and the coverage of the log.
 fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     writeln!(
@@ -817,24 +840,7 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
     if let Some(c) = &j.check {
         writeln!(w, "{}: {}", if c.passed { "check" } else { "CHECK FAILED" }, c.words)?;
     }
-    if let Some(h) = j.heading_std_deg {
-        writeln!(
-            w,
-            "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
-            significant(h, 3),
-            vector::MAX_HEADING_STD_DEG
-        )?;
-    }
-    if !j.headings_never_flown.is_empty() {
-        writeln!(
-            w,
-            "  never flown: headings {} (30-degree sectors with under 1 % of the readings)",
-            vector::never_flown_words(&j.headings_never_flown)
-        )?;
-    }
-    for m in &j.next_manoeuvres {
-        writeln!(w, "  next: fly {m}")?;
-    }
+    print_flight_advice(w, j)?;
     if j.usable {
         writeln!(
             w,
