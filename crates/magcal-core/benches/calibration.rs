@@ -156,5 +156,42 @@ fn log_fit(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, two_step, kernels, monte_carlo, metrics, log_fit);
+/// The rotation of Wahba's problem on a 3x3 attitude profile matrix: faer's SVD (Markley's
+/// solution) against the fixed-size q-method of [`small::wahba_rotation`]; and a whole
+/// alignment of 50,000 readings with reference attitudes (`reference::align`, 24 starts).
+fn wahba(c: &mut Criterion) {
+    let w = [[0.3, -1.2, 0.4], [0.9, 0.1, -0.7], [-0.2, 0.5, 1.1]];
+    c.bench_function("wahba/faer_svd", |b| {
+        b.iter(|| {
+            let svd = Mat::from_fn(3, 3, |i, j| black_box(&w)[i][j]).svd().unwrap();
+            let (u, v) = (svd.U(), svd.V());
+            let q: [[f64; 3]; 3] =
+                std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| u[(i, k)] * v[(j, k)]).sum()));
+            q
+        })
+    });
+    c.bench_function("wahba/q_method", |b| b.iter(|| small::wahba_rotation(black_box(&w))));
+    let mut rng = stream_rng(3, 0);
+    let attitudes: Vec<[[f64; 3]; 3]> = sources::random(&paper::auv_box(), 50_000, &mut rng)
+        .iter()
+        .map(|a| small::transpose(&a.dcm()))
+        .collect();
+    let field = [3_000.0, 15_000.0, -48_000.0];
+    // A scale factor 1 % off on x: the errors the alignment measures.
+    let readings: Vec<magcal_core::Vec3> = attitudes
+        .iter()
+        .map(|c| {
+            let b = small::mat_t_vec(c, field);
+            [1.01 * b[0], b[1], b[2]]
+        })
+        .collect();
+    let mut group = c.benchmark_group("align");
+    group.sample_size(10);
+    group.bench_function("50000_readings", |b| {
+        b.iter(|| magcal_core::reference::align(black_box(&readings), &attitudes, &Default::default()))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, two_step, kernels, wahba, monte_carlo, metrics, log_fit);
 criterion_main!(benches);

@@ -11,7 +11,7 @@
 //! `S(Q, F) = sum_t |C_t Q b_t - F|^2`,
 //!
 //! by alternating `F = mean_t C_t Q b_t` and `Q` the solution of Wahba's problem for the pairs
-//! `(b_t, C_t^T F)` (the SVD of `W = sum_t C_t^T F b_t^T`, with the sign that keeps `det Q = +1`).
+//! `(b_t, C_t^T F)` (Davenport's q-method on `W = sum_t C_t^T F b_t^T`, which keeps `det Q = +1`).
 //! The heading error of reading `t` is the signed angle about the reference z axis from the
 //! horizontal part of `F` to that of `C_t Q b_t`, positive counter-clockwise seen from above,
 //! wrapped to (-180, 180] degrees; the direction error is the angle between `C_t Q b_t` and `F`.
@@ -42,7 +42,7 @@
 #![allow(clippy::needless_range_loop)]
 #![allow(non_snake_case)]
 
-use crate::small::{Mat3, Vec3, dot, mat_mul, mat_vec, norm, sub, transpose};
+use crate::small::{Mat3, Vec3, dot, mat_mul, mat_vec, norm, sub, symmetric_eigen, transpose, wahba_rotation};
 
 /// The alternation's stopping rule and its limit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -50,8 +50,13 @@ pub struct AlignSettings {
     /// Stop when an iteration lowers the sum `S` by at most this fraction of `sum_t |b_t|^2`;
     /// Newton's steps then finish the fit. Default `1e-12`.
     pub tolerance: f64,
-    /// Iterations of one start at most. Default 10,000 (one iteration costs a 3x3 SVD).
+    /// Iterations of one start at most. Default 10,000 (one iteration costs a 4x4
+    /// eigendecomposition).
     pub max_iterations: usize,
+    /// Iterations of the alternation before Newton's steps are tried; where they stop short
+    /// (a step that would lower `|F|^2`), the alternation goes on for as many again. Default 8;
+    /// `usize::MAX`: the alternation until it settles, then Newton's steps.
+    pub newton_after: usize,
 }
 
 impl Default for AlignSettings {
@@ -59,6 +64,7 @@ impl Default for AlignSettings {
         Self {
             tolerance: 1e-12,
             max_iterations: 10_000,
+            newton_after: 8,
         }
     }
 }
@@ -228,8 +234,7 @@ pub fn align(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) 
     let moments = Moments::of(calibrated, attitudes);
     let mut best: Option<(Mat3, f64, usize, usize)> = None;
     for start in axis_rotations() {
-        let (q, _, iterations) = alternate(&moments, start, settings)?;
-        let (q, phi, newton_steps) = polish(&moments, q);
+        let (q, phi, iterations, newton_steps) = climb(&moments, start, settings)?;
         if best.is_none_or(|b| phi > b.1) {
             best = Some((q, phi, iterations, newton_steps));
         }
@@ -488,49 +493,67 @@ pub(crate) fn axis_rotations() -> impl Iterator<Item = Mat3> {
     })
 }
 
-/// The alternation from `start`: the rotation it settles at, `|F|^2` there and its iterations.
-fn alternate(moments: &Moments, start: Mat3, settings: &AlignSettings) -> Result<(Mat3, f64, usize), ReferenceError> {
+/// The climb from `start` to the local maximum of `|F|^2` it leads to: rounds of at most
+/// [`AlignSettings::newton_after`] iterations of the alternation, each followed by Newton's
+/// steps, until Newton's steps converge or the alternation settles (then Newton's steps finish
+/// it). Returns the rotation, `|F|^2` there, the alternation's iterations and the last round's
+/// Newton steps.
+///
+/// # Deviation from the obvious code
+/// The alternation alone converges linearly, at a rate near 1 where the attitudes turn the body
+/// little about some axis: from each of the 24 starts about 69 iterations on BROAD's windows.
+/// Newton's steps from a few iterations in reach the same maximum (the alternation only rises,
+/// and the steps are taken only while they do not lower `|F|^2`) in a fifth of the work; the
+/// figures agree with the alternation's to 1e-12 (test
+/// `newton_after_a_few_iterations_reaches_the_alternations_maximum`).
+fn climb(
+    moments: &Moments,
+    start: Mat3,
+    settings: &AlignSettings,
+) -> Result<(Mat3, f64, usize, usize), ReferenceError> {
+    let mut q = start;
+    let mut iterations = 0;
+    loop {
+        let round = settings.newton_after.min(settings.max_iterations - iterations);
+        let (next, done, settled) = alternate(moments, q, settings.tolerance, round);
+        iterations += done;
+        let (polished, phi, steps, converged) = polish(moments, next);
+        q = polished;
+        if converged || settled {
+            return Ok((q, phi, iterations, steps));
+        }
+        if iterations >= settings.max_iterations {
+            return Err(ReferenceError::NotConverged {
+                iterations: settings.max_iterations,
+            });
+        }
+    }
+}
+
+/// At most `limit` iterations of the alternation from `start`: the rotation reached, the
+/// iterations made and whether it settled (a rise of `|F|^2` of at most `tolerance` of the mean
+/// square, or `F = 0`).
+fn alternate(moments: &Moments, start: Mat3, tolerance: f64, limit: usize) -> (Mat3, usize, bool) {
     let mut q = start;
     let mut f = moments.field(&q);
     let mut phi = dot(f, f);
-    for iterations in 1..=settings.max_iterations {
+    for iterations in 1..=limit {
         let Some(next) = wahba_rotation(&moments.wahba(f)) else {
             // W = 0: F vanishes (a start orthogonal to every reading); this start goes nowhere.
-            return Ok((q, phi, iterations));
+            return (q, iterations, true);
         };
         let f_next = moments.field(&next);
         let phi_next = dot(f_next, f_next);
         // S = m (mean |b|^2 - |F|^2): the drop of S per reading is the rise of |F|^2.
-        let settled = phi_next - phi <= settings.tolerance * moments.mean_square;
+        let settled = phi_next - phi <= tolerance * moments.mean_square;
         if phi_next >= phi {
             (q, f, phi) = (next, f_next, phi_next);
         }
         if settled {
-            return Ok((q, phi, iterations));
+            return (q, iterations, true);
         }
     }
-    Err(ReferenceError::NotConverged {
-        iterations: settings.max_iterations,
-    })
-}
-
-/// The rotation `Q` maximising `trace(Q^T W)`: `U diag(1, 1, det(U V^T)) V^T` from the SVD
-/// `W = U S V^T` (Markley's solution of Wahba's problem). `None` when `W` is zero or not finite.
-fn wahba_rotation(w: &Mat3) -> Option<Mat3> {
-    let scale = w.iter().flatten().fold(0.0_f64, |a, v| a.max(v.abs()));
-    if !(scale > 0.0 && scale.is_finite()) {
-        return None;
-    }
-    let a = faer::Mat::from_fn(3, 3, |i, j| w[i][j] / scale);
-    let svd = a.svd().ok()?;
-    let (u, v) = (svd.U(), svd.V());
-    let uvt: Mat3 = std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| u[(i, k)] * v[(j, k)]).sum()));
-    let d = if det(&uvt) < 0.0 { -1.0 } else { 1.0 };
-    // faer orders the singular values decreasingly: the sign goes on the smallest.
-    let weights = [1.0, 1.0, d];
-    Some(std::array::from_fn(|i| {
-        std::array::from_fn(|j| (0..3).map(|k| u[(i, k)] * weights[k] * v[(j, k)]).sum())
-    }))
+    (q, limit, false)
 }
 
 /// The first and second order of `S / m` in a turn of `Q`: turning `Q` by `exp([w]x)` changes
@@ -560,26 +583,14 @@ fn turn(moments: &Moments, q: &Mat3, f: Vec3) -> (Vec3, Mat3) {
     (g, K)
 }
 
-/// The eigenvalues (increasing) and eigenvectors (columns) of a symmetric 3x3 matrix, by faer;
-/// `None` when the decomposition fails.
-fn symmetric_eigen(k: &Mat3) -> Option<(Vec3, Mat3)> {
-    let a = faer::Mat::from_fn(3, 3, |i, j| k[i][j]);
-    let evd = a.self_adjoint_eigen(faer::Side::Lower).ok()?;
-    let mut order = [0, 1, 2];
-    order.sort_by(|&i, &j| evd.S()[i].total_cmp(&evd.S()[j]));
-    Some((
-        order.map(|i| evd.S()[i]),
-        std::array::from_fn(|r| order.map(|i| evd.U()[(r, i)])),
-    ))
-}
-
 /// Below this share of `|F|^2`, an eigenvalue of `K` is rounding: the attitudes do not turn
 /// `Q` about its eigenvector at all.
 const FLAT_TURN: f64 = 1e-9;
 
-/// Newton's steps on the turn of `Q` from where the alternation settled: `w = K^+ g` over the
+/// Newton's steps on the turn of `Q` from where the alternation stopped: `w = K^+ g` over the
 /// eigenvalues of `K` above [`FLAT_TURN`], taken while they do not lower `|F|^2` beyond its
-/// rounding, at most 50, until the step is below 1e-14 rad. Returns the rotation, `|F|^2` and the steps taken.
+/// rounding, at most 50, until the step is below 1e-14 rad. Returns the rotation, `|F|^2`, the
+/// steps taken and whether they converged (a step below 1e-14 rad).
 ///
 /// # Deviation from the obvious code
 /// Where the attitudes turn the body little about some axis (a slow rotation in the hand), `S`
@@ -587,14 +598,14 @@ const FLAT_TURN: f64 = 1e-9;
 /// close to 1: on BROAD trial 02 it lowers `S` by less than 1e-13 of the sum per iteration while
 /// the heading figures still move in their fifth digit. Newton's steps on the exact second-order
 /// model finish in two or three steps.
-fn polish(moments: &Moments, start: Mat3) -> (Mat3, f64, usize) {
+fn polish(moments: &Moments, start: Mat3) -> (Mat3, f64, usize, bool) {
     let mut q = start;
     let mut f = moments.field(&q);
     let mut phi = dot(f, f);
     for steps in 0..50 {
         let (g, K) = turn(moments, &q, f);
         let Some((values, vectors)) = symmetric_eigen(&K) else {
-            return (q, phi, steps);
+            return (q, phi, steps, false);
         };
         let mut w = [0.0; 3];
         for i in (0..3).filter(|&i| values[i] > FLAT_TURN * phi) {
@@ -608,14 +619,14 @@ fn polish(moments: &Moments, start: Mat3) -> (Mat3, f64, usize) {
         // Near the end a step changes |F|^2 by less than its rounding: accept it unless it
         // loses more than that.
         if phi_next.is_nan() || phi_next < phi - 64.0 * f64::EPSILON * phi {
-            return (q, phi, steps);
+            return (q, phi, steps, false);
         }
         (q, f, phi) = (next, f_next, phi_next);
         if norm(w) <= 1e-14 {
-            return (q, phi, steps + 1);
+            return (q, phi, steps + 1, true);
         }
     }
-    (q, phi, 50)
+    (q, phi, 50, false)
 }
 
 /// `exp([w]x)`, the rotation by `|w|` radians about `w` (Rodrigues).
@@ -738,6 +749,69 @@ mod tests {
             .map(|c| crate::small::mat_t_vec(&q0, crate::small::mat_t_vec(c, FIELD)))
             .collect();
         (attitudes, q0, calibrated)
+    }
+
+    /// The largest entry of `|a - b|`.
+    fn gap(a: &Mat3, b: &Mat3) -> f64 {
+        (0..3)
+            .flat_map(|i| (0..3).map(move |j| a[i][j] - b[i][j]))
+            .fold(0.0, |m, d| m.max(d.abs()))
+    }
+
+    #[test]
+    fn newton_after_a_few_iterations_reaches_the_alternations_maximum() {
+        // 240 logs where the alternation crawls or has rivals: level flight with tilts of 2 to 90
+        // degrees, a calibration off by scale factors of up to 10 % and a bias, noise, the
+        // calibrated frame turned by a random rotation. Newton's steps after 8 iterations give
+        // the alternation's own maximum (run until it settles, as before): Q to 1e-12 and the
+        // heading figures to 1e-12 relative.
+        let mut worst = (0.0_f64, 0.0_f64);
+        for seed in 0..240_u64 {
+            let mut rng = stream_rng(seed, 7);
+            let tilt = [2.0, 5.0, 20.0, 90.0][(seed % 4) as usize];
+            let attitudes: Vec<Mat3> = (0..300)
+                .map(|_| {
+                    let yaw = about_z(rng.random_range(0.0..360.0));
+                    let roll = about_x(rng.random_range(-tilt..tilt));
+                    let pitch = {
+                        let (s, c) = rng.random_range(-tilt..tilt).to_radians().sin_cos();
+                        [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+                    };
+                    mat_mul(&yaw, &mat_mul(&pitch, &roll))
+                })
+                .collect();
+            let q0 = rotation(std::array::from_fn(|_| rng.random_range(-1.0..1.0)));
+            let d: Vec3 = std::array::from_fn(|_| rng.random_range(0.9..1.1));
+            let o: Vec3 = std::array::from_fn(|_| rng.random_range(-2.0..2.0));
+            let calibrated: Vec<Vec3> = attitudes
+                .iter()
+                .map(|c| {
+                    let u = crate::small::mat_t_vec(&q0, crate::small::mat_t_vec(c, FIELD));
+                    std::array::from_fn(|i| d[i] * u[i] + o[i] + 0.3 * rng.random_range(-1.0..1.0))
+                })
+                .collect();
+            let slow = AlignSettings {
+                newton_after: usize::MAX,
+                ..AlignSettings::default()
+            };
+            let (Ok(fast), Ok(slow)) = (
+                align(&calibrated, &attitudes, &AlignSettings::default()),
+                align(&calibrated, &attitudes, &slow),
+            ) else {
+                continue;
+            };
+            let rms =
+                (fast.summary.heading_rms_deg - slow.summary.heading_rms_deg).abs() / slow.summary.heading_rms_deg;
+            worst = (worst.0.max(gap(&fast.rotation, &slow.rotation)), worst.1.max(rms));
+            assert!(
+                fast.iterations <= slow.iterations,
+                "seed {seed}: {} {}",
+                fast.iterations,
+                slow.iterations
+            );
+        }
+        println!("largest |dQ| {:e}, heading rms relative {:e}", worst.0, worst.1);
+        assert!(worst.0 <= 1e-12 && worst.1 <= 1e-12, "{worst:?}");
     }
 
     #[test]

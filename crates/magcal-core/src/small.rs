@@ -211,6 +211,137 @@ pub fn spd_inverse<const N: usize>(a: &[[f64; N]; N]) -> Option<[[f64; N]; N]> {
     cholesky_in_place(&mut l).then(|| cholesky_inverse(&l))
 }
 
+/// Sweeps of [`symmetric_eigen`] at most.
+const MAX_SWEEPS: usize = 20;
+
+/// The eigenvalues (increasing) and eigenvectors (columns, in the same order) of a symmetric
+/// `N x N` matrix (both triangles read as one), by cyclic Jacobi rotations until every
+/// off-diagonal entry is below `f64::EPSILON` times the matrix's Frobenius norm; at most
+/// [`MAX_SWEEPS`] sweeps (Jacobi converges quadratically: 3 to 5 at `N = 3, 4`). `None` for
+/// entries that are not finite.
+///
+/// The alignment of a calibration with reference attitudes solves a 3x3 rotation problem about
+/// 1,650 times per call ([`crate::reference`]); faer's eigendecomposition and SVD allocate on
+/// the heap and dispatch for every size, and took 88 % of a replay of BROAD trial 02 (see
+/// `benches/calibration.rs`, `wahba`: faer's 3x3 SVD against this 4x4 q-method).
+pub fn symmetric_eigen<const N: usize>(a: &[[f64; N]; N]) -> Option<([f64; N], [[f64; N]; N])> {
+    if a.iter().flatten().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let mut a: [[f64; N]; N] = std::array::from_fn(|i| std::array::from_fn(|j| 0.5 * (a[i][j] + a[j][i])));
+    let mut v: [[f64; N]; N] = std::array::from_fn(|i| std::array::from_fn(|j| f64::from(u8::from(i == j))));
+    // The Frobenius norm, which the rotations keep.
+    let size = a.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+    for _ in 0..MAX_SWEEPS {
+        let off = (0..N)
+            .flat_map(|p| (p + 1..N).map(move |q| (p, q)))
+            .fold(0.0_f64, |m, (p, q)| m.max(a[p][q].abs()));
+        if off <= f64::EPSILON * size {
+            break;
+        }
+        for p in 0..N {
+            for q in p + 1..N {
+                if a[p][q] == 0.0 {
+                    continue;
+                }
+                // The rotation that zeroes a[p][q] (Golub and Van Loan, Algorithm 8.4.1).
+                // `sqrt(1 + x^2)` rather than `hypot`, which costs most of a sweep; `theta^2`
+                // overflows only past 1e154, where `t` is `1 / (2 theta)` to rounding.
+                let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+                let t = if theta.abs() > 1e150 {
+                    0.5 / theta
+                } else {
+                    theta.signum() / (theta.abs() + (1.0 + theta * theta).sqrt())
+                };
+                let t = if theta == 0.0 { 1.0 } else { t };
+                let c = 1.0 / (1.0 + t * t).sqrt();
+                let s = t * c;
+                for k in 0..N {
+                    let (akp, akq) = (a[k][p], a[k][q]);
+                    a[k][p] = c * akp - s * akq;
+                    a[k][q] = s * akp + c * akq;
+                }
+                for k in 0..N {
+                    let (apk, aqk) = (a[p][k], a[q][k]);
+                    a[p][k] = c * apk - s * aqk;
+                    a[q][k] = s * apk + c * aqk;
+                }
+                for k in 0..N {
+                    let (vkp, vkq) = (v[k][p], v[k][q]);
+                    v[k][p] = c * vkp - s * vkq;
+                    v[k][q] = s * vkp + c * vkq;
+                }
+            }
+        }
+    }
+    let mut order: [usize; N] = std::array::from_fn(|i| i);
+    order.sort_by(|&i, &j| a[i][i].total_cmp(&a[j][j]));
+    Some((order.map(|i| a[i][i]), std::array::from_fn(|r| order.map(|i| v[r][i]))))
+}
+
+/// The rotation `Q` maximising `trace(Q^T W)` (Wahba's problem; `W` the attitude profile
+/// matrix), by Davenport's q-method: the unit quaternion of largest eigenvalue of the symmetric
+/// 4x4 `N` with `q^T N q = trace(Q(q)^T W)`. `None` when `W` is zero or not finite.
+pub fn wahba_rotation(w: &Mat3) -> Option<Mat3> {
+    let scale = w.iter().flatten().fold(0.0_f64, |a, v| a.max(v.abs()));
+    if !(scale > 0.0 && scale.is_finite()) {
+        return None;
+    }
+    let w: Mat3 = w.map(|row| row.map(|v| v / scale));
+    // The quadratic form of trace(Q^T W) in q = (s, x, y, z), Q the rotation of q.
+    let n = [
+        [
+            w[0][0] + w[1][1] + w[2][2],
+            w[2][1] - w[1][2],
+            w[0][2] - w[2][0],
+            w[1][0] - w[0][1],
+        ],
+        [
+            w[2][1] - w[1][2],
+            w[0][0] - w[1][1] - w[2][2],
+            w[0][1] + w[1][0],
+            w[0][2] + w[2][0],
+        ],
+        [
+            w[0][2] - w[2][0],
+            w[0][1] + w[1][0],
+            w[1][1] - w[0][0] - w[2][2],
+            w[1][2] + w[2][1],
+        ],
+        [
+            w[1][0] - w[0][1],
+            w[0][2] + w[2][0],
+            w[1][2] + w[2][1],
+            w[2][2] - w[0][0] - w[1][1],
+        ],
+    ];
+    let (_, vectors) = symmetric_eigen(&n)?;
+    let q = [vectors[0][3], vectors[1][3], vectors[2][3], vectors[3][3]];
+    let len = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    Some(rotation_of_quaternion(q.map(|v| v / len)))
+}
+
+/// The rotation of a unit quaternion `(s, x, y, z)` (turning vectors actively).
+pub fn rotation_of_quaternion([s, x, y, z]: [f64; 4]) -> Mat3 {
+    [
+        [
+            s * s + x * x - y * y - z * z,
+            2.0 * (x * y - s * z),
+            2.0 * (x * z + s * y),
+        ],
+        [
+            2.0 * (x * y + s * z),
+            s * s - x * x + y * y - z * z,
+            2.0 * (y * z - s * x),
+        ],
+        [
+            2.0 * (x * z - s * y),
+            2.0 * (y * z + s * x),
+            s * s - x * x - y * y + z * z,
+        ],
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -327,5 +458,62 @@ mod tests {
         }
         assert!(upper_triangular_inverse(&[[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).is_none());
         assert!(solve3(&[[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]], [1.0, 1.0, 1.0]).is_none());
+    }
+
+    #[test]
+    fn symmetric_eigen_matches_faer() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for _ in 0..200 {
+            let a = random_spd::<4>(&mut rng);
+            let a: [[f64; 4]; 4] =
+                std::array::from_fn(|i| std::array::from_fn(|j| a[i][j] - 2.0 * f64::from(u8::from(i == j))));
+            let (values, vectors) = symmetric_eigen(&a).unwrap();
+            let fa = Mat::from_fn(4, 4, |i, j| a[i][j]);
+            let evd = fa.self_adjoint_eigen(Side::Lower).unwrap();
+            let mut fv: Vec<f64> = (0..4).map(|i| evd.S()[i]).collect();
+            fv.sort_by(f64::total_cmp);
+            let size = a.iter().flatten().fold(0.0_f64, |m, v| m.max(v.abs()));
+            for k in 0..4 {
+                assert!(
+                    (values[k] - fv[k]).abs() <= 64.0 * f64::EPSILON * size,
+                    "{values:?} {fv:?}"
+                );
+                // A v = lambda v, to rounding.
+                for r in 0..4 {
+                    let av: f64 = (0..4).map(|c| a[r][c] * vectors[c][k]).sum();
+                    assert!((av - values[k] * vectors[r][k]).abs() <= 64.0 * f64::EPSILON * size);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn wahba_rotation_matches_the_svd_solution() {
+        // Markley's SVD solution `U diag(1, 1, det(U V^T)) V^T` by faer, against the q-method, on
+        // random matrices of either sign of determinant: the same rotation to 1e-12.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for trial in 0..500 {
+            let w: Mat3 = std::array::from_fn(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)));
+            let svd = Mat::from_fn(3, 3, |i, j| w[i][j]).svd().unwrap();
+            let (u, v) = (svd.U(), svd.V());
+            let uvt: Mat3 =
+                std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| u[(i, k)] * v[(j, k)]).sum()));
+            let d = if crate::reference::det(&uvt) < 0.0 { -1.0 } else { 1.0 };
+            let weights = [1.0, 1.0, d];
+            let want: Mat3 = std::array::from_fn(|i| {
+                std::array::from_fn(|j| (0..3).map(|k| u[(i, k)] * weights[k] * v[(j, k)]).sum())
+            });
+            let got = wahba_rotation(&w).unwrap();
+            let gap = (0..3)
+                .flat_map(|i| (0..3).map(move |j| (i, j)))
+                .fold(0.0_f64, |m, (i, j)| m.max((got[i][j] - want[i][j]).abs()));
+            // The singular values' gaps set the conditioning: skip the near-degenerate draws.
+            let s: Vec<f64> = (0..3).map(|k| svd.S()[k]).collect();
+            let gap_s = (s[1] + d * s[2]).abs().min(s[0] + s[1]);
+            if gap_s < 1e-3 {
+                continue;
+            }
+            assert!(gap <= 1e-12, "trial {trial}: {gap:e}; singular values {s:?}");
+        }
     }
 }

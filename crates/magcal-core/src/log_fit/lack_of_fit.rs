@@ -124,6 +124,14 @@ impl LackOfFit {
         let m = readings.len();
         let R = reduced.magnitude;
         let pr = reduced.model.parameters();
+        // No richer model (the full one is the richest): nothing to test against, and the
+        // reduced sum below (a refinement over every reading) would be thrown away.
+        if ![FitModel::Full, FitModel::Diagonal]
+            .into_iter()
+            .any(|model| model.parameters() > pr && m > model.parameters())
+        {
+            return None;
+        }
         let exact = reduced.residual_rms <= 1e-9 * R;
         // The full model from the reduced fit: the same sensor is a point of the full model.
         let start = crate::calibration::Estimate {
