@@ -217,13 +217,13 @@ const MAX_SWEEPS: usize = 20;
 /// The eigenvalues (increasing) and eigenvectors (columns, in the same order) of a symmetric
 /// `N x N` matrix (both triangles read as one), by cyclic Jacobi rotations until every
 /// off-diagonal entry is below `f64::EPSILON` times the matrix's Frobenius norm; at most
-/// [`MAX_SWEEPS`] sweeps (Jacobi converges quadratically: 3 to 5 at `N = 3, 4`). `None` for
+/// 20 sweeps (Jacobi converges quadratically: 3 to 5 at `N = 3, 4`). `None` for
 /// entries that are not finite.
 ///
-/// The alignment of a calibration with reference attitudes solves a 3x3 rotation problem about
-/// 1,650 times per call ([`crate::reference`]); faer's eigendecomposition and SVD allocate on
-/// the heap and dispatch for every size, and took 88 % of a replay of BROAD trial 02 (see
-/// `benches/calibration.rs`, `wahba`: faer's 3x3 SVD against this 4x4 q-method).
+/// Why not faer: the alignment of a calibration with reference attitudes ([`crate::reference`])
+/// solves a 3x3 rotation problem hundreds of times per call, and faer's SVD and
+/// eigendecomposition allocate on the heap and dispatch for every size: its 3x3 SVD costs 4.9 us
+/// where [`wahba_rotation`] on this solver costs 1.9 us (`benches/calibration.rs`, `wahba`).
 pub fn symmetric_eigen<const N: usize>(a: &[[f64; N]; N]) -> Option<([f64; N], [[f64; N]; N])> {
     if a.iter().flatten().any(|v| !v.is_finite()) {
         return None;
