@@ -196,9 +196,11 @@ fn flight(args: &NextArgs) -> Result<()> {
     if args.report.is_some() {
         bail!("--report: a flight's manoeuvres have no page; the text or --json says them");
     }
-    let file = std::fs::File::open(&args.log).with_context(|| log_shown.clone())?;
+    // Bounded as every log read is: a pipe or a device ends at the stream bounds, not never.
+    let file = crate::limits::Bounded::open_log(&args.log, &log_shown)?;
     let mut hashing = crate::digest::Hashing::new(std::io::BufReader::new(file));
-    std::io::copy(&mut hashing, &mut std::io::sink()).with_context(|| log_shown.clone())?;
+    // The reader's errors name the file.
+    std::io::copy(&mut hashing, &mut std::io::sink())?;
     let sha = hashing.hex();
     if cal.log_sha256.as_deref() != Some(sha.as_str()) {
         bail!(

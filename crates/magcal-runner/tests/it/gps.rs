@@ -860,6 +860,27 @@ fn a_leg_that_determines_nothing_is_told_the_turns_and_headings_it_lacks() {
         .unwrap();
     assert_eq!(refused.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&refused.stderr).contains("not the log"));
+    // A FIFO nobody writes to ends at the stream's idle bound, as every log read does.
+    #[cfg(unix)]
+    {
+        let fifo = dir.path().join("fifo");
+        assert!(
+            std::process::Command::new("mkfifo")
+                .arg(&fifo)
+                .status()
+                .unwrap()
+                .success()
+        );
+        let stalled = crate::common::magcal()
+            .env("MAGCAL_TEST_STREAM_IDLE_MS", "200")
+            .arg("next")
+            .arg(out.join("calibration.json"))
+            .arg(&fifo)
+            .output()
+            .unwrap();
+        assert_eq!(stalled.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&stalled.stderr).contains("nothing came from the stream"));
+    }
 }
 
 #[test]
