@@ -61,6 +61,7 @@
 pub mod attitude;
 pub mod aviation;
 pub mod calibration;
+pub mod chunked;
 pub mod design;
 pub mod error;
 pub mod field;

@@ -4,6 +4,7 @@
 
 use faer::Mat;
 use faer::linalg::solvers::SolveLstsq;
+use rayon::prelude::*;
 
 use super::errors::CalibrationError;
 use super::{Estimate, validate};
@@ -76,26 +77,36 @@ pub fn linear_fit_chunked(
     validate(readings, field_magnitude_nt)?;
     let R = field_magnitude_nt;
     let n = UNKNOWNS + 1;
-    let mut r = Mat::<f64>::zeros(0, n);
-    for rows in readings.chunks(chunk.max(n)) {
-        let top = r.nrows();
-        let mut block = Mat::<f64>::zeros(top + rows.len(), n);
-        for i in 0..top {
+    // Each chunk's triangle in parallel, then the triangle of the chunks' triangles stacked in
+    // chunk order (a two-level tall-skinny QR): the same bits on any number of threads.
+    let triangles: Vec<Mat<f64>> = readings
+        .par_chunks(chunk.max(n))
+        .map(|rows| {
+            let block = Mat::<f64>::from_fn(rows.len(), n, |k, j| {
+                if j == UNKNOWNS {
+                    1.0
+                } else {
+                    crate::linear_model::regression_row(rows[k].map(|v| v / R))[j]
+                }
+            });
+            block.qr().thin_R().to_owned()
+        })
+        .collect();
+    let mut stacked = Mat::<f64>::zeros(triangles.iter().map(|t| t.nrows()).sum(), n);
+    let mut top = 0;
+    for t in &triangles {
+        for i in 0..t.nrows() {
             for j in 0..n {
-                block[(i, j)] = r[(i, j)];
+                stacked[(top + i, j)] = t[(i, j)];
             }
         }
-        for (k, &b) in rows.iter().enumerate() {
-            let h = crate::linear_model::regression_row(b.map(|v| v / R));
-            for (j, v) in h.into_iter().enumerate() {
-                block[(top + k, j)] = v;
-            }
-            block[(top + k, UNKNOWNS)] = 1.0;
-        }
-        let qr = block.qr();
-        r = qr.thin_R().to_owned();
+        top += t.nrows();
     }
-    // R_H and q = (Q^T W)[..9].
+    let r = if triangles.len() == 1 {
+        stacked
+    } else {
+        stacked.qr().thin_R().to_owned()
+    };
     let rh = Mat::<f64>::from_fn(UNKNOWNS, UNKNOWNS, |i, j| if i <= j { r[(i, j)] } else { 0.0 });
     let r_diag: Vec<f64> = {
         let p = rh.col_piv_qr();

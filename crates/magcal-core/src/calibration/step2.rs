@@ -14,6 +14,7 @@
 
 use super::errors::CalibrationError;
 use super::{Estimate, TwoStep};
+use crate::chunked;
 use crate::small::{
     Mat3, Vec3, add, cholesky_in_place, cholesky_solve, dot, mat_t_vec, mat_vec, norm, scale, sub,
     upper_triangular_inverse,
@@ -132,40 +133,62 @@ pub(crate) fn residual_and_gradient(x: &[f64; PARAMETERS], u: Vec3) -> (f64, [f6
     )
 }
 
+/// The readings as step 2 sees them, `u = b / R`, about the mean `m` where centred: computed
+/// from the readings at each use rather than copied (the same bits; two copies of a long log were
+/// most of a fit's memory).
+#[derive(Clone, Copy)]
+struct Scaled<'a> {
+    readings: &'a [Vec3],
+    inv_r: f64,
+    m: Vec3,
+}
+
+impl<'a> Scaled<'a> {
+    /// The readings `b` in units of `R`, not centred.
+    fn new(readings: &'a [Vec3], R: f64) -> Self {
+        Self {
+            readings,
+            inv_r: 1.0 / R,
+            m: [0.0; 3],
+        }
+    }
+
+    /// The same readings about their mean.
+    fn centred(self) -> Self {
+        let n = self.readings.len() as f64;
+        let m = scale(
+            1.0 / n,
+            self.readings.iter().fold([0.0; 3], |acc, &b| add(acc, self.u(b))),
+        );
+        Self { m, ..self }
+    }
+
+    /// `u = b / R`.
+    #[inline(always)]
+    fn u(&self, b: Vec3) -> Vec3 {
+        scale(self.inv_r, b)
+    }
+
+    /// `u - m`.
+    #[inline(always)]
+    fn d(&self, b: Vec3) -> Vec3 {
+        sub(self.u(b), self.m)
+    }
+
+    fn len(&self) -> usize {
+        self.readings.len()
+    }
+}
+
 /// Half the sum of squared scaled residuals, `0.5 sum (|P(u_i - o)| - 1)^2`.
-fn cost(x: &[f64; PARAMETERS], u: &[Vec3]) -> f64 {
+fn cost(x: &[f64; PARAMETERS], s: &Scaled) -> f64 {
     let (P, o) = unpack(x);
-    0.5 * u
-        .iter()
-        .map(|&ui| (norm(mat_vec(&P, sub(ui, o))) - 1.0).powi(2))
-        .sum::<f64>()
+    0.5 * chunked::sum(s.readings, |&b| (norm(mat_vec(&P, sub(s.u(b), o))) - 1.0).powi(2))
 }
 
 /// `J^T J` (lower triangle filled) and `J^T r` at `x`.
-fn normal_equations(x: &[f64; PARAMETERS], u: &[Vec3]) -> ([[f64; PARAMETERS]; PARAMETERS], [f64; PARAMETERS]) {
-    accumulate(x, u, residual_and_gradient)
-}
-
-/// `J^T J` (lower triangle filled) and `J^T r` of the residuals `residual` gives for each reading
-/// of `u` at `x`.
-#[inline]
-fn accumulate(
-    x: &[f64; PARAMETERS],
-    u: &[Vec3],
-    residual: impl Fn(&[f64; PARAMETERS], Vec3) -> (f64, [f64; PARAMETERS]),
-) -> ([[f64; PARAMETERS]; PARAMETERS], [f64; PARAMETERS]) {
-    let mut jtj = [[0.0; PARAMETERS]; PARAMETERS];
-    let mut jtr = [0.0; PARAMETERS];
-    for &ui in u {
-        let (r, g) = residual(x, ui);
-        for i in 0..PARAMETERS {
-            jtr[i] += g[i] * r;
-            for j in 0..=i {
-                jtj[i][j] += g[i] * g[j];
-            }
-        }
-    }
-    (jtj, jtr)
+fn normal_equations(x: &[f64; PARAMETERS], s: &Scaled) -> ([[f64; PARAMETERS]; PARAMETERS], [f64; PARAMETERS]) {
+    chunked::normal_equations(s.readings, |&b| residual_and_gradient(x, s.u(b)))
 }
 
 /// First iteration at which step 2 checks for a flat direction; healthy fits have converged by
@@ -215,19 +238,15 @@ pub(crate) fn locally_identifiable(jtj: &[[f64; PARAMETERS]; PARAMETERS], x: &[f
 /// The variance of one scaled residual: from the known noise (`sigma / R` times the mean of
 /// `|grad_b r|^2`, docs/conventions.md), else from the residuals (`2 f / (m - 9)`), else (9 readings
 /// and no known noise: an exact fit) none.
-fn residual_variance(settings: &TwoStep, x: &[f64; PARAMETERS], u: &[Vec3], f: f64, r: f64) -> Option<f64> {
+fn residual_variance(settings: &TwoStep, x: &[f64; PARAMETERS], u: &Scaled, f: f64, r: f64) -> Option<f64> {
     match settings.noise_nt {
         Some(sigma) => {
             let (P, o) = unpack(x);
-            let mean_g2 = u
-                .iter()
-                .map(|&ui| {
-                    let v = mat_vec(&P, sub(ui, o));
-                    let g = mat_t_vec(&P, scale(1.0 / norm(v), v));
-                    g.iter().map(|c| c * c).sum::<f64>()
-                })
-                .sum::<f64>()
-                / u.len() as f64;
+            let mean_g2 = chunked::sum(u.readings, |&b| {
+                let v = mat_vec(&P, sub(u.u(b), o));
+                let g = mat_t_vec(&P, scale(1.0 / norm(v), v));
+                g.iter().map(|c| c * c).sum::<f64>()
+            }) / u.len() as f64;
             Some((sigma / r).powi(2) * mean_g2)
         }
         None if u.len() > PARAMETERS => Some(2.0 * f / (u.len() - PARAMETERS) as f64),
@@ -268,23 +287,25 @@ pub(crate) fn reading_residual_and_gradient(y: &[f64; PARAMETERS], d: Vec3) -> (
     let (P, c) = unpack(y);
     let v = add(mat_vec(&P, d), c);
     let nv = norm(v);
-    let w = scale(1.0 / nv, v);
+    let inv_nv = 1.0 / nv;
+    let w = scale(inv_nv, v);
     let g = mat_t_vec(&P, w);
     let g2 = dot(g, g);
-    let ng = g2.sqrt();
-    let e = (nv - 1.0) / ng;
+    let inv_g2 = 1.0 / g2;
+    let inv_ng = inv_g2.sqrt();
+    let e = (nv - 1.0) * inv_ng;
+    // q = P g, so that g . P_j = q_j.
     let q = mat_vec(&P, g);
     let qw = dot(q, w);
+    let e_g2 = e * inv_g2;
+    let t: Vec3 = std::array::from_fn(|j| (q[j] - g2 * w[j]) * inv_nv);
     let mut grad = [0.0; PARAMETERS];
     let entries = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
     for (i, &(j, k)) in entries.iter().enumerate() {
-        let dr = w[j] * d[k];
-        let gdg = w[j] * g[k] + d[k] * (dot(g, P[j]) - g2 * w[j]) / nv;
-        grad[i] = dr / ng - e * gdg / g2;
+        grad[i] = w[j] * d[k] * inv_ng - e_g2 * (w[j] * g[k] + d[k] * t[j]);
     }
     for a in 0..3 {
-        let gdg = (q[a] - qw * w[a]) / nv;
-        grad[6 + a] = w[a] / ng - e * gdg / g2;
+        grad[6 + a] = w[a] * inv_ng - e_g2 * (q[a] - qw * w[a]) * inv_nv;
     }
     (e, grad)
 }
@@ -292,22 +313,21 @@ pub(crate) fn reading_residual_and_gradient(y: &[f64; PARAMETERS], d: Vec3) -> (
 /// Half the sum of squared [`Residual::Readings`] residuals of the readings `d` about `m` at
 /// `y = (P, c)`: the residual of [`reading_residual_and_gradient`] without its gradient, which
 /// the loop evaluates at every trial step.
-fn reading_cost(y: &[f64; PARAMETERS], d: &[Vec3]) -> f64 {
+fn reading_cost(y: &[f64; PARAMETERS], s: &Scaled) -> f64 {
     let (P, c) = unpack(y);
-    0.5 * d
-        .iter()
-        .map(|&di| {
-            let v = add(mat_vec(&P, di), c);
-            let nv = norm(v);
-            let g = mat_t_vec(&P, scale(1.0 / nv, v));
-            (nv - 1.0).powi(2) / dot(g, g)
-        })
-        .sum::<f64>()
+    // |g|^2 = |P^T v|^2 / |v|^2.
+    0.5 * chunked::sum(s.readings, |&b| {
+        let v = add(mat_vec(&P, s.d(b)), c);
+        let nv2 = dot(v, v);
+        let pv = mat_t_vec(&P, v);
+        let e = nv2.sqrt() - 1.0;
+        e * e * nv2 / dot(pv, pv)
+    })
 }
 
 /// `J^T J` (lower triangle filled) and `J^T r` of [`Residual::Readings`] at `y = (P, c)`.
-fn reading_normal_equations(y: &[f64; PARAMETERS], d: &[Vec3]) -> (Normal, [f64; PARAMETERS]) {
-    accumulate(y, d, reading_residual_and_gradient)
+fn reading_normal_equations(y: &[f64; PARAMETERS], s: &Scaled) -> (Normal, [f64; PARAMETERS]) {
+    chunked::normal_equations(s.readings, |&b| reading_residual_and_gradient(y, s.d(b)))
 }
 
 /// The residual of [`Residual::Readings`] of the reading `u` at `x = (P, o)` and its gradient
@@ -331,8 +351,8 @@ pub(crate) fn reading_residual_at(x: &[f64; PARAMETERS], u: Vec3) -> (f64, [f64;
 
 /// `J^T J` (lower triangle filled) of [`Residual::Readings`] with respect to `x = (P, o)`
 /// ([`reading_residual_at`]).
-fn reading_information(x: &[f64; PARAMETERS], u: &[Vec3]) -> Normal {
-    accumulate(x, u, reading_residual_at).0
+fn reading_information(x: &[f64; PARAMETERS], s: &Scaled) -> Normal {
+    chunked::normal_equations(s.readings, |&b| reading_residual_at(x, s.u(b))).0
 }
 
 /// `(P, c)` with `c = P (m - o)` from `(P, o)`: the unknowns of [`Residual::Readings`] about the
@@ -389,7 +409,7 @@ pub(crate) fn refine_holding(
     free: [bool; PARAMETERS],
 ) -> Result<Refined, CalibrationError> {
     let R = field_magnitude_nt;
-    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
+    let u = Scaled::new(readings, R);
     let x0 = pack(&start.p, scale(1.0 / R, start.bias_nt));
     let paper_ok = |jtj: &Normal, x: &[f64; PARAMETERS], f: f64| {
         residual_variance(settings, x, &u, f, R).map(|var_r| locally_identifiable(jtj, x, var_r))
@@ -405,8 +425,8 @@ pub(crate) fn refine_holding(
         ),
         Residual::Readings => {
             // Iterated on about the mean reading, judged in (P, o) as the paper's form is.
-            let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
-            let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
+            let d = u.centred();
+            let m = d.m;
             let readings_ok = |_: &Normal, y: &[f64; PARAMETERS], f: f64| {
                 let x = from_centred(y, m)?;
                 let mut jtj = reading_information(&x, &u);
@@ -449,25 +469,24 @@ pub(crate) fn refine_holding(
     })
 }
 
-/// The readings in units of the field `R` (nT), their mean `m`, the readings less it, and the
-/// coordinates `z` under `T` of `estimate` in the frame centred on `m` (each read at the first
-/// nonzero entry of its column of `T`).
-fn centred_coordinates<const N: usize>(
+/// The readings in units of the field `R` (nT) about their mean `m`, and the coordinates `z`
+/// under `T` of `estimate` in the frame centred on `m` (each read at the first nonzero entry of
+/// its column of `T`).
+fn centred_coordinates<'a, const N: usize>(
     estimate: &Estimate,
-    readings: &[Vec3],
+    readings: &'a [Vec3],
     R: f64,
     T: &[[f64; N]; PARAMETERS],
-) -> (Vec3, Vec<Vec3>, [f64; N]) {
-    let u: Vec<Vec3> = readings.iter().map(|&b| scale(1.0 / R, b)).collect();
-    let m = scale(1.0 / u.len() as f64, u.iter().fold([0.0; 3], |acc, &ui| add(acc, ui)));
-    let d: Vec<Vec3> = u.iter().map(|&ui| sub(ui, m)).collect();
+) -> (Scaled<'a>, [f64; N]) {
+    let d = Scaled::new(readings, R).centred();
+    let m = d.m;
     let y0 = to_centred(&pack(&estimate.p, scale(1.0 / R, estimate.bias_nt)), m);
     let z0: [f64; N] = std::array::from_fn(|j| {
         (0..PARAMETERS)
             .find(|&i| T[i][j] != 0.0)
             .map_or(0.0, |i| y0[i] / T[i][j])
     });
-    (m, d, z0)
+    (d, z0)
 }
 
 /// Step 2 on [`Residual::Readings`] for a model whose unknowns `z` (`N` of them) give the
@@ -485,23 +504,18 @@ pub(crate) fn refine_linear<const N: usize>(
     T: &[[f64; N]; PARAMETERS],
 ) -> Result<Refined, CalibrationError> {
     let R = field_magnitude_nt;
-    let (m, d, z0) = centred_coordinates(start, readings, R, T);
+    let (d, z0) = centred_coordinates(start, readings, R, T);
+    let m = d.m;
     let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
     let normal = |z: &[f64; N]| {
         let y = y_of(z);
-        let mut jtj = [[0.0; N]; N];
-        let mut g = [0.0; N];
-        for &di in &d {
-            let (e, gy) = reading_residual_and_gradient(&y, di);
-            let gz: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).map(|i| T[i][j] * gy[i]).sum());
-            for a in 0..N {
-                g[a] += gz[a] * e;
-                for b in 0..=a {
-                    jtj[a][b] += gz[a] * gz[b];
-                }
-            }
-        }
-        (jtj, g)
+        chunked::normal_equations(d.readings, |&b| {
+            let (e, gy) = reading_residual_and_gradient(&y, d.d(b));
+            (
+                e,
+                std::array::from_fn(|j| (0..PARAMETERS).map(|i| T[i][j] * gy[i]).sum()),
+            )
+        })
     };
     let fit = levenberg_marquardt(
         settings,
@@ -545,22 +559,17 @@ pub(crate) fn profile_rise<const N: usize>(
     var: f64,
 ) -> Option<(f64, usize, f64)> {
     let R = field_magnitude_nt;
-    let (_, d, z0) = centred_coordinates(estimate, readings, R, T);
+    let (d, z0) = centred_coordinates(estimate, readings, R, T);
     let y_of = |z: &[f64; N]| -> [f64; PARAMETERS] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * z[j]).sum()) };
     let normal = |z: &[f64; N], held: Option<usize>| {
         let y = y_of(z);
-        let mut jtj = [[0.0; N]; N];
-        let mut g = [0.0; N];
-        for &di in &d {
-            let (e, gy) = reading_residual_and_gradient(&y, di);
-            let gz: [f64; N] = std::array::from_fn(|j| (0..PARAMETERS).map(|i| T[i][j] * gy[i]).sum());
-            for a in 0..N {
-                g[a] += gz[a] * e;
-                for b in 0..=a {
-                    jtj[a][b] += gz[a] * gz[b];
-                }
-            }
-        }
+        let (mut jtj, mut g) = chunked::normal_equations(d.readings, |&b| {
+            let (e, gy) = reading_residual_and_gradient(&y, d.d(b));
+            (
+                e,
+                std::array::from_fn(|j| (0..PARAMETERS).map(|i| T[i][j] * gy[i]).sum()),
+            )
+        });
         if let Some(k) = held {
             g[k] = 0.0;
             for j in 0..N {
@@ -602,6 +611,10 @@ pub(crate) fn profile_rise<const N: usize>(
     least
 }
 
+/// The starting damping of [`levenberg_marquardt`] relative to the diagonal of `J^T J` (Madsen et
+/// al.'s `tau` for a start that is not known to be close).
+const INITIAL_DAMPING: f64 = 1e-3;
+
 /// `J^T J`, lower triangle filled.
 type Normal = [[f64; PARAMETERS]; PARAMETERS];
 
@@ -630,8 +643,9 @@ pub(crate) fn levenberg_marquardt<const N: usize>(
     let mut x = start;
     let mut f = cost(&x);
     let (mut jtj, mut g) = normal(&x);
-    let max_diag = (0..N).map(|i| jtj[i][i]).fold(0.0_f64, f64::max);
-    let mut mu = 1e-3 * max_diag;
+    // With Marquardt's scaling the damping `mu diag(J^T J)` is relative: Madsen et al.'s
+    // starting `tau = 1e-3` is `mu` itself, whatever the number of readings.
+    let mut mu = INITIAL_DAMPING;
     let mut nu = 2.0;
     let mut iterations = 0;
     let termination = loop {

@@ -184,11 +184,18 @@ impl Swarm {
         // Run the iterations on a worker of the current rayon pool: a parallel loop started from a
         // thread outside the pool must wake a worker and then be woken itself, every iteration
         // (3000 times); from inside the pool the loop forks and joins on its own thread.
-        Ok(rayon::scope(|_| self.run(problem, seeds, observe)))
+        Ok(rayon::scope(|_| self.run(problem, seeds, observe, true)))
     }
 
-    /// The iterations of [`Self::optimise`], particle `i` seeded by `seeds[i]`.
-    fn run(&self, problem: &DesignProblem, seeds: Vec<u64>, observe: &(dyn Fn(usize, f64) + Sync)) -> PsoResult {
+    /// The iterations of [`Self::optimise`], particle `i` seeded by `seeds[i]`; the particles of
+    /// an iteration in parallel, or in order on the calling thread (the same result).
+    fn run(
+        &self,
+        problem: &DesignProblem,
+        seeds: Vec<u64>,
+        observe: &(dyn Fn(usize, f64) + Sync),
+        parallel: bool,
+    ) -> PsoResult {
         let dim = problem.dimension();
         let ranges = problem.bounds().ranges();
         let lo: Vec<f64> = (0..dim).map(|j| ranges[j % 3].min()).collect();
@@ -231,25 +238,18 @@ impl Swarm {
             let g = &g_x;
             let (c1, c2) = (self.c1, self.c2);
             // One chunk per task (rayon's default split): more chunks per task are slower on two
-            // threads (`benches/design.rs`). The particle's fields are borrowed apart so that the
-            // generator's buffer index stays in a register across the loop; a bulk `fill` of the 27
-            // words per particle is slower.
-            swarm.par_chunks_mut(LANES).for_each(|chunk| {
+            // threads (`benches/design.rs`).
+            let step = |chunk: &mut [Particle]| {
                 for p in chunk.iter_mut() {
-                    let Particle { x, v, best_x, rng, .. } = p;
-                    let bounds = lo.iter().zip(&hi).zip(&vmax);
-                    let state = x.iter_mut().zip(v.iter_mut()).zip(best_x.iter()).zip(g);
-                    for ((((x, v), &pbest), &gbest), ((&lo, &hi), &vmax)) in state.zip(bounds) {
-                        let (r1, r2) = two_uniforms(rng);
-                        // [P1] eq. (17): inertia + cognitive (Pbest) + social (Gbest) terms.
-                        let v_new = w * *v + c1 * r1 * (pbest - *x) + c2 * r2 * (gbest - *x);
-                        *v = v_new.clamp(-vmax, vmax);
-                        // [P1] eq. (18), then back into the search space.
-                        *x = (*x + *v).clamp(lo, hi);
-                    }
+                    move_particle(p, w, (c1, c2), g, (&lo, &hi, &vmax));
                 }
                 evaluate(problem, criterion, chunk);
-            });
+            };
+            if parallel {
+                swarm.par_chunks_mut(LANES).for_each(step);
+            } else {
+                swarm.chunks_mut(LANES).for_each(step);
+            }
             evaluations += self.particles;
             iterations += 1;
             let (i, f) = best_of(&swarm);
@@ -297,10 +297,14 @@ impl Swarm {
         finished: &(dyn Fn(usize) + Sync),
     ) -> Result<Vec<RunSummary>, ParameterError> {
         self.validate()?;
+        // One run per thread, its particles in order: the threads never wait for each other, where
+        // a run's parallel iterations would meet 3000 times.
         (0..runs)
             .into_par_iter()
             .map(|run| {
-                let result = self.optimise(problem, &mut stream_rng(seed, run as u64))?;
+                let mut rng = stream_rng(seed, run as u64);
+                let seeds: Vec<u64> = (0..self.particles).map(|_| rng.random()).collect();
+                let result = self.run(problem, seeds, &|_, _| {}, false);
                 finished(run);
                 Ok(RunSummary {
                     run,
@@ -339,6 +343,43 @@ fn two_uniforms(rng: &mut MagcalRng) -> (f64, f64) {
     const SCALE: f64 = 1.0 / 4_294_967_296.0; // 2^-32
     let bits = rng.next_u64();
     ((bits >> 32) as f64 * SCALE, (bits & 0xffff_ffff) as f64 * SCALE)
+}
+
+/// Dimensions whose uniforms are drawn at once before the arithmetic of [`move_particle`].
+const BLOCK: usize = 32;
+
+/// \[P1\] eq. (17)-(18) for one particle: the velocity from inertia `w`, the cognitive and social
+/// factors `(c1, c2)` and the swarm's best `g`, clamped to `V_max`; then the move, clamped to the
+/// box. The uniforms of a block of dimensions are drawn first, in dimension order (the stream of
+/// the particle is the same as one draw per dimension), so that the arithmetic over the block
+/// has no call in it and runs in vector registers.
+#[inline]
+fn move_particle(p: &mut Particle, w: f64, (c1, c2): (f64, f64), g: &[f64], (lo, hi, vmax): (&[f64], &[f64], &[f64])) {
+    let Particle { x, v, best_x, rng, .. } = p;
+    let mut r1 = [0.0; BLOCK];
+    let mut r2 = [0.0; BLOCK];
+    let mut from = 0;
+    while from < x.len() {
+        let to = (from + BLOCK).min(x.len());
+        let n = to - from;
+        for k in 0..n {
+            (r1[k], r2[k]) = two_uniforms(rng);
+        }
+        let state = x[from..to]
+            .iter_mut()
+            .zip(&mut v[from..to])
+            .zip(&best_x[from..to])
+            .zip(&g[from..to]);
+        let bounds = lo[from..to].iter().zip(&hi[from..to]).zip(&vmax[from..to]);
+        for (k, ((((x, v), &pbest), &gbest), ((&lo, &hi), &vmax))) in state.zip(bounds).enumerate() {
+            // [P1] eq. (17): inertia + cognitive (Pbest) + social (Gbest) terms.
+            let v_new = w * *v + c1 * r1[k] * (pbest - *x) + c2 * r2[k] * (gbest - *x);
+            *v = v_new.clamp(-vmax, vmax);
+            // [P1] eq. (18), then back into the search space.
+            *x = (*x + *v).clamp(lo, hi);
+        }
+        from = to;
+    }
 }
 
 /// Index and fitness of the particle with the lowest Pbest fitness; ties keep the lower index.

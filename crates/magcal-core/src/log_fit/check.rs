@@ -102,7 +102,15 @@ pub struct TrialCheck {
     pub noise: TrialNoise,
     /// Over the `ok` trials, the rms of each estimate's error against the sensor they were drawn
     /// from: `psi` (degrees), `S`, `O` (the log's units); `None` with fewer than 2 `ok` trials.
+    /// For trials of every `every`-th reading, scaled to the whole log by the ratio of the log's
+    /// standard errors to those of the readings drawn.
     pub rms_error: Option<[Vec3; 3]>,
+    /// The trials drew every `every`-th reading of the log (1: all of it).
+    pub every: usize,
+    /// The readings each trial drew.
+    pub readings: usize,
+    /// The readings of the log.
+    pub of: usize,
 }
 
 impl TrialCheck {
@@ -121,6 +129,12 @@ impl TrialCheck {
             100.0 * USABLE_SHARE,
             self.noise.words()
         );
+        if self.every > 1 {
+            w.push_str(&format!(
+                "; on 1 reading in {} ({} of {}, evenly through the log: fewer readings of the same attitudes and noise determine less, so the log passes where they do; their errors scaled to all {} by the standard errors)",
+                self.every, self.readings, self.of, self.of
+            ));
+        }
         if self.trials < self.planned {
             w.push_str(&format!(
                 "; stopped after {} of {} trials: {} had failed, more than the {} a pass allows",
@@ -249,6 +263,9 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<Tr
         failed: count(Outcome::Failed),
         noise,
         rms_error,
+        every: 1,
+        readings: u.len(),
+        of: u.len(),
     })
 }
 
@@ -338,6 +355,9 @@ mod tests {
                 given: true,
             },
             rms_error: None,
+            every: 1,
+            readings: 12000,
+            of: 12000,
         };
         assert!(c.passed());
         assert_eq!(

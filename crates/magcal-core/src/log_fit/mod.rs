@@ -540,7 +540,7 @@ fn checked(mut f: LogFit, u: &[Vec3], settings: &FitSettings) -> LogFit {
     // identifiable or leaves the ellipsoid is not usable whatever trials would say, and is not
     // simulated (a runaway estimate is no sensor to draw readings from).
     if settings.trials > 0 && f.identifiable && f.ellipsoid.passed {
-        f.check = check::run(u, &f, settings);
+        f.check = judged_check(&f, u, settings);
         // The trials' own errors are what the estimate's error is at this log's noise, curvature
         // and correlation included: a standard error is never below their rms.
         if let Some([p, s, o]) = f.check.and_then(|c| c.rms_error) {
@@ -562,6 +562,80 @@ fn checked(mut f: LogFit, u: &[Vec3], settings: &FitSettings) -> LogFit {
         f.assess();
     }
     f
+}
+
+/// The readings of the first part a long log is judged on by its check and its [`Profile`]:
+/// every `k`-th reading, `k` the least that leaves at most this many.
+pub const JUDGED_READINGS: usize = 8192;
+
+/// The strides at which a log of `m` readings is judged, the sparsest first: every `k`-th reading
+/// for the `k` that leaves at most [`JUDGED_READINGS`], then twice as many readings each time,
+/// and last the whole log (`k = 1`).
+fn strides(m: usize) -> Vec<usize> {
+    let mut out = Vec::new();
+    let mut n = JUDGED_READINGS;
+    while n < m {
+        out.push(m.div_ceil(n));
+        n *= 2;
+    }
+    out.push(1);
+    out.dedup();
+    out
+}
+
+/// Every `k`-th reading of `u`, from the first.
+fn every(u: &[Vec3], k: usize) -> Vec<Vec3> {
+    u.iter().step_by(k).copied().collect()
+}
+
+/// The check by trials of `f`, the fit of `u`. A long log is judged on every `k`-th reading
+/// ([`strides`]), the sparsest first: fewer readings of the same attitudes at the same noise
+/// determine less, so where they pass, the log passes. The first part that passes gives the
+/// check, its errors scaled to the whole log by the ratio of the log's standard errors to the
+/// part's own fit's; where none passes, the whole log's trials do. A part whose own fit is not
+/// identifiable, or not the whole log's sensor ([`same_sensor`]), is not judged.
+fn judged_check(f: &LogFit, u: &[Vec3], settings: &FitSettings) -> Option<TrialCheck> {
+    for k in strides(u.len()) {
+        if k == 1 {
+            return check::run(u, f, settings);
+        }
+        let part = every(u, k);
+        let Ok(g) = fit_unit(&part, f.model, settings) else {
+            continue;
+        };
+        if !(g.identifiable && g.ellipsoid.passed) {
+            continue;
+        }
+        if !same_sensor(&g, &f.p, f.bias) {
+            continue;
+        }
+        let Some(c) = check::run(&part, &g, settings).filter(|c| c.passed()) else {
+            continue;
+        };
+        let ratio = |whole: Option<Vec3>, part: Option<Vec3>, rms: Vec3| -> Option<Vec3> {
+            let (whole, part) = (whole?, part?);
+            Some(std::array::from_fn(|i| rms[i] * whole[i] / part[i]).map(|v: f64| if v.is_finite() { v } else { 0.0 }))
+        };
+        let rms_error = c.rms_error.and_then(|[p, sc, o]| {
+            let p = if f.model == FitModel::Full {
+                ratio(f.std_psi_deg, g.std_psi_deg, p)?
+            } else {
+                p
+            };
+            Some([
+                p,
+                ratio(f.std_scale, g.std_scale, sc)?,
+                ratio(f.std_bias, g.std_bias, o)?,
+            ])
+        });
+        return Some(TrialCheck {
+            rms_error,
+            every: k,
+            of: u.len(),
+            ..c
+        });
+    }
+    None
 }
 
 /// Checks the inputs and moves the readings into their frame.
@@ -688,7 +762,7 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
         // Readings on their ellipsoid to rounding (noise-free, synthetic) leave a cost that is
         // rounding too: nothing bends, and the rise would be rounding over rounding.
         (true, Some(sigma)) if settings.residual == Residual::Readings && settings.profile && sigma > 1e-9 => {
-            profile(u, model, &two_step, p, bias, sigma * sigma)
+            judged_profile(u, model, settings, &two_step, (p, bias, sigma))
         }
         _ => None,
     };
@@ -760,6 +834,8 @@ pub struct Profile {
     pub along: &'static str,
     /// The side: -1 toward a smaller entry of `P`, +1 toward a larger.
     pub side: f64,
+    /// The readings it was measured on: a long log's, every `k`-th ([`JUDGED_READINGS`]).
+    pub readings: usize,
 }
 
 /// Below this rise at 3 standard errors ([`Profile`]) the standard errors understate the
@@ -792,6 +868,71 @@ impl Profile {
     }
 }
 
+/// The [`Profile`] of the fit `(p, bias)` of `u` at the noise `sigma`, a long log's judged as its
+/// check is ([`judged_check`]): on every `k`-th reading, the sparsest first, each part's own fit
+/// profiled. A part stands for the whole where its fit is the whole log's sensor
+/// ([`same_sensor`]) and its cost rises by at least [`STRAIGHT_RISE`]: a part's cost bends more
+/// than the whole's (its standard errors are wider), so the whole log's standard errors are then
+/// widened by at most 0.6 %, where they need less. Else the whole log's own profile: the shortfall
+/// of a part's rise, scaled by the square root of the readings as a cubic term of the cost would
+/// be, missed the whole log's by up to a factor of 4 in [P1]'s AUV box (test
+/// `a_long_logs_profile_from_a_part_is_the_whole_logs`).
+fn judged_profile(
+    u: &[Vec3],
+    model: FitModel,
+    settings: &FitSettings,
+    two_step: &TwoStep,
+    (p, bias, sigma): (Mat3, Vec3, f64),
+) -> Option<Profile> {
+    for k in strides(u.len()) {
+        if k == 1 {
+            return profile(u, model, two_step, p, bias, sigma * sigma);
+        }
+        let part = every(u, k);
+        let part_settings = FitSettings {
+            profile: false,
+            ..*settings
+        };
+        let Ok(g) = fit_unit(&part, model, &part_settings) else {
+            continue;
+        };
+        let Some(s) = g
+            .noise
+            .value()
+            .filter(|s| g.status == CalibrationStatus::Ok && *s > 1e-9)
+        else {
+            continue;
+        };
+        if !same_sensor(&g, &p, bias) {
+            continue;
+        }
+        if let Some(found) = profile(&part, model, two_step, g.p, g.bias, s * s).filter(|f| f.rise >= STRAIGHT_RISE) {
+            return Some(found);
+        }
+    }
+    None
+}
+
+/// The rise at 3 standard errors from which a part of a long log stands for the whole in its
+/// [`Profile`] ([`judged_profile`]): its inflation of the standard errors, `3 / sqrt(8.9)`, is
+/// 1.0056.
+const STRAIGHT_RISE: f64 = 8.9;
+
+/// Whether the fit `g` of a part of a log is the sensor `(p, bias)` fitted to the whole: each of
+/// its estimates within 4 of its standard errors of the whole's (a log that does not determine
+/// its sensor lets each part run off its own way).
+fn same_sensor(g: &LogFit, p: &Mat3, bias: Vec3) -> bool {
+    let Some(k) = crate::small::upper_triangular_inverse(p) else {
+        return false;
+    };
+    let whole = ErrorModel::from_k(&k, bias);
+    let near =
+        |a: Vec3, b: Vec3, std: Option<Vec3>| std.is_some_and(|s| (0..3).all(|i| (a[i] - b[i]).abs() <= 4.0 * s[i]));
+    (g.model != FitModel::Full || near(g.errors.psi_deg(), whole.psi_deg(), g.std_psi_deg))
+        && near(g.errors.scale(), whole.scale(), g.std_scale)
+        && near(g.bias, bias, g.std_bias)
+}
+
 /// The [`Profile`] of the fit `(p, bias)` of `u` (unit frame) under `model`, `var` the variance
 /// of one residual.
 fn profile(u: &[Vec3], model: FitModel, two_step: &TwoStep, p: Mat3, bias: Vec3, var: f64) -> Option<Profile> {
@@ -819,6 +960,7 @@ fn profile(u: &[Vec3], model: FitModel, two_step: &TwoStep, p: Mat3, bias: Vec3,
         "non-orthogonality of axes y-z",
     ];
     Some(Profile {
+        readings: u.len(),
         rise,
         along: if model == FitModel::Offset {
             "common scale"
@@ -1350,31 +1492,19 @@ fn levenberg_marquardt<const N: usize>(
     u: &[Vec3],
     target: f64,
     settings: &TwoStep,
-    model: impl Fn(&[f64; N], Vec3) -> (f64, [f64; N]),
+    model: impl Fn(&[f64; N], Vec3) -> (f64, [f64; N]) + Sync,
 ) -> ([f64; N], usize, Termination) {
     let cost = |x: &[f64; N]| {
-        let mut f = 0.0;
-        for &ui in u {
+        0.5 * crate::chunked::sum(u, |&ui| {
             let r = (model(x, ui).0 - target) / target;
-            f += 0.5 * r * r;
-        }
-        f
+            r * r
+        })
     };
     let normal = |x: &[f64; N]| {
-        let mut jtj = [[0.0; N]; N];
-        let mut g = [0.0; N];
-        for &ui in u {
+        crate::chunked::normal_equations(u, |&ui| {
             let (rho, grad) = model(x, ui);
-            let r = (rho - target) / target;
-            for i in 0..N {
-                g[i] += grad[i] / target * r;
-                // The lower triangle: the loop reads no more.
-                for j in 0..=i {
-                    jtj[i][j] += grad[i] * grad[j] / (target * target);
-                }
-            }
-        }
-        (jtj, g)
+            ((rho - target) / target, grad.map(|g| g / target))
+        })
     };
     let fit = crate::calibration::step2::levenberg_marquardt(settings, x, cost, normal, |_, _, _| None, false);
     let iterations = match fit.termination {
@@ -1402,6 +1532,106 @@ mod tests {
             .into_iter()
             .map(|s| s.map(|v| v / 1e5))
             .collect()
+    }
+
+    /// A long log's profile is a part's where the part's is straight, and the whole log's own
+    /// where the cost bends: logs of 40,000 readings over every attitude at 30 nT (a part
+    /// stands for the whole, within 0.05 of its rise), and in [P1]'s AUV box, a cap of the sphere,
+    /// at 300 to 3000 nT (the whole bends by 0.3 to 2.8 at 3 standard errors; its parts by more).
+    #[test]
+    fn a_long_logs_profile_from_a_part_is_the_whole_logs() {
+        let field = paper::changsha_field().magnitude() / 1e5;
+        let truth = paper::true_error_model();
+        for (bounds, sigma, seed, straight) in [
+            (crate::AttitudeBox::full(), 30.0, 10, true),
+            (paper::auv_box(), 300.0, 11, false),
+            (paper::auv_box(), 1000.0, 12, false),
+            (paper::auv_box(), 3000.0, 13, false),
+        ] {
+            let readings = log(&truth, &bounds, 40_000, sigma, seed);
+            let settings = FitSettings::default();
+            let (frame, u) = prepare(&readings, field, FitModel::Full, &settings).unwrap();
+            let unit = FitSettings {
+                trials: 0,
+                ..unit_settings(&frame, &settings)
+            };
+            let f = fit_unit(&u, FitModel::Full, &unit).unwrap();
+            let judged = f.profile.unwrap();
+            let two_step = TwoStep {
+                noise_nt: unit.noise,
+                residual: unit.residual,
+                ..TwoStep::default()
+            };
+            let var = f.noise.value().unwrap().powi(2);
+            let whole = profile(&u, FitModel::Full, &two_step, f.p, f.bias, var).unwrap();
+            if straight {
+                assert!(judged.readings < u.len() && judged.rise >= STRAIGHT_RISE, "{judged:?}");
+                assert!((judged.rise - whole.rise).abs() < 0.05, "{judged:?} {whole:?}");
+            } else {
+                assert!(whole.rise < STRAIGHT_RISE, "{sigma}: {whole:?}");
+                assert_eq!(judged, whole, "{sigma}");
+            }
+        }
+    }
+
+    /// A long log judged on every `k`-th reading gives the errors the whole log's own trials
+    /// give: each rms error scaled from the part within 0.3 of the whole's (200 trials each, a
+    /// relative standard error of 5 % apiece: 4 standard errors of their ratio) for white noise,
+    /// and each standard error widened by them for noise correlated in time (AR(1), 0.9 from one
+    /// reading to the next).
+    #[test]
+    fn a_long_log_judged_on_a_part_gives_the_whole_logs_errors() {
+        use rand_distr::{Distribution, StandardNormal};
+        let field = paper::changsha_field().magnitude() / 1e5;
+        let truth = paper::true_error_model();
+        let n = 30_000;
+        let white = log(&truth, &crate::AttitudeBox::full(), n, 30.0, 5);
+        let mut rng = stream_rng(6, 0);
+        let mut state = [0.0; 3];
+        let phi: f64 = 0.9;
+        let correlated: Vec<Vec3> = log(&truth, &crate::AttitudeBox::full(), n, 0.0, 5)
+            .into_iter()
+            .map(|c| {
+                for s in state.iter_mut() {
+                    let e: f64 = StandardNormal.sample(&mut rng);
+                    *s = phi * *s + (1.0 - phi * phi).sqrt() * 30.0 / 1e5 * e;
+                }
+                crate::small::add(c, state)
+            })
+            .collect();
+        for (readings, order) in [(white, Order::Unknown), (correlated, Order::Time)] {
+            let settings = FitSettings {
+                order,
+                ..FitSettings::default()
+            };
+            let (frame, u) = prepare(&readings, field, FitModel::Full, &settings).unwrap();
+            let unit = unit_settings(&frame, &settings);
+            let f = fit_unit(&u, FitModel::Full, &unit).unwrap();
+            let part = judged_check(&f, &u, &unit).unwrap();
+            let whole = check::run(&u, &f, &unit).unwrap();
+            assert!(
+                part.every > 1 && part.readings <= JUDGED_READINGS && part.of == n,
+                "{part:?}"
+            );
+            assert!(part.passed() && whole.passed(), "{} / {}", part.words(), whole.words());
+            let (a, b) = (part.rms_error.unwrap(), whole.rms_error.unwrap());
+            let std = [f.std_psi_deg.unwrap(), f.std_scale.unwrap(), f.std_bias.unwrap()];
+            for g in 0..3 {
+                for i in 0..3 {
+                    // White noise: the trials themselves agree. Noise correlated in time: the
+                    // trials resample the residuals' normal component, which the attitudes'
+                    // turns leave nearly white (lag-one correlation -0.003 here), so neither
+                    // set of trials carries the correlation the bias sees (its standard error
+                    // from the batch means is 2.6 times the white one); what a user reads, the
+                    // standard error never below the trials' rms, agrees.
+                    let ratio = match order {
+                        Order::Unknown => a[g][i] / b[g][i],
+                        _ => std[g][i].max(a[g][i]) / std[g][i].max(b[g][i]),
+                    };
+                    assert!((ratio - 1.0).abs() < 0.3, "{order:?} group {g} axis {i}: {ratio}");
+                }
+            }
+        }
     }
 
     #[test]

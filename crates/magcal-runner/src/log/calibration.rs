@@ -211,8 +211,20 @@ pub struct CheckJson {
     pub noise: String,
     /// The seed of the trials' streams.
     pub seed: u64,
+    /// The trials drew every `every`-th reading of the log (a long log is judged on a part of
+    /// it first, `log_fit::JUDGED_READINGS`); 1: all of them.
+    #[serde(default = "one")]
+    pub every: usize,
+    /// The readings each trial drew (0 in a calibration written before this was recorded).
+    #[serde(default)]
+    pub readings: usize,
     /// The check in words.
     pub words: String,
+}
+
+/// `every` of a check that does not say: the whole log.
+fn one() -> usize {
+    1
 }
 
 /// Motor interference: the raw reading carries `d * u` on top of the sensor's `K b + O`, with

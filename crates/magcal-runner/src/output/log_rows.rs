@@ -3,26 +3,27 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::Real;
+use super::{Derived, Real};
 
 /// `residuals.csv` of `calibrate --out`: one row per reading fitted, with its 1-based line in the
 /// log, the raw reading, the calibrated field `b = P (raw - bias)`, its norm and `norm - R`, in
 /// the log's units; with the log's attitude, where it has one, as roll, pitch and compass heading
-/// in degrees (empty cells where it has none).
+/// in degrees (empty cells where it has none). The raw reading as read, the rest to
+/// [`Derived::DIGITS`] significant digits.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct ResidualRow {
     pub line: usize,
     pub raw_x: Real,
     pub raw_y: Real,
     pub raw_z: Real,
-    pub x: Real,
-    pub y: Real,
-    pub z: Real,
-    pub norm: Real,
-    pub residual: Real,
-    pub roll_deg: Option<Real>,
-    pub pitch_deg: Option<Real>,
-    pub heading_deg: Option<Real>,
+    pub x: Derived,
+    pub y: Derived,
+    pub z: Derived,
+    pub norm: Derived,
+    pub residual: Derived,
+    pub roll_deg: Option<Derived>,
+    pub pitch_deg: Option<Derived>,
+    pub heading_deg: Option<Derived>,
 }
 
 /// The output of `apply`: one row per reading of the log, its 1-based line, the calibrated field

@@ -50,6 +50,43 @@ impl From<f64> for Real {
     }
 }
 
+/// A number derived from a reading (a calibrated field, its norm and residual, an angle) in a CSV
+/// cell: 7 significant digits, never an exponent. A reading's relative error is 1e-4 at best (a
+/// 16-bit sensor), so the 7th digit is far below it, and a long log's residual file is about
+/// half the size it would be at 17 digits. Read back as any number.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Derived(pub f64);
+
+impl Derived {
+    /// Significant digits written.
+    pub const DIGITS: i32 = 7;
+}
+
+impl Serialize for Derived {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let x = self.0;
+        if !x.is_finite() || x == 0.0 {
+            return s.collect_str(&x);
+        }
+        // Decimals that leave DIGITS significant ones; the rounding may carry into one more
+        // integer digit (9999999.5 -> 10000000), which is still 7 significant digits.
+        let decimals = (Self::DIGITS - 1 - x.abs().log10().floor() as i32).clamp(0, 40) as usize;
+        let text = format!("{x:.decimals$}");
+        let text = if text.contains('.') {
+            text.trim_end_matches('0').trim_end_matches('.')
+        } else {
+            &text
+        };
+        s.serialize_str(text)
+    }
+}
+
+impl<'de> Deserialize<'de> for Derived {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        f64::deserialize(d).map(Derived)
+    }
+}
+
 /// A trial's calibration status, by the name [`CalibrationStatus::as_str`] gives it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct Status(pub CalibrationStatus);
@@ -728,6 +765,37 @@ pub fn pso_run_rows(out: &RunOutput) -> impl Iterator<Item = PsoRunRow> + '_ {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// 7 significant digits, no exponent, within half a unit of the 7th digit, read back.
+    #[test]
+    fn a_derived_number_has_seven_significant_digits() {
+        let cell = |x: f64| {
+            let mut w = csv::WriterBuilder::new().has_headers(false).from_writer(vec![]);
+            w.serialize([Derived(x)]).unwrap();
+            String::from_utf8(w.into_inner().unwrap())
+                .unwrap()
+                .trim_end()
+                .to_string()
+        };
+        for (x, text) in [
+            (-0.26596902743458667, "-0.265969"),
+            (46447.416666, "46447.42"),
+            (0.0027673883544501177, "0.002767388"),
+            (1.0, "1"),
+            (9999999.5, "10000000"),
+            (-123456789.0, "-123456789"),
+            (0.0, "0"),
+            (f64::NAN, "NaN"),
+        ] {
+            assert_eq!(cell(x), text, "{x}");
+        }
+        for k in 0..2000 {
+            let x = (k as f64 * 0.37).sin() * 10f64.powi(k % 17 - 8);
+            let back: f64 = cell(x).parse().unwrap();
+            assert!((back - x).abs() <= 5e-7 * x.abs() * (1.0 + 1e-9), "{x} {back}");
+            assert!(!cell(x).contains('e'), "{}", cell(x));
+        }
+    }
 
     #[test]
     fn a_heading_that_rounds_up_to_360_reads_0() {

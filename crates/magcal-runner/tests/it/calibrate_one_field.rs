@@ -328,8 +328,9 @@ fn broad_30_a_magnet_fixed_in_the_room_is_passed_nine_times() {
 
 #[test]
 fn broad_30_without_times_its_passes_move_the_white_noise_calibration() {
-    // Without times the standard errors are the white-noise ones, a fifth as wide: the passes
-    // move psi2 by 4.6 of them, and the log is not usable until they are dropped.
+    // Without times the standard errors are the white-noise ones, a fifth as wide (and never
+    // below the rms of the check's 20 trials, which widens them by a few percent): the passes
+    // move psi2 by 4.4 of them, and the log is not usable until they are dropped.
     let Some(log) = data("broad/30_disturbed_stationary_magnet_C.csv") else {
         return;
     };
@@ -337,9 +338,9 @@ fn broad_30_without_times_its_passes_move_the_white_noise_calibration() {
     let (c, _) = calibrate(&log, &args);
     let p = c.passes.clone().unwrap();
     assert!(!c.usable && p.unusable && p.passes.len() == 9, "{}", p.words);
-    assert!(p.shift_std_errors.is_some_and(|s| (s - 4.6).abs() < 0.1), "{}", p.words);
+    assert!(p.shift_std_errors.is_some_and(|s| (s - 4.4).abs() < 0.1), "{}", p.words);
     assert!(
-        c.reasons[0].starts_with("9 passes through another field (224 readings; a magnet or iron close to the path) move the calibration by 4.6 standard errors (non-orthogonality psi2): drop them (--reject 5)"),
+        c.reasons[0].starts_with("9 passes through another field (224 readings; a magnet or iron close to the path) move the calibration by 4.4 standard errors (non-orthogonality psi2): drop them (--reject 5)"),
         "{:?}",
         c.reasons
     );

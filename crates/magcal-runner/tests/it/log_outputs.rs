@@ -114,17 +114,20 @@ fn the_calibration_set_records_its_log_and_every_file() {
     let rows: Vec<ResidualRow> = parse_csv(&fs::read(out.join("residuals.csv")).unwrap(), "residuals.csv").unwrap();
     assert_eq!(rows.len(), json.samples);
     assert!(rows.iter().enumerate().all(|(i, r)| r.line == i + 2));
+    // Each derived number is written to 7 significant digits: within half a unit of its 7th
+    // digit, 5e-7 of itself, of the number it stands for.
+    let digit = 5e-7;
     for r in &rows {
-        // The magnitude read back from JSON may differ from the fitted one in its last bit.
         let residual = r.norm.0 - json.magnitude;
         assert!(
-            (r.residual.0 - residual).abs() <= 4.0 * f64::EPSILON * json.magnitude,
+            (r.residual.0 - residual).abs() <= digit * (r.norm.0 + r.residual.0.abs()) * (1.0 + 1e-9),
             "{residual} vs {}",
             r.residual.0
         );
         let norm = (r.x.0 * r.x.0 + r.y.0 * r.y.0 + r.z.0 * r.z.0).sqrt();
+        // Each component within 5e-7 of itself moves the norm by at most 5e-7 of it.
         assert!(
-            (norm - r.norm.0).abs() <= 4.0 * f64::EPSILON * norm,
+            (norm - r.norm.0).abs() <= 2.0 * digit * norm * (1.0 + 1e-9),
             "{norm} vs {}",
             r.norm.0
         );
@@ -434,12 +437,11 @@ fn a_dash_is_standard_output_and_every_row_is_typed() {
         parse_csv(&fs::read(tmp.path().join("d/residuals.csv")).unwrap(), "residuals").unwrap();
     for (a, r) in rows.iter().zip(&residuals) {
         assert_eq!(a.line, r.line);
-        for (u, v) in [(a.x, r.x), (a.y, r.y), (a.z, r.z), (a.norm, r.norm)] {
+        // residuals.csv holds 7 significant digits: within 5e-7 of each value.
+        for (u, v) in [(a.x.0, r.x.0), (a.y.0, r.y.0), (a.z.0, r.z.0), (a.norm.0, r.norm.0)] {
             assert!(
-                (u.0 - v.0).abs() <= 64.0 * f64::EPSILON * r.norm.0,
-                "{} vs {}",
-                u.0,
-                v.0
+                (u - v).abs() <= 5e-7 * u.abs() * (1.0 + 1e-9) + 64.0 * f64::EPSILON * r.norm.0,
+                "{u} vs {v}",
             );
         }
     }

@@ -33,7 +33,7 @@ use crate::output::log_rows::ResidualRow;
 use crate::output::manifest::CalibrationManifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::output::stderr::to_stderr;
-use crate::output::{self, Real};
+use crate::output::{self, Derived, Real};
 use crate::scenario::site::{Date, Site, Units, parse_model, wmm_magnitude};
 use magcal_core::aviation::roll_pitch_heading_deg;
 
@@ -619,6 +619,8 @@ fn check_json(c: &log_fit::TrialCheck, seed: u64) -> CheckJson {
         passed: c.passed(),
         noise: c.noise.words(),
         seed,
+        every: c.every,
+        readings: c.readings,
         words: c.words(),
     }
 }
@@ -991,17 +993,17 @@ fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJso
                 let b = json.apply_body(*raw);
                 let norm = magcal_core::small::norm(b);
                 let angles = attitudes.and_then(|a| a[i].as_ref()).map(roll_pitch_heading_deg);
-                let angle = |k: usize| angles.map(|a| Real(a[k]));
+                let angle = |k: usize| angles.map(|a| Derived(a[k]));
                 ResidualRow {
                     line,
                     raw_x: Real(raw[0]),
                     raw_y: Real(raw[1]),
                     raw_z: Real(raw[2]),
-                    x: Real(b[0]),
-                    y: Real(b[1]),
-                    z: Real(b[2]),
-                    norm: Real(norm),
-                    residual: Real(norm - json.magnitude),
+                    x: Derived(b[0]),
+                    y: Derived(b[1]),
+                    z: Derived(b[2]),
+                    norm: Derived(norm),
+                    residual: Derived(norm - json.magnitude),
                     roll_deg: angle(0),
                     pitch_deg: angle(1),
                     heading_deg: angle(2),
