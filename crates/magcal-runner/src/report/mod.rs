@@ -357,21 +357,60 @@ pub(crate) fn sealed_bytes(
     recorded: Option<&String>,
     command: &str,
 ) -> Result<(Vec<u8>, String)> {
-    let Some(want) = recorded else {
-        bail!(
-            "{}: records no {name}, which a {command} set holds",
-            dir.join("manifest.json").display()
-        );
-    };
+    let want = recorded_hash(dir, name, recorded, command)?;
     let member = crate::limits::set_member(dir, name)?;
     let bytes = crate::limits::read_bounded(&member, crate::limits::max_result_file_bytes())?;
+    let shown = member.display().to_string();
     if crate::digest::sha256_hex(&bytes) != *want {
-        bail!(
-            "{}: edited since {command} wrote it (its SHA-256 is not the one manifest.json records); run {command} again",
-            member.display()
-        );
+        bail!(edited(&shown, command));
     }
-    Ok((bytes, member.display().to_string()))
+    Ok((bytes, shown))
+}
+
+/// The rows of the set's CSV file `name`, read one at a time and handed to `each`, in the memory
+/// of one row however long the file; checked as [`sealed_bytes`] checks a file, in the same pass:
+/// a file whose SHA-256 is not `recorded` is named as edited, whether or not its rows parse.
+/// Returns the number of rows and the path as messages name it.
+///
+/// # Errors
+/// As [`sealed_bytes`], then a row that does not parse (as [`crate::output::parse_csv`] says it)
+/// or an error of `each`.
+pub(crate) fn sealed_rows<T: serde::de::DeserializeOwned>(
+    dir: &Path,
+    name: &str,
+    recorded: Option<&String>,
+    command: &str,
+    each: impl FnMut(T) -> Result<()>,
+) -> Result<(usize, String)> {
+    let want = recorded_hash(dir, name, recorded, command)?;
+    let member = crate::limits::set_member(dir, name)?;
+    let shown = member.display().to_string();
+    let file = std::fs::File::open(&member).with_context(|| format!("{shown}: cannot read"))?;
+    let mut input = crate::digest::Hashing::new(file);
+    let rows = crate::output::for_each_csv_row(&mut input, &shown, each);
+    // The rest of the file, which a row that failed left unread, completes the hash.
+    std::io::copy(&mut input, &mut std::io::sink()).with_context(|| format!("{shown}: cannot read"))?;
+    if input.hex() != *want {
+        bail!(edited(&shown, command));
+    }
+    Ok((rows?, shown))
+}
+
+/// The SHA-256 the manifest records for `name`.
+fn recorded_hash<'a>(dir: &Path, name: &str, recorded: Option<&'a String>, command: &str) -> Result<&'a String> {
+    recorded.with_context(|| {
+        format!(
+            "{}: records no {name}, which a {command} set holds",
+            dir.join("manifest.json").display()
+        )
+    })
+}
+
+/// What a page says of a set's file whose bytes are not those its manifest recorded.
+fn edited(shown: &str, command: &str) -> String {
+    format!(
+        "{shown}: edited since {command} wrote it (its SHA-256 is not the one manifest.json records); run {command} again"
+    )
 }
 
 /// What a report is made from.
