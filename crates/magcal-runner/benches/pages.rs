@@ -8,7 +8,9 @@
 //! nothing.
 //!
 //! `cargo bench -p magcal-runner --bench pages [ID...]` prints the medians and ranges of 10 opens
-//! of each page (criterion would open each page again for every quantity).
+//! of each page (criterion would open each page again for every quantity). With
+//! `MAGCAL_BENCH_PAGES=DIR` it opens the `*.html` pages in `DIR` instead, by name: pages of two
+//! builds side by side, measured in one run under the same load.
 
 #[path = "../tests/it/browser.rs"]
 #[allow(dead_code)]
@@ -114,6 +116,18 @@ fn pages(dir: &Path) -> Vec<(String, PathBuf)> {
     pages
 }
 
+/// The `*.html` pages in `dir`, by name, each with its stem as its id.
+fn given(dir: &Path) -> Vec<(String, PathBuf)> {
+    let mut pages: Vec<(String, PathBuf)> = std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.extension().is_some_and(|e| e == "html"))
+        .map(|path| (path.file_stem().unwrap().to_string_lossy().into_owned(), path))
+        .collect();
+    pages.sort();
+    pages
+}
+
 /// Opens of each page; every open gives all three times, so one pass measures them together.
 const OPENS: usize = 10;
 
@@ -141,7 +155,11 @@ fn main() {
         "{:<26} {:>4} | {:<17} {:<17} {:<17} {:<17}",
         "", "", "text painted", "first screen", "first figure", "every figure"
     );
-    for (id, page) in pages(&tmp) {
+    let pages = match std::env::var_os("MAGCAL_BENCH_PAGES") {
+        Some(dir) => given(Path::new(&dir)),
+        None => pages(&tmp),
+    };
+    for (id, page) in pages {
         if !filter.is_empty() && !filter.iter().any(|f| id.contains(f.as_str())) {
             continue;
         }

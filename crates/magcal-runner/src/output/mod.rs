@@ -374,14 +374,33 @@ pub fn read_csv<T: DeserializeOwned>(path: &Path) -> Result<Vec<T>> {
 
 /// Parses CSV bytes of `T` rows; errors are prefixed with `what` (a file name).
 pub fn parse_csv<T: DeserializeOwned>(bytes: &[u8], what: &str) -> Result<Vec<T>> {
-    let mut reader = csv::Reader::from_reader(bytes);
+    let mut rows = Vec::new();
+    for_each_csv_row(bytes, what, |row| {
+        rows.push(row);
+        Ok(())
+    })?;
+    Ok(rows)
+}
+
+/// Reads CSV rows of `T` from `input` one at a time, handing each to `each` (whose error ends the
+/// reading), and returns how many there were: a file of any length in the memory of one row.
+/// Errors are those of [`parse_csv`].
+pub fn for_each_csv_row<T: DeserializeOwned, R: std::io::Read>(
+    input: R,
+    what: &str,
+    mut each: impl FnMut(T) -> Result<()>,
+) -> Result<usize> {
+    let mut reader = csv::ReaderBuilder::new().buffer_capacity(1 << 16).from_reader(input);
     let headers = reader.headers().with_context(|| format!("{what}: no header"))?.clone();
     if headers.is_empty() {
         bail!("{what}: empty file");
     }
-    let mut rows = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| anyhow::anyhow!("{what}: {}", crate::limits::printable(&e.to_string())))?;
+    let mut record = csv::StringRecord::new();
+    let mut count = 0;
+    while reader
+        .read_record(&mut record)
+        .map_err(|e| anyhow::anyhow!("{what}: {}", crate::limits::printable(&e.to_string())))?
+    {
         let line = record.position().map_or(0, |p| p.line());
         let row = record.deserialize::<T>(Some(&headers)).map_err(|e| {
             let (column, message) = match e.kind() {
@@ -411,9 +430,10 @@ pub fn parse_csv<T: DeserializeOwned>(bytes: &[u8], what: &str) -> Result<Vec<T>
             };
             anyhow::anyhow!("{what}: line {line}: {column}{message}")
         })?;
-        rows.push(row);
+        each(row)?;
+        count += 1;
     }
-    Ok(rows)
+    Ok(count)
 }
 
 /// A statistic as a cell: empty where undefined (NaN).

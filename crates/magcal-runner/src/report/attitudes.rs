@@ -31,11 +31,12 @@ fn angles(r: &ResidualRow) -> Option<[f64; 3]> {
     Some([r.roll_deg?.0, r.pitch_deg?.0, r.heading_deg?.0])
 }
 
-/// Adds the section to `page`; nothing when the log had no attitudes.
-pub fn section(page: &mut Page, rows: &[ResidualRow], flown: Option<&Flown>, box_from: Option<&str>, shown: &[usize]) {
+/// Adds the section to `page`, its figures of the readings `drawn`; nothing when the log had no
+/// attitudes.
+pub fn section(page: &mut Page, drawn: &[ResidualRow], flown: Option<&Flown>, box_from: Option<&str>) {
     let Some(flown) = flown else { return };
     page.heading("Attitudes against the vehicle's box");
-    let with: Vec<usize> = shown.iter().copied().filter(|&i| angles(&rows[i]).is_some()).collect();
+    let with: Vec<(usize, [f64; 3])> = drawn.iter().filter_map(|r| angles(r).map(|a| (r.line, a))).collect();
     let inside = |a: [f64; 3]| flown.box_deg.is_none_or(|b| b.contains(a));
     let box_words = match (flown.box_deg, box_from) {
         (Some(_), Some(from)) => format!("the box of {from}, outlined"),
@@ -44,7 +45,7 @@ pub fn section(page: &mut Page, rows: &[ResidualRow], flown: Option<&Flown>, box
     };
     page.plot(
         "roll-pitch",
-        scatter(rows, &with, &inside, 0, flown.box_deg.map(|b| vec![(b.roll_deg, b.pitch_deg)])),
+        scatter(&with, &inside, 0, flown.box_deg.map(|b| vec![(b.roll_deg, b.pitch_deg)])),
         460,
         format!(
             "Roll (right side down) against pitch (nose up), degrees, of the readings with an attitude; {box_words}; green inside the box in all three angles, grey outside."
@@ -60,7 +61,7 @@ pub fn section(page: &mut Page, rows: &[ResidualRow], flown: Option<&Flown>, box
     });
     page.plot(
         "heading-pitch",
-        scatter(rows, &with, &inside, 2, heading_boxes),
+        scatter(&with, &inside, 2, heading_boxes),
         460,
         "Compass heading (clockwise from north) against pitch, degrees, the same readings and box.",
     );
@@ -68,22 +69,18 @@ pub fn section(page: &mut Page, rows: &[ResidualRow], flown: Option<&Flown>, box
     page.table(sectors_table(flown));
 }
 
-/// The readings `shown` as points of (angle `x` of roll/pitch/heading, pitch), or of (roll, pitch)
-/// for `x = 0`; `outlines` the box's rectangles in those axes.
+/// The readings `shown` (line, `[roll, pitch, heading]`) as points of (angle `x` of
+/// roll/pitch/heading, pitch), or of (roll, pitch) for `x = 0`; `outlines` the box's rectangles in
+/// those axes.
 fn scatter(
-    rows: &[ResidualRow],
-    shown: &[usize],
+    shown: &[(usize, [f64; 3])],
     inside: &dyn Fn([f64; 3]) -> bool,
     x: usize,
     outlines: Option<Vec<([f64; 2], [f64; 2])>>,
 ) -> Plot {
     let mut plot = Plot::new();
     for (is_inside, name, colour) in [(true, "inside the box", INSIDE), (false, "outside the box", OUTSIDE)] {
-        let points: Vec<(usize, [f64; 3])> = shown
-            .iter()
-            .filter_map(|&i| angles(&rows[i]).map(|a| (i, a)))
-            .filter(|(_, a)| inside(*a) == is_inside)
-            .collect();
+        let points: Vec<(usize, [f64; 3])> = shown.iter().copied().filter(|(_, a)| inside(*a) == is_inside).collect();
         if points.is_empty() {
             continue;
         }
@@ -91,10 +88,10 @@ fn scatter(
         let ys: Vec<f64> = points.iter().map(|(_, a)| drawn(a[1])).collect();
         let text: Vec<String> = points
             .iter()
-            .map(|(i, a)| {
+            .map(|(line, a)| {
                 format!(
                     "line {}: roll {}, pitch {}, heading {}",
-                    rows[*i].line,
+                    line,
                     significant(a[0], 3),
                     significant(a[1], 3),
                     significant(a[2], 4)

@@ -17,7 +17,6 @@ use super::{Cell, Page, Table, drawn, thin, thinned_note};
 use crate::log::calibration::{CalibrationJson, PassesJson, parse_calibration};
 use crate::output::log_rows::ResidualRow;
 use crate::output::manifest::{CalibrationManifest, verify};
-use crate::output::parse_csv;
 
 /// Readings drawn in each 3D figure at most: more add megabytes and nothing a person sees.
 pub const MAX_DRAWN: usize = 4000;
@@ -32,16 +31,28 @@ pub fn page(dir: &Path) -> Result<Page> {
     let sealed = |name: &str| super::sealed_bytes(dir, name, manifest.file_sha256.get(name), "calibrate");
     let (bytes, shown) = sealed("calibration.json")?;
     let cal = parse_calibration(&bytes, &shown)?;
-    let (bytes, residuals_shown) = sealed("residuals.csv")?;
-    let rows: Vec<ResidualRow> = parse_csv(&bytes, &residuals_shown)?;
-    if rows.len() != cal.samples {
+    // residuals.csv (a row per reading: 1.4 GB for 10^7) is read streaming: the page keeps the
+    // rows it draws and the counts over all rows, never the file.
+    let mut residuals = Residuals::new(cal.samples);
+    let (rows, residuals_shown) = super::sealed_rows(
+        dir,
+        "residuals.csv",
+        manifest.file_sha256.get("residuals.csv"),
+        "calibrate",
+        |row| {
+            residuals.add(row);
+            Ok(())
+        },
+    )?;
+    if rows != cal.samples {
         bail!(
             "{}: {} rows, but calibration.json says {} readings were fitted",
             residuals_shown,
-            rows.len(),
+            rows,
             cal.samples
         );
     }
+    let residuals = residuals.finish();
     let units = cal.units.clone().unwrap_or_else(|| "log units".to_string());
     let mut page = Page::new(
         format!("Calibration of {}", file_name(&cal.log)),
@@ -55,21 +66,21 @@ pub fn page(dir: &Path) -> Result<Page> {
     verdict(&mut page, &cal);
     parameters(&mut page, &cal, &units);
     summary(&mut page, &cal, &units);
-    let shown = thin(rows.len(), MAX_DRAWN);
-    if let Some(note) = thinned_note("The 3D figures", shown.len(), rows.len()) {
+    let drawn = &residuals.drawn;
+    if let Some(note) = thinned_note("The 3D figures", drawn.len(), rows) {
         page.note(note);
     }
     page.heading("Raw readings and the fitted ellipsoid");
-    page.plot("raw", raw_plot(&cal, &rows, &shown, &units), 620, format!(
+    page.plot("raw", raw_plot(&cal, drawn, &units), 620, format!(
         "Raw readings ({units}) as logged, and the ellipsoid raw = K b + O on which calibrated readings b of magnitude {} lie. Drag to turn, scroll to zoom, hover for a reading's line.",
         super::significant(cal.magnitude, 5)
     ));
     page.heading("Calibrated readings on the sphere");
-    page.plot("calibrated", calibrated_plot(&cal, &rows, &shown, &units), 620, "Calibrated readings b = P (raw - O), coloured by their residual |b| - R; a good calibration puts them on the sphere of radius R (drawn as a wire frame).");
+    page.plot("calibrated", calibrated_plot(&cal, drawn, &units), 620, "Calibrated readings b = P (raw - O), coloured by their residual |b| - R; a good calibration puts them on the sphere of radius R (drawn as a wire frame).");
     page.heading("Residual over the sphere of directions");
-    page.plot("residual-map", residual_map(&rows), 460, "RMS residual |b| - R of the readings whose calibrated direction falls in each 10-degree cell of longitude (from the sensor's x axis towards y) and latitude (towards z); empty cells were never visited. All readings counted.");
+    page.plot("residual-map", residual_map(&residuals.cells), 460, "RMS residual |b| - R of the readings whose calibrated direction falls in each 10-degree cell of longitude (from the sensor's x axis towards y) and latitude (towards z); empty cells were never visited. All readings counted.");
     page.heading("Coverage of field directions (MotionCal's 100 regions)");
-    let counts = coverage_counts(&rows);
+    let counts = residuals.regions;
     page.plot("coverage", coverage_plot(&counts), 560, format!(
         "The sphere of calibrated field directions cut into MotionCal's 100 regions of equal area, coloured by the readings in each: red none, orange one, yellow two, green three or more (MotionCal's gap error counts 1, 0.2, 0.01 and 0 for them). {} regions empty; MotionCal gaps {} %.",
         counts.iter().filter(|&&c| c == 0).count(),
@@ -77,16 +88,94 @@ pub fn page(dir: &Path) -> Result<Page> {
     ));
     super::attitudes::section(
         &mut page,
-        &rows,
+        drawn,
         cal.coverage.flown.as_ref(),
         cal.coverage.box_from.as_deref(),
-        &shown,
     );
     page.data("calibration", serde_json::to_value(&cal).context("calibration.json")?);
-    page.data("readings", json!(rows.len()));
-    page.data("drawn", json!(shown.len()));
+    page.data("readings", json!(rows));
+    page.data("drawn", json!(drawn.len()));
     page.data("region_counts", json!(counts.to_vec()));
     Ok(page)
+}
+
+/// Cells of the residual map: 10 degrees of longitude by 10 of latitude.
+const LON: usize = 36;
+const LAT: usize = 18;
+
+/// Calibrated directions buffered for [`motioncal_region_counts`] between calls.
+const REGION_BATCH: usize = 4096;
+
+/// What the page takes of residuals.csv, row by row: the rows it draws, and the sums and counts
+/// over every row.
+struct Residuals {
+    /// The indices of the rows drawn ([`thin`] of the rows the calibration says it fitted), in
+    /// order, and the next of them to come.
+    wanted: Vec<usize>,
+    next: usize,
+    /// Rows read.
+    read: usize,
+    /// The rows drawn.
+    drawn: Vec<ResidualRow>,
+    /// Per cell of the residual map, the sum of squared residuals and the readings.
+    cells: Cells,
+    /// Readings per MotionCal region of the calibrated directions, and directions not yet counted.
+    regions: [usize; 100],
+    pending: Vec<[f64; 3]>,
+}
+
+/// The residual map's sums of squared residuals and counts, `[latitude][longitude]`.
+struct Cells {
+    sum: [[f64; LON]; LAT],
+    count: [[usize; LON]; LAT],
+}
+
+impl Residuals {
+    /// For a file of `samples` rows, as calibration.json says.
+    fn new(samples: usize) -> Self {
+        Self {
+            wanted: thin(samples, MAX_DRAWN),
+            next: 0,
+            read: 0,
+            drawn: Vec::new(),
+            cells: Cells {
+                sum: [[0.0; LON]; LAT],
+                count: [[0; LON]; LAT],
+            },
+            regions: [0; 100],
+            pending: Vec::with_capacity(REGION_BATCH),
+        }
+    }
+
+    fn add(&mut self, row: ResidualRow) {
+        if let Some((lon, lat)) = lon_lat(&row) {
+            let i = (((lat + 90.0) / 10.0) as usize).min(LAT - 1);
+            let j = (((lon + 180.0) / 10.0) as usize).min(LON - 1);
+            self.cells.sum[i][j] += row.residual.0 * row.residual.0;
+            self.cells.count[i][j] += 1;
+        }
+        self.pending.push([row.x.0, row.y.0, row.z.0]);
+        if self.pending.len() == REGION_BATCH {
+            self.count_regions();
+        }
+        if self.wanted.get(self.next) == Some(&self.read) {
+            self.drawn.push(row);
+            self.next += 1;
+        }
+        self.read += 1;
+    }
+
+    fn count_regions(&mut self) {
+        let counts = motioncal_region_counts(&self.pending);
+        self.regions.iter_mut().zip(counts).for_each(|(total, c)| *total += c);
+        self.pending.clear();
+    }
+
+    /// With every direction counted.
+    fn finish(mut self) -> Self {
+        self.count_regions();
+        self
+    }
 }
 
 /// The certified D-efficiency per reading in the scenario's box, as `calibrate` says it: above 1
@@ -292,9 +381,9 @@ pub(super) fn unit_sphere(lat: usize, lon: usize) -> (Vec<[f64; 3]>, Vec<[usize;
     (points, triangles)
 }
 
-fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], shown: &[usize], units: &str) -> Plot {
-    let pick = |f: fn(&ResidualRow) -> f64| shown.iter().map(|&i| drawn(f(&rows[i]))).collect::<Vec<f64>>();
-    let lines: Vec<String> = shown.iter().map(|&i| format!("line {}", rows[i].line)).collect();
+fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], units: &str) -> Plot {
+    let pick = |f: fn(&ResidualRow) -> f64| rows.iter().map(|r| drawn(f(r))).collect::<Vec<f64>>();
+    let lines: Vec<String> = rows.iter().map(|r| format!("line {}", r.line)).collect();
     let readings = Scatter3D::new(pick(|r| r.raw_x.0), pick(|r| r.raw_y.0), pick(|r| r.raw_z.0))
         .mode(Mode::Markers)
         .name("raw readings")
@@ -319,9 +408,9 @@ fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], shown: &[usize], units:
     plot
 }
 
-fn calibrated_plot(cal: &CalibrationJson, rows: &[ResidualRow], shown: &[usize], units: &str) -> Plot {
-    let pick = |f: fn(&ResidualRow) -> f64| shown.iter().map(|&i| drawn(f(&rows[i]))).collect::<Vec<f64>>();
-    let lines: Vec<String> = shown.iter().map(|&i| format!("line {}", rows[i].line)).collect();
+fn calibrated_plot(cal: &CalibrationJson, rows: &[ResidualRow], units: &str) -> Plot {
+    let pick = |f: fn(&ResidualRow) -> f64| rows.iter().map(|r| drawn(f(r))).collect::<Vec<f64>>();
+    let lines: Vec<String> = rows.iter().map(|r| format!("line {}", r.line)).collect();
     let readings = Scatter3D::new(pick(|r| r.x.0), pick(|r| r.y.0), pick(|r| r.z.0))
         .mode(Mode::Markers)
         .name("calibrated readings")
@@ -359,18 +448,8 @@ fn lon_lat(r: &ResidualRow) -> Option<(f64, f64)> {
     })
 }
 
-fn residual_map(rows: &[ResidualRow]) -> Plot {
-    const LON: usize = 36;
-    const LAT: usize = 18;
-    let mut sum = vec![[0.0f64; LON]; LAT];
-    let mut count = vec![[0usize; LON]; LAT];
-    for r in rows {
-        let Some((lon, lat)) = lon_lat(r) else { continue };
-        let i = (((lat + 90.0) / 10.0) as usize).min(LAT - 1);
-        let j = (((lon + 180.0) / 10.0) as usize).min(LON - 1);
-        sum[i][j] += r.residual.0 * r.residual.0;
-        count[i][j] += 1;
-    }
+fn residual_map(cells: &Cells) -> Plot {
+    let Cells { sum, count } = cells;
     let z: Vec<Vec<Option<f64>>> = (0..LAT)
         .map(|i| {
             (0..LON)
@@ -403,10 +482,4 @@ fn residual_map(rows: &[ResidualRow]) -> Plot {
             ),
     );
     plot
-}
-
-/// Readings per MotionCal region, of the calibrated directions.
-fn coverage_counts(rows: &[ResidualRow]) -> [usize; 100] {
-    let fields: Vec<[f64; 3]> = rows.iter().map(|r| [r.x.0, r.y.0, r.z.0]).collect();
-    motioncal_region_counts(&fields)
 }

@@ -264,6 +264,13 @@ impl Page {
         // draws it when it comes near the screen: a page of many WebGL views opens at once
         // instead of building every view before it shows anything.
         let mut figure: Value = serde_json::from_str(&plot.to_json()).expect("plotly writes JSON");
+        for trace in figure["data"].as_array().into_iter().flatten() {
+            let kind = trace["type"].as_str().unwrap_or("scatter");
+            assert!(
+                TRACE_TYPES.contains(&kind),
+                "{id}: a {kind} trace, which the pages' plotly.js does not hold (scripts/plotly-bundle/index.js)"
+            );
+        }
         if let Some(layout) = figure.get_mut("layout").and_then(Value::as_object_mut) {
             layout
                 .iter_mut()
@@ -294,14 +301,13 @@ impl Page {
     /// A template that fails to render (a bug).
     pub fn render(&self) -> Result<String> {
         let data = script_json(&Value::Object(self.data.clone()));
-        let js = plotly_js();
         let page = PageTemplate {
             version: env!("CARGO_PKG_VERSION"),
-            policy: &policy(&[&js, LOADER_JS]),
+            policy: &policy(&[PLOTLY_JS, LOADER_JS]),
             title: &self.title,
             subtitle: &self.subtitle,
             blocks: &self.blocks,
-            plotly_js: &js,
+            plotly_js: PLOTLY_JS,
             loader_js: LOADER_JS,
             data: &data,
         };
@@ -309,15 +315,13 @@ impl Page {
     }
 }
 
-/// plotly.js, as the plotly crate embeds it, without the MathJax it embeds beside it (the pages
-/// set no TeX, and MathJax would add 2.1 MB).
-fn plotly_js() -> String {
-    let sources = Plot::offline_js_sources();
-    let open = "<script type=\"text/javascript\">";
-    let body = sources.strip_prefix(open).unwrap_or(&sources);
-    let end = body.find("</script>").unwrap_or(body.len());
-    body[..end].to_string()
-}
+/// plotly.js with only the trace types the pages draw ([`TRACE_TYPES`]): plotly.js's core and
+/// those traces, bundled and minified by `scripts/plotly-bundle.sh` from the plotly.js release the
+/// `plotly` crate was written for (its licence beside it), a third of the whole library.
+pub const PLOTLY_JS: &str = include_str!("../../assets/plotly-custom.min.js");
+
+/// The trace types [`PLOTLY_JS`] registers: a figure of any other would draw nothing.
+pub const TRACE_TYPES: &[&str] = &["bar", "box", "heatmap", "mesh3d", "scatter", "scatter3d"];
 
 /// At most `max` indices of `0..n`, evenly spaced, first included: the readings a figure draws.
 pub fn thin(n: usize, max: usize) -> Vec<usize> {
@@ -357,21 +361,60 @@ pub(crate) fn sealed_bytes(
     recorded: Option<&String>,
     command: &str,
 ) -> Result<(Vec<u8>, String)> {
-    let Some(want) = recorded else {
-        bail!(
-            "{}: records no {name}, which a {command} set holds",
-            dir.join("manifest.json").display()
-        );
-    };
+    let want = recorded_hash(dir, name, recorded, command)?;
     let member = crate::limits::set_member(dir, name)?;
     let bytes = crate::limits::read_bounded(&member, crate::limits::max_result_file_bytes())?;
+    let shown = member.display().to_string();
     if crate::digest::sha256_hex(&bytes) != *want {
-        bail!(
-            "{}: edited since {command} wrote it (its SHA-256 is not the one manifest.json records); run {command} again",
-            member.display()
-        );
+        bail!(edited(&shown, command));
     }
-    Ok((bytes, member.display().to_string()))
+    Ok((bytes, shown))
+}
+
+/// The rows of the set's CSV file `name`, read one at a time and handed to `each`, in the memory
+/// of one row however long the file; checked as [`sealed_bytes`] checks a file, in the same pass:
+/// a file whose SHA-256 is not `recorded` is named as edited, whether or not its rows parse.
+/// Returns the number of rows and the path as messages name it.
+///
+/// # Errors
+/// As [`sealed_bytes`], then a row that does not parse (as [`crate::output::parse_csv`] says it)
+/// or an error of `each`.
+pub(crate) fn sealed_rows<T: serde::de::DeserializeOwned>(
+    dir: &Path,
+    name: &str,
+    recorded: Option<&String>,
+    command: &str,
+    each: impl FnMut(T) -> Result<()>,
+) -> Result<(usize, String)> {
+    let want = recorded_hash(dir, name, recorded, command)?;
+    let member = crate::limits::set_member(dir, name)?;
+    let shown = member.display().to_string();
+    let file = std::fs::File::open(&member).with_context(|| format!("{shown}: cannot read"))?;
+    let mut input = crate::digest::Hashing::new(file);
+    let rows = crate::output::for_each_csv_row(&mut input, &shown, each);
+    // The rest of the file, which a row that failed left unread, completes the hash.
+    std::io::copy(&mut input, &mut std::io::sink()).with_context(|| format!("{shown}: cannot read"))?;
+    if input.hex() != *want {
+        bail!(edited(&shown, command));
+    }
+    Ok((rows?, shown))
+}
+
+/// The SHA-256 the manifest records for `name`.
+fn recorded_hash<'a>(dir: &Path, name: &str, recorded: Option<&'a String>, command: &str) -> Result<&'a String> {
+    recorded.with_context(|| {
+        format!(
+            "{}: records no {name}, which a {command} set holds",
+            dir.join("manifest.json").display()
+        )
+    })
+}
+
+/// What a page says of a set's file whose bytes are not those its manifest recorded.
+fn edited(shown: &str, command: &str) -> String {
+    format!(
+        "{shown}: edited since {command} wrote it (its SHA-256 is not the one manifest.json records); run {command} again"
+    )
 }
 
 /// What a report is made from.
@@ -480,6 +523,38 @@ mod tests {
     }
 
     #[test]
+    fn the_bundle_is_the_one_its_script_built_and_registers_the_trace_types() {
+        let recorded = include_str!("../../assets/plotly-custom.min.js.sha256");
+        assert_eq!(
+            recorded.split_whitespace().next(),
+            Some(crate::digest::sha256_hex(PLOTLY_JS.as_bytes()).as_str()),
+            "assets/plotly-custom.min.js is not what scripts/plotly-bundle.sh built"
+        );
+        assert!(
+            PLOTLY_JS.starts_with("/**\n* plotly.js v3.0.1 "),
+            "{}",
+            &PLOTLY_JS[..80]
+        );
+        // Each trace module of plotly.js declares itself so; the bundle holds these and no other.
+        let mut registered: Vec<&str> = PLOTLY_JS
+            .split("moduleType:\"trace\",name:\"")
+            .skip(1)
+            .filter_map(|rest| rest.split('"').next())
+            .collect();
+        registered.sort_unstable();
+        assert_eq!(registered, TRACE_TYPES);
+        assert!(PLOTLY_JS.len() < 1_600_000, "{} bytes", PLOTLY_JS.len());
+    }
+
+    #[test]
+    #[should_panic(expected = "a pie trace, which the pages' plotly.js does not hold")]
+    fn a_figure_of_a_trace_type_the_bundle_lacks_is_a_bug() {
+        let mut plot = Plot::new();
+        plot.add_trace(plotly::Pie::new(vec![1.0, 2.0]));
+        Page::new("t", "s").plot("p", plot, 300, "c");
+    }
+
+    #[test]
     fn the_policy_names_the_page_scripts_and_loads_nothing() {
         let mut page = Page::new("t", "s");
         page.text("x");
@@ -489,8 +564,7 @@ mod tests {
             .nth(1)
             .and_then(|r| r.split('"').next())
             .unwrap();
-        let js = plotly_js();
-        for script in [js.as_str(), LOADER_JS] {
+        for script in [PLOTLY_JS, LOADER_JS] {
             let hash = crate::digest::sha256_base64(script.as_bytes());
             assert!(policy.contains(&format!("'sha256-{hash}'")), "{policy}");
             assert!(html.contains(&format!("<script type=\"text/javascript\">{script}</script>")));

@@ -13,7 +13,7 @@ use tempfile::TempDir;
 
 use crate::browser::{Opened, chromium, open, pixel_statistics};
 use crate::common::{BROAD_ARGS, assert_refused, broad_02_moving, magcal};
-use crate::report::{assert_shows, table};
+use crate::report::{assert_light_page, assert_shows, table};
 
 /// `magcal evaluate ARGS`: exit code, stdout, stderr.
 fn evaluate(args: &[&std::ffi::OsStr]) -> (i32, String, String) {
@@ -118,6 +118,7 @@ fn broad_02_raw_gives_a_page_with_the_check_values_and_every_figure_drawn() {
     let (code, stdout, stderr) = evaluate(&args);
     assert_eq!(code, 0, "{stderr}");
     let json: EvaluationJson = serde_json::from_str(&stdout).unwrap();
+    assert_light_page(&page_path);
     let page = open_checked(&browser, &page_path);
 
     // CONVENTIONS.md check values: BROAD 02's raw readings against the capture.

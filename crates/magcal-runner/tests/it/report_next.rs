@@ -12,7 +12,7 @@ use tempfile::TempDir;
 
 use crate::browser::{chromium, open};
 use crate::common::{assert_refused, data, magcal, scenarios};
-use crate::report::{assert_drawn_3d, assert_shows, table};
+use crate::report::{assert_drawn_3d, assert_light_page, assert_shows, table};
 
 /// The first 1200 readings of hamagure set 2 (a narrow arc of its restricted tilt) copied into
 /// `dir` (so that a page refused onto it could never harm the public file) and calibrated (not
@@ -87,6 +87,7 @@ fn a_next_page_draws_the_attitudes_on_the_coverage_sphere_and_shows_the_json_num
     assert_eq!(code, 0, "{stderr}");
     let json: NextJson = serde_json::from_str(&stdout).unwrap();
     assert_eq!(json.attitudes.len(), 10);
+    assert_light_page(&page_path);
     let page = open(&browser, &page_path, Duration::from_secs(60));
     assert!(page.errors.is_empty(), "{:?}", page.errors);
     assert!(

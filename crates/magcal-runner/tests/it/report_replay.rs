@@ -13,7 +13,7 @@ use tempfile::TempDir;
 
 use crate::browser::{Opened, chromium, open};
 use crate::common::magcal;
-use crate::report::{assert_drawn_3d, report, table};
+use crate::report::{assert_drawn_3d, assert_traces_in_bundle, report, table};
 
 /// The shipped replay sets.
 fn shipped() -> Vec<PathBuf> {
@@ -256,6 +256,7 @@ fn the_page_of_every_shipped_replay_set_draws_offline_and_shows_its_csv_numbers(
         let name = set.file_name().unwrap().to_string_lossy().into_owned();
         let page_path = tmp.path().join(format!("{name}.html"));
         report(set, &page_path);
+        assert_traces_in_bundle(&page_path);
         let bytes = fs::metadata(&page_path).unwrap().len();
         let page = open(&browser, &page_path, Duration::from_secs(60));
         assert!(page.errors.is_empty(), "{name}: {:?}", page.errors);
