@@ -57,7 +57,8 @@ pub enum Matrix {
 /// log or another field).
 ///
 /// # Errors
-/// A bad calibration file or log, or a reading whose calibrated value is not finite (exit 2).
+/// A bad calibration file or log, or a reading whose calibrated value is not finite (exit 2;
+/// with `--skip-bad` that reading is dropped and shown, as a non-finite one is).
 pub fn run(args: &ApplyArgs) -> Result<(), Failure> {
     Ok(apply_inner(args)?)
 }
@@ -85,6 +86,7 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     let mut radius = RadiusMedian::new(cal.magnitude);
     let mut skipped = Vec::new();
     let mut filtered = 0;
+    let mut overflowed = Vec::new();
     out.write(&inputs, |w| {
         let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(w);
         csv.write_record(&output::header::<AppliedRow>()?)?;
@@ -97,6 +99,12 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
             // is still finite.
             let norm = b[0].hypot(b[1]).hypot(b[2]);
             if !(b.iter().all(|v| v.is_finite()) && norm.is_finite()) {
+                // With --skip-bad, a reading whose calibrated value overflows is a bad row like a
+                // non-finite one: dropped, counted and shown.
+                if input.skip_bad {
+                    overflowed.push((line, format!("the reading {raw:?} calibrated is {b:?}, not finite (--skip-bad)")));
+                    return Ok(());
+                }
                 bail!(
                     "{}: line {line}: the reading {raw:?} calibrated by {shown} is {b:?}, not finite (is the calibration for this sensor and units?)",
                     args.log.display()
@@ -136,6 +144,8 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
         csv.flush()?;
         Ok(())
     })?;
+    skipped.extend(overflowed);
+    skipped.sort_by_key(|(line, _)| *line);
     for (line, reason) in &skipped {
         to_stderr!("magcal: skipped line {line}: {reason}");
     }

@@ -921,97 +921,190 @@ proptest! {
 
     #[test]
     fn mutated_logs_calibrate_apply_and_next_or_say_why(x in fuzz_log()) {
-        use clap::Parser;
-        use magcal_runner::commands::{apply::{self, ApplyArgs}, calibrate::{self, CalibrateArgs}, next::{self, NextArgs}};
-        #[derive(Parser)]
-        struct Calibrate {
-            #[command(flatten)]
-            args: CalibrateArgs,
+        calibrate_apply_next(&x)?;
+    }
+}
+
+/// `calibrate` a fuzzed log, then `apply` and `next` with its calibration: each succeeds or says why.
+fn calibrate_apply_next(x: &FuzzLog) -> Result<(), TestCaseError> {
+    use clap::Parser;
+    use magcal_runner::commands::{
+        apply::{self, ApplyArgs},
+        calibrate::{self, CalibrateArgs},
+        next::{self, NextArgs},
+    };
+    #[derive(Parser)]
+    struct Calibrate {
+        #[command(flatten)]
+        args: CalibrateArgs,
+    }
+    #[derive(Parser)]
+    struct Next {
+        #[command(flatten)]
+        args: NextArgs,
+    }
+    let tmp = tempfile::TempDir::new().unwrap();
+    let log = tmp.path().join("fuzz.csv");
+    std::fs::write(&log, x.text()).unwrap();
+    let out = tmp.path().join("cal");
+    let argv = x.calibrate_argv(&log, &out);
+    let args = match Calibrate::try_parse_from(&argv) {
+        Ok(a) => a.args,
+        Err(e) => {
+            let why = parse_refused(&e);
+            prop_assert!(why.is_ok(), "{}: {why:?}", argv.join(" "));
+            return Ok(());
         }
-        #[derive(Parser)]
-        struct Next {
-            #[command(flatten)]
-            args: NextArgs,
+    };
+    let json = out.join("calibration.json");
+    let usable = match calibrate::run(&args) {
+        Ok(()) => {
+            let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+            prop_assert!(written["usable"] == true, "exit 0 with {}", written["usable"]);
+            let why = check_usable(&written);
+            prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
+            true
         }
-        let tmp = tempfile::TempDir::new().unwrap();
-        let log = tmp.path().join("fuzz.csv");
-        std::fs::write(&log, x.text()).unwrap();
-        let out = tmp.path().join("cal");
-        let argv = x.calibrate_argv(&log, &out);
-        let args = match Calibrate::try_parse_from(&argv) {
-            Ok(a) => a.args,
-            Err(e) => {
-                let why = parse_refused(&e);
-                prop_assert!(why.is_ok(), "{}: {why:?}", argv.join(" "));
+        // A calibration that should not be used is still written, and says why.
+        Err(Failure::Unusable(why)) => {
+            prop_assert!(why.contains(&log.display().to_string()), "{why}");
+            // A log that no model fits gets the report instead of a calibration, and nothing
+            // to apply.
+            let none = out.join("no_calibration.json");
+            if none.exists() {
+                prop_assert!(!json.exists(), "a calibration beside the report that there is none");
+                let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&none).unwrap()).unwrap();
+                prop_assert!(
+                    written["format"] == "magcal-no-calibration-1" && written["usable"] == false,
+                    "{written}"
+                );
+                prop_assert!(
+                    written["reasons"].as_array().is_some_and(|r| !r.is_empty()),
+                    "no calibration without reasons"
+                );
                 return Ok(());
             }
-        };
-        let json = out.join("calibration.json");
-        let usable = match calibrate::run(&args) {
-            Ok(()) => {
-                let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
-                prop_assert!(written["usable"] == true, "exit 0 with {}", written["usable"]);
-                let why = check_usable(&written);
-                prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
-                true
-            }
-            // A calibration that should not be used is still written, and says why.
-            Err(Failure::Unusable(why)) => {
-                prop_assert!(why.contains(&log.display().to_string()), "{why}");
-                // A log that no model fits gets the report instead of a calibration, and nothing
-                // to apply.
-                let none = out.join("no_calibration.json");
-                if none.exists() {
-                    prop_assert!(!json.exists(), "a calibration beside the report that there is none");
-                    let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&none).unwrap()).unwrap();
-                    prop_assert!(written["format"] == "magcal-no-calibration-1" && written["usable"] == false, "{written}");
-                    prop_assert!(written["reasons"].as_array().is_some_and(|r| !r.is_empty()), "no calibration without reasons");
-                    return Ok(());
-                }
-                let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
-                prop_assert!(written["usable"] == false, "exit 3 with {}", written["usable"]);
-                prop_assert!(written["reasons"].as_array().is_some_and(|r| !r.is_empty()), "exit 3 without reasons");
-                false
-            }
-            Err(e) => {
-                let why = names_the_input(e, &[&log]);
-                prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
-                // Nothing is written before the error.
-                prop_assert!(!out.exists(), "{} exists after an error", out.display());
-                return Ok(());
-            }
-        };
-        let cal = tmp.path().join("edited.json");
-        let bytes = std::fs::read(&json).unwrap();
-        let edited = x.edit.as_ref().and_then(|e| e.apply(&bytes)).unwrap_or(bytes);
-        std::fs::write(&cal, &edited).unwrap();
-        let applied = tmp.path().join("calibrated.csv");
-        let apply = ApplyArgs { calibration: cal.clone(), log: log.clone(), input: LogArgs { columns: x.columns.clone(), skip_bad: x.skip_bad, ..LogArgs::default() }, matrix: Default::default(), out: Some(applied.clone()) };
-        match apply::run(&apply) {
-            Ok(()) => {
-                let why = check_applied(&applied);
-                prop_assert!(why.is_ok(), "apply: {why:?}\n{}\n{}", String::from_utf8_lossy(&edited), x.text());
-            }
-            Err(e) => {
-                // A usable calibration applies to its own log, read with the same options.
-                prop_assert!(!(usable && x.edit.is_none()), "apply refused the log its usable calibration was made from: {}\n{}", match &e { Failure::Input(e) => format!("{e:#}"), _ => String::new() }, x.text());
-                let why = names_the_input(e, &[&log, &cal]);
-                prop_assert!(why.is_ok(), "apply: {why:?}\n{}", x.text());
-                prop_assert!(!applied.exists(), "apply wrote {} and failed", applied.display());
-            }
+            let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+            prop_assert!(written["usable"] == false, "exit 3 with {}", written["usable"]);
+            prop_assert!(
+                written["reasons"].as_array().is_some_and(|r| !r.is_empty()),
+                "exit 3 without reasons"
+            );
+            false
         }
-        let mut argv: Vec<String> = vec!["next".into(), cal.display().to_string(), log.display().to_string(), "--roll=-5,5".into(), "--pitch=-20,20".into(), "--site".into(), "28.2,112.97".into(), "--date".into(), "2013.0".into(), "--count".into(), "2".into()];
-        if let Some(c) = &x.columns {
-            argv.push(format!("--columns={c}"));
+        Err(e) => {
+            let why = names_the_input(e, &[&log]);
+            prop_assert!(why.is_ok(), "{}: {why:?}\n{}", argv.join(" "), x.text());
+            // Nothing is written before the error.
+            prop_assert!(!out.exists(), "{} exists after an error", out.display());
+            return Ok(());
         }
-        if x.skip_bad {
-            argv.push("--skip-bad".into());
+    };
+    let cal = tmp.path().join("edited.json");
+    let bytes = std::fs::read(&json).unwrap();
+    let edited = x.edit.as_ref().and_then(|e| e.apply(&bytes)).unwrap_or(bytes);
+    std::fs::write(&cal, &edited).unwrap();
+    let applied = tmp.path().join("calibrated.csv");
+    let apply = ApplyArgs {
+        calibration: cal.clone(),
+        log: log.clone(),
+        input: LogArgs {
+            columns: x.columns.clone(),
+            skip_bad: x.skip_bad,
+            ..LogArgs::default()
+        },
+        matrix: Default::default(),
+        out: Some(applied.clone()),
+    };
+    match apply::run(&apply) {
+        Ok(()) => {
+            let why = check_applied(&applied);
+            prop_assert!(
+                why.is_ok(),
+                "apply: {why:?}\n{}\n{}",
+                String::from_utf8_lossy(&edited),
+                x.text()
+            );
         }
-        let next = Next::try_parse_from(&argv).unwrap().args;
-        if let Err(e) = next::run(&next) {
+        Err(e) => {
+            // A usable calibration applies to its own log, read with the same options.
+            prop_assert!(
+                !(usable && x.edit.is_none()),
+                "apply refused the log its usable calibration was made from: {}\n{}",
+                match &e {
+                    Failure::Input(e) => format!("{e:#}"),
+                    _ => String::new(),
+                },
+                x.text()
+            );
             let why = names_the_input(e, &[&log, &cal]);
-            prop_assert!(why.is_ok(), "next: {why:?}\n{}\n{}", String::from_utf8_lossy(&edited), x.text());
+            prop_assert!(why.is_ok(), "apply: {why:?}\n{}", x.text());
+            prop_assert!(!applied.exists(), "apply wrote {} and failed", applied.display());
         }
+    }
+    let mut argv: Vec<String> = vec![
+        "next".into(),
+        cal.display().to_string(),
+        log.display().to_string(),
+        "--roll=-5,5".into(),
+        "--pitch=-20,20".into(),
+        "--site".into(),
+        "28.2,112.97".into(),
+        "--date".into(),
+        "2013.0".into(),
+        "--count".into(),
+        "2".into(),
+    ];
+    if let Some(c) = &x.columns {
+        argv.push(format!("--columns={c}"));
+    }
+    if x.skip_bad {
+        argv.push("--skip-bad".into());
+    }
+    let next = Next::try_parse_from(&argv).unwrap().args;
+    if let Err(e) = next::run(&next) {
+        let why = names_the_input(e, &[&log, &cal]);
+        prop_assert!(
+            why.is_ok(),
+            "next: {why:?}\n{}\n{}",
+            String::from_utf8_lossy(&edited),
+            x.text()
+        );
+    }
+    Ok(())
+}
+
+/// A log the fuzzer found on CI: one reading repeated nine times, a spoiled row and a long row
+/// skipped, nine readings of the ellipsoid, at a scale a thousandth of its units' field.
+#[test]
+fn a_log_of_one_reading_repeated_and_nine_others() {
+    use Row::Reading;
+    let mut rows = vec![Reading(0), Row::Spoiled(0, 0, "1e308")];
+    rows.extend((0..8).map(|_| Reading(0)));
+    rows.extend([Row::Long(0), Reading(0)]);
+    rows.extend([124, 169, 366, 915, 779, 612, 551, 60].map(Reading));
+    let x = FuzzLog {
+        header: HEADERS[0],
+        separator: Sep::Semicolon,
+        decimal_comma: false,
+        rows,
+        scale: 1e6,
+        columns: None,
+        fit: "diagonal",
+        skip_bad: true,
+        reject: Some(3.0),
+        magnitude: None,
+        noise: None,
+        place: Some(Place {
+            site: "28.2,112.97",
+            date: "2013.0",
+            units: Some("nT"),
+            matched: false,
+        }),
+        edit: None,
+    };
+    if let Err(e) = calibrate_apply_next(&x) {
+        panic!("{e}");
     }
 }
 
