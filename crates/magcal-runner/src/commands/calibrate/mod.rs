@@ -264,7 +264,8 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         motor::record(&mut json, joint);
     }
     json.heading_vs_log = heading::check(&log, &fit);
-    one_field::judge(&mut json, &log, &fit, &settings);
+    // `fit` is the plain fit of the log's readings unless a vector fit or the motor's replaced it.
+    one_field::judge(&mut json, &log, &fit, &settings, vector.is_none() && joint.is_none());
     json.rejected = rejected;
     if let Some(g) = glitch_reason {
         json.usable = false;

@@ -21,13 +21,20 @@ use crate::log::source::Log;
 /// Searches `log` for a change of the field (where it has times) under `fit`, records it in
 /// `json`, and makes the calibration unusable where the field changes or where its heading
 /// against the log's attitudes is worse than the raw readings' (`json.heading_vs_log` must be
-/// filled).
-pub fn judge(json: &mut CalibrationJson, log: &Log, fit: &LogFit, settings: &FitSettings) {
+/// filled). `plain`: `fit` is the fit of `log`'s readings under `settings` (no vector fit or
+/// motor interference replaced it).
+pub fn judge(json: &mut CalibrationJson, log: &Log, fit: &LogFit, settings: &FitSettings, plain: bool) {
     // Brief passes are found first, and the search of changes that last runs without them: a
     // pass of a tenth of a second is a block of a second far off the field.
     let found = fit.identifiable.then(|| brief_passes(log, fit)).flatten();
     if let Some(times) = &log.times {
-        json.field_change = Some(field_change(&log.readings, times, fit, settings, found.as_ref()));
+        json.field_change = Some(field_change(
+            &log.readings,
+            times,
+            (fit, plain),
+            settings,
+            found.as_ref(),
+        ));
     }
     if let Some(f) = json.field_change.as_ref().filter(|f| f.changed) {
         json.usable = false;
@@ -279,7 +286,7 @@ fn largest_shift(fit: &LogFit, refit: &LogFit) -> Result<(f64, String), String> 
 fn field_change(
     readings: &[Vec3],
     times: &[f64],
-    fit: &LogFit,
+    (fit, plain): (&LogFit, bool),
     settings: &FitSettings,
     passes: Option<&Passes>,
 ) -> FieldChangeJson {
@@ -326,8 +333,17 @@ fn field_change(
     };
     // Fitted to a unit field and taken to its mean radius, as the fit of a whole log: the
     // magnitudes come out in the log's units.
+    // Where the piece is the whole log and `fit` its plain fit under these settings, not made
+    // unidentifiable by trials, fitting its model again would only repeat that fit (on a log
+    // whose profile takes seconds, half of calibrate's time).
+    let repeat = plain
+        && fit.check.is_none()
+        && settings.truncation.is_none()
+        && piece.first == 0
+        && piece.readings == readings.len();
     let settled = [fit.model, FitModel::Offset]
         .into_iter()
+        .filter(|&m| !(repeat && m == fit.model))
         .filter_map(|m| log_fit::fit_with(part, 1.0, m, &settings).ok())
         .filter(|f| f.identifiable)
         .find_map(|f| f.at_magnitude(f.mean_radius()).ok());
