@@ -815,7 +815,9 @@ mod tests {
         // the first and last 30 s) with AR(1) noise: no change in any at 1 % noise correlated
         // over 3 s, nor at 3 % correlated over 1 s (`operating_points` measures more).
         for noise in [(0.01, 3.0), (0.03, 1.0)] {
-            let alarms = (0..200)
+            use rayon::prelude::*;
+            let alarms = (0..200u64)
+                .into_par_iter()
                 .filter(|k| {
                     let mut rng = stream_rng(0xF1E22, *k);
                     let t = times(170.0);

@@ -806,44 +806,67 @@ mod tests {
         } else {
             K
         };
+        use rayon::prelude::*;
+        // Per flight: (worst |z|, intervals holding the truth, intervals, squared bias errors
+        // along the track and at one origin, rejected), flights in parallel, summed in order.
+        let per_flight: Vec<(f64, usize, usize, f64, f64, usize)> = (0..seeds)
+            .into_par_iter()
+            .map(|seed| {
+                let (mut worst, mut held, mut n) = (0.0_f64, 0, 0);
+                let f = flown(seed, &k, O, D);
+                let fit_with = |fields: &[Vec3], model| {
+                    fit_track(
+                        &f.readings,
+                        &f.attitudes,
+                        fields,
+                        Some(&f.currents),
+                        model,
+                        crate::log_fit::Order::Time,
+                    )
+                    .unwrap()
+                };
+                let fit = fit_with(&f.along, model);
+                assert!(fit.identifiable, "{model:?} {seed}: {}", fit.verdict);
+                let (se, q) = (fit.std_error.unwrap(), fit.quantile95.unwrap());
+                let (motor, std_motor) = (fit.motor.unwrap(), fit.std_motor.unwrap());
+                let mut pairs: Vec<(f64, f64)> = (0..3)
+                    .flat_map(|i| [(fit.bias[i] - O[i], se.bias[i]), (motor[i] - D[i], std_motor[i])])
+                    .collect();
+                if model == VectorModel::Diagonal {
+                    pairs.extend((0..3).map(|i| (fit.k[i][i] - K[i][i], se.k[i][i])));
+                }
+                for (e, s) in pairs {
+                    worst = worst.max((e / s).abs());
+                    held += usize::from(e.abs() <= q * s);
+                    n += 1;
+                }
+                let rejected = if model == VectorModel::Full {
+                    0
+                } else {
+                    let full = fit_with(&f.along, VectorModel::Full);
+                    usize::from(lack_of_fit(&fit, &full).unwrap().2 < crate::log_fit::LACK_OF_FIT_LEVEL)
+                };
+                let one = fit_with(&f.origin, model);
+                (
+                    worst,
+                    held,
+                    n,
+                    (0..3).map(|i| (fit.bias[i] - O[i]).powi(2)).sum::<f64>(),
+                    (0..3).map(|i| (one.bias[i] - O[i]).powi(2)).sum::<f64>(),
+                    rejected,
+                )
+            })
+            .collect();
         let (mut worst, mut held, mut n) = (0.0_f64, 0, 0);
         let (mut se_track, mut se_origin) = (0.0, 0.0);
         let mut rejected = 0;
-        for seed in 0..seeds {
-            let f = flown(seed, &k, O, D);
-            let fit_with = |fields: &[Vec3], model| {
-                fit_track(
-                    &f.readings,
-                    &f.attitudes,
-                    fields,
-                    Some(&f.currents),
-                    model,
-                    crate::log_fit::Order::Time,
-                )
-                .unwrap()
-            };
-            let fit = fit_with(&f.along, model);
-            assert!(fit.identifiable, "{model:?} {seed}: {}", fit.verdict);
-            let (se, q) = (fit.std_error.unwrap(), fit.quantile95.unwrap());
-            let (motor, std_motor) = (fit.motor.unwrap(), fit.std_motor.unwrap());
-            let mut pairs: Vec<(f64, f64)> = (0..3)
-                .flat_map(|i| [(fit.bias[i] - O[i], se.bias[i]), (motor[i] - D[i], std_motor[i])])
-                .collect();
-            if model == VectorModel::Diagonal {
-                pairs.extend((0..3).map(|i| (fit.k[i][i] - K[i][i], se.k[i][i])));
-            }
-            for (e, s) in pairs {
-                worst = worst.max((e / s).abs());
-                held += usize::from(e.abs() <= q * s);
-                n += 1;
-            }
-            if model != VectorModel::Full {
-                let full = fit_with(&f.along, VectorModel::Full);
-                rejected += usize::from(lack_of_fit(&fit, &full).unwrap().2 < crate::log_fit::LACK_OF_FIT_LEVEL);
-            }
-            let one = fit_with(&f.origin, model);
-            se_track += (0..3).map(|i| (fit.bias[i] - O[i]).powi(2)).sum::<f64>();
-            se_origin += (0..3).map(|i| (one.bias[i] - O[i]).powi(2)).sum::<f64>();
+        for (w, h, c, t, o, r) in per_flight {
+            worst = worst.max(w);
+            held += h;
+            n += c;
+            se_track += t;
+            se_origin += o;
+            rejected += r;
         }
         let rms = |x: f64| (x / (3 * seeds) as f64).sqrt();
         (
