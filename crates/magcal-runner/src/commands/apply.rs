@@ -152,6 +152,14 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     if let Some(note) = source::filter_note(&input.filter, filtered) {
         to_stderr!("magcal: {}: {note}", args.log.display());
     }
+    notes(args, &cal, &shown, radius.ratio());
+    Ok(())
+}
+
+/// What a reader of `apply`'s output should know of the calibration `cal` (named `shown`): the
+/// frame of a vector calibration's readings, a fit marked not identifiable, and a log whose median
+/// calibrated radius is `ratio` times the calibration's magnitude far from 1.
+fn notes(args: &ApplyArgs, cal: &CalibrationJson, shown: &str, ratio: f64) {
     if let Some(a) = &cal.alignment {
         to_stderr!(
             "magcal: note: {shown} carries an alignment (a vector calibration, misalignment {:.3} deg): {}",
@@ -167,10 +175,9 @@ fn apply_inner(args: &ApplyArgs) -> Result<()> {
     if !cal.identifiable {
         to_stderr!("magcal: warning: {shown} is marked not identifiable: {}", cal.verdict);
     }
-    if let Some(why) = cal.radius_mismatch(radius.ratio()) {
+    if let Some(why) = cal.radius_mismatch(ratio) {
         to_stderr!("magcal: warning: {}: {why}", args.log.display());
     }
-    Ok(())
 }
 
 /// The log at `path` read whole with `input` (its columns those of the calibration `cal`, as
