@@ -464,6 +464,18 @@ fn units_nt(u: &str) -> f64 {
     }
 }
 
+impl Place {
+    /// The site and date of [P1] in nT, the log at another scale than the field's.
+    fn nt_not_matched() -> Self {
+        Place {
+            site: "28.2,112.97",
+            date: "2013.0",
+            units: Some("nT"),
+            matched: false,
+        }
+    }
+}
+
 impl FuzzLog {
     /// The scale of the readings: the field in the units given (`matched`), or in others.
     fn scale(&self) -> f64 {
@@ -1095,12 +1107,7 @@ fn a_log_of_one_reading_repeated_and_nine_others() {
         reject: Some(3.0),
         magnitude: None,
         noise: None,
-        place: Some(Place {
-            site: "28.2,112.97",
-            date: "2013.0",
-            units: Some("nT"),
-            matched: false,
-        }),
+        place: Some(Place::nt_not_matched()),
         edit: None,
     };
     if let Err(e) = calibrate_apply_next(&x) {
@@ -1270,12 +1277,7 @@ fn rejection_with_no_spread_is_no_truncation() {
         reject: Some(3.0),
         magnitude: None,
         noise: None,
-        place: Some(Place {
-            site: "28.2,112.97",
-            date: "2013.0",
-            units: Some("nT"),
-            matched: false,
-        }),
+        place: Some(Place::nt_not_matched()),
         edit: None,
     };
     let argv = x.calibrate_argv(Path::new("log.csv"), Path::new("cal"));
