@@ -158,7 +158,7 @@ fn log_fit(c: &mut Criterion) {
 
 /// The rotation of Wahba's problem on a 3x3 attitude profile matrix: faer's SVD (Markley's
 /// solution) against the fixed-size q-method of [`small::wahba_rotation`]; and a whole
-/// alignment of 50,000 readings with reference attitudes (`reference::align`, 24 starts).
+/// alignment of 50,000 readings with reference attitudes (`reference::align`, six starts).
 fn wahba(c: &mut Criterion) {
     let w = [[0.3, -1.2, 0.4], [0.9, 0.1, -0.7], [-0.2, 0.5, 1.1]];
     c.bench_function("wahba/faer_svd", |b| {

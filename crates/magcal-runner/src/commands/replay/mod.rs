@@ -20,7 +20,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use magcal_core::replay::{CoverageMap, Realised, body_of_paper, orient, realise, window_directions, windows};
+use magcal_core::replay::{
+    CoverageMap, Realised, WindowIndex, body_of_paper, orient, realise, window_directions, windows,
+};
+use magcal_core::reference::Rotations;
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::small::{Mat3, mat_vec, norm, scale};
 
@@ -204,13 +207,15 @@ fn replay(
     let starts = windows(n, prepared.times.as_deref(), hold);
     let directions = window_directions(&prepared.directions, hold);
     let map = coverage(args, &starts, &directions);
-    let (realised, turned_deg) = realise_designs(args, scenario, &built.designs, map.as_ref(), &starts, &directions);
+    let index = WindowIndex::new(&starts, &directions);
+    let (realised, turned_deg) = realise_designs(args, scenario, &built.designs, map.as_ref(), &index);
     let valid: Vec<usize> = starts.iter().flatten().copied().collect();
     let measured = prepare::held_error(&prepared, &valid, hold);
     let white = prepared.noise / (hold as f64).sqrt();
     let held_noise = measured.map_or(white, |m| m.max(white));
     let step = n.div_ceil(args.score_readings as usize).max(1);
     let scoring: Vec<usize> = (0..n).step_by(step).collect();
+    let rotations = Rotations::new(prepared.attitudes.clone()).ok();
     let plan = trials::Plan {
         log: &prepared,
         models: &args.models,
@@ -218,14 +223,14 @@ fn replay(
         held_noise,
         two_step: &scenario.calibration,
         scoring: &scoring,
+        rotations: rotations.as_ref(),
         seed: scenario.seed,
     };
     let redraw = trials::Redraw {
         bounds: &scenario.bounds,
         field: &scenario.field,
         map: map.as_ref(),
-        starts: &starts,
-        directions: &directions,
+        index: &index,
         within_deg: args.within_deg,
         candidates: args.candidates as usize,
     };
@@ -302,8 +307,7 @@ fn realise_designs(
     scenario: &Scenario,
     designs: &[BuiltDesign],
     map: Option<&CoverageMap>,
-    starts: &[Option<usize>],
-    directions: &[Option<magcal_core::Vec3>],
+    index: &WindowIndex,
 ) -> (Vec<Vec<Realised>>, Vec<f64>) {
     let (realised, turned_deg): (Vec<Vec<Realised>>, Vec<f64>) = designs
         .iter()
@@ -322,13 +326,7 @@ fn realise_designs(
             let points = targets
                 .iter()
                 .map(|t| {
-                    realise(
-                        mat_vec(&turn, *t),
-                        starts,
-                        directions,
-                        args.within_deg,
-                        args.candidates as usize,
-                    )
+                    realise(mat_vec(&turn, *t), index, args.within_deg, args.candidates as usize)
                 })
                 .collect();
             (points, prepare::rotation_angle_deg(&turn))

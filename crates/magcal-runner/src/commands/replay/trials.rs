@@ -2,8 +2,8 @@
 //! every model calibrated from the same draw (paired), each calibration scored on the log's other
 //! readings against the reference attitudes.
 
-use magcal_core::reference::{AlignSettings, align, align_fixed};
-use magcal_core::replay::{CoverageMap, Realised, body_of_paper, held, orient, realise};
+use magcal_core::reference::{AlignSettings, Rotations, align, align_checked, align_fixed, align_fixed_checked};
+use magcal_core::replay::{CoverageMap, Realised, WindowIndex, body_of_paper, held, orient, realise};
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::small::{Mat3, mat_vec, norm, scale};
 use magcal_core::{AttitudeBox, ReferenceField};
@@ -82,8 +82,8 @@ pub struct Redraw<'a> {
     pub field: &'a ReferenceField,
     /// The log's coverage, to turn the draw to (`--orient fit`).
     pub map: Option<&'a CoverageMap>,
-    pub starts: &'a [Option<usize>],
-    pub directions: &'a [Option<Vec3>],
+    /// The log's windows by direction.
+    pub index: &'a WindowIndex,
     pub within_deg: f64,
     pub candidates: usize,
 }
@@ -107,13 +107,7 @@ impl Redraw<'_> {
             let mut t = t;
             let mut tries = 0;
             loop {
-                let r = realise(
-                    mat_vec(&turn, t),
-                    self.starts,
-                    self.directions,
-                    self.within_deg,
-                    self.candidates,
-                );
+                let r = realise(mat_vec(&turn, t), self.index, self.within_deg, self.candidates);
                 if !r.is_empty() {
                     points.push(r);
                     break;
@@ -140,7 +134,18 @@ pub struct Plan<'a> {
     /// The readings every calibration is scored on (indices into the log), before the trial's
     /// own windows are taken out.
     pub scoring: &'a [usize],
+    /// The log's attitudes checked once to be rotations (`None` where one is not: then every
+    /// alignment checks its own and refuses).
+    pub rotations: Option<&'a Rotations>,
     pub seed: u64,
+}
+
+/// The attitudes of the readings a calibration is scored on.
+pub enum ScoringAttitudes {
+    /// Checked to be rotations.
+    Checked(Rotations),
+    /// Not checked (some attitude of the log is not a rotation).
+    Unchecked(Vec<Mat3>),
 }
 
 impl Plan<'_> {
@@ -193,6 +198,7 @@ impl Plan<'_> {
             .copied()
             .filter(|&i| !starts.iter().any(|&s| (s..s + self.hold).contains(&i)))
             .collect();
+        let scoring_attitudes = self.scoring_attitudes(&scoring);
         let scored = self
             .models
             .iter()
@@ -207,14 +213,28 @@ impl Plan<'_> {
                         self.two_step,
                     ),
                     &scoring,
+                    &scoring_attitudes,
                 )
             })
             .collect();
         Trial { drawn_max_deg, scored }
     }
 
-    /// A calibration scored on the readings `scoring`.
-    pub fn scored(&self, fitted: Result<Fitted, CalibrationStatus>, scoring: &[usize]) -> Scored {
+    /// The attitudes of the readings `scoring`, checked where the log's are.
+    fn scoring_attitudes(&self, scoring: &[usize]) -> ScoringAttitudes {
+        match self.rotations {
+            Some(r) => ScoringAttitudes::Checked(r.select(scoring)),
+            None => ScoringAttitudes::Unchecked(scoring.iter().map(|&i| self.log.attitudes[i]).collect()),
+        }
+    }
+
+    /// A calibration scored on the readings `scoring`, whose attitudes are `attitudes`.
+    pub fn scored(
+        &self,
+        fitted: Result<Fitted, CalibrationStatus>,
+        scoring: &[usize],
+        attitudes: &ScoringAttitudes,
+    ) -> Scored {
         let fitted = match fitted {
             Ok(f) => f,
             Err(status) => {
@@ -228,19 +248,28 @@ impl Plan<'_> {
             }
         };
         let calibrated: Vec<Vec3> = scoring.iter().map(|&i| fitted.apply(self.log.readings[i])).collect();
-        let attitudes: Vec<_> = scoring.iter().map(|&i| self.log.attitudes[i]).collect();
         let figures_of = |a: magcal_core::reference::Alignment| Figures {
             heading_rms: a.summary.heading_rms_deg,
             heading_p95: a.summary.heading_p95_deg,
             heading_max: a.summary.heading_max_deg,
             direction_rms: a.summary.direction_rms_deg,
         };
-        let figures = align(&calibrated, &attitudes, &AlignSettings::default())
-            .ok()
-            .map(figures_of);
+        let settings = AlignSettings::default();
+        let figures = match attitudes {
+            ScoringAttitudes::Checked(a) => align_checked(&calibrated, a, &settings),
+            ScoringAttitudes::Unchecked(a) => align(&calibrated, a, &settings),
+        }
+        .ok()
+        .map(figures_of);
         let held = fitted
             .alignment
-            .and_then(|q| align_fixed(&calibrated, &attitudes, &q).ok())
+            .and_then(|q| {
+                match attitudes {
+                    ScoringAttitudes::Checked(a) => align_fixed_checked(&calibrated, a, &q),
+                    ScoringAttitudes::Unchecked(a) => align_fixed(&calibrated, a, &q),
+                }
+                .ok()
+            })
             .map(figures_of);
         Scored {
             status: fitted.status,
@@ -258,6 +287,7 @@ impl Plan<'_> {
     /// Every model calibrated from the whole log (each reading on its own), scored on the
     /// scoring readings: what a replayed design is measured against.
     pub fn whole_log(&self) -> Vec<Scored> {
+        let attitudes = self.scoring_attitudes(self.scoring);
         self.models
             .iter()
             .map(|&m| {
@@ -271,6 +301,7 @@ impl Plan<'_> {
                         self.two_step,
                     ),
                     self.scoring,
+                    &attitudes,
                 )
             })
             .collect()
