@@ -31,6 +31,7 @@
 //! would see it.
 
 use rand::Rng;
+use rayon::prelude::*;
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::small::{Mat3, Vec3, add, dot, mat_mul, mat_vec, norm, scale};
@@ -222,6 +223,7 @@ impl CoverageMap {
     /// dot product per cell and direction).
     pub fn new(directions: &[Vec3]) -> Self {
         let distance_deg = (0..BANDS * 2 * BANDS)
+            .into_par_iter()
             .map(|cell| {
                 let c = cell_centre(cell);
                 let best = directions.iter().map(|d| dot(*d, c)).fold(-1.0f64, f64::max);

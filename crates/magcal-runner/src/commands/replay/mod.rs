@@ -23,6 +23,7 @@ use clap::Args;
 use magcal_core::replay::{
     CoverageMap, Realised, WindowIndex, body_of_paper, orient, realise, window_directions, windows,
 };
+use rayon::prelude::*;
 use magcal_core::reference::Rotations;
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::small::{Mat3, mat_vec, norm, scale};
@@ -310,7 +311,7 @@ fn realise_designs(
     index: &WindowIndex,
 ) -> (Vec<Vec<Realised>>, Vec<f64>) {
     let (realised, turned_deg): (Vec<Vec<Realised>>, Vec<f64>) = designs
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(d, design)| {
             let targets: Vec<_> = scenario
