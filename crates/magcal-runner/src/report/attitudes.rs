@@ -86,23 +86,22 @@ fn scatter(
         }
         let xs: Vec<f64> = points.iter().map(|(_, a)| drawn(a[x])).collect();
         let ys: Vec<f64> = points.iter().map(|(_, a)| drawn(a[1])).collect();
-        let text: Vec<String> = points
-            .iter()
-            .map(|(line, a)| {
-                format!(
-                    "line {}: roll {}, pitch {}, heading {}",
-                    line,
-                    significant(a[0], 3),
-                    significant(a[1], 3),
-                    significant(a[2], 4)
-                )
-            })
-            .collect();
+        // The hover names the line and the angle the axes do not show: per point only the
+        // numbers, the words once in the template (a third of the page's bytes otherwise).
+        let lines: Vec<usize> = points.iter().map(|(line, _)| *line).collect();
+        let (other, template) = if x == 0 {
+            (2, "line %{customdata}: roll %{x}, pitch %{y}, heading %{text}<extra></extra>")
+        } else {
+            (0, "line %{customdata}: roll %{text}, pitch %{y}, heading %{x}<extra></extra>")
+        };
+        let text: Vec<String> = points.iter().map(|(_, a)| significant(a[other], 4)).collect();
         plot.add_trace(
             Scatter::new(xs, ys)
                 .mode(Mode::Markers)
                 .name(name)
+                .custom_data(lines)
                 .text_array(text)
+                .hover_template(template)
                 .marker(Marker::new().size(3).color(colour).opacity(0.6)),
         );
     }

@@ -18,8 +18,10 @@ use crate::log::calibration::{CalibrationJson, PassesJson, parse_calibration};
 use crate::output::log_rows::ResidualRow;
 use crate::output::manifest::{CalibrationManifest, verify};
 
-/// Readings drawn in each 3D figure at most: more add megabytes and nothing a person sees.
-pub const MAX_DRAWN: usize = 4000;
+/// Readings drawn in each 3D and attitude figure at most: more add megabytes and nothing a
+/// person sees (at 2,500 the page of BROAD trial 02's calibration is 1.9 MB, 1.49 MB of it
+/// plotly.js).
+pub const MAX_DRAWN: usize = 2500;
 
 /// The page of the calibration set in `dir`.
 ///
@@ -381,15 +383,20 @@ pub(super) fn unit_sphere(lat: usize, lon: usize) -> (Vec<[f64; 3]>, Vec<[usize;
     (points, triangles)
 }
 
+/// The hover of a reading drawn in 3D: its line of the log and where it is (the line per point
+/// as a number, the words once).
+const LINE_HOVER: &str = "line %{customdata}<br>(%{x}, %{y}, %{z})<extra></extra>";
+
 fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], units: &str) -> Plot {
     let pick = |f: fn(&ResidualRow) -> f64| rows.iter().map(|r| drawn(f(r))).collect::<Vec<f64>>();
-    let lines: Vec<String> = rows.iter().map(|r| format!("line {}", r.line)).collect();
+    let lines: Vec<usize> = rows.iter().map(|r| r.line).collect();
     let readings = Scatter3D::new(pick(|r| r.raw_x.0), pick(|r| r.raw_y.0), pick(|r| r.raw_z.0))
         .mode(Mode::Markers)
         .name("raw readings")
-        .text_array(lines)
+        .custom_data(lines)
+        .hover_template(LINE_HOVER)
         .marker(Marker::new().size(2).color("#1f77b4"));
-    let (unit, triangles) = unit_sphere(24, 48);
+    let (unit, triangles) = unit_sphere(16, 32);
     let ellipsoid: Vec<[f64; 3]> = unit
         .iter()
         .map(|u| {
@@ -410,11 +417,12 @@ fn raw_plot(cal: &CalibrationJson, rows: &[ResidualRow], units: &str) -> Plot {
 
 fn calibrated_plot(cal: &CalibrationJson, rows: &[ResidualRow], units: &str) -> Plot {
     let pick = |f: fn(&ResidualRow) -> f64| rows.iter().map(|r| drawn(f(r))).collect::<Vec<f64>>();
-    let lines: Vec<String> = rows.iter().map(|r| format!("line {}", r.line)).collect();
+    let lines: Vec<usize> = rows.iter().map(|r| r.line).collect();
     let readings = Scatter3D::new(pick(|r| r.x.0), pick(|r| r.y.0), pick(|r| r.z.0))
         .mode(Mode::Markers)
         .name("calibrated readings")
-        .text_array(lines)
+        .custom_data(lines)
+        .hover_template(LINE_HOVER)
         .marker(
             Marker::new()
                 .size(2)

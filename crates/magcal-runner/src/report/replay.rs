@@ -457,7 +457,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
             non_positive += usize::from(v <= 0.0);
             x.push(row.design.clone());
             y.push(drawn(v));
-            text.push(format!("{} trial {}", row.design, row.trial));
+            text.push(format!("trial {}", row.trial));
             *counts.entry(row.design.clone()).or_insert(0usize) += 1;
             values_all.push(v);
         }
@@ -480,6 +480,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
             .jitter(0.4)
             .point_pos(0.0)
             .hover_on(HoverOn::BoxesAndPoints)
+            // The hover shows the design (x) itself: the text names only the trial.
             .text_array(text)
             .marker(Marker::new().size(3).color(colour).opacity(0.6))
             .line(Line::new().color(colour).width(1.2));

@@ -28,14 +28,14 @@ pub fn region_colour(count: usize) -> &'static str {
 
 /// The unit sphere cut into MotionCal's 100 regions, each coloured by its count of readings, in
 /// a scene with equal scales and no legend: one mesh (one WebGL draw, not a hundred), each region
-/// a patch of 4 x 6 cells of its own vertices, every triangle coloured by the region's count and
+/// a patch of 3 x 4 cells of its own vertices, every triangle coloured by the region's count and
 /// every vertex hovering its region.
 pub fn coverage_plot(counts: &[usize; 100]) -> Plot {
-    let (lats, lons) = (4usize, 6usize);
+    let (lats, lons) = (3usize, 4usize);
     let mut points = Vec::new();
     let mut triangles = Vec::new();
     let mut colours = Vec::new();
-    let mut hover = Vec::new();
+    let (mut regions, mut readings) = (Vec::new(), Vec::new());
     for (index, &count) in counts.iter().enumerate() {
         let region = motioncal_region(index);
         let first = points.len();
@@ -46,7 +46,8 @@ pub fn coverage_plot(counts: &[usize; 100]) -> Plot {
                 let t = region.turn[0] + (region.turn[1] - region.turn[0]) * b as f64 / lons as f64;
                 let phi = std::f64::consts::TAU * t;
                 points.push([c * phi.cos(), c * phi.sin(), s]);
-                hover.push(format!("region {index}: {count} readings"));
+                regions.push(index);
+                readings.push(count);
             }
         }
         for a in 0..lats {
@@ -60,8 +61,10 @@ pub fn coverage_plot(counts: &[usize; 100]) -> Plot {
     }
     let patches = mesh(&points, &triangles)
         .face_color(colours)
-        .hover_text_array(hover)
-        .hover_info(plotly::common::HoverInfo::Text)
+        // Per vertex its region and count as numbers, the words once.
+        .custom_data(regions)
+        .text_array(readings.iter().map(ToString::to_string).collect())
+        .hover_template("region %{customdata}: %{text} readings<extra></extra>")
         .name("regions")
         .flat_shading(true);
     let mut plot = Plot::new();
@@ -101,10 +104,17 @@ mod tests {
         counts[99] = 1;
         let json = coverage_plot(&counts).to_json();
         assert_eq!(json.matches("\"type\":\"mesh3d\"").count(), 1);
-        // 35 vertices and 48 triangles a region.
-        assert_eq!(json.matches("region 0: 0 readings").count(), 35);
-        assert_eq!(json.matches(region_colour(0)).count(), 48);
-        assert_eq!(json.matches(region_colour(1)).count(), 48);
-        assert_eq!(json.matches(region_colour(3)).count(), 98 * 48);
+        // 20 vertices and 24 triangles a region; each vertex hovers its region and count.
+        let plot: serde_json::Value = serde_json::from_str(&json).unwrap();
+        let trace = &plot["data"][0];
+        let regions = trace["customdata"].as_array().unwrap();
+        let readings = trace["text"].as_array().unwrap();
+        assert_eq!((regions.len(), readings.len()), (100 * 20, 100 * 20));
+        assert!((0..20).all(|v| regions[v] == 0 && readings[v] == "0"));
+        assert!((0..20).all(|v| regions[99 * 20 + v] == 99 && readings[99 * 20 + v] == "1"));
+        assert_eq!(trace["hovertemplate"], "region %{customdata}: %{text} readings<extra></extra>");
+        assert_eq!(json.matches(region_colour(0)).count(), 24);
+        assert_eq!(json.matches(region_colour(1)).count(), 24);
+        assert_eq!(json.matches(region_colour(3)).count(), 98 * 24);
     }
 }

@@ -14,10 +14,6 @@ use crate::common::{BROAD_ARGS, broad_02_moving, data, magcal};
 /// Largest page, bytes (the bound): plotly.js's 1.49 MB and 0.5 MB of the page's own.
 pub const MAX_PAGE_BYTES: u64 = 2_000_000;
 
-/// Largest calibration page of a 12,000-reading log with attitudes, bytes: its four figures of
-/// 4,000 readings each add 1.2 MB to plotly.js (2.71 MB in all).
-const MAX_LOG_PAGE_BYTES: u64 = 3_000_000;
-
 /// The trace types of the page at `path`'s figures (their JSON blocks), each of which the
 /// plotly.js it embeds must register, and which tests assert it does: a figure of a type the bundle
 /// lacks would draw nothing, without an error. Returns the page's HTML.
@@ -198,7 +194,7 @@ fn a_calibration_page_draws_its_views_offline_and_shows_the_json_numbers() {
     assert_eq!(fit[0][1].1, Some(num(&cal["samples"])));
     let verdict = page.eval("document.querySelector('#verdict').innerText");
     assert!(verdict.as_str().unwrap().starts_with("USABLE"), "{verdict}");
-    // The regions drawn are the ones the calibration's MotionCal figure counts: each region's 48
+    // The regions drawn are the ones the calibration's MotionCal figure counts: each region's 24
     // triangles take its colour, and the weights of 1, 0.2 and 0.01 that MotionCal gives regions
     // of 0, 1 and 2 readings add up, over the colours drawn, to the JSON's gap percentage.
     let colours = page.eval("document.querySelector('#coverage-box .plotly-graph-div').data[0].facecolor");
@@ -208,9 +204,9 @@ fn a_calibration_page_draws_its_views_offline_and_shows_the_json_numbers() {
         .iter()
         .map(|c| c.as_str().unwrap())
         .collect();
-    assert_eq!(colours.len(), 100 * 48);
+    assert_eq!(colours.len(), 100 * 24);
     let gaps: f64 = colours
-        .chunks(48)
+        .chunks(24)
         .map(|region| {
             assert!(region.iter().all(|c| *c == region[0]), "one colour per region");
             let weight = [0.0, 1.0, 0.2, 0.01]
@@ -234,7 +230,7 @@ fn a_calibration_page_draws_its_views_offline_and_shows_the_json_numbers() {
 }
 
 #[test]
-fn the_page_of_a_12000_reading_log_stays_under_3_mb_and_says_what_it_thinned() {
+fn the_page_of_a_12000_reading_log_stays_under_2_mb_and_says_what_it_thinned() {
     let tmp = TempDir::new().unwrap();
     let Some(moving) = broad_02_moving(tmp.path()) else {
         return;
@@ -257,10 +253,13 @@ fn the_page_of_a_12000_reading_log_stays_under_3_mb_and_says_what_it_thinned() {
     report(&set, &page_path);
     assert_traces_in_bundle(&page_path);
     let bytes = fs::metadata(&page_path).unwrap().len();
-    assert!(bytes < MAX_LOG_PAGE_BYTES, "{bytes} bytes");
+    assert!(bytes < MAX_PAGE_BYTES, "{bytes} bytes");
     let html = fs::read_to_string(&page_path).unwrap();
     assert!(
-        html.contains("4000 of the 12000 readings drawn"),
+        html.contains(&format!(
+            "{} of the 12000 readings drawn",
+            magcal_runner::report::calibration::MAX_DRAWN
+        )),
         "the thinning is said"
     );
     let Some(browser) = chromium() else { return };
