@@ -293,7 +293,11 @@ pub fn align_checked(
 }
 
 /// [`align`] after its checks.
-fn fit_and_measure(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) -> Result<Alignment, ReferenceError> {
+fn fit_and_measure(
+    calibrated: &[Vec3],
+    attitudes: &[Mat3],
+    settings: &AlignSettings,
+) -> Result<Alignment, ReferenceError> {
     let moments = Moments::of(calibrated, attitudes);
     let mut best: Option<(Mat3, f64, usize, usize)> = None;
     let mut starts = relaxed_starts(&moments, RELAXED_STARTS);
@@ -593,9 +597,8 @@ const RELAXED_STARTS: usize = 3;
 /// start lies near the maximum. Each eigenvector is taken with both signs (`W(-a)` gives
 /// another rotation). Empty where `G` gives no rotation (every `T_k` zero).
 fn relaxed_starts(moments: &Moments, count: usize) -> Vec<Mat3> {
-    let g: Mat3 = std::array::from_fn(|k| {
-        std::array::from_fn(|l| (0..3).map(|i| dot(moments.t[k][i], moments.t[l][i])).sum())
-    });
+    let g: Mat3 =
+        std::array::from_fn(|k| std::array::from_fn(|l| (0..3).map(|i| dot(moments.t[k][i], moments.t[l][i])).sum()));
     let Some((_, vectors)) = symmetric_eigen(&g) else {
         return Vec::new();
     };
@@ -929,10 +932,8 @@ mod tests {
                 })
                 .collect();
             let moments = Moments::of(&calibrated, &attitudes);
-            let axes = axis_rotations().collect::<Vec<_>>();
-            let from_axes: Vec<f64> = axes
-                .iter()
-                .filter_map(|&s| climb(&moments, s, &settings).ok().map(|c| c.1))
+            let from_axes: Vec<f64> = axis_rotations()
+                .filter_map(|s| climb(&moments, s, &settings).ok().map(|c| c.1))
                 .collect();
             let top = from_axes.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             // A rival: some axis start ends on a lower maximum.
@@ -940,7 +941,6 @@ mod tests {
             let relaxed = best(&moments, relaxed_starts(&moments, RELAXED_STARTS));
             worst = worst.max((top - relaxed) / top);
             assert!(relaxed >= top * (1.0 - 1e-12), "seed {seed}: {relaxed} {top}");
-            assert_eq!(best(&moments, axes), top);
         }
         println!("largest shortfall {worst:e}; {rivals} of 400 logs with a rival maximum");
         assert!(rivals >= 300, "{rivals}");

@@ -31,8 +31,8 @@
 //! would see it.
 
 use rand::Rng;
-use rayon::prelude::*;
 use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
 
 use crate::small::{Mat3, Vec3, add, dot, mat_mul, mat_vec, norm, scale};
 
@@ -172,7 +172,7 @@ impl WindowIndex {
     fn band(&self, target: Vec3, within_deg: f64) -> std::ops::Range<usize> {
         let alpha = within_deg.to_radians();
         let length = dot(target, target);
-        if !(self.unit && (length - 1.0).abs() <= 1e-12 && alpha >= 1e-4 && alpha < std::f64::consts::PI) {
+        if !(self.unit && (length - 1.0).abs() <= 1e-12 && (1e-4..std::f64::consts::PI).contains(&alpha)) {
             return 0..self.z.len();
         }
         let polar = target[2].clamp(-1.0, 1.0).acos();
@@ -274,7 +274,8 @@ fn sector_of(y: f64, x: f64) -> usize {
     }
     let s = azimuth / std::f64::consts::TAU * SECTORS;
     let within = s - s.floor();
-    if within.is_nan() || within < SECTOR_MARGIN || within > 1.0 - SECTOR_MARGIN {
+    // A NaN azimuth is in no range: `atan2` decides it too.
+    if !(SECTOR_MARGIN..=1.0 - SECTOR_MARGIN).contains(&within) {
         return sector_by_atan2(y, x);
     }
     (s as usize).min(2 * BANDS - 1)
@@ -439,11 +440,23 @@ mod tests {
         // Every boundary, one ulp either side, and the axes with both zeros' signs.
         for k in 0..2 * BANDS {
             let a = k as f64 * std::f64::consts::TAU / (2 * BANDS) as f64;
-            for a in [a, f64::from_bits(a.to_bits() + 1), f64::from_bits(a.to_bits().saturating_sub(1))] {
+            for a in [
+                a,
+                f64::from_bits(a.to_bits() + 1),
+                f64::from_bits(a.to_bits().saturating_sub(1)),
+            ] {
                 check(a.sin(), a.cos());
             }
         }
-        for (y, x) in [(0.0, 1.0), (-0.0, 1.0), (0.0, -1.0), (-0.0, -1.0), (1.0, 0.0), (-1.0, -0.0), (0.0, 0.0)] {
+        for (y, x) in [
+            (0.0, 1.0),
+            (-0.0, 1.0),
+            (0.0, -1.0),
+            (-0.0, -1.0),
+            (1.0, 0.0),
+            (-1.0, -0.0),
+            (0.0, 0.0),
+        ] {
             check(y, x);
         }
         check(f64::NAN, 1.0);
@@ -544,7 +557,11 @@ mod tests {
         let mut scan_rng = crate::rng::stream_rng(12, 0);
         let mut found = 0;
         for k in 0..400 {
-            let target = if k % 10 == 0 { [0.0, 0.0, if k % 20 == 0 { 1.0 } else { -1.0 }] } else { unit() };
+            let target = if k % 10 == 0 {
+                [0.0, 0.0, if k % 20 == 0 { 1.0 } else { -1.0 }]
+            } else {
+                unit()
+            };
             let within = [1e-3, 0.5, 3.0, 10.0, 45.0, 89.9][k % 6];
             let at_most = scan_rng.random_range(1..200);
             let cos_within = f64::to_radians(within).cos();
@@ -559,7 +576,11 @@ mod tests {
             all.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
             all.truncate(at_most);
             let r = realise(target, &index, within, at_most);
-            assert_eq!(r.starts, all.iter().map(|a| a.1).collect::<Vec<_>>(), "target {target:?}, {within} deg");
+            assert_eq!(
+                r.starts,
+                all.iter().map(|a| a.1).collect::<Vec<_>>(),
+                "target {target:?}, {within} deg"
+            );
             found += r.starts.len();
         }
         assert!(found > 10_000, "{found}");

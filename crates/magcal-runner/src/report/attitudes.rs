@@ -90,9 +90,15 @@ fn scatter(
         // numbers, the words once in the template (a third of the page's bytes otherwise).
         let lines: Vec<usize> = points.iter().map(|(line, _)| *line).collect();
         let (other, template) = if x == 0 {
-            (2, "line %{customdata}: roll %{x}, pitch %{y}, heading %{text}<extra></extra>")
+            (
+                2,
+                "line %{customdata}: roll %{x}, pitch %{y}, heading %{text}<extra></extra>",
+            )
         } else {
-            (0, "line %{customdata}: roll %{text}, pitch %{y}, heading %{x}<extra></extra>")
+            (
+                0,
+                "line %{customdata}: roll %{text}, pitch %{y}, heading %{x}<extra></extra>",
+            )
         };
         let text: Vec<String> = points.iter().map(|(_, a)| significant(a[other], 4)).collect();
         plot.add_trace(

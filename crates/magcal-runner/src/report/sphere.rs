@@ -112,7 +112,10 @@ mod tests {
         assert_eq!((regions.len(), readings.len()), (100 * 20, 100 * 20));
         assert!((0..20).all(|v| regions[v] == 0 && readings[v] == "0"));
         assert!((0..20).all(|v| regions[99 * 20 + v] == 99 && readings[99 * 20 + v] == "1"));
-        assert_eq!(trace["hovertemplate"], "region %{customdata}: %{text} readings<extra></extra>");
+        assert_eq!(
+            trace["hovertemplate"],
+            "region %{customdata}: %{text} readings<extra></extra>"
+        );
         assert_eq!(json.matches(region_colour(0)).count(), 24);
         assert_eq!(json.matches(region_colour(1)).count(), 24);
         assert_eq!(json.matches(region_colour(3)).count(), 98 * 24);

@@ -20,13 +20,13 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use magcal_core::reference::Rotations;
 use magcal_core::replay::{
     CoverageMap, Realised, WindowIndex, body_of_paper, orient, realise, window_directions, windows,
 };
-use rayon::prelude::*;
-use magcal_core::reference::Rotations;
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::small::{Mat3, mat_vec, norm, scale};
+use rayon::prelude::*;
 
 pub use models::Model;
 pub use prepare::Truth;
@@ -235,41 +235,7 @@ fn replay(
         within_deg: args.within_deg,
         candidates: args.candidates as usize,
     };
-    let random = |design: &BuiltDesign| design.kind == DesignKind::Random && args.random == RandomArg::Redraw;
-    let total: usize = built
-        .designs
-        .iter()
-        .zip(&realised)
-        .filter(|(d, r)| random(d) || r.iter().all(|p| !p.is_empty()))
-        .count()
-        * scenario.trials;
-    let bar = bars_stage(bars, total);
-    let trials = built
-        .designs
-        .iter()
-        .zip(&realised)
-        .enumerate()
-        .map(|(d, (design, points))| {
-            let points = if random(design) {
-                trials::Points::Random {
-                    m: design.m(),
-                    redraw: &redraw,
-                }
-            } else if points.iter().any(Realised::is_empty) {
-                return Vec::new();
-            } else {
-                trials::Points::Fixed(
-                    points
-                        .iter()
-                        .zip(&design.readings)
-                        .flat_map(|(p, &k)| std::iter::repeat_n(p.clone(), k))
-                        .collect(),
-                )
-            };
-            plan.run(d, &points, scenario.trials, &bar)
-        })
-        .collect();
-    bar.finish_and_clear();
+    let trials = run_trials(args, scenario, &built.designs, &realised, &plan, &redraw, bars);
     let whole_log = plan.whole_log();
     Ok(Replay {
         designs: built.designs,
@@ -286,6 +252,50 @@ fn replay(
         prepared,
         trials_per_design: scenario.trials,
     })
+}
+
+/// Every design's trials, in design order: a random design drawn afresh in each trial (with
+/// `--random redraw`), a design with an attitude the log cannot realise none.
+fn run_trials(
+    args: &ReplayArgs,
+    scenario: &Scenario,
+    designs: &[BuiltDesign],
+    realised: &[Vec<Realised>],
+    plan: &trials::Plan,
+    redraw: &trials::Redraw,
+    bars: &crate::output::progress::Bars,
+) -> Vec<Vec<trials::Trial>> {
+    let random = |design: &BuiltDesign| design.kind == DesignKind::Random && args.random == RandomArg::Redraw;
+    let total: usize = designs
+        .iter()
+        .zip(realised)
+        .filter(|(d, r)| random(d) || r.iter().all(|p| !p.is_empty()))
+        .count()
+        * scenario.trials;
+    let bar = bars_stage(bars, total);
+    let trials = designs
+        .iter()
+        .zip(realised)
+        .enumerate()
+        .map(|(d, (design, points))| {
+            let points = if random(design) {
+                trials::Points::Random { m: design.m(), redraw }
+            } else if points.iter().any(Realised::is_empty) {
+                return Vec::new();
+            } else {
+                trials::Points::Fixed(
+                    points
+                        .iter()
+                        .zip(&design.readings)
+                        .flat_map(|(p, &k)| std::iter::repeat_n(p.clone(), k))
+                        .collect(),
+                )
+            };
+            plan.run(d, &points, scenario.trials, &bar)
+        })
+        .collect();
+    bar.finish_and_clear();
+    trials
 }
 
 /// The log's coverage of directions for `--orient fit` (at most 4000 windows' directions).
@@ -326,9 +336,7 @@ fn realise_designs(
             });
             let points = targets
                 .iter()
-                .map(|t| {
-                    realise(mat_vec(&turn, *t), index, args.within_deg, args.candidates as usize)
-                })
+                .map(|t| realise(mat_vec(&turn, *t), index, args.within_deg, args.candidates as usize))
                 .collect();
             (points, prepare::rotation_angle_deg(&turn))
         })
