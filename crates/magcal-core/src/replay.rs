@@ -250,7 +250,7 @@ fn cell_of(u: Vec3) -> usize {
 ///
 /// # Deviation from the obvious code
 /// [`sector_by_atan2`] costs a correctly rounded `atan2` (26 ns here), and `orient` looks up a
-/// cell millions of times per replay (`misfit`: a quarter of `replay`'s CPU on BROAD trial 02).
+/// cell millions of times per replay (`misfit_below`: a quarter of `replay`'s CPU on BROAD trial 02).
 /// The sector needs only the azimuth's integer part: a polynomial `atan` (error below 3e-7 rad,
 /// 1.1e-5 of a sector) gives it wherever the azimuth lies farther than [`SECTOR_MARGIN`] of a
 /// sector from a boundary, and [`sector_by_atan2`] decides the rest (about one lookup in 5,000).

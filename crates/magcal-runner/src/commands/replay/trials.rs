@@ -2,7 +2,9 @@
 //! every model calibrated from the same draw (paired), each calibration scored on the log's other
 //! readings against the reference attitudes.
 
-use magcal_core::reference::{AlignSettings, Rotations, align, align_checked, align_fixed, align_fixed_checked};
+use magcal_core::reference::{
+    AlignSettings, Alignment, ReferenceError, Rotations, align, align_checked, align_fixed, align_fixed_checked,
+};
 use magcal_core::replay::{CoverageMap, Realised, WindowIndex, body_of_paper, held, orient, realise};
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::small::{Mat3, mat_vec, norm, scale};
@@ -148,6 +150,25 @@ pub enum ScoringAttitudes {
     Unchecked(Vec<Mat3>),
 }
 
+impl ScoringAttitudes {
+    /// [`align`] of `calibrated` with these attitudes.
+    fn align(&self, calibrated: &[Vec3]) -> Result<Alignment, ReferenceError> {
+        let settings = AlignSettings::default();
+        match self {
+            Self::Checked(a) => align_checked(calibrated, a, &settings),
+            Self::Unchecked(a) => align(calibrated, a, &settings),
+        }
+    }
+
+    /// [`align_fixed`] of `calibrated` with these attitudes, the rotation held at `q`.
+    fn align_fixed(&self, calibrated: &[Vec3], q: &Mat3) -> Result<Alignment, ReferenceError> {
+        match self {
+            Self::Checked(a) => align_fixed_checked(calibrated, a, q),
+            Self::Unchecked(a) => align_fixed(calibrated, a, q),
+        }
+    }
+}
+
 impl Plan<'_> {
     /// `trials` draws of design `d`, whose attitudes `points` realise, in trial order.
     pub fn run(&self, d: usize, points: &Points, trials: usize, bar: &indicatif::ProgressBar) -> Vec<Trial> {
@@ -248,28 +269,16 @@ impl Plan<'_> {
             }
         };
         let calibrated: Vec<Vec3> = scoring.iter().map(|&i| fitted.apply(self.log.readings[i])).collect();
-        let figures_of = |a: magcal_core::reference::Alignment| Figures {
+        let figures_of = |a: Alignment| Figures {
             heading_rms: a.summary.heading_rms_deg,
             heading_p95: a.summary.heading_p95_deg,
             heading_max: a.summary.heading_max_deg,
             direction_rms: a.summary.direction_rms_deg,
         };
-        let settings = AlignSettings::default();
-        let figures = match attitudes {
-            ScoringAttitudes::Checked(a) => align_checked(&calibrated, a, &settings),
-            ScoringAttitudes::Unchecked(a) => align(&calibrated, a, &settings),
-        }
-        .ok()
-        .map(figures_of);
+        let figures = attitudes.align(&calibrated).ok().map(figures_of);
         let held = fitted
             .alignment
-            .and_then(|q| {
-                match attitudes {
-                    ScoringAttitudes::Checked(a) => align_fixed_checked(&calibrated, a, &q),
-                    ScoringAttitudes::Unchecked(a) => align_fixed(&calibrated, a, &q),
-                }
-                .ok()
-            })
+            .and_then(|q| attitudes.align_fixed(&calibrated, &q).ok())
             .map(figures_of);
         Scored {
             status: fitted.status,
