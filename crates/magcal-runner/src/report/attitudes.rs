@@ -86,19 +86,14 @@ fn scatter(
         }
         let xs: Vec<f64> = points.iter().map(|(_, a)| drawn(a[x])).collect();
         let ys: Vec<f64> = points.iter().map(|(_, a)| drawn(a[1])).collect();
-        // The hover names the line and the angle the axes do not show: per point only the
-        // numbers, the words once in the template (a third of the page's bytes otherwise).
+        // The hover names the line and the angle the axes do not show, and beside them the
+        // trace (inside or outside the box): per point only the numbers, the words once in the
+        // template (a third of the page's bytes otherwise).
         let lines: Vec<usize> = points.iter().map(|(line, _)| *line).collect();
         let (other, template) = if x == 0 {
-            (
-                2,
-                "line %{customdata}: roll %{x}, pitch %{y}, heading %{text}<extra></extra>",
-            )
+            (2, "line %{customdata}: roll %{x}, pitch %{y}, heading %{text}")
         } else {
-            (
-                0,
-                "line %{customdata}: roll %{text}, pitch %{y}, heading %{x}<extra></extra>",
-            )
+            (0, "line %{customdata}: roll %{text}, pitch %{y}, heading %{x}")
         };
         let text: Vec<String> = points.iter().map(|(_, a)| significant(a[other], 4)).collect();
         plot.add_trace(
