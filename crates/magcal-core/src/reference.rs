@@ -228,12 +228,23 @@ pub fn percentile(values: &[f64], p: f64) -> f64 {
 /// bugs).
 #[track_caller]
 pub fn align(calibrated: &[Vec3], attitudes: &[Mat3], settings: &AlignSettings) -> Result<Alignment, ReferenceError> {
+    align_in(calibrated, attitudes, settings, false)
+}
+
+/// [`align`], the attitudes' check skipped where `rotations_checked`.
+#[track_caller]
+fn align_in(
+    calibrated: &[Vec3],
+    attitudes: &[Mat3],
+    settings: &AlignSettings,
+    rotations_checked: bool,
+) -> Result<Alignment, ReferenceError> {
     assert_eq!(calibrated.len(), attitudes.len(), "one attitude per calibrated field");
     assert!(
         settings.tolerance.is_finite() && settings.tolerance > 0.0,
         "AlignSettings::tolerance must be positive and finite"
     );
-    validate(calibrated, attitudes, false)?;
+    validate(calibrated, attitudes, rotations_checked)?;
     fit_and_measure(calibrated, attitudes, settings)
 }
 
@@ -282,14 +293,7 @@ pub fn align_checked(
     attitudes: &Rotations,
     settings: &AlignSettings,
 ) -> Result<Alignment, ReferenceError> {
-    let attitudes = attitudes.as_slice();
-    assert_eq!(calibrated.len(), attitudes.len(), "one attitude per calibrated field");
-    assert!(
-        settings.tolerance.is_finite() && settings.tolerance > 0.0,
-        "AlignSettings::tolerance must be positive and finite"
-    );
-    validate(calibrated, attitudes, true)?;
-    fit_and_measure(calibrated, attitudes, settings)
+    align_in(calibrated, attitudes.as_slice(), settings, true)
 }
 
 /// [`align`] after its checks.
@@ -331,12 +335,23 @@ fn fit_and_measure(
 /// If the two slices differ in length (a caller bug).
 #[track_caller]
 pub fn align_fixed(calibrated: &[Vec3], attitudes: &[Mat3], rotation: &Mat3) -> Result<Alignment, ReferenceError> {
+    align_fixed_in(calibrated, attitudes, rotation, false)
+}
+
+/// [`align_fixed`], the attitudes' check skipped where `rotations_checked`.
+#[track_caller]
+fn align_fixed_in(
+    calibrated: &[Vec3],
+    attitudes: &[Mat3],
+    rotation: &Mat3,
+    rotations_checked: bool,
+) -> Result<Alignment, ReferenceError> {
     assert_eq!(calibrated.len(), attitudes.len(), "one attitude per calibrated field");
     let (deviation, determinant) = (orthonormality(rotation), det(rotation));
     if !(deviation <= ROTATION_TOLERANCE && determinant > 0.0) {
         return Err(ReferenceError::HeldNotARotation { deviation, determinant });
     }
-    validate_each(calibrated, attitudes, false)?;
+    validate_each(calibrated, attitudes, rotations_checked)?;
     let field = Moments::of(calibrated, attitudes).field(rotation);
     measure(calibrated, attitudes, *rotation, field, 0, 0)
 }
@@ -354,15 +369,7 @@ pub fn align_fixed_checked(
     attitudes: &Rotations,
     rotation: &Mat3,
 ) -> Result<Alignment, ReferenceError> {
-    let attitudes = attitudes.as_slice();
-    assert_eq!(calibrated.len(), attitudes.len(), "one attitude per calibrated field");
-    let (deviation, determinant) = (orthonormality(rotation), det(rotation));
-    if !(deviation <= ROTATION_TOLERANCE && determinant > 0.0) {
-        return Err(ReferenceError::HeldNotARotation { deviation, determinant });
-    }
-    validate_each(calibrated, attitudes, true)?;
-    let field = Moments::of(calibrated, attitudes).field(rotation);
-    measure(calibrated, attitudes, *rotation, field, 0, 0)
+    align_fixed_in(calibrated, attitudes.as_slice(), rotation, true)
 }
 
 /// The errors of every reading under `Q = q` and `F = field`, and their statistics.
