@@ -134,7 +134,7 @@ fn metrics(c: &mut Criterion) {
 /// Target: calibrating a log of 12,000 readings (the size of the ck-explorer log) in at
 /// most 20 ms: a synthetic log of the [P1] sensor over every attitude, 30 nT noise, in Gauss.
 fn log_fit(c: &mut Criterion) {
-    use magcal_core::log_fit::{FitModel, fit};
+    use magcal_core::log_fit::{FitModel, fit, fit_with};
     let field = paper::changsha_field();
     let truth = paper::true_error_model();
     let mut rng = stream_rng(9, 0);
@@ -153,6 +153,24 @@ fn log_fit(c: &mut Criterion) {
             b.iter(|| fit(black_box(&readings), r, model).unwrap().residual_rms)
         });
     }
+    // One trial of a long log's check: the full model on the part of JUDGED_READINGS it draws,
+    // without a check or a profile of its own, and the two-step fit alone.
+    let part = &readings[..magcal_core::log_fit::JUDGED_READINGS];
+    let trial = magcal_core::log_fit::FitSettings {
+        trials: 0,
+        profile: false,
+        ..Default::default()
+    };
+    group.bench_function("trial_8192_readings", |b| {
+        b.iter(|| {
+            fit_with(black_box(part), r, FitModel::Full, &trial)
+                .unwrap()
+                .residual_rms
+        })
+    });
+    group.bench_function("two_step_8192_readings", |b| {
+        b.iter(|| TwoStep::default().calibrate(black_box(part), r).unwrap().iterations)
+    });
     group.finish();
 }
 

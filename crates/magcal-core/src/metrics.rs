@@ -123,13 +123,18 @@ impl Summary {
 
 /// The median of `values` (type 7, as [`Summary::median`]); NaN when empty.
 pub fn median(values: &[f64]) -> f64 {
+    median_of(&mut values.to_vec())
+}
+
+/// [`median`] of values the caller no longer needs in their order: they are reordered, not
+/// copied (a long log's values are hundreds of megabytes).
+pub fn median_of(v: &mut [f64]) -> f64 {
     // The two middle order statistics by selection (linear time), then the type-7 percentile
     // at 0.5 of them, as of the sorted values.
-    let n = values.len();
+    let n = v.len();
     if n == 0 {
         return f64::NAN;
     }
-    let mut v = values.to_vec();
     let lo = (n - 1) / 2;
     let (_, &mut a, above) = v.select_nth_unstable_by(lo, f64::total_cmp);
     if n % 2 == 1 {

@@ -1,6 +1,9 @@
 //! Coverage heuristics of calibrated field directions: MotionCal's surface gaps and MicroStrain's
 //! spatial coverage.
 
+use rayon::prelude::*;
+
+use crate::chunked::CHUNK;
 use crate::small::{Vec3, norm};
 
 /// MotionCal's surface-gap error of calibrated field directions, in percent of the sphere: the
@@ -30,9 +33,21 @@ pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
 /// fill them. MicroStrain calls more than 70 % good. Their tool bins the raw readings less their
 /// mean; magcal bins the calibrated field directions, as it does for [`motioncal_gaps`].
 pub fn microstrain_coverage_percent(fields: &[Vec3]) -> f64 {
-    const LATITUDE_BINS: usize = 18;
-    const LONGITUDE_BINS: usize = 32;
-    let mut occupied = [false; LATITUDE_BINS * LONGITUDE_BINS];
+    // Each chunk marks its bins; a bin is occupied where any chunk marked it.
+    let occupied = fields.par_chunks(CHUNK).map(microstrain_bins).reduce(
+        || [false; MICROSTRAIN_BINS],
+        |a, b| std::array::from_fn(|i| a[i] || b[i]),
+    );
+    100.0 * occupied.iter().filter(|&&o| o).count() as f64 / MICROSTRAIN_BINS as f64
+}
+
+const LATITUDE_BINS: usize = 18;
+const LONGITUDE_BINS: usize = 32;
+const MICROSTRAIN_BINS: usize = LATITUDE_BINS * LONGITUDE_BINS;
+
+/// The bins of [`microstrain_coverage_percent`] that `fields` fall in.
+fn microstrain_bins(fields: &[Vec3]) -> [bool; MICROSTRAIN_BINS] {
+    let mut occupied = [false; MICROSTRAIN_BINS];
     for b in fields {
         let n = norm(*b);
         if !(n > 0.0 && n.is_finite()) {
@@ -47,7 +62,7 @@ pub fn microstrain_coverage_percent(fields: &[Vec3]) -> f64 {
         let j = bin(longitude, std::f64::consts::PI, LONGITUDE_BINS);
         occupied[i * LONGITUDE_BINS + j] = true;
     }
-    100.0 * occupied.iter().filter(|&&o| o).count() as f64 / (LATITUDE_BINS * LONGITUDE_BINS) as f64
+    occupied
 }
 
 /// One of the 100 regions of [`motioncal_gaps`]: the bounds of `sin(latitude)` (third component)
@@ -87,6 +102,15 @@ pub fn motioncal_region(index: usize) -> MotionCalRegion {
 /// cap, 1-15 the northern band, 16-49 and 50-83 the equatorial bands, 84-98 the southern band, 99
 /// the south cap; see [`motioncal_region`]).
 pub fn motioncal_region_counts(fields: &[Vec3]) -> [usize; 100] {
+    // Counts add in any order: each chunk counts its own.
+    fields
+        .par_chunks(CHUNK)
+        .map(motioncal_chunk_counts)
+        .reduce(|| [0; 100], |a, b| std::array::from_fn(|i| a[i] + b[i]))
+}
+
+/// [`motioncal_region_counts`] of one chunk.
+fn motioncal_chunk_counts(fields: &[Vec3]) -> [usize; 100] {
     let mut counts = [0usize; 100];
     for b in fields {
         let n = norm(*b);

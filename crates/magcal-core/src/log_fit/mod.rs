@@ -80,6 +80,8 @@ pub use serial::Serial;
 pub use versus_raw::{HeadingVersusRaw, MIN_BLOCKS, WORSE_SIGMAS, heading_versus_raw, time_blocks};
 
 pub use crate::calibration::step2::Residual;
+use rayon::prelude::*;
+
 use crate::calibration::{CalibrationError, CalibrationStatus, Termination, TwoStep, step2};
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_solve, mat_t_vec, mat_vec, norm, sub};
@@ -470,7 +472,7 @@ impl Frame {
             return Err(too_alike);
         }
         let u = readings
-            .iter()
+            .par_iter()
             .map(|s| [0, 1, 2].map(|i| (s[i] / a - mean[i]) / spread))
             .collect();
         Ok((frame, u))
@@ -698,14 +700,19 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
     } else if crate::small::upper_triangular_inverse(&errors.K()).is_none() {
         return Err(out_of_range());
     }
-    let fields: Vec<Vec3> = u.iter().map(|&s| mat_vec(&p, sub(s, bias))).collect();
+    let fields: Vec<Vec3> = u.par_iter().map(|&s| mat_vec(&p, sub(s, bias))).collect();
     let m = u.len();
     let residual = |b: &Vec3| norm(*b) - 1.0;
     let sum_sq: f64 = fields.iter().map(|b| residual(b).powi(2)).sum();
-    // Each reading's distance from the ellipsoid to first order, `r / |P^T w|`.
-    let distances: Vec<f64> = fields.iter().map(|b| residual(b) / gain(&p, b).sqrt()).collect();
+    let mut distances: Vec<f64> = fields.par_iter().map(|b| gain(&p, b)).collect();
+    let mean_gain = distances.iter().sum::<f64>() / m as f64;
+    // Each reading's distance from the ellipsoid to first order, `r / |P^T w|`, in place of its
+    // gain.
+    distances
+        .par_iter_mut()
+        .zip(&fields)
+        .for_each(|(d, b)| *d = residual(b) / d.sqrt());
     let distance_sq: f64 = distances.iter().map(|d| d * d).sum();
-    let mean_gain = fields.iter().map(|b| gain(&p, b)).sum::<f64>() / m as f64;
     let dof = m - model.parameters();
     // Readings kept within K robust standard deviations scatter less than the sensor's noise by
     // the truncated normal's variance factor c; the kept fit's estimates scatter as sigma^2 / c

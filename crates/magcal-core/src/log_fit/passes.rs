@@ -25,9 +25,10 @@
 //! without the passes' readings and compares the estimates in their own standard errors
 //! ([`PASS_SHIFT`]).
 
+use rayon::prelude::*;
 use statrs::distribution::{ContinuousCDF, Normal};
 
-use crate::metrics::median;
+use crate::metrics::{median, median_of};
 use crate::small::{Vec3, norm};
 
 /// The smallest departure that counts: 10 % of the field's magnitude (a disturbance of a tenth of
@@ -136,14 +137,13 @@ pub fn passes(calibrated: &[Vec3]) -> Option<Passes> {
     if calibrated.len() < 2 {
         return None;
     }
-    let magnitudes: Vec<f64> = calibrated.iter().map(|b| norm(*b)).collect();
+    let magnitudes: Vec<f64> = calibrated.par_iter().map(|b| norm(*b)).collect();
     let r = median(&magnitudes);
     if !(r.is_finite() && r > 0.0) {
         return None;
     }
-    let rho: Vec<f64> = magnitudes.iter().map(|m| m - r).collect();
-    let deviations: Vec<f64> = rho.iter().map(|x| x.abs()).collect();
-    let sigma = 1.4826 * median(&deviations);
+    let rho: Vec<f64> = magnitudes.into_par_iter().map(|m| m - r).collect();
+    let sigma = 1.4826 * median_of(&mut rho.par_iter().map(|x| x.abs()).collect::<Vec<f64>>());
     let sigmas = pass_sigmas(rho.len());
     let threshold = (PASS_SHARE * r).max(sigmas * sigma);
     let edge = PASS_EDGE_SIGMAS * sigma;

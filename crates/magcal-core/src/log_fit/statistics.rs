@@ -123,10 +123,14 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
     let s = errors.scale();
     let noise = basis.noise.unwrap_or(1.0);
     if model == FitModel::Full {
-        let crb = CramerRao::named(errors, fields, noise, &scales, AxisNames::Sensor);
         // The bound names the weakest combination and says whether the information is regular;
-        // the standard errors are the fit's own (see `std_errors`).
-        let std = crb.std.and_then(|_| std_of::<9>(errors, fields, model, basis));
+        // the standard errors are the fit's own (see `std_errors`). Each is a pass over the
+        // readings: they run side by side.
+        let (crb, std) = rayon::join(
+            || CramerRao::named(errors, fields, noise, &scales, AxisNames::Sensor),
+            || std_of::<9>(errors, fields, model, basis),
+        );
+        let std = crb.std.and(std);
         let within = std.as_ref().is_some_and(|Std { used: v, .. }| {
             (0..3).all(|i| {
                 v[i] <= scales.psi_deg

@@ -5,7 +5,8 @@
 
 use magcal_core::Vec3;
 use magcal_core::log_fit::significant;
-use magcal_core::metrics::median;
+use magcal_core::metrics::median_of;
+use rayon::prelude::*;
 
 use crate::log::source::Log;
 
@@ -37,16 +38,28 @@ pub fn find(readings: &[Vec3]) -> Glitches {
     if readings.len() < 3 {
         return Glitches::default();
     }
-    let centre: Vec3 = std::array::from_fn(|c| median(&readings.iter().map(|r| r[c]).collect::<Vec<_>>()));
-    let distance = |r: &Vec3| (0..3).map(|c| (r[c] - centre[c]).powi(2)).sum::<f64>().sqrt();
-    let distances: Vec<f64> = readings.iter().map(distance).collect();
-    let finite: Vec<f64> = distances.iter().copied().filter(|d| d.is_finite()).collect();
-    let norms: Vec<f64> = readings
-        .iter()
-        .map(|r| r.iter().map(|x| x * x).sum::<f64>().sqrt())
-        .filter(|n| n.is_finite())
+    // Each median and each map is what the plain loop gives; the three components' medians, and
+    // the distances' and the norms', are found side by side.
+    let components: Vec<f64> = (0..3)
+        .into_par_iter()
+        .map(|c| median_of(&mut readings.iter().map(|r| r[c]).collect::<Vec<_>>()))
         .collect();
-    let size = median(&finite).max(median(&norms));
+    let centre: Vec3 = [components[0], components[1], components[2]];
+    let distance = |r: &Vec3| (0..3).map(|c| (r[c] - centre[c]).powi(2)).sum::<f64>().sqrt();
+    let distances: Vec<f64> = readings.par_iter().map(distance).collect();
+    let (distance_median, norm_median) = rayon::join(
+        || median_of(&mut distances.iter().copied().filter(|d| d.is_finite()).collect::<Vec<_>>()),
+        || {
+            median_of(
+                &mut readings
+                    .iter()
+                    .map(|r| r.iter().map(|x| x * x).sum::<f64>().sqrt())
+                    .filter(|n| n.is_finite())
+                    .collect::<Vec<_>>(),
+            )
+        },
+    );
+    let size = distance_median.max(norm_median);
     if !(size.is_finite() && size > 0.0) {
         return Glitches::default();
     }

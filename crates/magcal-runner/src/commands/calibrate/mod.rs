@@ -15,6 +15,7 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, Order, significant};
 use magcal_core::small::upper_triangular_inverse;
+use rayon::prelude::*;
 
 use super::Failure;
 use crate::digest::{Hashing, sha256_hex};
@@ -477,7 +478,7 @@ fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log
 }
 
 fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: String, seed: u64) -> CalibrationJson {
-    let fields: Vec<magcal_core::Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
+    let fields: Vec<magcal_core::Vec3> = log.readings.par_iter().map(|s| fit.apply(*s)).collect();
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
         log: path.display().to_string(),

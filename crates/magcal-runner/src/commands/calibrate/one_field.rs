@@ -12,6 +12,7 @@ use magcal_core::log_fit::{
     Passes, REJECT_MIN_K, best_sphere, field_segments, significant,
 };
 use magcal_core::small::sub;
+use rayon::prelude::*;
 
 use crate::log::calibration::{
     CalibrationJson, FieldChangeJson, FieldCutJson, FieldSegmentJson, PassJson, PassesJson, VersusRawJson,
@@ -77,7 +78,7 @@ const PASSES_NAMED: usize = 5;
 /// The passes of the log's readings under `fit` through another field: with times, the brief
 /// ones ([`Passes::brief`] at the change search's shortest part).
 fn brief_passes(log: &Log, fit: &LogFit) -> Option<Passes> {
-    let calibrated: Vec<Vec3> = log.readings.iter().map(|s| fit.apply(*s)).collect();
+    let calibrated: Vec<Vec3> = log.readings.par_iter().map(|s| fit.apply(*s)).collect();
     let found = log_fit::passes(&calibrated)?;
     Some(match &log.times {
         Some(t) => found.brief(t, FieldChangeSettings::default().min_part_s),
