@@ -130,12 +130,30 @@ impl CramerRao {
         scales: &PhysicalScales,
         names: AxisNames,
     ) -> Self {
+        let info = information_per_unit_variance(truth, body_fields);
+        let field = body_fields.first().map_or(1.0, |&b| norm(b));
+        Self::from_information(truth, &info, field, sigma_nt, scales, names)
+    }
+
+    /// [`Self::named`] from the information per unit variance
+    /// ([`information_per_unit_variance`]) of body fields of magnitude `field` (nT): for a caller
+    /// that summed it already.
+    ///
+    /// # Panics
+    /// As [`Self::new`].
+    #[track_caller]
+    pub fn from_information(
+        truth: &ErrorModel,
+        info: &[[f64; 9]; 9],
+        field: f64,
+        sigma_nt: f64,
+        scales: &PhysicalScales,
+        names: AxisNames,
+    ) -> Self {
         assert!(
             sigma_nt.is_finite() && sigma_nt >= 0.0,
             "sigma_nt must be finite and >= 0"
         );
-        let info = information_per_unit_variance(truth, body_fields);
-        let field = body_fields.first().map_or(1.0, |&b| norm(b));
         let d = scale_vector(truth, field, scales);
         // F in units of the physical scales: F_s = D F D.
         let Fs = Mat::from_fn(9, 9, |i, j| d[i] * info[i][j] * d[j]);

@@ -13,7 +13,12 @@ use crate::small::{Vec3, norm};
 /// 0.01 with two (PJRC MotionCal, `quality.c`). 0 is full coverage, 100 none. Latitude is taken
 /// from the third component.
 pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
-    motioncal_region_counts(fields)
+    gaps_of(&motioncal_region_counts(fields))
+}
+
+/// [`motioncal_gaps`] of the region counts.
+fn gaps_of(counts: &[usize; 100]) -> f64 {
+    counts
         .iter()
         .map(|&c| match c {
             0 => 1.0,
@@ -33,36 +38,89 @@ pub fn motioncal_gaps(fields: &[Vec3]) -> f64 {
 /// fill them. MicroStrain calls more than 70 % good. Their tool bins the raw readings less their
 /// mean; magcal bins the calibrated field directions, as it does for [`motioncal_gaps`].
 pub fn microstrain_coverage_percent(fields: &[Vec3]) -> f64 {
-    // Each chunk marks its bins; a bin is occupied where any chunk marked it.
-    let occupied = fields.par_chunks(CHUNK).map(microstrain_bins).reduce(
-        || [false; MICROSTRAIN_BINS],
-        |a, b| std::array::from_fn(|i| a[i] || b[i]),
-    );
-    100.0 * occupied.iter().filter(|&&o| o).count() as f64 / MICROSTRAIN_BINS as f64
+    tally(fields, |b| b).microstrain_percent()
+}
+
+/// [`motioncal_gaps`] and [`microstrain_coverage_percent`] of `map` applied to every one of
+/// `readings` (a calibration), in one pass on every core, without holding the mapped directions:
+/// the same numbers as the two of the mapped readings.
+pub fn coverages(readings: &[Vec3], map: impl Fn(Vec3) -> Vec3 + Sync) -> (f64, f64) {
+    let t = tally(readings, map);
+    (gaps_of(&t.regions), t.microstrain_percent())
 }
 
 const LATITUDE_BINS: usize = 18;
 const LONGITUDE_BINS: usize = 32;
 const MICROSTRAIN_BINS: usize = LATITUDE_BINS * LONGITUDE_BINS;
 
-/// The bins of [`microstrain_coverage_percent`] that `fields` fall in.
-fn microstrain_bins(fields: &[Vec3]) -> [bool; MICROSTRAIN_BINS] {
-    let mut occupied = [false; MICROSTRAIN_BINS];
-    for b in fields {
-        let n = norm(*b);
-        if !(n > 0.0 && n.is_finite()) {
-            continue;
-        }
-        let latitude = (b[2] / n).clamp(-1.0, 1.0).asin();
-        let longitude = b[1].atan2(b[0]);
-        let bin = |angle: f64, half_range: f64, bins: usize| {
-            (((angle + half_range) / (2.0 * half_range) * bins as f64) as usize).min(bins - 1)
-        };
-        let i = bin(latitude, std::f64::consts::FRAC_PI_2, LATITUDE_BINS);
-        let j = bin(longitude, std::f64::consts::PI, LONGITUDE_BINS);
-        occupied[i * LONGITUDE_BINS + j] = true;
+/// The directions per MotionCal region and the MicroStrain bins that hold one.
+struct Tally {
+    regions: [usize; 100],
+    occupied: [bool; MICROSTRAIN_BINS],
+}
+
+impl Tally {
+    fn microstrain_percent(&self) -> f64 {
+        100.0 * self.occupied.iter().filter(|&&o| o).count() as f64 / MICROSTRAIN_BINS as f64
     }
-    occupied
+}
+
+/// The [`Tally`] of `map` applied to each of `readings`: each chunk of [`CHUNK`] on its own, then
+/// counts added and bins joined (in any order: the same result).
+fn tally(readings: &[Vec3], map: impl Fn(Vec3) -> Vec3 + Sync) -> Tally {
+    let empty = || Tally {
+        regions: [0; 100],
+        occupied: [false; MICROSTRAIN_BINS],
+    };
+    readings
+        .par_chunks(CHUNK)
+        .map(|chunk| {
+            let mut t = empty();
+            for &r in chunk {
+                if let Some((region, bin)) = bins(map(r)) {
+                    t.regions[region] += 1;
+                    t.occupied[bin] = true;
+                }
+            }
+            t
+        })
+        .reduce(empty, |a, b| Tally {
+            regions: std::array::from_fn(|i| a.regions[i] + b.regions[i]),
+            occupied: std::array::from_fn(|i| a.occupied[i] || b.occupied[i]),
+        })
+}
+
+/// The MotionCal region and the MicroStrain bin of the direction of `b`; `None` for a zero or
+/// non-finite vector.
+fn bins(b: Vec3) -> Option<(usize, usize)> {
+    let n = norm(b);
+    if !(n > 0.0 && n.is_finite()) {
+        return None;
+    }
+    let longitude = b[1].atan2(b[0]);
+    let sin_latitude = b[2] / n;
+    let turn = (longitude / std::f64::consts::TAU).rem_euclid(1.0);
+    let band = |regions: usize| ((turn * regions as f64) as usize).min(regions - 1);
+    let region = if sin_latitude > 0.98 {
+        0
+    } else if sin_latitude < -0.98 {
+        99
+    } else if sin_latitude > 0.68 {
+        1 + band(15)
+    } else if sin_latitude < -0.68 {
+        84 + band(15)
+    } else if sin_latitude >= 0.0 {
+        16 + band(34)
+    } else {
+        50 + band(34)
+    };
+    let latitude = sin_latitude.clamp(-1.0, 1.0).asin();
+    let bin = |angle: f64, half_range: f64, bins: usize| {
+        (((angle + half_range) / (2.0 * half_range) * bins as f64) as usize).min(bins - 1)
+    };
+    let i = bin(latitude, std::f64::consts::FRAC_PI_2, LATITUDE_BINS);
+    let j = bin(longitude, std::f64::consts::PI, LONGITUDE_BINS);
+    Some((region, i * LONGITUDE_BINS + j))
 }
 
 /// One of the 100 regions of [`motioncal_gaps`]: the bounds of `sin(latitude)` (third component)
@@ -102,41 +160,7 @@ pub fn motioncal_region(index: usize) -> MotionCalRegion {
 /// cap, 1-15 the northern band, 16-49 and 50-83 the equatorial bands, 84-98 the southern band, 99
 /// the south cap; see [`motioncal_region`]).
 pub fn motioncal_region_counts(fields: &[Vec3]) -> [usize; 100] {
-    // Counts add in any order: each chunk counts its own.
-    fields
-        .par_chunks(CHUNK)
-        .map(motioncal_chunk_counts)
-        .reduce(|| [0; 100], |a, b| std::array::from_fn(|i| a[i] + b[i]))
-}
-
-/// [`motioncal_region_counts`] of one chunk.
-fn motioncal_chunk_counts(fields: &[Vec3]) -> [usize; 100] {
-    let mut counts = [0usize; 100];
-    for b in fields {
-        let n = norm(*b);
-        if !(n > 0.0 && n.is_finite()) {
-            continue;
-        }
-        let sin_latitude = b[2] / n;
-        // Longitude in [0, 1) of a turn.
-        let turn = (b[1].atan2(b[0]) / std::f64::consts::TAU).rem_euclid(1.0);
-        let band = |regions: usize| ((turn * regions as f64) as usize).min(regions - 1);
-        let region = if sin_latitude > 0.98 {
-            0
-        } else if sin_latitude < -0.98 {
-            99
-        } else if sin_latitude > 0.68 {
-            1 + band(15)
-        } else if sin_latitude < -0.68 {
-            84 + band(15)
-        } else if sin_latitude >= 0.0 {
-            16 + band(34)
-        } else {
-            50 + band(34)
-        };
-        counts[region] += 1;
-    }
-    counts
+    tally(fields, |b| b).regions
 }
 
 #[cfg(test)]
@@ -228,5 +252,22 @@ mod tests {
             })
             .collect();
         assert!((microstrain_coverage_percent(&ring) - 100.0 / 18.0).abs() < 1e-12);
+    }
+
+    /// The one-pass coverages of mapped readings are the two measures of the mapped directions,
+    /// on more readings than a chunk, bits and all.
+    #[test]
+    fn coverages_of_a_map_are_those_of_the_mapped_directions() {
+        use rand::RngExt;
+        let mut rng = stream_rng(35, 1);
+        let raw: Vec<Vec3> = (0..3 * CHUNK + 11)
+            .map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0)))
+            .collect();
+        let map = |r: Vec3| [2.0 * r[0] - 0.3, r[1] + 0.5 * r[2], 0.7 * r[2] - 0.2];
+        let mapped: Vec<Vec3> = raw.iter().map(|&r| map(r)).collect();
+        let (gaps, percent) = coverages(&raw, map);
+        assert_eq!(gaps.to_bits(), motioncal_gaps(&mapped).to_bits());
+        assert_eq!(percent.to_bits(), microstrain_coverage_percent(&mapped).to_bits());
+        assert!(percent > 50.0 && percent < 100.0, "{percent}");
     }
 }

@@ -67,14 +67,16 @@ mod versus_raw;
 
 pub use check::{CHECK_SEED, CHECK_TRIALS, TrialCheck, TrialNoise, USABLE_SHARE};
 pub use coverage::{
-    MotionCalRegion, microstrain_coverage_percent, motioncal_gaps, motioncal_region, motioncal_region_counts,
+    MotionCalRegion, coverages, microstrain_coverage_percent, motioncal_gaps, motioncal_region, motioncal_region_counts,
 };
 pub use field_change::{
     Candidate, FIELD_CHANGE_STEP, FIELD_CHANGE_Z, FieldChange, FieldChangeError, FieldChangeSettings, Segment,
     best_sphere, field_segments,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit, show_p};
-pub use passes::{PASS_EDGE_SIGMAS, PASS_FALSE_ALARM, PASS_SHARE, PASS_SHIFT, Pass, Passes, pass_sigmas, passes};
+pub use passes::{
+    PASS_EDGE_SIGMAS, PASS_FALSE_ALARM, PASS_SHARE, PASS_SHIFT, Pass, Passes, pass_sigmas, passes, passes_in_magnitudes,
+};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 pub use serial::Serial;
 pub use versus_raw::{HeadingVersusRaw, MIN_BLOCKS, WORSE_SIGMAS, heading_versus_raw, time_blocks};
@@ -773,23 +775,21 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
         }
         _ => None,
     };
-    let judged = statistics::judge(
-        &errors,
-        &fields,
-        model,
-        statistics::Basis {
-            residual: settings.residual,
-            noise: noise.value().map(|s| s / c.sqrt()),
-            truncation_factor: c,
-            serial,
-            inflation: straight.map_or(1.0, |s| s.inflation()),
-        },
-    );
-    let bent = straight.filter(|s| s.rise < PROFILE_RISE_MIN);
+    let basis = statistics::Basis {
+        residual: settings.residual,
+        noise: noise.value().map(|s| s / c.sqrt()),
+        truncation_factor: c,
+        serial,
+        inflation: straight.map_or(1.0, |s| s.inflation()),
+    };
     // The readings' distances from the ellipsoid against the radius of the sphere that best fits
     // them: the size of the cloud, which no fit can shrink (a fit that runs off into a flat or
-    // long ellipsoid keeps its distances small while `|b| - R` grows).
-    let radius = sphere(u).map_or(1.0, |s| s.1);
+    // long ellipsoid keeps its distances small while `|b| - R` grows). Two passes, side by side.
+    let (judged, radius) = rayon::join(
+        || statistics::judge(&errors, &fields, model, basis),
+        || sphere(u).map_or(1.0, |s| s.1),
+    );
+    let bent = straight.filter(|s| s.rise < PROFILE_RISE_MIN);
     let ellipsoid = ellipsoid_test((distance_sq / m as f64).sqrt() / radius, chi.zip(settings.noise));
     let mut f = LogFit {
         model,

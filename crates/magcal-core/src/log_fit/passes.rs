@@ -134,10 +134,15 @@ pub fn pass_sigmas(n: usize) -> f64 {
 /// The passes of the calibrated fields `calibrated`, in log order (see the module
 /// documentation). `None` for fewer than two readings or a magnitude that is not positive.
 pub fn passes(calibrated: &[Vec3]) -> Option<Passes> {
-    if calibrated.len() < 2 {
+    passes_in_magnitudes(calibrated.par_iter().map(|b| norm(*b)).collect())
+}
+
+/// [`passes`] of the calibrated readings' magnitudes `|b_i|`, in log order: for a caller that
+/// need not hold the calibrated readings themselves.
+pub fn passes_in_magnitudes(magnitudes: Vec<f64>) -> Option<Passes> {
+    if magnitudes.len() < 2 {
         return None;
     }
-    let magnitudes: Vec<f64> = calibrated.par_iter().map(|b| norm(*b)).collect();
     let r = median(&magnitudes);
     if !(r.is_finite() && r > 0.0) {
         return None;

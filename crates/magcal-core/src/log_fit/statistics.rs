@@ -4,6 +4,8 @@
 // Index loops mirror the matrix algebra they implement.
 #![allow(clippy::needless_range_loop)]
 
+use rayon::prelude::*;
+
 use super::serial::{Serial, long_run_covariance};
 use super::{FitModel, significant};
 use crate::calibration::step2::Residual;
@@ -97,23 +99,42 @@ struct Std {
 
 /// The standard errors of `model`'s parameters at `noise` (white) and, in time order, those of
 /// the residuals' long-run covariance; the larger of the two is the one to use. `None` where the
-/// information is singular to working precision.
-fn std_of<const N: usize>(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis) -> Option<Std> {
+/// information is singular to working precision. With them, the sum `A` of [`std_errors`]: for
+/// the readings' residual and the full model, the information per unit variance of
+/// [`crate::identifiability::information_per_unit_variance`], the same sum to rounding (and the
+/// same bits on a log of one chunk). The sums are taken in chunks on every core
+/// ([`crate::chunked`]).
+fn std_of<const N: usize>(
+    errors: &ErrorModel,
+    fields: &[Vec3],
+    model: FitModel,
+    basis: Basis,
+) -> (Option<Std>, [[f64; N]; N]) {
     let T = embedding::<N>(model);
-    let rows = residual_jacobian(errors, fields)
-        .zip(fields)
-        .map(|((J, g2), b)| (J, g2, norm(*b) - 1.0));
-    let (white, serial) = std_errors(rows, &T, basis.residual, basis.serial.map(|s| s.batch))?;
-    let noise = basis.noise.unwrap_or(1.0) * basis.inflation;
-    let white: Vec<f64> = white.iter().map(|v| v * noise).collect();
-    // Readings kept within a truncation scatter less than the sensor: c of its variance.
-    let c = basis.truncation_factor;
-    let serial: Option<Vec<f64>> = serial.map(|s| s.iter().map(|h| h * basis.inflation / c.sqrt()).collect());
-    let used = match &serial {
-        Some(s) => s.iter().zip(&white).map(|(h, w)| h.max(*w)).collect(),
-        None => white.clone(),
-    };
-    Some(Std { used, white, serial })
+    let keep_scores = basis.serial.is_some();
+    let total = crate::chunked::sum_chunks(
+        fields,
+        |chunk| {
+            let rows = residual_jacobian(errors, chunk)
+                .zip(chunk)
+                .map(|((J, g2), b)| (J, g2, norm(*b) - 1.0));
+            sums(rows, &T, basis.residual, keep_scores)
+        },
+        Sums::add,
+    );
+    let std = sandwiches(&total, basis.serial.map(|s| s.batch)).map(|(white, serial)| {
+        let noise = basis.noise.unwrap_or(1.0) * basis.inflation;
+        let white: Vec<f64> = white.iter().map(|v| v * noise).collect();
+        // Readings kept within a truncation scatter less than the sensor: c of its variance.
+        let c = basis.truncation_factor;
+        let serial: Option<Vec<f64>> = serial.map(|s| s.iter().map(|h| h * basis.inflation / c.sqrt()).collect());
+        let used = match &serial {
+            Some(s) => s.iter().zip(&white).map(|(h, w)| h.max(*w)).collect(),
+            None => white.clone(),
+        };
+        Std { used, white, serial }
+    });
+    (std, total.A)
 }
 
 /// [`judge`] at a known noise.
@@ -124,12 +145,21 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
     let noise = basis.noise.unwrap_or(1.0);
     if model == FitModel::Full {
         // The bound names the weakest combination and says whether the information is regular;
-        // the standard errors are the fit's own (see `std_errors`). Each is a pass over the
-        // readings: they run side by side.
-        let (crb, std) = rayon::join(
-            || CramerRao::named(errors, fields, noise, &scales, AxisNames::Sensor),
-            || std_of::<9>(errors, fields, model, basis),
-        );
+        // the standard errors are the fit's own (see `std_errors`). For the readings' residual
+        // the standard errors' sum `A` is the bound's information: one pass gives both (but for
+        // a field of zero length, which has no direction the bound could weigh).
+        let shared = basis.residual == Residual::Readings && fields.par_iter().all(|b| norm(*b) > 0.0);
+        let (crb, std) = if shared {
+            let (std, info) = std_of::<9>(errors, fields, model, basis);
+            let field = fields.first().map_or(1.0, |&b| norm(b));
+            let crb = CramerRao::from_information(errors, &info, field, noise, &scales, AxisNames::Sensor);
+            (crb, std)
+        } else {
+            rayon::join(
+                || CramerRao::named(errors, fields, noise, &scales, AxisNames::Sensor),
+                || std_of::<9>(errors, fields, model, basis).0,
+            )
+        };
         let std = crb.std.and(std);
         let within = std.as_ref().is_some_and(|Std { used: v, .. }| {
             (0..3).all(|i| {
@@ -168,8 +198,8 @@ fn judge_at(errors: &ErrorModel, fields: &[Vec3], model: FitModel, basis: Basis)
         };
     }
     let std = match model {
-        FitModel::Diagonal => std_of::<6>(errors, fields, model, basis),
-        _ => std_of::<4>(errors, fields, model, basis),
+        FitModel::Diagonal => std_of::<6>(errors, fields, model, basis).0,
+        _ => std_of::<4>(errors, fields, model, basis).0,
     };
     let split = |v: &[f64]| -> (Vec3, Vec3) {
         if model == FitModel::Diagonal {
@@ -257,11 +287,48 @@ pub(super) fn std_errors<const P: usize, const N: usize>(
     residual: Residual,
     batch: Option<usize>,
 ) -> Option<(Vec<f64>, Option<Vec<f64>>)> {
+    sandwiches(&sums(rows, T, residual, batch.is_some()), batch)
+}
+
+/// The sums of [`std_errors`] over some rows: `A`, `B` and, where kept, the scores in row order.
+struct Sums<const N: usize> {
+    A: [[f64; N]; N],
+    B: [[f64; N]; N],
+    scores: Vec<[f64; N]>,
+}
+
+impl<const N: usize> Sums<N> {
+    /// The sums of these rows and then of `later`'s.
+    fn add(&mut self, later: Self) {
+        for a in 0..N {
+            for b in 0..N {
+                self.A[a][b] += later.A[a][b];
+                self.B[a][b] += later.B[a][b];
+            }
+        }
+        self.scores.extend(later.scores);
+    }
+}
+
+/// The [`Sums`] of `rows` (`J`, `|g|^2`, residual), in row order.
+fn sums<const P: usize, const N: usize>(
+    rows: impl Iterator<Item = ([f64; P], f64, f64)>,
+    T: &[[f64; N]; P],
+    residual: Residual,
+    keep_scores: bool,
+) -> Sums<N> {
     let mut A = [[0.0; N]; N];
     let mut B = [[0.0; N]; N];
     let mut scores: Vec<[f64; N]> = Vec::new();
+    // The full model's T is the identity: x = J, without the 81 products by 0 and 1 (their sum is
+    // J's entry exactly).
+    let identity = P == N && (0..P).all(|i| (0..N).all(|a| T[i][a].to_bits() == f64::from(u8::from(i == a)).to_bits()));
     for (J, g2, r) in rows {
-        let x: [f64; N] = std::array::from_fn(|a| (0..P).map(|i| J[i] * T[i][a]).sum());
+        let x: [f64; N] = if identity {
+            std::array::from_fn(|a| J[a])
+        } else {
+            std::array::from_fn(|a| (0..P).map(|i| J[i] * T[i][a]).sum())
+        };
         let w = match residual {
             Residual::Paper => 1.0,
             _ => 1.0 / g2,
@@ -272,10 +339,16 @@ pub(super) fn std_errors<const P: usize, const N: usize>(
                 B[a][b] += w * w * g2 * x[a] * x[b];
             }
         }
-        if batch.is_some() {
+        if keep_scores {
             scores.push(x.map(|v| w * r * v));
         }
     }
+    Sums { A, B, scores }
+}
+
+/// [`std_errors`] from its sums.
+fn sandwiches<const N: usize>(sums: &Sums<N>, batch: Option<usize>) -> Option<(Vec<f64>, Option<Vec<f64>>)> {
+    let Sums { A, B, scores } = sums;
     // In units of A's diagonal, for conditioning: A_s = D A D, D = diag(A)^-1/2.
     let d: [f64; N] = std::array::from_fn(|a| if A[a][a] > 0.0 { 1.0 / A[a][a].sqrt() } else { 0.0 });
     if d.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
@@ -298,7 +371,7 @@ pub(super) fn std_errors<const P: usize, const N: usize>(
             })
             .collect()
     };
-    let white = sandwich(&B);
+    let white = sandwich(B);
     let serial = batch.map(|l| {
         let m = scores.len();
         let dof_factor = if m > N {
@@ -306,7 +379,7 @@ pub(super) fn std_errors<const P: usize, const N: usize>(
         } else {
             f64::NAN
         };
-        sandwich(&long_run_covariance(&scores, l))
+        sandwich(&long_run_covariance(scores, l))
             .into_iter()
             .map(|v| v * dof_factor)
             .collect::<Vec<f64>>()

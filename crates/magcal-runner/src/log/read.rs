@@ -655,7 +655,10 @@ fn text_line(buf: &mut Vec<u8>, line: usize, shown: &str) -> Result<()> {
     if line == 1 && (buf.starts_with(b"\xff\xfe") || buf.starts_with(b"\xfe\xff")) {
         bail!("{shown}: line 1: the log is UTF-16 text (it starts with a UTF-16 byte order mark); save it as UTF-8");
     }
-    if let Some(at) = buf.iter().position(|&b| b == 0) {
+    // `contains` looks for the byte a word at a time; where it is found, `position` says where.
+    if buf.contains(&0)
+        && let Some(at) = buf.iter().position(|&b| b == 0)
+    {
         bail!(
             "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file? a flight log through a pipe: give --format)",
             at + 1

@@ -15,7 +15,6 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, Order, significant};
 use magcal_core::small::upper_triangular_inverse;
-use rayon::prelude::*;
 
 use super::Failure;
 use crate::digest::{Hashing, sha256_hex};
@@ -478,7 +477,7 @@ fn record_provenance(json: &mut CalibrationJson, units: Option<Units>, log: &Log
 }
 
 fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: String, seed: u64) -> CalibrationJson {
-    let fields: Vec<magcal_core::Vec3> = log.readings.par_iter().map(|s| fit.apply(*s)).collect();
+    let (motioncal_gap_percent, microstrain_coverage_percent) = log_fit::coverages(&log.readings, |s| fit.apply(s));
     let k = upper_triangular_inverse(&fit.p).unwrap_or([[f64::NAN; 3]; 3]);
     CalibrationJson {
         log: path.display().to_string(),
@@ -541,8 +540,8 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         status: fit.status.as_str().to_string(),
         iterations: fit.iterations,
         coverage: Coverage {
-            motioncal_gap_percent: log_fit::motioncal_gaps(&fields),
-            microstrain_coverage_percent: log_fit::microstrain_coverage_percent(&fields),
+            motioncal_gap_percent,
+            microstrain_coverage_percent,
             d_efficiency_per_reading: None,
             box_from: None,
             flown: None,

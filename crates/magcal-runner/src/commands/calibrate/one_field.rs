@@ -11,7 +11,7 @@ use magcal_core::log_fit::{
     self, FieldChange, FieldChangeSettings, FitModel, FitSettings, LogFit, PASS_EDGE_SIGMAS, PASS_SHARE, PASS_SHIFT,
     Passes, REJECT_MIN_K, best_sphere, field_segments, significant,
 };
-use magcal_core::small::sub;
+use magcal_core::small::{norm, sub};
 use rayon::prelude::*;
 
 use crate::log::calibration::{
@@ -78,8 +78,8 @@ const PASSES_NAMED: usize = 5;
 /// The passes of the log's readings under `fit` through another field: with times, the brief
 /// ones ([`Passes::brief`] at the change search's shortest part).
 fn brief_passes(log: &Log, fit: &LogFit) -> Option<Passes> {
-    let calibrated: Vec<Vec3> = log.readings.par_iter().map(|s| fit.apply(*s)).collect();
-    let found = log_fit::passes(&calibrated)?;
+    let magnitudes: Vec<f64> = log.readings.par_iter().map(|s| norm(fit.apply(*s))).collect();
+    let found = log_fit::passes_in_magnitudes(magnitudes)?;
     Some(match &log.times {
         Some(t) => found.brief(t, FieldChangeSettings::default().min_part_s),
         None => found,
