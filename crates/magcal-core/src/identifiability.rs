@@ -136,8 +136,9 @@ impl CramerRao {
     }
 
     /// [`Self::named`] from the information per unit variance
-    /// ([`information_per_unit_variance`]) of body fields of magnitude `field` (nT): for a caller
-    /// that summed it already.
+    /// ([`information_per_unit_variance`]) of the body fields, for a caller that summed it
+    /// already; `field` (nT) is the magnitude the bias's physical scale is relative to
+    /// ([`Self::named`] takes the first field's).
     ///
     /// # Panics
     /// As [`Self::new`].

@@ -423,9 +423,13 @@ fn hold(jtj: &mut Normal, g: &mut [f64; PARAMETERS], free: [bool; PARAMETERS]) {
     }
 }
 
-/// [`refine`] with the unknowns `x = (P11, P12, P13, P22, P23, P33, o)` that are not `free` held
-/// at the start's values. Holding applies to [`Residual::Readings`] only: the paper's residual is
-/// refined with all nine free.
+/// [`refine`] with the entries `P11, P12, P13, P22, P23, P33` of `P` that are not `free` held at
+/// the start's values; the bias is always free (`free[6..]` true: the readings' residual is
+/// iterated in the centred unknowns `(P, c)`, where holding `c` would not hold `o`). Holding
+/// applies to [`Residual::Readings`] only: the paper's residual is refined with all nine free.
+///
+/// # Panics
+/// In debug builds, if part of the bias is not `free` (a caller bug).
 pub(crate) fn refine_holding(
     settings: &TwoStep,
     start: &Estimate,
@@ -433,6 +437,7 @@ pub(crate) fn refine_holding(
     field_magnitude_nt: f64,
     free: [bool; PARAMETERS],
 ) -> Result<Refined, CalibrationError> {
+    debug_assert!(free[6..].iter().all(|&f| f), "refine_holding: the bias is always free");
     let R = field_magnitude_nt;
     let u = Scaled::new(readings, R);
     let x0 = pack(&start.p, scale(1.0 / R, start.bias_nt));

@@ -102,8 +102,9 @@ struct Std {
 /// information is singular to working precision. With them, the sum `A` of [`std_errors`]: for
 /// the readings' residual and the full model, the information per unit variance of
 /// [`crate::identifiability::information_per_unit_variance`], the same sum to rounding (and the
-/// same bits on a log of one chunk). The sums are taken in chunks on every core
-/// ([`crate::chunked`]).
+/// same bits on a log of one chunk) where no field has zero length (there that one weighs a field
+/// of no direction by NaN, this one by the first axis). The sums are taken in chunks on every
+/// core ([`crate::chunked`]).
 fn std_of<const N: usize>(
     errors: &ErrorModel,
     fields: &[Vec3],
