@@ -7,8 +7,11 @@
 //! branch-free `sin_cos` polynomial below, the moments and the Cholesky factorisation then run as
 //! SIMD instructions on baseline x86-64 (SSE2) without any `unsafe` or hand-written intrinsics.
 //!
-//! Eight lanes: fewer do not fill the vector units, more leave too few chunks of the 300 particles
-//! to balance two threads (`benches/design.rs`; the numbers are in the README's benchmark table).
+//! Twelve lanes: the 300 particles of Table I are 25 chunks, which two threads share 13 to 12; one
+//! chunk's loops are three AVX2 vectors of independent work. Two runs of Table I on one thread took
+//! 0.68-0.69 s with eight lanes, 0.50-0.73 s (median 0.545) with twelve and 0.56-0.78 s with
+//! sixteen; one run on two threads 0.195-0.223 s with eight, 0.139-0.169 s with twelve (best of
+//! five, interleaved, on the same 2-core machine). Fewer than eight do not fill the vector units.
 //!
 //! The kernel is compiled a second time for AVX2 and chosen at run time when the CPU has it (the
 //! `multiversion` crate; baseline x86-64 elsewhere): 4 lanes per instruction instead of SSE2's 2.
@@ -29,7 +32,7 @@ use super::DesignProblem;
 use crate::linear_model::{MOMENTS, Moments, UNKNOWNS};
 
 /// Designs evaluated together (see the measurements above).
-pub const LANES: usize = 8;
+pub const LANES: usize = 12;
 
 /// One value per lane.
 pub type Lanes = [f64; LANES];
@@ -70,6 +73,16 @@ pub fn sin_cos(x: &Lanes) -> (Lanes, Lanes) {
         }
         return (s, c);
     }
+    if x.iter().all(|v| v.abs() <= NO_REDUCTION) {
+        // Quadrant 0 in every lane: the reduction below would give `r = x` exactly and the selects
+        // would pick `(sin r, cos r)`, so this is the same result without them.
+        let mut s = [0.0; LANES];
+        let mut c = [0.0; LANES];
+        for l in 0..LANES {
+            (s[l], c[l]) = kernel_sin_cos(x[l]);
+        }
+        return (s, c);
+    }
     // Round to nearest by adding and subtracting 1.5 * 2^52 (no libm call, no branch).
     const ROUND: f64 = 6_755_399_441_055_744.0;
     let mut s = [0.0; LANES];
@@ -77,12 +90,7 @@ pub fn sin_cos(x: &Lanes) -> (Lanes, Lanes) {
     for l in 0..LANES {
         let k = (x[l] * FRAC_2_PI + ROUND) - ROUND;
         let r = ((x[l] - k * PIO2_1) - k * PIO2_2) - k * PIO2_3;
-        let z = r * r;
-        let sin_r = r + r * z * (S[0] + z * (S[1] + z * (S[2] + z * (S[3] + z * (S[4] + z * S[5])))));
-        let hz = 0.5 * z;
-        let w = 1.0 - hz;
-        let cos_r =
-            w + (((1.0 - w) - hz) + z * z * (C[0] + z * (C[1] + z * (C[2] + z * (C[3] + z * (C[4] + z * C[5]))))));
+        let (sin_r, cos_r) = kernel_sin_cos(r);
         // Quadrant q: (s, c), (c, -s), (-s, -c), (-c, s) for q = 0, 1, 2, 3 (mod 4).
         let q = k as i32;
         let (sb, cb) = if q & 1 != 0 { (cos_r, sin_r) } else { (sin_r, cos_r) };
@@ -90,6 +98,22 @@ pub fn sin_cos(x: &Lanes) -> (Lanes, Lanes) {
         c[l] = if (q + 1) & 2 != 0 { -cb } else { cb };
     }
     (s, c)
+}
+
+/// Largest `|x|` whose quadrant is 0: `x * 2/pi` is then at most 0.4966 and rounds to 0 (pi/4 is
+/// 0.7854). Roll and pitch of a vehicle's box are within it.
+const NO_REDUCTION: f64 = 0.78;
+const _: () = assert!(NO_REDUCTION * FRAC_2_PI < 0.5);
+
+/// fdlibm's `__kernel_sin` and `__kernel_cos` of a reduced argument `r`, |r| <= pi/4.
+#[inline(always)]
+fn kernel_sin_cos(r: f64) -> (f64, f64) {
+    let z = r * r;
+    let sin_r = r + r * z * (S[0] + z * (S[1] + z * (S[2] + z * (S[3] + z * (S[4] + z * S[5])))));
+    let hz = 0.5 * z;
+    let w = 1.0 - hz;
+    let cos_r = w + (((1.0 - w) - hz) + z * z * (C[0] + z * (C[1] + z * (C[2] + z * (C[3] + z * (C[4] + z * C[5]))))));
+    (sin_r, cos_r)
 }
 
 impl DesignProblem {
@@ -129,33 +153,9 @@ fn ln_det_lanes_baseline(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes 
 /// `ln det M_F` of [`LANES`] designs of `m` attitudes, with the loops over the lanes innermost.
 #[inline(always)]
 fn ln_det_lanes_body(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
-    let [n, u, e] = problem.field().b_n();
-    let yaw_offset = problem.field().yaw_offset_deg().to_radians();
-    let k = problem.k_scaled();
-    let o = problem.o_scaled();
     let mut moments = [[0.0; LANES]; MOMENTS];
     for a in 0..problem.m() {
-        let mut roll = [0.0; LANES];
-        let mut yaw = [0.0; LANES];
-        let mut pitch = [0.0; LANES];
-        for l in 0..LANES {
-            roll[l] = xs[l][3 * a];
-            yaw[l] = xs[l][3 * a + 1] + yaw_offset;
-            pitch[l] = xs[l][3 * a + 2];
-        }
-        let (sr, cr) = sin_cos(&roll);
-        let (sy, cy) = sin_cos(&yaw);
-        let (sp, cp) = sin_cos(&pitch);
-        let mut reading = [[0.0; LANES]; 3];
-        for l in 0..LANES {
-            // [P1] eq. (2) as three plane rotations (see ReferenceField::body_field).
-            let v1 = [cy[l] * n - sy[l] * e, u, sy[l] * n + cy[l] * e];
-            let v2 = [cp[l] * v1[0] + sp[l] * v1[1], -sp[l] * v1[0] + cp[l] * v1[1], v1[2]];
-            let b = [v2[0], cr[l] * v2[1] + sr[l] * v2[2], -sr[l] * v2[1] + cr[l] * v2[2]];
-            for i in 0..3 {
-                reading[i][l] = k[i][0] * b[0] + k[i][1] * b[1] + k[i][2] * b[2] + o[i];
-            }
-        }
+        let reading = readings_of(problem, &xs, a);
         for l in 0..LANES {
             let terms = crate::linear_model::monomials([reading[0][l], reading[1][l], reading[2][l]]);
             for (m, t) in moments.iter_mut().zip(terms) {
@@ -213,6 +213,37 @@ fn ln_det_lanes_body(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
     out
 }
 
+/// The scaled readings `(x, y, z)` of attitude `a` of each lane's design, \[P1\] eq. (2) and (6).
+#[inline(always)]
+fn readings_of(problem: &DesignProblem, xs: &[&[f64]; LANES], a: usize) -> [Lanes; 3] {
+    let [n, u, e] = problem.field().b_n();
+    let yaw_offset = problem.field().yaw_offset_deg().to_radians();
+    let k = problem.k_scaled();
+    let o = problem.o_scaled();
+    let mut roll = [0.0; LANES];
+    let mut yaw = [0.0; LANES];
+    let mut pitch = [0.0; LANES];
+    for l in 0..LANES {
+        roll[l] = xs[l][3 * a];
+        yaw[l] = xs[l][3 * a + 1] + yaw_offset;
+        pitch[l] = xs[l][3 * a + 2];
+    }
+    let (sr, cr) = sin_cos(&roll);
+    let (sy, cy) = sin_cos(&yaw);
+    let (sp, cp) = sin_cos(&pitch);
+    let mut reading = [[0.0; LANES]; 3];
+    for l in 0..LANES {
+        // [P1] eq. (2) as three plane rotations (see ReferenceField::body_field).
+        let v1 = [cy[l] * n - sy[l] * e, u, sy[l] * n + cy[l] * e];
+        let v2 = [cp[l] * v1[0] + sp[l] * v1[1], -sp[l] * v1[0] + cp[l] * v1[1], v1[2]];
+        let b = [v2[0], cr[l] * v2[1] + sr[l] * v2[2], -sr[l] * v2[1] + cr[l] * v2[2]];
+        for i in 0..3 {
+            reading[i][l] = k[i][0] * b[0] + k[i][1] * b[1] + k[i][2] * b[2] + o[i];
+        }
+    }
+    reading
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -251,6 +282,39 @@ mod tests {
         let (s, c) = sin_cos(&std::array::from_fn(|l| odd[l % 4]));
         assert!(s[0].to_bits() == 1e9f64.sin().to_bits() && c[1].to_bits() == 0.5f64.cos().to_bits());
         assert!(s[2].is_nan());
+    }
+
+    #[test]
+    fn small_angles_skip_the_reduction_with_the_same_bits() {
+        // All lanes within NO_REDUCTION take the path without reduction; one lane beyond it sends
+        // the other seven through the reduction and the selects. Each lane's bits must agree.
+        let mut rng = stream_rng(4, 0);
+        let edges = [
+            NO_REDUCTION,
+            -NO_REDUCTION,
+            NO_REDUCTION.next_down(),
+            0.0,
+            -0.0,
+            1e-300,
+            -5e-324,
+        ];
+        for i in 0..100_000 {
+            let small: Lanes = std::array::from_fn(|l| {
+                if i < edges.len() && l == 0 {
+                    edges[i]
+                } else {
+                    rng.random_range(-NO_REDUCTION..=NO_REDUCTION)
+                }
+            });
+            let mut mixed = small;
+            mixed[LANES - 1] = 2.0;
+            let (s1, c1) = sin_cos(&small);
+            let (s2, c2) = sin_cos(&mixed);
+            for l in 0..LANES - 1 {
+                assert_eq!(s1[l].to_bits(), s2[l].to_bits(), "sin {}", small[l]);
+                assert_eq!(c1[l].to_bits(), c2[l].to_bits(), "cos {}", small[l]);
+            }
+        }
     }
 
     #[test]

@@ -240,9 +240,7 @@ impl Swarm {
             // One chunk per task (rayon's default split): more chunks per task are slower on two
             // threads (`benches/design.rs`).
             let step = |chunk: &mut [Particle]| {
-                for p in chunk.iter_mut() {
-                    move_particle(p, w, (c1, c2), g, (&lo, &hi, &vmax));
-                }
+                move_chunk(chunk, w, (c1, c2), g, (&lo, &hi, &vmax));
                 evaluate(problem, criterion, chunk);
             };
             if parallel {
@@ -335,51 +333,85 @@ fn evaluate(problem: &DesignProblem, criterion: DesignCriterion, chunk: &mut [Pa
     }
 }
 
-/// `r1`, `r2` of \[P1\] eq. (17): two independent uniforms on [0, 1) with 32-bit resolution, from the
-/// two halves of one 64-bit draw (half the generator's work of two `f64` draws; a resolution of
-/// 2^-32 is far below anything eq. (17) can resolve).
-#[inline]
-fn two_uniforms(rng: &mut MagcalRng) -> (f64, f64) {
-    const SCALE: f64 = 1.0 / 4_294_967_296.0; // 2^-32
-    let bits = rng.next_u64();
-    ((bits >> 32) as f64 * SCALE, (bits & 0xffff_ffff) as f64 * SCALE)
-}
+/// Scale of a 32-bit half of a draw onto [0, 1).
+const TWO_TO_MINUS_32: f64 = 1.0 / 4_294_967_296.0;
 
 /// Dimensions whose uniforms are drawn at once before the arithmetic of [`move_particle`].
 const BLOCK: usize = 32;
 
 /// \[P1\] eq. (17)-(18) for one particle: the velocity from inertia `w`, the cognitive and social
 /// factors `(c1, c2)` and the swarm's best `g`, clamped to `V_max`; then the move, clamped to the
-/// box. The uniforms of a block of dimensions are drawn first, in dimension order (the stream of
-/// the particle is the same as one draw per dimension), so that the arithmetic over the block
-/// has no call in it and runs in vector registers.
-#[inline]
-fn move_particle(p: &mut Particle, w: f64, (c1, c2): (f64, f64), g: &[f64], (lo, hi, vmax): (&[f64], &[f64], &[f64])) {
+/// box.
+///
+/// `r1`, `r2` of eq. (17) are two independent uniforms on [0, 1) with 32-bit resolution, the two
+/// halves of one 64-bit draw (half the generator's work of two `f64` draws; a resolution of 2^-32 is
+/// far below anything eq. (17) can resolve). The draws of a block of dimensions are taken at once
+/// (`fill_bytes` yields the words `next_u64` would, in the same order: the stream of the particle is
+/// one draw per dimension), so that the arithmetic over the block has no call in it and runs in
+/// vector registers. The clamps are written as comparisons: `f64::clamp` checks its bounds on every
+/// call, a branch that kept the loop scalar; for bounds in order they give the same values.
+#[inline(always)]
+fn move_particle(
+    p: &mut Particle,
+    w: f64,
+    (c1, c2): (f64, f64),
+    g: &[f64],
+    (lo, hi, vmax): (&[f64], &[f64], &[f64]),
+    bytes: &mut [u8; 8 * BLOCK],
+) {
     let Particle { x, v, best_x, rng, .. } = p;
-    let mut r1 = [0.0; BLOCK];
-    let mut r2 = [0.0; BLOCK];
     let mut from = 0;
     while from < x.len() {
         let to = (from + BLOCK).min(x.len());
         let n = to - from;
-        for k in 0..n {
-            (r1[k], r2[k]) = two_uniforms(rng);
-        }
+        rng.fill_bytes(&mut bytes[..8 * n]);
+        let draws = bytes[..8 * n].chunks_exact(8);
         let state = x[from..to]
             .iter_mut()
             .zip(&mut v[from..to])
             .zip(&best_x[from..to])
             .zip(&g[from..to]);
         let bounds = lo[from..to].iter().zip(&hi[from..to]).zip(&vmax[from..to]);
-        for (k, ((((x, v), &pbest), &gbest), ((&lo, &hi), &vmax))) in state.zip(bounds).enumerate() {
+        for (((((x, v), &pbest), &gbest), ((&lo, &hi), &vmax)), draw) in state.zip(bounds).zip(draws) {
+            let bits = u64::from_le_bytes(draw.try_into().expect("8 bytes"));
+            let r1 = word_to_f64(bits >> 32) * TWO_TO_MINUS_32;
+            let r2 = word_to_f64(bits) * TWO_TO_MINUS_32;
             // [P1] eq. (17): inertia + cognitive (Pbest) + social (Gbest) terms.
-            let v_new = w * *v + c1 * r1[k] * (pbest - *x) + c2 * r2[k] * (gbest - *x);
-            *v = v_new.clamp(-vmax, vmax);
+            let v_new = w * *v + c1 * r1 * (pbest - *x) + c2 * r2 * (gbest - *x);
+            *v = clamp(v_new, -vmax, vmax);
             // [P1] eq. (18), then back into the search space.
-            *x = (*x + *v).clamp(lo, hi);
+            *x = clamp(*x + *v, lo, hi);
         }
         from = to;
     }
+}
+
+/// [`move_particle`] for each particle of a chunk, compiled for AVX2 and for baseline x86-64, the
+/// one the CPU can run chosen at run time (as the fitness kernel, `design/lanes.rs`). Both give
+/// the same bits: the arithmetic is `+ - *` and comparisons, each correctly rounded at any width,
+/// and no multiply is fused with an add.
+#[multiversion::multiversion(targets("x86_64+avx2+avx"))]
+fn move_chunk(chunk: &mut [Particle], w: f64, c: (f64, f64), g: &[f64], bounds: (&[f64], &[f64], &[f64])) {
+    let mut bytes = [0u8; 8 * BLOCK];
+    for p in chunk.iter_mut() {
+        move_particle(p, w, c, g, bounds, &mut bytes);
+    }
+}
+
+/// A 32-bit word as `f64` (exact), by its bits: `2^52 + u` has `u` in its low mantissa bits. The same
+/// value as `u as f64`, in integer and float operations that vectorise (the cast is a scalar
+/// conversion on x86-64 without AVX-512).
+#[inline(always)]
+fn word_to_f64(u: u64) -> f64 {
+    const TWO_TO_52: f64 = 4_503_599_627_370_496.0;
+    f64::from_bits(TWO_TO_52.to_bits() | (u & 0xffff_ffff)) - TWO_TO_52
+}
+
+/// `f64::clamp` for `lo <= hi`, without its check of the bounds.
+#[inline(always)]
+fn clamp(value: f64, lo: f64, hi: f64) -> f64 {
+    let value = if value < lo { lo } else { value };
+    if value > hi { hi } else { value }
 }
 
 /// Index and fitness of the particle with the lowest Pbest fitness; ties keep the lower index.
