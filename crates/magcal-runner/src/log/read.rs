@@ -493,7 +493,7 @@ fn list(names: &[String]) -> String {
 }
 
 /// The reading loop of [`stream`] over any reader.
-fn read_from<R: Read + Send>(
+fn read_from<R: Read>(
     input: BufReader<R>,
     shown: &str,
     wanted: Wanted,
@@ -518,11 +518,7 @@ fn read_from<R: Read + Send>(
     let mut first_row = true;
     let mut readings = 0usize;
     let mut skipped: Vec<(usize, String)> = Vec::new();
-    // Row by row up to the first data row, which chooses the columns; then in batches.
-    while pick.is_none() {
-        let Some(line) = lines.next(&mut buf, shown)? else {
-            break;
-        };
+    while let Some(line) = lines.next(&mut buf, shown)? {
         text_line(&mut buf, line, shown)?;
         let content = buf.trim_ascii_start();
         if content.is_empty() || content[0] == b'#' {
@@ -579,57 +575,6 @@ fn read_from<R: Read + Send>(
             }
         }
     }
-    if let (Some(pick), Some(s)) = (pick, &splitter) {
-        let rows = Rows {
-            separator: s.separator,
-            pick,
-            names: &names,
-            extras: &extra_pick,
-            filters,
-            filter_pick: &filter_pick,
-            shown,
-        };
-        let mut ahead = Batch::default();
-        ahead.read(&mut lines, &mut buf, shown);
-        loop {
-            let batch = std::mem::take(&mut ahead);
-            // The next batch is read (and hashed) while this one is parsed on the other core.
-            let (parsed, ()) = rayon::join(
-                || rows.parse(&batch),
-                || {
-                    if !batch.done {
-                        ahead.read(&mut lines, &mut buf, shown);
-                    }
-                },
-            );
-            for (&(line, _), (row, extra_values)) in batch.lines.iter().zip(parsed) {
-                match row {
-                    Err(e) => return Err(e),
-                    Ok(Row::Ignored) => {}
-                    Ok(Row::Filtered) => filtered += 1,
-                    Ok(Row::Value(value, bad)) => {
-                        budget.check(shown, line, readings, skipped.len())?;
-                        match bad {
-                            Some(reason) if skip_bad => skipped.push((line, reason)),
-                            Some(reason) => {
-                                bail!("{shown}: line {line}: {reason} (--skip-bad drops such rows and counts them)")
-                            }
-                            None => {
-                                each(line, value, &extra_values)?;
-                                readings += 1;
-                            }
-                        }
-                    }
-                }
-            }
-            if let Some(e) = batch.error {
-                return Err(e);
-            }
-            if batch.done {
-                break;
-            }
-        }
-    }
     if splitter.is_none() {
         bail!("{shown}: the log is empty");
     }
@@ -647,134 +592,6 @@ fn read_from<R: Read + Send>(
         sha256: String::new(),
         bytes: 0,
     })
-}
-
-/// Text read ahead of the parse: a batch ends at the first line past this many bytes.
-const BATCH_BYTES: usize = 1 << 20;
-
-/// Data rows parsed by one task.
-const ROWS_PER_TASK: usize = 4096;
-
-/// Lines of a log read ahead, their text end to end.
-#[derive(Default)]
-struct Batch {
-    text: Vec<u8>,
-    /// Each line's number and the end of its text.
-    lines: Vec<(usize, usize)>,
-    /// The end of the input, or an error of the reader (`error`) after the lines before it.
-    done: bool,
-    error: Option<anyhow::Error>,
-}
-
-impl Batch {
-    /// The next lines of `lines`, about [`BATCH_BYTES`] of them.
-    fn read<R: BufRead>(&mut self, lines: &mut Lines<R>, buf: &mut Vec<u8>, shown: &str) {
-        while self.text.len() < BATCH_BYTES {
-            match lines.next(buf, shown) {
-                Ok(Some(line)) => {
-                    self.text.extend_from_slice(buf);
-                    self.lines.push((line, self.text.len()));
-                }
-                Ok(None) => {
-                    self.done = true;
-                    break;
-                }
-                Err(e) => {
-                    self.done = true;
-                    self.error = Some(e);
-                    break;
-                }
-            }
-        }
-    }
-}
-
-/// A line after the first data row: nothing to read (blank, a comment, every cell empty), left
-/// out by a filter, or a reading and why it is bad.
-enum Row {
-    Ignored,
-    Filtered,
-    Value(Vec3, Option<String>),
-}
-
-/// How the rows after the first data row are read: its separator and columns.
-struct Rows<'a> {
-    separator: Separator,
-    pick: [usize; 3],
-    names: &'a [String],
-    extras: &'a [usize],
-    filters: &'a [RowFilter],
-    filter_pick: &'a [usize],
-    shown: &'a str,
-}
-
-impl Rows<'_> {
-    /// Each line of `batch` as a row and its extra values, tasks of [`ROWS_PER_TASK`] lines in
-    /// parallel; a task stops at its first error (the rows after it are never looked at).
-    fn parse(&self, batch: &Batch) -> Vec<(Result<Row>, Vec<Option<f64>>)> {
-        use rayon::prelude::*;
-        let starts: Vec<usize> = std::iter::once(0)
-            .chain(batch.lines.iter().map(|&(_, end)| end))
-            .collect();
-        batch
-            .lines
-            .par_chunks(ROWS_PER_TASK)
-            .enumerate()
-            .flat_map_iter(|(k, chunk)| {
-                let mut splitter = Splitter::new(self.separator);
-                let mut line_buf = Vec::new();
-                let mut out = Vec::with_capacity(chunk.len());
-                for (i, &(line, end)) in chunk.iter().enumerate() {
-                    let text = &batch.text[starts[k * ROWS_PER_TASK + i]..end];
-                    let mut extra_values = Vec::new();
-                    let row = self.row(&mut splitter, &mut line_buf, text, line, &mut extra_values);
-                    let failed = row.is_err();
-                    out.push((row, extra_values));
-                    if failed {
-                        break;
-                    }
-                }
-                out
-            })
-            .collect()
-    }
-
-    /// One line, as the row-by-row reading of [`read_from`] reads it.
-    fn row(
-        &self,
-        s: &mut Splitter,
-        buf: &mut Vec<u8>,
-        text: &[u8],
-        line: usize,
-        extra_values: &mut Vec<Option<f64>>,
-    ) -> Result<Row> {
-        let shown = self.shown;
-        no_nul(text, line, shown)?;
-        let content = text.trim_ascii_start();
-        if content.is_empty() || content[0] == b'#' {
-            return Ok(Row::Ignored);
-        }
-        buf.clear();
-        buf.extend_from_slice(text);
-        buf.push(b'\n');
-        if s.split(buf).is_err() {
-            bail!(
-                "{shown}: line {line}: a quote (\") is not closed on its line: {}",
-                excerpt(buf.trim_ascii())
-            );
-        }
-        if (0..s.len()).all(|i| s.get(i).is_some_and(<[u8]>::is_empty)) {
-            return Ok(Row::Ignored);
-        }
-        if !passes(s, self.filters, self.filter_pick, self.names, shown, line)? {
-            return Ok(Row::Filtered);
-        }
-        let (value, bad) = row_value(s, self.pick, self.names, shown, line)?;
-        for &c in self.extras {
-            extra_values.push(extra_value(s, c, self.names, shown, line)?);
-        }
-        Ok(Row::Value(value, bad))
-    }
 }
 
 /// Why a log gave no readings: every row left out by `filters`, or skipped.
@@ -839,14 +656,9 @@ fn text_line(buf: &mut Vec<u8>, line: usize, shown: &str) -> Result<()> {
     if line == 1 && (buf.starts_with(b"\xff\xfe") || buf.starts_with(b"\xfe\xff")) {
         bail!("{shown}: line 1: the log is UTF-16 text (it starts with a UTF-16 byte order mark); save it as UTF-8");
     }
-    no_nul(buf, line, shown)
-}
-
-/// Line `line` has no NUL byte (which names the file as binary or UTF-16).
-fn no_nul(text: &[u8], line: usize, shown: &str) -> Result<()> {
     // `contains` looks for the byte a word at a time; where it is found, `position` says where.
-    if text.contains(&0)
-        && let Some(at) = text.iter().position(|&b| b == 0)
+    if buf.contains(&0)
+        && let Some(at) = buf.iter().position(|&b| b == 0)
     {
         bail!(
             "{shown}: line {line}: byte {} is NUL: not a text log (UTF-16 text or a binary file? a flight log through a pipe: give --format)",
@@ -1229,62 +1041,6 @@ mod tests {
             },
         )?;
         Ok((rows, s))
-    }
-
-    /// A log of several batches and tasks: every reading in line order with its line, comments,
-    /// blank lines and bad rows where they are; the first error in line order, whichever task or
-    /// batch finds it, and a reader's error only after the rows before it.
-    #[test]
-    fn batches_read_as_one_row_at_a_time() {
-        const ROWS: usize = 150_000;
-        let mut text = b"x,y,z\n".to_vec();
-        let mut want = Vec::new();
-        let mut bad_lines = Vec::new();
-        for line in 2..=ROWS {
-            match line % 9_973 {
-                0 => text.extend_from_slice(b"# a comment\n"),
-                1 => text.extend_from_slice(b"\n"),
-                2 => {
-                    text.extend_from_slice(b"1,nan,3\n");
-                    bad_lines.push(line);
-                }
-                _ => {
-                    let v = [line as f64, 0.5 * line as f64, -(line as f64)];
-                    text.extend_from_slice(format!("{},{},{}\n", v[0], v[1], v[2]).as_bytes());
-                    want.push((line, v));
-                }
-            }
-        }
-        assert!(text.len() > 2 * BATCH_BYTES);
-        let (rows, s) = parse(&text, None, true).unwrap();
-        assert_eq!(rows, want);
-        assert_eq!(s.readings, want.len());
-        assert_eq!(s.skipped.iter().map(|&(l, _)| l).collect::<Vec<_>>(), bad_lines);
-        // Without --skip-bad, the first bad row stops the reading.
-        assert!(error(&text, None).starts_with(&format!("t.csv: line {}: column 2 (y) is NaN", bad_lines[0])));
-
-        // Two cells that are not numbers, in different batches: the first is named.
-        let replace = |text: &mut Vec<u8>, line: usize, with: &[u8]| {
-            let start = text
-                .split(|&b| b == b'\n')
-                .take(line - 1)
-                .map(|l| l.len() + 1)
-                .sum::<usize>();
-            let end = start + text[start..].iter().position(|&b| b == b'\n').unwrap();
-            text.splice(start..end, with.iter().copied());
-        };
-        let skipping = |text: &[u8]| format!("{:#}", parse(text, None, true).unwrap_err());
-        let mut broken = text.clone();
-        replace(&mut broken, 120_000, b"1,2,three");
-        replace(&mut broken, 70_001, b"1,two,3");
-        assert!(skipping(&broken).starts_with("t.csv: line 70001, column 2 (y): \"two\" is not a number"));
-        // A line too long for the reader after a bad cell: the cell is named; without it, the line.
-        let long = vec![b'1'; MAX_LINE_BYTES + 1];
-        let mut too_long = text.clone();
-        replace(&mut too_long, 100_000, &long);
-        assert!(skipping(&too_long).starts_with("t.csv: line 100000 is longer than"));
-        replace(&mut too_long, 99_000, b"1,2,3,\"4");
-        assert!(skipping(&too_long).starts_with("t.csv: line 99000: a quote (\") is not closed"));
     }
 
     fn error(text: &[u8], columns: Option<&str>) -> String {
