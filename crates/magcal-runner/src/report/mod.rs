@@ -1,5 +1,5 @@
 //! Self-contained HTML pages of a result (`magcal report`): one file that opens offline, with
-//! plotly.js embedded as its only script (nothing is fetched), 3D views a person rotates and
+//! plotly.js embedded (compressed; nothing is fetched), 3D views a person rotates and
 //! hovers, and the result's numbers in tables.
 //!
 //! A page is a list of [`Block`]s rendered by one askama template (`templates/page.html`), which
@@ -7,8 +7,9 @@
 //!
 //! # A page from someone else's set
 //! A page is meant to be shared, and a set can come from anyone: nothing of it may run, fetch or
-//! read. Its `Content-Security-Policy` lets no script run but the two the page carries (plotly.js
-//! and the figures' loader, named by their SHA-256), loads nothing from anywhere (images only as
+//! read. Its `Content-Security-Policy` lets no script run but the one the page carries (the loader,
+//! named by its SHA-256, which unpacks and runs plotly.js from the binary's own block and draws
+//! the figures), loads nothing from anywhere (images only as
 //! `data:`), and so blocks every inline event handler. Text reaches the page only escaped: by the
 //! template in the markup, as `\u003c` and the like in the JSON blocks (so that no `</script`,
 //! `<!--` or `<script` in a string ends or turns a block), and as entities in what plotly shows
