@@ -153,9 +153,33 @@ fn ln_det_lanes_baseline(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes 
 /// `ln det M_F` of [`LANES`] designs of `m` attitudes, with the loops over the lanes innermost.
 #[inline(always)]
 fn ln_det_lanes_body(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
+    let [n, u, e] = problem.field().b_n();
+    let yaw_offset = problem.field().yaw_offset_deg().to_radians();
+    let k = problem.k_scaled();
+    let o = problem.o_scaled();
     let mut moments = [[0.0; LANES]; MOMENTS];
     for a in 0..problem.m() {
-        let reading = readings_of(problem, &xs, a);
+        let mut roll = [0.0; LANES];
+        let mut yaw = [0.0; LANES];
+        let mut pitch = [0.0; LANES];
+        for l in 0..LANES {
+            roll[l] = xs[l][3 * a];
+            yaw[l] = xs[l][3 * a + 1] + yaw_offset;
+            pitch[l] = xs[l][3 * a + 2];
+        }
+        let (sr, cr) = sin_cos(&roll);
+        let (sy, cy) = sin_cos(&yaw);
+        let (sp, cp) = sin_cos(&pitch);
+        let mut reading = [[0.0; LANES]; 3];
+        for l in 0..LANES {
+            // [P1] eq. (2) as three plane rotations (see ReferenceField::body_field).
+            let v1 = [cy[l] * n - sy[l] * e, u, sy[l] * n + cy[l] * e];
+            let v2 = [cp[l] * v1[0] + sp[l] * v1[1], -sp[l] * v1[0] + cp[l] * v1[1], v1[2]];
+            let b = [v2[0], cr[l] * v2[1] + sr[l] * v2[2], -sr[l] * v2[1] + cr[l] * v2[2]];
+            for i in 0..3 {
+                reading[i][l] = k[i][0] * b[0] + k[i][1] * b[1] + k[i][2] * b[2] + o[i];
+            }
+        }
         for l in 0..LANES {
             let terms = crate::linear_model::monomials([reading[0][l], reading[1][l], reading[2][l]]);
             for (m, t) in moments.iter_mut().zip(terms) {
@@ -213,37 +237,6 @@ fn ln_det_lanes_body(problem: &DesignProblem, xs: [&[f64]; LANES]) -> Lanes {
     out
 }
 
-/// The scaled readings `(x, y, z)` of attitude `a` of each lane's design, \[P1\] eq. (2) and (6).
-#[inline(always)]
-fn readings_of(problem: &DesignProblem, xs: &[&[f64]; LANES], a: usize) -> [Lanes; 3] {
-    let [n, u, e] = problem.field().b_n();
-    let yaw_offset = problem.field().yaw_offset_deg().to_radians();
-    let k = problem.k_scaled();
-    let o = problem.o_scaled();
-    let mut roll = [0.0; LANES];
-    let mut yaw = [0.0; LANES];
-    let mut pitch = [0.0; LANES];
-    for l in 0..LANES {
-        roll[l] = xs[l][3 * a];
-        yaw[l] = xs[l][3 * a + 1] + yaw_offset;
-        pitch[l] = xs[l][3 * a + 2];
-    }
-    let (sr, cr) = sin_cos(&roll);
-    let (sy, cy) = sin_cos(&yaw);
-    let (sp, cp) = sin_cos(&pitch);
-    let mut reading = [[0.0; LANES]; 3];
-    for l in 0..LANES {
-        // [P1] eq. (2) as three plane rotations (see ReferenceField::body_field).
-        let v1 = [cy[l] * n - sy[l] * e, u, sy[l] * n + cy[l] * e];
-        let v2 = [cp[l] * v1[0] + sp[l] * v1[1], -sp[l] * v1[0] + cp[l] * v1[1], v1[2]];
-        let b = [v2[0], cr[l] * v2[1] + sr[l] * v2[2], -sr[l] * v2[1] + cr[l] * v2[2]];
-        for i in 0..3 {
-            reading[i][l] = k[i][0] * b[0] + k[i][1] * b[1] + k[i][2] * b[2] + o[i];
-        }
-    }
-    reading
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -287,7 +280,7 @@ mod tests {
     #[test]
     fn small_angles_skip_the_reduction_with_the_same_bits() {
         // All lanes within NO_REDUCTION take the path without reduction; one lane beyond it sends
-        // the other seven through the reduction and the selects. Each lane's bits must agree.
+        // the others through the reduction and the selects. Each lane's bits must agree.
         let mut rng = stream_rng(4, 0);
         let edges = [
             NO_REDUCTION,

@@ -487,6 +487,28 @@ mod tests {
     }
 
     #[test]
+    fn block_draws_are_the_streams_words_and_exact() {
+        // `move_particle` takes its draws by `fill_bytes`: the same 64-bit words, in order, as one
+        // `next_u64` per dimension, across the generator's block boundaries.
+        let mut by_word = stream_rng(7, 3);
+        let mut by_block = stream_rng(7, 3);
+        let mut bytes = [0u8; 8 * BLOCK];
+        for n in [27, 1, BLOCK, 5, 31, 27, 27, 2] {
+            by_block.fill_bytes(&mut bytes[..8 * n]);
+            for draw in bytes[..8 * n].chunks_exact(8) {
+                assert_eq!(u64::from_le_bytes(draw.try_into().unwrap()), by_word.next_u64());
+            }
+        }
+        // The bit trick is the cast, for every 32-bit half.
+        for u in [0u64, 1, 2, 0x7fff_ffff, 0x8000_0000, 0xffff_fffe, 0xffff_ffff, u64::MAX]
+            .into_iter()
+            .chain((0..10_000).map(|_| by_word.next_u64()))
+        {
+            assert_eq!(word_to_f64(u).to_bits(), ((u & 0xffff_ffff) as f64).to_bits(), "{u:#x}");
+        }
+    }
+
+    #[test]
     fn threshold_stops_early() {
         let problem = paper_problem();
         let swarm = Swarm {
