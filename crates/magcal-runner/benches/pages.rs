@@ -168,7 +168,7 @@ fn main() {
         for _ in 0..OPENS {
             let opened = browser::open(&chrome, &page, Duration::from_secs(120));
             assert!(opened.errors.is_empty(), "{id}: {:?}", opened.errors);
-            let _ = opened.tab.close(true);
+            let _ = opened.tab.close();
             for (t, v) in times.iter_mut().zip([
                 opened.painted,
                 opened.first_screen,

@@ -32,7 +32,7 @@ fn broad_args() -> Vec<&'static std::ffi::OsStr> {
 
 /// Opens `page` and checks what every page of `evaluate` must: no error, nothing fetched, each
 /// 2D figure drawn (at least 2 % of its pixels off the background).
-fn open_checked(browser: &headless_chrome::Browser, page_path: &Path) -> Opened {
+fn open_checked(browser: &crate::browser::Browser, page_path: &Path) -> Opened {
     let page = open(browser, page_path, Duration::from_secs(60));
     assert!(page.errors.is_empty(), "{:?}", page.errors);
     assert!(

@@ -281,7 +281,7 @@ fn the_page_of_every_shipped_replay_set_draws_offline_and_shows_its_csv_numbers(
         let points = page.eval("JSON.parse(document.getElementById('magcal-data').textContent).realisation_points");
         assert_eq!(points.as_u64(), Some(rows(&set.join("realisation.csv")).len() as u64));
         eprintln!("{name}: {bytes} bytes, drawn in {:.2} s", page.seconds);
-        page.tab.close(true).unwrap();
+        page.tab.close().unwrap();
     }
 }
 

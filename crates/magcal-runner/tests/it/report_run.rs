@@ -205,7 +205,7 @@ fn assert_figures(page: &Opened, html: &str, set: &Path) {
 }
 
 /// The page of a shipped set, opened: no console error, no request, the plan drawn.
-fn opened(browser: &headless_chrome::Browser, set: &Path, out: &Path) -> (Opened, String) {
+fn opened(browser: &crate::browser::Browser, set: &Path, out: &Path) -> (Opened, String) {
     report(set, out);
     assert_traces_in_bundle(out);
     let page = open(browser, out, Duration::from_secs(90));
