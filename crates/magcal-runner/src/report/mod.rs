@@ -172,6 +172,13 @@ pub fn plotly_packed() -> &'static str {
     })
 }
 
+/// `plot` as plotly's JSON, with the pages' configuration: the modebar without the plotly logo,
+/// the figure's size following the window.
+pub fn figure_json(mut plot: Plot) -> Value {
+    plot.set_configuration(Configuration::new().display_logo(false).responsive(true));
+    serde_json::from_str(&plot.to_json()).expect("plotly writes JSON")
+}
+
 /// The page's Content-Security-Policy: no source of anything but the page itself, its
 /// script by hash (which also forbids every inline event handler and `javascript:` URL), inline
 /// styles (plotly sets them), and images and fonts as `data:` only.
@@ -275,12 +282,16 @@ impl Page {
 
     /// Adds a plotly figure as `id` (a DOM id), `height` pixels high, its modebar without the
     /// plotly logo and its size following the window.
-    pub fn plot(&mut self, id: &str, mut plot: Plot, height: u32, caption: impl Into<String>) {
-        plot.set_configuration(Configuration::new().display_logo(false).responsive(true));
+    pub fn plot(&mut self, id: &str, plot: Plot, height: u32, caption: impl Into<String>) {
+        self.figure(id, figure_json(plot), height, caption);
+    }
+
+    /// Adds a figure given as plotly's JSON (as [`figure_json`] writes it, edited where plotly's
+    /// typed traces lack an attribute), as [`Page::plot`] does.
+    pub fn figure(&mut self, id: &str, mut figure: Value, height: u32, caption: impl Into<String>) {
         // The figure waits in a JSON block for the page's loader (templates/loader.js), which
         // draws it when it comes near the screen: a page of many WebGL views opens at once
         // instead of building every view before it shows anything.
-        let mut figure: Value = serde_json::from_str(&plot.to_json()).expect("plotly writes JSON");
         for trace in figure["data"].as_array().into_iter().flatten() {
             let kind = trace["type"].as_str().unwrap_or("scatter");
             assert!(

@@ -419,7 +419,7 @@ fn distributions(page: &mut Page, set: &ReplaySet) {
         }
         let figure = distribution(set, column, name, unit);
         let id = format!("dist-{}", column.replace('_', "-"));
-        page.plot(&id, figure.plot, 480, figure.caption);
+        page.figure(&id, figure.figure, 480, figure.caption);
         if let Some(note) = figure.note {
             page.note(note);
         }
@@ -430,7 +430,7 @@ fn distributions(page: &mut Page, set: &ReplaySet) {
 
 /// A distribution figure, what it says, and the values drawn per model and design.
 struct Distribution {
-    plot: Plot,
+    figure: serde_json::Value,
     caption: String,
     note: Option<String>,
     per_trace: BTreeMap<String, BTreeMap<String, usize>>,
@@ -439,11 +439,15 @@ struct Distribution {
 fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distribution {
     let designs = set.designs();
     let mut plot = Plot::new();
+    // The category of each trace: one trace per model and design (the design its `x0`, not a
+    // name per point, which was 40 % of the figure's bytes), grouped by model.
+    let mut positions = Vec::new();
     let mut per_trace = BTreeMap::new();
     let (mut non_finite, mut non_positive) = (0usize, 0usize);
     let mut values_all = Vec::new();
     for (k, model) in set.models().iter().enumerate() {
-        let (mut x, mut y, mut text) = (Vec::new(), Vec::new(), Vec::new());
+        let colour = model_colour(model, k);
+        let mut by_design: BTreeMap<&str, (Vec<f64>, Vec<String>)> = BTreeMap::new();
         let mut counts = BTreeMap::new();
         for row in set.trials.iter().filter(|r| r.model == *model) {
             if row.status.0 != CalibrationStatus::Ok {
@@ -455,36 +459,55 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
                 continue;
             }
             non_positive += usize::from(v <= 0.0);
-            x.push(row.design.clone());
+            let (y, text) = by_design.entry(row.design.as_str()).or_default();
             y.push(drawn(v));
             text.push(format!("trial {}", row.trial));
             *counts.entry(row.design.clone()).or_insert(0usize) += 1;
             values_all.push(v);
         }
+        let mut traces: Vec<(String, Vec<f64>, Vec<String>)> = designs
+            .iter()
+            .filter_map(|(d, _)| {
+                let (y, text) = by_design.remove(d.as_str())?;
+                Some((d.clone(), y, text))
+            })
+            .collect();
+        // A design of trials.csv that summary.csv lacks (the page refuses such a set before) is
+        // still drawn, after the others.
+        traces.extend(by_design.into_iter().map(|(d, (y, text))| (d.to_string(), y, text)));
         if let Some(w) = set.whole_log.iter().find(|w| w.model == *model)
             && let Some(v) = whole_value_of(w, column).filter(|v| v.is_finite())
         {
             non_positive += usize::from(v <= 0.0);
-            x.push(WHOLE_LOG.to_string());
-            y.push(drawn(v));
-            text.push(format!(
-                "the whole log's calibration ({} readings, {})",
-                w.readings, w.status.0
+            traces.push((
+                WHOLE_LOG.to_string(),
+                vec![drawn(v)],
+                vec![format!(
+                    "the whole log's calibration ({} readings, {})",
+                    w.readings, w.status.0
+                )],
             ));
         }
         per_trace.insert(model.clone(), counts);
-        let colour = model_colour(model, k);
-        let trace = BoxPlot::new_xy(x, y)
-            .name(model)
-            .box_points(BoxPoints::All)
-            .jitter(0.4)
-            .point_pos(0.0)
-            .hover_on(HoverOn::BoxesAndPoints)
-            // The hover shows the design (x) itself: the text names only the trial.
-            .text_array(text)
-            .marker(Marker::new().size(3).color(colour).opacity(0.6))
-            .line(Line::new().color(colour).width(1.2));
-        plot.add_trace(trace);
+        for (t, (design, y, text)) in traces.into_iter().enumerate() {
+            let trace = BoxPlot::new(y)
+                .name(model)
+                .legend_group(model)
+                .show_legend(t == 0)
+                .alignment_group("models")
+                .offset_group(model)
+                .box_points(BoxPoints::All)
+                .jitter(0.4)
+                .point_pos(0.0)
+                .hover_on(HoverOn::BoxesAndPoints)
+                // The hover shows the design (the box's place) itself: the text names only the
+                // trial.
+                .text_array(text)
+                .marker(Marker::new().size(3).color(colour).opacity(0.6))
+                .line(Line::new().color(colour).width(1.2));
+            plot.add_trace(trace);
+            positions.push(design);
+        }
     }
     let log = non_positive == 0 && !values_all.is_empty();
     let mut categories: Vec<String> = designs.into_iter().map(|(d, _)| d).collect();
@@ -515,8 +538,13 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
     );
     let note = (non_finite > 0)
         .then(|| format!("{non_finite} ok trials have a {name} that is not a finite number; not drawn."));
+    // plotly's typed box trace has no `x0`: it is set in the JSON.
+    let mut figure = super::figure_json(plot);
+    for (trace, design) in figure["data"].as_array_mut().into_iter().flatten().zip(positions) {
+        trace["x0"] = json!(design);
+    }
     Distribution {
-        plot,
+        figure,
         caption,
         note,
         per_trace,
