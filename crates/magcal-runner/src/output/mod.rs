@@ -354,6 +354,43 @@ pub fn write_csv<T: Serialize + Default>(rows: impl IntoIterator<Item = T>, w: i
     Ok(())
 }
 
+/// Rows formatted per block by one task of [`write_csv_indexed`].
+const CSV_BLOCK: usize = 16_384;
+
+/// [`write_csv`] of the `n` rows `row(0)`, ..., `row(n - 1)`, formatted in blocks of
+/// [`CSV_BLOCK`] rows on every thread and written in their order: the same bytes on one thread
+/// or many (a CSV record's text does not depend on the records before it), with a few blocks per
+/// thread in memory at a time. A calibration's ten million residual rows take 16-22 s to format
+/// on one thread.
+pub fn write_csv_indexed<T, F>(n: usize, row: F, mut w: impl Write) -> Result<()>
+where
+    T: Serialize + Default,
+    F: Fn(usize) -> T + Sync,
+{
+    use rayon::prelude::*;
+    w.write_all(&csv_bytes(std::iter::empty::<T>())?)?;
+    let batch = CSV_BLOCK * 2 * rayon::current_num_threads().max(1);
+    for start in (0..n).step_by(batch) {
+        let end = (start + batch).min(n);
+        let starts: Vec<usize> = (start..end).step_by(CSV_BLOCK).collect();
+        let blocks: Vec<Result<Vec<u8>>> = starts
+            .into_par_iter()
+            .map(|b| {
+                let mut csv = csv::WriterBuilder::new().has_headers(false).from_writer(Vec::new());
+                for i in b..(b + CSV_BLOCK).min(end) {
+                    csv.serialize(row(i))?;
+                }
+                csv.into_inner().map_err(|e| anyhow::anyhow!("{}", e.error()))
+            })
+            .collect();
+        for block in blocks {
+            w.write_all(&block?)?;
+        }
+    }
+    w.flush()?;
+    Ok(())
+}
+
 /// Formats rows into memory.
 pub fn csv_bytes<T: Serialize + Default>(rows: impl IntoIterator<Item = T>) -> Result<Vec<u8>> {
     let mut buf = Vec::new();

@@ -985,32 +985,28 @@ fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJso
     set.put_with("residuals.csv", |w| {
         let mut w = Hashing::new(w);
         let attitudes = log.attitudes.as_deref();
-        let residuals = log
-            .readings
-            .iter()
-            .zip(&log.lines)
-            .enumerate()
-            .map(|(i, (raw, &line))| {
-                let b = json.apply_body(*raw);
-                let norm = magcal_core::small::norm(b);
-                let angles = attitudes.and_then(|a| a[i].as_ref()).map(roll_pitch_heading_deg);
-                let angle = |k: usize| angles.map(|a| Derived(a[k]));
-                ResidualRow {
-                    line,
-                    raw_x: Real(raw[0]),
-                    raw_y: Real(raw[1]),
-                    raw_z: Real(raw[2]),
-                    x: Derived(b[0]),
-                    y: Derived(b[1]),
-                    z: Derived(b[2]),
-                    norm: Derived(norm),
-                    residual: Derived(norm - json.magnitude),
-                    roll_deg: angle(0),
-                    pitch_deg: angle(1),
-                    heading_deg: angle(2),
-                }
-            });
-        output::write_csv(residuals, &mut w)?;
+        let residual = |i: usize| {
+            let (raw, line) = (log.readings[i], log.lines[i]);
+            let b = json.apply_body(raw);
+            let norm = magcal_core::small::norm(b);
+            let angles = attitudes.and_then(|a| a[i].as_ref()).map(roll_pitch_heading_deg);
+            let angle = |k: usize| angles.map(|a| Derived(a[k]));
+            ResidualRow {
+                line,
+                raw_x: Real(raw[0]),
+                raw_y: Real(raw[1]),
+                raw_z: Real(raw[2]),
+                x: Derived(b[0]),
+                y: Derived(b[1]),
+                z: Derived(b[2]),
+                norm: Derived(norm),
+                residual: Derived(norm - json.magnitude),
+                roll_deg: angle(0),
+                pitch_deg: angle(1),
+                heading_deg: angle(2),
+            }
+        };
+        output::write_csv_indexed(log.readings.len(), residual, &mut w)?;
         hex = w.hex();
         Ok(())
     })?;
