@@ -102,7 +102,7 @@ fn fixed_by_integer(x: f64, decimals: usize, buf: &mut [u8; 48]) -> Option<&str>
         1e20, 1e21, 1e22,
     ];
     let scaled = x.abs() * *POW10.get(decimals)?;
-    if !(scaled < 4_503_599_627_370_496.0) {
+    if scaled >= 4_503_599_627_370_496.0 {
         return None;
     }
     let floor = scaled.floor();
@@ -933,7 +933,7 @@ mod tests {
         let row = |i: usize| Row {
             i,
             x: Derived((i as f64).sqrt() * -1.234_567_89e3),
-            note: (i % 7 == 0).then(|| format!("a \"quoted\", {i}")),
+            note: i.is_multiple_of(7).then(|| format!("a \"quoted\", {i}")),
         };
         for n in [0, 5, CSV_BLOCK * 4 * 3 + 17] {
             let one = csv_bytes((0..n).map(row)).unwrap();
