@@ -421,7 +421,7 @@ pub fn write_csv<T: Serialize + Default>(rows: impl IntoIterator<Item = T>, w: i
 const CSV_BLOCK: usize = 16_384;
 
 /// [`write_csv`] of the `n` rows `row(0)`, ..., `row(n - 1)`, formatted in blocks of
-/// [`CSV_BLOCK`] rows on every thread and written in their order: the same bytes on one thread
+/// `CSV_BLOCK` (16,384) rows on every thread and written in their order: the same bytes on one thread
 /// or many (a CSV record's text does not depend on the records before it), with a few blocks per
 /// thread in memory at a time. A calibration's ten million residual rows take 16-22 s to format
 /// on one thread.
