@@ -512,27 +512,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
     let log = non_positive == 0 && !values_all.is_empty();
     let mut categories: Vec<String> = designs.into_iter().map(|(d, _)| d).collect();
     categories.push(WHOLE_LOG.to_string());
-    let span = vec![-0.5, categories.len() as f64 - 0.5];
-    plot.set_layout(
-        Layout::new()
-            .box_mode(BoxMode::Group)
-            .x_axis(
-                Axis::new()
-                    .title(Title::with_text("design"))
-                    .category_order(CategoryOrder::Array)
-                    .category_array(categories)
-                    .range(span),
-            )
-            .y_axis(
-                Axis::new()
-                    .title(Title::with_text(format!(
-                        "{name} ({unit}{})",
-                        if log { ", log scale" } else { "" }
-                    )))
-                    .type_(if log { AxisType::Log } else { AxisType::Linear }),
-            )
-            .margin(Margin::new().top(30).bottom(60)),
-    );
+    plot.set_layout(distribution_layout(categories, &format!("{name} ({unit}"), log));
     let caption = format!(
         "{name} ({unit}) of every ok trial, per design (one box per model: median, quartiles and whiskers, every trial a point; hover for its trial), as [P1] Figs. 1-3 draw eta per design; at the right the whole log's own calibration by each model (its status in the table of the whole log below). Trials that are not ok are counted in the table above, not drawn; summary.csv's statistics are over the same ok trials."
     );
@@ -549,6 +529,31 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
         note,
         per_trace,
     }
+}
+
+/// The layout of a distribution figure: the designs and the whole log as categories in their
+/// order, the boxes of the models side by side, the y axis titled `{what}` and logarithmic where
+/// `log`.
+fn distribution_layout(categories: Vec<String>, what: &str, log: bool) -> Layout {
+    let span = vec![-0.5, categories.len() as f64 - 0.5];
+    Layout::new()
+        .box_mode(BoxMode::Group)
+        .x_axis(
+            Axis::new()
+                .title(Title::with_text("design"))
+                .category_order(CategoryOrder::Array)
+                .category_array(categories)
+                .range(span),
+        )
+        .y_axis(
+            Axis::new()
+                .title(Title::with_text(format!(
+                    "{what}{})",
+                    if log { ", log scale" } else { "" }
+                )))
+                .type_(if log { AxisType::Log } else { AxisType::Linear }),
+        )
+        .margin(Margin::new().top(30).bottom(60))
 }
 
 /// The category of the whole log's values on the distribution figures.
