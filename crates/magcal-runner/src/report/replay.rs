@@ -444,7 +444,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
     let mut positions = Vec::new();
     let mut per_trace = BTreeMap::new();
     let (mut non_finite, mut non_positive) = (0usize, 0usize);
-    let mut values_all = Vec::new();
+    let mut trial_values = 0usize;
     for (k, model) in set.models().iter().enumerate() {
         let colour = model_colour(model, k);
         let mut by_design: BTreeMap<&str, (Vec<f64>, Vec<String>)> = BTreeMap::new();
@@ -463,7 +463,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
             y.push(drawn(v));
             text.push(format!("trial {}", row.trial));
             *counts.entry(row.design.clone()).or_insert(0usize) += 1;
-            values_all.push(v);
+            trial_values += 1;
         }
         let mut traces: Vec<(String, Vec<f64>, Vec<String>)> = designs
             .iter()
@@ -509,7 +509,7 @@ fn distribution(set: &ReplaySet, column: &str, name: &str, unit: &str) -> Distri
             positions.push(design);
         }
     }
-    let log = non_positive == 0 && !values_all.is_empty();
+    let log = non_positive == 0 && trial_values > 0;
     let mut categories: Vec<String> = designs.into_iter().map(|(d, _)| d).collect();
     categories.push(WHOLE_LOG.to_string());
     plot.set_layout(distribution_layout(categories, &format!("{name} ({unit}"), log));

@@ -95,18 +95,30 @@ impl Connection {
             out.0.write_all(&bytes).map_err(|e| format!("{method}: {e}"))?;
             id
         };
+        self.wait(method, REPLY_LIMIT, |inbox| inbox.replies.remove(&id))?
+            .map_err(|e| format!("{method}: {e}"))
+    }
+
+    /// Waits until `found` finds something in the inbox (at most `limit`); `what` names it in
+    /// the error of a browser that closed its pipe or did not answer in time.
+    fn wait<T>(
+        &self,
+        what: &str,
+        limit: Duration,
+        mut found: impl FnMut(&mut Inbox) -> Option<T>,
+    ) -> Result<T, String> {
         let started = Instant::now();
         let mut inbox = self.inbox.lock().unwrap();
         loop {
-            if let Some(reply) = inbox.replies.remove(&id) {
-                return reply.map_err(|e| format!("{method}: {e}"));
+            if let Some(t) = found(&mut inbox) {
+                return Ok(t);
             }
             if inbox.closed {
-                return Err(format!("{method}: the browser closed its pipe"));
+                return Err(format!("{what}: the browser closed its pipe"));
             }
-            let left = REPLY_LIMIT
+            let left = limit
                 .checked_sub(started.elapsed())
-                .ok_or_else(|| format!("{method}: no reply within {REPLY_LIMIT:?}"))?;
+                .ok_or_else(|| format!("{what}: nothing within {limit:?}"))?;
             inbox = self.arrived.wait_timeout(inbox, left).unwrap().0;
         }
     }
@@ -266,24 +278,13 @@ impl Tab {
 
     /// Waits until the event `method` has arrived in this tab (at most `limit`).
     pub fn wait_for(&self, method: &str, limit: Duration) -> Result<(), String> {
-        let started = Instant::now();
-        let mut inbox = self.connection.inbox.lock().unwrap();
-        loop {
-            if inbox
+        self.connection.wait(method, limit, |inbox| {
+            inbox
                 .events
                 .get(&self.session)
                 .is_some_and(|e| e.iter().any(|m| m["method"] == method))
-            {
-                return Ok(());
-            }
-            if inbox.closed {
-                return Err(format!("{method}: the browser closed its pipe"));
-            }
-            let left = limit
-                .checked_sub(started.elapsed())
-                .ok_or_else(|| format!("no {method} within {limit:?}"))?;
-            inbox = self.connection.arrived.wait_timeout(inbox, left).unwrap().0;
-        }
+                .then_some(())
+        })
     }
 
     /// The viewport as a PNG.
