@@ -6,7 +6,7 @@ function and its own key of the JSON file (this script rewrites only the keys it
 - `ardupilot` (`ardupilot_dataflash()`): ardupilot/pymavlink_test.BIN read with pymavlink's
   DFReader: message counts, the magnetometer instances, the COMPASS_* parameters in force, the
   readings with ArduPilot's calibration undone by the formula the reader documents
-  (src/log/dataflash.rs), the attitudes and battery currents. Read by tests/it/dataflash.rs.
+  (crates/magcal-logs/src/dataflash.rs), the attitudes and battery currents. Read by tests/it/dataflash.rs.
 - `px4` (`px4()`): pyulog's reading of the PX4 ULog fixtures (`px4/*.ulg`): per magnetometer
   instance the count, first and last time and reading, rate, device id and the CAL_MAGn slot
   matched to it (PX4's rule: CAL_MAGn_ID == device_id, else n = instance); the firmware version

@@ -1,21 +1,30 @@
 #!/usr/bin/env python3
-"""The import graph of the runner's modules, and whether it has a cycle.
+"""The import graph of a crate's modules, and whether it has a cycle; the workspace's crates, and
+whether one uses a crate above it.
 
-Reads every .rs file under crates/magcal-runner/src, takes the paths it names in code (comments and
-doc links are not imports) as `crate::a::...`, `super::...` or `magcal_runner::a::...`, and draws
+Reads every .rs file under crates/<crate>/src, takes the paths it names in code (comments and
+doc links are not imports) as `crate::a::...`, `super::...` or `<crate>::a::...`, and draws
 an arrow from the file's top-level module to the top-level module named. Prints each module with
 the modules it uses, then any cycle; exits 1 when there is one.
 
-    python3 scripts/imports.py            # the top-level modules (cli, commands, scenario, ...)
-    python3 scripts/imports.py --depth 2  # one level down as well (output::manifest, ...)
+    python3 scripts/imports.py                    # the runner's top-level modules (cli, commands, ...)
+    python3 scripts/imports.py --depth 2          # one level down as well (output::manifest, ...)
+    python3 scripts/imports.py --crate magcal-logs
+    python3 scripts/imports.py --crates           # the crates' arrows (Cargo.toml), which point down
+
+The crates' layers, bottom first: magcal-core (the math), magcal-logs (files), magcal-runner (the
+command line). Cargo refuses a cycle between crates; an arrow from a crate to one in a higher layer
+is what `--crates` refuses (exit 1).
 """
 import argparse
 import pathlib
 import re
 import sys
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent / "crates" / "magcal-runner" / "src"
-CRATE_PATH = re.compile(r"\b(?:crate|magcal_runner)::((?:[a-z_][a-z0-9_]*::)*[a-z_][a-z0-9_]*|\{)")
+CRATES = pathlib.Path(__file__).resolve().parent.parent / "crates"
+LAYERS = ["magcal-core", "magcal-logs", "magcal-runner"]
+ROOT = CRATES / "magcal-runner" / "src"
+CRATE_PATH = None
 SUPER_PATH = re.compile(r"\b((?:super::)+)([a-z_][a-z0-9_]*(?:::[a-z_][a-z0-9_]*)*)")
 
 
@@ -93,10 +102,44 @@ def cycles(graph):
     return out
 
 
+def crate_arrows():
+    """Each crate with the workspace crates its Cargo.toml depends on; 1 when one points up."""
+    up = 0
+    for crate in sorted(p.parent.name for p in CRATES.glob("*/Cargo.toml")):
+        text = (CRATES / crate / "Cargo.toml").read_text()
+        section, uses = "", set()
+        for line in text.splitlines():
+            if line.startswith("["):
+                section = line.strip()
+            elif "dependencies" in section and "dev-dependencies" not in section:
+                name = line.split("=")[0].strip().split(".")[0]
+                if name in LAYERS:
+                    uses.add(name)
+        if crate not in LAYERS:
+            print(f"{crate}: not in a layer of scripts/imports.py")
+            up += 1
+            continue
+        for u in sorted(uses):
+            if LAYERS.index(u) >= LAYERS.index(crate):
+                print(f"arrow up: {crate} -> {u}")
+                up += 1
+        print(f"{crate:24} -> {', '.join(sorted(uses)) or '-'}")
+    print(f"{len(LAYERS)} layers, {up} arrows up")
+    return 1 if up else 0
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--depth", type=int, default=1, help="module path depth of a node")
+    parser.add_argument("--crate", default="magcal-runner", help="the crate whose modules are drawn")
+    parser.add_argument("--crates", action="store_true", help="the crates' arrows instead")
     args = parser.parse_args()
+    if args.crates:
+        return crate_arrows()
+    global ROOT, CRATE_PATH
+    ROOT = CRATES / args.crate / "src"
+    lib = args.crate.replace("-", "_")
+    CRATE_PATH = re.compile(r"\b(?:crate|" + lib + r")::((?:[a-z_][a-z0-9_]*::)*[a-z_][a-z0-9_]*|\{)")
     files = sorted(ROOT.rglob("*.rs"))
     nodes = {tuple(module_of(f)[: args.depth]) for f in files} - {()}
     graph = {}

@@ -16,7 +16,7 @@
 
 pub mod cli;
 pub mod commands;
-pub mod digest;
+pub use magcal_logs::digest;
 pub mod limits;
 pub mod log;
 pub mod output;

@@ -7,7 +7,8 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use super::calibration::CalibrationJson;
-use crate::scenario::site::{Date, Site, wmm_label, wmm_pick, wmm_place};
+pub use super::gps::Place;
+use crate::scenario::site::{wmm_label, wmm_pick, wmm_place};
 
 /// `--roll`, `--pitch`, `--yaw MIN,MAX`: an attitude range in degrees, under the rules the
 /// scenario's `[attitude_box]` follows ([`crate::scenario::check_range`]).
@@ -29,17 +30,6 @@ impl std::str::FromStr for Range {
         crate::scenario::check_range([a, b]).map_err(str::to_string)?;
         Ok(Self([a, b]))
     }
-}
-
-/// The site, date and model the field comes from.
-#[derive(Debug, Clone, Copy)]
-pub struct Place {
-    /// `--site`.
-    pub site: Site,
-    /// `--date`.
-    pub date: Date,
-    /// `--wmm` (default: the newest model whose window holds the date).
-    pub model: Option<magcal_core::wmm::Model>,
 }
 
 /// A vehicle's attitude box as flags (with `--site` and `--date` for the field's direction).

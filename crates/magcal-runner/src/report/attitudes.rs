@@ -7,24 +7,12 @@ use plotly::layout::Axis;
 use plotly::{Layout, Plot, Scatter};
 
 use super::{Cell, Page, Table, drawn, significant};
-use crate::log::flown::{BoxDeg, EDGE_DEG, Flown, SECTOR_DEG};
+use crate::log::flown::{Flown, SECTOR_DEG};
 use crate::output::log_rows::ResidualRow;
 
 /// Colour of a reading inside the box, and outside it.
 const INSIDE: &str = "#2ca02c";
 const OUTSIDE: &str = "#8c8c8c";
-
-impl BoxDeg {
-    /// Whether `[roll, pitch, heading]` degrees lies inside (within [`EDGE_DEG`]): the same test as
-    /// the box's own in yaw terms ([`crate::log::flown::Bounds::contains`]).
-    pub fn contains(&self, [roll, pitch, heading]: [f64; 3]) -> bool {
-        let within = |v: f64, [min, max]: [f64; 2]| v >= min - EDGE_DEG && v <= max + EDGE_DEG;
-        let [h0, h1] = self.heading_deg;
-        let h = h0 + (heading - h0).rem_euclid(360.0);
-        let heading_in = h1 - h0 >= 360.0 - EDGE_DEG || h <= h1 + EDGE_DEG || (h0 + 360.0 - h) <= EDGE_DEG;
-        within(roll, self.roll_deg) && within(pitch, self.pitch_deg) && heading_in
-    }
-}
 
 /// A reading's roll, pitch and heading, where the log gave its attitude.
 fn angles(r: &ResidualRow) -> Option<[f64; 3]> {

@@ -5,7 +5,7 @@
 
 mod design;
 mod raw;
-pub mod site;
+pub use magcal_logs::site;
 mod validate;
 mod values;
 

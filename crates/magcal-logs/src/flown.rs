@@ -39,6 +39,18 @@ pub struct BoxDeg {
     pub heading_deg: [f64; 2],
 }
 
+impl BoxDeg {
+    /// Whether `[roll, pitch, heading]` degrees lies inside (within [`EDGE_DEG`]): the same test as
+    /// the box's own in yaw terms ([`Bounds::contains`]).
+    pub fn contains(&self, [roll, pitch, heading]: [f64; 3]) -> bool {
+        let within = |v: f64, [min, max]: [f64; 2]| v >= min - EDGE_DEG && v <= max + EDGE_DEG;
+        let [h0, h1] = self.heading_deg;
+        let h = h0 + (heading - h0).rem_euclid(360.0);
+        let heading_in = h1 - h0 >= 360.0 - EDGE_DEG || h <= h1 + EDGE_DEG || (h0 + 360.0 - h) <= EDGE_DEG;
+        within(roll, self.roll_deg) && within(pitch, self.pitch_deg) && heading_in
+    }
+}
+
 /// The vehicle's box as the coverage reads it: \[P1\]'s box, and the yaw offset that turns a
 /// heading into its yaw.
 #[derive(Debug, Clone, Copy)]

@@ -19,7 +19,7 @@ use magcal_core::Vec3;
 use magcal_core::small::Mat3;
 
 use super::parameters::LogParameters;
-use crate::scenario::site::Units;
+use crate::site::Units;
 
 /// The formats `magcal` reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

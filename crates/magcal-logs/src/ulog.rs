@@ -88,7 +88,7 @@ use super::flight::{Fix, FlightLog, Format, InForce, Sample, Selection, Series};
 use super::parameters::LogParameters;
 use crate::digest::Hashing;
 use crate::limits;
-use crate::scenario::site::Units;
+use crate::site::Units;
 
 /// The first seven bytes of a ULog file.
 const MAGIC: [u8; 7] = *b"ULog\x01\x12\x35";

@@ -15,8 +15,18 @@ use magcal_core::Vec3;
 use magcal_core::wmm;
 
 use super::flight::{Fix, MIN_FIX_TYPE, Series};
-use super::vehicle::Place;
-use crate::scenario::site::{Date, Site};
+use crate::site::{Date, Site};
+
+/// The site, date and model the field comes from.
+#[derive(Debug, Clone, Copy)]
+pub struct Place {
+    /// `--site`.
+    pub site: Site,
+    /// `--date`.
+    pub date: Date,
+    /// `--wmm` (default: the newest model whose window holds the date).
+    pub model: Option<magcal_core::wmm::Model>,
+}
 
 /// The place a log's fixes give, and what was taken from where.
 #[derive(Debug, Clone)]

@@ -61,7 +61,7 @@ use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
 use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{Fix, FlightLog, Format, InForce, Sample, Selection, Series};
 use super::parameters::LogParameters;
-use crate::scenario::site::Units;
+use crate::site::Units;
 
 /// Bytes of a record's time stamp.
 const STAMP: usize = 8;

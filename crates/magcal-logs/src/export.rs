@@ -21,29 +21,29 @@
 
 use std::io::{self, Write};
 
-use clap::ValueEnum;
 use magcal_core::Vec3;
 use magcal_core::small::{Mat3, mat_vec, norm};
 
-use crate::scenario::site::Units;
+use crate::site::Units;
 
 /// What `magcal export --to` writes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Target {
     /// ArduPilot `.param` lines, `NAME,VALUE` (Mission Planner and MAVProxy load them).
-    #[value(name = "ardupilot")]
+    #[cfg_attr(feature = "clap", value(name = "ardupilot"))]
     ArduPilot,
     /// PX4 `param set NAME VALUE` lines (the MAVLink console or an nsh script).
-    #[value(name = "px4")]
+    #[cfg_attr(feature = "clap", value(name = "px4"))]
     Px4,
     /// MotionCal's and Adafruit_Sensor_Calibration's hard iron, field and soft iron (uT).
-    #[value(name = "motioncal")]
+    #[cfg_attr(feature = "clap", value(name = "motioncal"))]
     MotionCal,
     /// Magneto's combined bias `B` and correction matrix `Ainv`, in the log's units.
-    #[value(name = "magneto")]
+    #[cfg_attr(feature = "clap", value(name = "magneto"))]
     Magneto,
     /// A C header with the bias, the matrix and the field, in the log's units.
-    #[value(name = "c")]
+    #[cfg_attr(feature = "clap", value(name = "c"))]
     C,
 }
 

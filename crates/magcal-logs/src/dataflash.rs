@@ -55,7 +55,7 @@ use super::ardupilot::{IDENTITY, Logged, Readings, followed, middle, undo};
 use super::binary::{At, Budget, Chunks, Dropped, Skipped, in_order, quaternion_of_euler, read_file, take_instance};
 use super::flight::{Fix, FlightLog, Format, InForce, Sample, Selection, Series, utc_of_gps_week};
 use super::parameters::LogParameters;
-use crate::scenario::site::Units;
+use crate::site::Units;
 
 const MAGIC: [u8; 2] = [0xA3, 0x95];
 const FMT_TYPE: u8 = 0x80;

@@ -1,24 +1,24 @@
 //! The site and date of a log: its units, and the World Magnetic Model's field there.
 
 use anyhow::{Result, bail};
-use clap::ValueEnum;
 
 use crate::limits::show;
 
 /// `--units`: the log's units, for a magnitude from the WMM (nT).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Units {
     /// Nanotesla.
-    #[value(name = "nT")]
+    #[cfg_attr(feature = "clap", value(name = "nT"))]
     NanoTesla,
     /// Microtesla.
-    #[value(name = "uT")]
+    #[cfg_attr(feature = "clap", value(name = "uT"))]
     MicroTesla,
     /// Milligauss (100 nT).
-    #[value(name = "mG")]
+    #[cfg_attr(feature = "clap", value(name = "mG"))]
     MilliGauss,
     /// Gauss (100,000 nT).
-    #[value(name = "G")]
+    #[cfg_attr(feature = "clap", value(name = "G"))]
     Gauss,
 }
 

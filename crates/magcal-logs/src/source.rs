@@ -17,7 +17,6 @@
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
-use clap::{Args, ValueEnum};
 use magcal_core::Vec3;
 use magcal_core::aviation::{NavFrame, dcm_of_euler, dcm_of_quaternion, to_ned};
 use magcal_core::small::Mat3;
@@ -26,13 +25,14 @@ use super::flight::{Fix, FlightLog, Format, InForce, Selection, Series};
 use super::parameters::LogParameters;
 use super::read::{self, Extra, RowFilter};
 use crate::limits::show;
-use crate::scenario::site::Units;
+use crate::site::Units;
 
 /// The least gap accepted between a reading and the sample matched to it, seconds.
 pub const MIN_GAP_S: f64 = 0.05;
 
 /// `--format`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum FormatArg {
     /// From the file's first bytes, then its extension.
     #[default]
@@ -47,7 +47,8 @@ pub enum FormatArg {
 }
 
 /// `--time-unit`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum TimeUnit {
     #[default]
     S,
@@ -66,7 +67,8 @@ impl TimeUnit {
 }
 
 /// `--attitude-frame`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum FrameArg {
     /// Body forward, right, down into north, east, down (ArduPilot, PX4, aviation).
     #[default]
@@ -85,89 +87,94 @@ impl From<FrameArg> for NavFrame {
 }
 
 /// How to read a log: the flags every log command shares.
-#[derive(Debug, Clone, Default, Args)]
+#[derive(Debug, Clone, Default)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct LogArgs {
     /// The log's format (default: told by its first bytes, then its extension).
-    #[arg(long, value_enum, default_value = "auto")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "auto"))]
     pub format: FormatArg,
     /// CSV: the three columns, by name or 1-based index: `mx,my,mz` or `4,5,6` (default: x, y, z
     /// with or without an m prefix, else the first three numeric columns).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub columns: Option<String>,
     /// CSV: drop rows with a non-finite or missing value, counting them (default: such a row is
     /// an error).
-    #[arg(long)]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub skip_bad: bool,
     /// CSV: read only the rows whose COLUMN (a name or 1-based index) holds VALUE, compared as
     /// numbers when VALUE is one (`movement=1`), else as text; repeat for rows that meet every
     /// one. The rows left out are counted and said.
-    #[arg(long = "where", value_name = "COLUMN=VALUE", value_parser = RowFilter::parse)]
+    #[cfg_attr(feature = "clap", arg(long = "where", value_name = "COLUMN=VALUE", value_parser = RowFilter::parse))]
     pub filter: Vec<RowFilter>,
     /// Flight logs: the magnetometer instance, numbered as the log numbers it (ArduPilot `MAG.I`
     /// and `COMPASS_OFS_*` = 0, `COMPASS_OFS2_*` = 1; PX4 `sensor_mag` instance and `CAL_MAGn`);
     /// default the lowest the log has.
-    #[arg(long, value_name = "N")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "N"))]
     pub compass: Option<u8>,
     /// Only readings at or after this time, seconds on the log's clock (flight logs: time since
     /// boot; CSV: the `--time` column).
-    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = crate::limits::finite)]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = crate::limits::finite))]
     pub from: Option<f64>,
     /// Only readings at or before this time, seconds on the log's clock.
-    #[arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = crate::limits::finite)]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "SECONDS", allow_hyphen_values = true, value_parser = crate::limits::finite))]
     pub to: Option<f64>,
     /// At most this many readings per second, thinned evenly in time (a reading is kept when it
     /// lies at least 1/HZ after the last one kept).
-    #[arg(long, value_name = "HZ", value_parser = crate::limits::finite)]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "HZ", value_parser = crate::limits::finite))]
     pub rate: Option<f64>,
     /// CSV: the column of each reading's time, in order (a time earlier than the row before it is
     /// refused: windows, holds, `--from`/`--to` and `--rate` read the log in time order).
-    #[arg(long, value_name = "COLUMN")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "COLUMN"))]
     pub time: Option<String>,
     /// CSV: the unit of the `--time` column.
-    #[arg(long, value_enum, default_value = "s", requires = "time")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "s", requires = "time"))]
     pub time_unit: TimeUnit,
     /// CSV: the columns of the attitude as Euler angles in degrees, `ROLL,PITCH,YAW`, in the
     /// convention of `--attitude-frame` (yaw, then pitch, then roll).
-    #[arg(long, value_name = "ROLL,PITCH,YAW", conflicts_with = "quaternion")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "ROLL,PITCH,YAW", conflicts_with = "quaternion")
+    )]
     pub euler: Option<String>,
     /// CSV: the columns of the attitude as a unit quaternion `W,X,Y,Z` (Hamilton) rotating body
     /// vectors into the navigation frame of `--attitude-frame`.
-    #[arg(long, value_name = "W,X,Y,Z")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "W,X,Y,Z"))]
     pub quaternion: Option<String>,
     /// CSV: the frames of the attitude columns: `ned` (body forward, right, down into north,
     /// east, down: roll right-side-down, pitch nose-up, yaw clockwise from north) or `enu` (body
     /// forward, left, up into east, north, up: yaw counter-clockwise from east).
-    #[arg(long, value_enum, default_value = "ned")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "ned"))]
     pub attitude_frame: FrameArg,
     /// CSV: the column of the battery current, amperes (for `calibrate --motor current`).
-    #[arg(long, value_name = "COLUMN")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "COLUMN"))]
     pub current: Option<String>,
     /// CSV: the column of the throttle, 0 to 1 (for `calibrate --motor throttle`).
-    #[arg(long, value_name = "COLUMN")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "COLUMN"))]
     pub throttle: Option<String>,
     /// CSV: the columns of the vehicle's position, `LAT,LON,ALT` (degrees north and east, metres
     /// above mean sea level): the site of the World Magnetic Model's field, and the field along
     /// the track for a vector fit (a row with all three is a 3D fix).
-    #[arg(long, value_name = "LAT,LON,ALT")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "LAT,LON,ALT"))]
     pub position: Option<String>,
     /// CSV: the column of the positions' UTC time, seconds since 1970 (the date; else `--date`).
-    #[arg(long, value_name = "COLUMN", requires = "position")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "COLUMN", requires = "position"))]
     pub utc: Option<String>,
     /// Flight logs: where the attitudes' heading comes from. `auto`: a moving-baseline GPS
     /// receiver's yaw where the log has one, else the autopilot's; `autopilot`: the autopilot's
     /// estimate (whose yaw used the compass being calibrated); `gps`: the receiver's yaw;
     /// `gsf`: ArduPilot's yaw from GPS velocities (`XKY0`; its spread is degrees). Roll and pitch
     /// are the autopilot's in every case.
-    #[arg(long, value_enum, default_value = "auto")]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value = "auto"))]
     pub heading_from: HeadingFrom,
     /// Whether the command fits the motors (`calibrate --motor`): `--current` and `--throttle`
     /// mean nothing without it. Set by the command, not a flag.
-    #[arg(skip)]
+    #[cfg_attr(feature = "clap", arg(skip))]
     pub motor: bool,
 }
 
 /// `--heading-from`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum HeadingFrom {
     /// A moving-baseline GPS yaw where the log has one, else the autopilot's.
     #[default]

@@ -20,7 +20,7 @@
 //! Every read is bounded, whatever the file is (a regular file, a FIFO, a device): a line longer
 //! than [`MAX_LINE_BYTES`] is an error, and so is a log with more rows than half of the memory the
 //! process may use can hold ([`limits::available_memory`]) at the caller's cost per reading
-//! ([`HELD_BYTES_PER_READING`] for a log held whole, [`crate::log::source::open`]). Errors quote at most [`EXCERPT_CHARS`] characters
+//! ([`HELD_BYTES_PER_READING`] for a log held whole, [`crate::source::open`]). Errors quote at most [`EXCERPT_CHARS`] characters
 //! of the input.
 
 use std::io::{BufRead, BufReader, Read};

@@ -40,7 +40,7 @@ pub struct CalibrationJson {
     /// The log's units where `calibrate` was told them (`--units`), else `null`.
     #[serde(default)]
     pub units: Option<String>,
-    /// The log's format ([`crate::log::flight::Format::name`]); `null` in a file written before
+    /// The log's format ([`crate::flight::Format::name`]); `null` in a file written before
     /// flight logs were read (a CSV log).
     #[serde(default)]
     pub log_format: Option<String>,
@@ -883,7 +883,7 @@ pub fn columns_for(cal: &CalibrationJson, cal_shown: &str, log: &Path, input: &L
     }
     // The first row as the log reader splits it (separator, quotes, empty names), so that the
     // names calibrate recorded are found in a log that is not comma-separated.
-    let Some((header, names)) = crate::log::read::first_row(log) else {
+    let Some((header, names)) = crate::read::first_row(log) else {
         return Ok(None);
     };
     let recorded = cal.columns.join(", ");
