@@ -295,6 +295,29 @@ fn kept<T: Clone>(items: &[T], keep: &[bool]) -> Vec<T> {
 }
 
 impl Log {
+    /// A log of `readings` handed over in memory (a library caller's array), named `shown`: no
+    /// times, attitudes or other series; each reading's position is its 1-based row, and its
+    /// digest is that of the readings' little-endian bytes, `x, y, z` of each in turn.
+    pub fn of_readings(readings: Vec<Vec3>, shown: &str) -> Self {
+        let bytes: Vec<u8> = readings.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+        let origin = Origin::csv(vec![format!("{shown}: readings handed over in memory")], NavFrame::Ned);
+        Self {
+            lines: (1..=readings.len()).collect(),
+            readings,
+            skipped: Vec::new(),
+            filtered: 0,
+            columns: ["x", "y", "z"].map(String::from),
+            sha256: crate::digest::sha256_hex(&bytes),
+            bytes: bytes.len() as u64,
+            origin,
+            times: None,
+            attitudes: None,
+            currents: None,
+            throttles: None,
+            gps: None,
+        }
+    }
+
     /// Keeps the readings where `keep` is true, and what was logged beside them.
     pub fn keep(&mut self, keep: &[bool]) {
         self.readings = kept(&self.readings, keep);

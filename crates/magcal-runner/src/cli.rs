@@ -74,8 +74,8 @@ impl Command {
 const MAX_USAGE_ERROR: usize = 300;
 
 /// A clap error as one line: its message and tips, without the usage and help pointers, at most
-/// [`MAX_USAGE_ERROR`] characters.
-fn one_line(e: &clap::Error) -> String {
+/// 300 characters (`MAX_USAGE_ERROR`).
+pub fn one_line(e: &clap::Error) -> String {
     let text = e.render().to_string();
     let line = text
         .lines()

@@ -286,14 +286,37 @@ fn convert(args: &ExportArgs, cal: &CalibrationJson, shown: &str) -> Result<Conv
 }
 
 /// The export made whole before anything is written, and what to say on stderr.
-struct Made {
-    text: Vec<u8>,
-    /// What the export keeps ([`keeps`]).
-    keep: String,
-    notes: Vec<String>,
+#[derive(Debug, Clone)]
+pub struct Made {
+    pub text: Vec<u8>,
+    /// What the export keeps (`keeps`), in words.
+    pub keep: String,
+    pub notes: Vec<String>,
     /// The range warnings, the parts of the calibration left out for the log's firmware, then
     /// the frame warnings.
-    problems: Vec<String>,
+    pub problems: Vec<String>,
+}
+
+/// The export of `cal` (shown as `shown`) as `args` ask, made whole and not written: what the
+/// command line and the library bindings share. `args.calibration` and `args.out` are not read.
+///
+/// # Errors
+/// As [`run`]: a calibration that fails its checks, units unknown where the target needs them,
+/// a compass the target has no parameters for, `--strict` with a warning (exit 2); a calibration
+/// not marked usable without `--force` (exit 3).
+pub fn made(args: &ExportArgs, cal: &CalibrationJson, shown: &str) -> Result<Made, Failure> {
+    let converted = convert(args, cal, shown)?;
+    let made = render(args, cal, shown, &converted)?;
+    if !cal.usable && !args.force {
+        return Err(Failure::Unusable(format!(
+            "{shown}: nothing exported: {}; force exports it all the same, its first line saying so",
+            not_usable(cal)
+        )));
+    }
+    if args.strict {
+        refuse_strict(shown, &made.problems)?;
+    }
+    Ok(made)
 }
 
 /// The target's text with its header, its notes, and its warnings. A calibration not marked

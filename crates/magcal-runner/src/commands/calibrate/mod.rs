@@ -3,7 +3,7 @@
 mod glitch;
 pub mod heading;
 mod motor;
-mod no_fit;
+pub mod no_fit;
 mod one_field;
 pub mod vector;
 
@@ -201,6 +201,37 @@ pub struct CalibrateArgs {
     pub motor: Option<motor::Motor>,
 }
 
+/// What `calibrate` makes of a log: a calibration (usable or not), or the report that no model
+/// fits it.
+#[derive(Debug)]
+pub enum Calibrated {
+    /// A calibration, and why `--fit auto` chose its model.
+    Fit {
+        json: Box<CalibrationJson>,
+        why: Vec<AutoReason>,
+    },
+    /// No model fits the log (exit 3 on the command line).
+    NoFit(Box<no_fit::NoCalibrationJson>),
+}
+
+impl Calibrated {
+    /// Whether the log gives a calibration to use.
+    pub fn usable(&self) -> bool {
+        match self {
+            Self::Fit { json, .. } => json.usable,
+            Self::NoFit(_) => false,
+        }
+    }
+
+    /// The reasons it is not usable (none when it is).
+    pub fn reasons(&self) -> &[String] {
+        match self {
+            Self::Fit { json, .. } => &json.reasons,
+            Self::NoFit(json) => &json.reasons,
+        }
+    }
+}
+
 /// Runs `calibrate`: fits the log, writes the calibration set of `--out` (swapped in whole), then
 /// prints the table or the JSON.
 ///
@@ -224,68 +255,11 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
         ..args.input.clone()
     };
     let mut log = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
-    positive_options(args)?;
     let rows = log.readings.len() + log.skipped.len();
-    let shown = args.log.display().to_string();
-    if let Some(m) = args.motor {
-        motor::inputs(&log, m).with_context(|| shown.clone())?;
-    }
-    let mut settings = fit_settings(args, &log);
-    let glitches = glitch::find(&log.readings);
-    // Without --reject the glitches stay in the log, named first among the reasons.
-    let glitch_reason = (args.reject.is_none() && !glitches.is_empty())
-        .then(|| format!("{}; --reject K drops them", glitches.words(&log)));
-    let rejected = rejected(args, &mut log, &mut settings, &glitches).with_context(|| shown.clone())?;
-    let (place, place_source) = place_of(args, &log)?;
-    let units = units_of(args, &log)?;
-    let (fit, why, source) = match fit_at_magnitude(args, &log, &settings, magnitude_of(args, units, place.as_ref())?)?
-    {
-        Ok(fitted) => fitted,
-        Err(why) => {
-            let why = glitch_reason.map_or(why.clone(), |g| format!("{why}; {g}"));
-            return no_fit::report(args, set, &log, rows, rejected, why);
-        }
+    let (json, why) = match calibrate(args, &mut log)? {
+        Calibrated::Fit { json, why } => (json, why),
+        Calibrated::NoFit(json) => return no_fit::report(args, set, &log, rows, &json),
     };
-    let along = place_source.as_ref().is_some_and(|s| s.from_log);
-    let (mut fit, vector, advice) = vector::instead(args, &log, fit, units, place.as_ref(), along)?;
-    // A vector fit fits the interference with the calibration itself.
-    let joint = match args.motor.filter(|_| vector.is_none()) {
-        Some(m) => {
-            let (refit, joint) = motor::refit(&mut log, &fit, m, &settings).with_context(|| shown.clone())?;
-            fit = refit;
-            Some(joint)
-        }
-        None => None,
-    };
-    let mut json = to_json(&args.log, &log, &fit, &why, source, args.seed);
-    vector.iter().for_each(|v| v.record(&mut json));
-    advice.iter().for_each(|a| a.record(&mut json));
-    if let Some(joint) = &joint {
-        motor::record(&mut json, joint);
-    }
-    json.heading_vs_log = heading::check(&log, &fit);
-    // `fit` is the plain fit of the log's readings unless a vector fit or the motor's replaced it.
-    one_field::judge(&mut json, &log, &fit, &settings, vector.is_none() && joint.is_none());
-    json.rejected = rejected;
-    if let Some(g) = glitch_reason {
-        json.usable = false;
-        json.reasons.insert(0, g);
-    }
-    if let Some(n) = json.noise_estimate.as_mut() {
-        n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
-    }
-    record_provenance(&mut json, units, &log);
-    json.place_source = place_source.map(|s| s.words);
-    // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range
-    // of f64 on the way (readings at 1e150 fitted to a magnitude of 1, P^T P overflowing) is not.
-    if let Err(why) = json.check()
-        && json.usable
-    {
-        json.usable = false;
-        json.reasons
-            .push(format!("the calibration fails the checks of apply and next: {why}"));
-    }
-    coverage_in_box(&mut json, args, &log, place.as_ref())?;
     if let Some(set) = set {
         write_out(set, &args.log, rows, &json, &log)?;
     }
@@ -307,6 +281,79 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
             json.reasons.join("; ")
         )))
     }
+}
+
+/// The calibration of `log` (read from `args.log` as `args.input` and `args.motor` say) as
+/// `calibrate` makes it, without writing or printing: what the command line and the library
+/// bindings share. The readings `--reject` drops leave `log`.
+///
+/// # Errors
+/// A bad option, or one that does not apply to the log (exit 2 on the command line).
+pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Failure> {
+    positive_options(args)?;
+    let shown = args.log.display().to_string();
+    if let Some(m) = args.motor {
+        motor::inputs(log, m).with_context(|| shown.clone())?;
+    }
+    let mut settings = fit_settings(args, log);
+    let glitches = glitch::find(&log.readings);
+    // Without --reject the glitches stay in the log, named first among the reasons.
+    let glitch_reason = (args.reject.is_none() && !glitches.is_empty())
+        .then(|| format!("{}; --reject K drops them", glitches.words(log)));
+    let rejected = rejected(args, log, &mut settings, &glitches).with_context(|| shown.clone())?;
+    let (place, place_source) = place_of(args, log)?;
+    let units = units_of(args, log)?;
+    let (fit, why, source) = match fit_at_magnitude(args, log, &settings, magnitude_of(args, units, place.as_ref())?)? {
+        Ok(fitted) => fitted,
+        Err(why) => {
+            let why = glitch_reason.map_or(why.clone(), |g| format!("{why}; {g}"));
+            return Ok(Calibrated::NoFit(Box::new(no_fit::json(args, log, rejected, why))));
+        }
+    };
+    let along = place_source.as_ref().is_some_and(|s| s.from_log);
+    let (mut fit, vector, advice) = vector::instead(args, log, fit, units, place.as_ref(), along)?;
+    // A vector fit fits the interference with the calibration itself.
+    let joint = match args.motor.filter(|_| vector.is_none()) {
+        Some(m) => {
+            let (refit, joint) = motor::refit(log, &fit, m, &settings).with_context(|| shown.clone())?;
+            fit = refit;
+            Some(joint)
+        }
+        None => None,
+    };
+    let mut json = to_json(&args.log, log, &fit, &why, source, args.seed);
+    vector.iter().for_each(|v| v.record(&mut json));
+    advice.iter().for_each(|a| a.record(&mut json));
+    if let Some(joint) = &joint {
+        motor::record(&mut json, joint);
+    }
+    json.heading_vs_log = heading::check(log, &fit);
+    // `fit` is the plain fit of the log's readings unless a vector fit or the motor's replaced it.
+    one_field::judge(&mut json, log, &fit, &settings, vector.is_none() && joint.is_none());
+    json.rejected = rejected;
+    if let Some(g) = glitch_reason {
+        json.usable = false;
+        json.reasons.insert(0, g);
+    }
+    if let Some(n) = json.noise_estimate.as_mut() {
+        n.truncation_k = args.reject.filter(|_| settings.truncation.is_some());
+    }
+    record_provenance(&mut json, units, log);
+    json.place_source = place_source.map(|s| s.words);
+    // A usable calibration is one `apply` and `next` accept: a fit whose numbers leave the range
+    // of f64 on the way (readings at 1e150 fitted to a magnitude of 1, P^T P overflowing) is not.
+    if let Err(why) = json.check()
+        && json.usable
+    {
+        json.usable = false;
+        json.reasons
+            .push(format!("the calibration fails the checks of apply and next: {why}"));
+    }
+    coverage_in_box(&mut json, args, log, place.as_ref())?;
+    Ok(Calibrated::Fit {
+        json: Box::new(json),
+        why,
+    })
 }
 
 /// Where the site and date of the field come from.

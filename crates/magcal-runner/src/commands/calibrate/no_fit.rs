@@ -17,40 +17,33 @@ use crate::output::file::to_stdout;
 use crate::output::manifest::CalibrationManifest;
 use crate::output::staging::ResultSet;
 
-/// The report of a log without a calibration.
+/// The report of a log without a calibration (`no_calibration.json`).
 #[derive(Debug, Serialize)]
-struct NoCalibrationJson {
-    log: String,
-    format: &'static str,
-    magcal_version: &'static str,
-    log_sha256: String,
-    columns: [String; 3],
-    samples: usize,
-    skipped: usize,
-    rejected: usize,
+pub struct NoCalibrationJson {
+    pub log: String,
+    pub format: &'static str,
+    pub magcal_version: &'static str,
+    pub log_sha256: String,
+    pub columns: [String; 3],
+    pub samples: usize,
+    pub skipped: usize,
+    pub rejected: usize,
     /// The model asked for (`--fit`).
-    fit: &'static str,
+    pub fit: &'static str,
     /// Always false: there is no calibration.
-    usable: bool,
+    pub usable: bool,
     /// Why there is none: under which model, and what the fit met.
-    reasons: Vec<String>,
+    pub reasons: Vec<String>,
     /// The time span of the readings, seconds on the log's clock, where it has times.
-    time_span_s: Option<[f64; 2]>,
+    pub time_span_s: Option<[f64; 2]>,
     /// What the log's attitudes visited, where it has them.
-    flown: Option<Flown>,
+    pub flown: Option<Flown>,
     /// What the reader noted of the log (messages it skipped, and why).
-    log_notes: Vec<String>,
+    pub log_notes: Vec<String>,
 }
 
-/// Prints (and with `--out` writes) the report that `log` has no calibration, `why`; exit 3.
-pub fn report(
-    args: &CalibrateArgs,
-    set: Option<ResultSet>,
-    log: &Log,
-    rows: usize,
-    rejected: usize,
-    why: String,
-) -> Result<(), Failure> {
+/// The report that `log` has no calibration, `why`, after `rejected` readings were dropped.
+pub fn json(args: &CalibrateArgs, log: &Log, rejected: usize, why: String) -> NoCalibrationJson {
     // Readings a flight log's reader skipped (times going back, values not finite) are often
     // why too few are left: the reason says so rather than leave a count that looks like the log's.
     let skipped_notes: Vec<String> = log
@@ -65,7 +58,7 @@ pub fn report(
     } else {
         format!("{why} ({})", skipped_notes.join("; "))
     };
-    let json = NoCalibrationJson {
+    NoCalibrationJson {
         log: args.log.display().to_string(),
         format: NO_CALIBRATION_FORMAT,
         magcal_version: env!("CARGO_PKG_VERSION"),
@@ -80,7 +73,18 @@ pub fn report(
         time_span_s: log.times.as_ref().and_then(|t| Some([*t.first()?, *t.last()?])),
         flown: log.attitudes.as_ref().and_then(|a| flown(a, None)),
         log_notes: log.origin.notes.clone(),
-    };
+    }
+}
+
+/// Prints (and with `--out` writes) `json`, the report that `log` (`rows` rows) has no
+/// calibration; exit 3.
+pub fn report(
+    args: &CalibrateArgs,
+    set: Option<ResultSet>,
+    log: &Log,
+    rows: usize,
+    json: &NoCalibrationJson,
+) -> Result<(), Failure> {
     if let Some(mut set) = set {
         let mut text = serde_json::to_vec_pretty(&json).context("JSON")?;
         text.push(b'\n');

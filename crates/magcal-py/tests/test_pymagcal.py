@@ -1,0 +1,180 @@
+"""pymagcal against the command line it binds: the same log and options give the same bytes.
+
+Run from a virtual environment with the wheel installed (`.ci/run` does):
+
+    pytest crates/magcal-py/tests
+
+The public logs are read in place from `../shared/data` beside the repository, and the command
+line is `target/release/magcal` (or `MAGCAL_BIN`); without them a test says it skipped, and under
+`CI=true` it fails.
+"""
+
+import json
+import os
+import pathlib
+import subprocess
+
+import numpy as np
+import pytest
+
+import pymagcal
+
+ROOT = pathlib.Path(__file__).resolve().parents[3]
+DATA = ROOT.parent / "shared" / "data"
+CK = DATA / "ck-explorer" / "acc_mag_log.csv"
+BROAD_10 = DATA / "broad" / "10_undisturbed_slow_translation_A.csv"
+ARDUPILOT = DATA / "ardupilot" / "pymavlink_test.BIN"
+MAGCAL = pathlib.Path(os.environ.get("MAGCAL_BIN", ROOT / "target" / "release" / "magcal"))
+
+
+def need(*paths):
+    """Skips (fails under CI=true) where a file the test reads is missing."""
+    for p in paths:
+        if not p.exists():
+            if os.environ.get("CI") == "true":
+                pytest.fail(f"{p} is missing")
+            pytest.skip(f"{p} is missing")
+
+
+def magcal(*args):
+    """The command line's exit code, standard output and standard error."""
+    need(MAGCAL)
+    done = subprocess.run([str(MAGCAL), *map(str, args)], capture_output=True, text=True)
+    return done.returncode, done.stdout, done.stderr
+
+
+def test_the_ck_explorer_log_calibrates_to_the_command_lines_json_byte_for_byte():
+    need(CK)
+    log = pymagcal.read_log(CK, columns="mx,my,mz")
+    assert len(log) == 12000 and log.readings.shape == (12000, 3)
+    assert log.columns == ["mx", "my", "mz"] and log.format == "csv" and log.times is None
+    cal = pymagcal.calibrate(log)
+    code, out, _ = magcal("calibrate", CK, "--columns", "mx,my,mz", "--json")
+    assert code == 0
+    assert cal.json == out
+    # The typed fields are the JSON's numbers, exactly.
+    j = json.loads(out)
+    assert cal.usable is True and cal.fit == "full" and cal.reasons == []
+    assert cal.bias.tolist() == j["bias"]
+    assert cal.scale.tolist() == j["scale"]
+    assert cal.psi_deg.tolist() == j["psi_deg"]
+    assert cal.k.tolist() == j["k"]
+    assert cal.soft_iron_inverse.tolist() == j["soft_iron_inverse"]
+    assert cal.std_error == j["std_error"]
+    assert cal.magnitude == j["magnitude"] and cal.noise == j["noise"]
+    # The log's readings are its columns 4 to 6, as numpy reads them.
+    expected = np.loadtxt(CK, delimiter=",", skiprows=1, usecols=(3, 4, 5))
+    assert np.array_equal(log.readings, expected)
+    assert log.lines.tolist() == list(range(2, 12002))
+
+
+def test_options_are_the_flags_of_the_same_name():
+    need(CK)
+    cal = pymagcal.calibrate(pymagcal.read_log(CK, columns="mx,my,mz"), fit="auto", reject=3.5, trials=40, seed=7)
+    code, out, _ = magcal(
+        "calibrate", CK, "--columns", "mx,my,mz", "--fit", "auto", "--reject", "3.5", "--trials", "40", "--seed", "7", "--json"
+    )
+    assert code == 0 and cal.json == out
+    assert json.loads(out)["rejected"] > 0
+
+
+def test_apply_gives_the_command_lines_calibrated_readings(tmp_path):
+    need(CK)
+    log = pymagcal.read_log(CK, columns="mx,my,mz")
+    cal = pymagcal.calibrate(log)
+    saved = tmp_path / "calibration.json"
+    saved.write_text(cal.json)
+    code, out, _ = magcal("apply", saved, CK, "--columns", "mx,my,mz")
+    assert code == 0
+    rows = np.array([[float(x) for x in line.split(",")[1:4]] for line in out.splitlines()[1:]])
+    assert np.array_equal(cal.apply(log.readings), rows)
+    # read back, the file is the same calibration.
+    again = pymagcal.read_calibration(saved)
+    assert np.array_equal(again.apply(log.readings), rows) and again.json == cal.json
+
+
+def test_export_is_the_command_lines_but_for_the_name_of_the_calibration(tmp_path):
+    need(CK)
+    cal = pymagcal.calibrate(pymagcal.read_log(CK, columns="mx,my,mz"), units="uT")
+    saved = tmp_path / "calibration.json"
+    saved.write_text(cal.json)
+    for target in ["ardupilot", "px4", "motioncal", "magneto", "c"]:
+        code, out, _ = magcal("export", saved, "--to", target)
+        assert code == 0, target
+        text = pymagcal.export(cal, target)
+        # The header names the calibration: its file for the command line, its log here.
+        assert str(saved) in out
+        assert text == out.replace(str(saved), f"the calibration of {CK}"), target
+
+
+def test_an_array_of_a_known_sensor_gives_its_bias_and_matrix():
+    # Readings of a sensor with a full K and a bias, noise-free, over every direction of a 48 uT
+    # field (a spiral on the sphere).
+    n = 600
+    z = 1 - (2 * np.arange(n) + 1) / n
+    a = np.arange(n) * 2.399963229728653
+    field = 48.0 * np.column_stack([np.sqrt(1 - z * z) * np.cos(a), np.sqrt(1 - z * z) * np.sin(a), z])
+    K = np.array([[1.05, 0.0, 0.0], [0.02, 0.97, 0.0], [-0.01, 0.015, 1.02]])
+    bias = np.array([3.0, -1.5, 0.5])
+    raw = field @ K.T + bias
+    cal = pymagcal.calibrate(raw, magnitude=48.0)
+    assert cal.usable and cal.fit == "full"
+    # The fit stops at its gradient tolerance: the residual of noise-free readings is rounding.
+    assert np.max(np.abs(cal.bias - bias)) < 1e-9 * 48
+    # A field of one magnitude determines K up to a rotation: K K^T, whatever form K is given in.
+    assert np.max(np.abs(cal.k @ cal.k.T - K @ K.T)) < 1e-9
+    assert np.max(np.abs(np.linalg.norm(cal.apply(raw), axis=1) - 48.0)) < 1e-9 * 48
+    # The same readings through a CSV file and the command line: the same numbers.
+    j = json.loads(cal.json)
+    assert j["log"] == "<array>" and j["samples"] == n
+
+
+def test_errors_are_the_command_lines_one_line_messages():
+    need(CK)
+    log = pymagcal.read_log(CK, columns="mx,my,mz")
+    with pytest.raises(pymagcal.InputError) as e:
+        pymagcal.calibrate(log, fit="bogus")
+    _, _, err = magcal("calibrate", CK, "--columns", "mx,my,mz", "--fit", "bogus")
+    assert err.strip() == "magcal: error: " + str(e.value)
+    with pytest.raises(pymagcal.InputError) as e:
+        pymagcal.calibrate(log, trials=5)
+    assert "--trials" in str(e.value)
+    with pytest.raises(pymagcal.InputError) as e:
+        pymagcal.read_log(CK, columns="mx,my,nope")
+    code, _, err = magcal("calibrate", CK, "--columns", "mx,my,nope")
+    assert code == 2 and err.strip() == "magcal: error: " + str(e.value)
+    with pytest.raises(pymagcal.InputError, match="an array of shape"):
+        pymagcal.calibrate(np.zeros((10, 2)))
+    # A calibration needs units for an autopilot's parameters.
+    with pytest.raises(pymagcal.InputError, match="units"):
+        pymagcal.export(pymagcal.calibrate(log), "ardupilot")
+
+
+def test_a_log_that_determines_nothing_is_not_exported_unless_forced():
+    need(BROAD_10)
+    cal = pymagcal.calibrate(BROAD_10)
+    code, out, _ = magcal("calibrate", BROAD_10, "--json")
+    assert code == 3 and cal.json == out
+    assert cal.usable is False and cal.reasons == json.loads(out)["reasons"]
+    with pytest.raises(pymagcal.UnusableError):
+        pymagcal.export(cal, "magneto")
+    assert pymagcal.export(cal, "magneto", force=True).startswith("# NOT A CALIBRATION TO USE")
+
+
+def test_a_dataflash_log_is_read_in_its_units_with_its_attitudes():
+    need(ARDUPILOT)
+    log = pymagcal.read_log(ARDUPILOT)
+    code, out, _ = magcal("calibrate", ARDUPILOT, "--json")
+    j = json.loads(out)
+    assert log.format == "dataflash" and log.units == "mG"
+    assert len(log) == j["samples"] and log.sha256 == j["log_sha256"]
+    assert log.times is not None and np.all(np.diff(log.times) >= 0)
+    att = log.attitudes
+    assert att is not None and att.shape == (len(log), 3, 3)
+    # Each attitude is a rotation (where the log has one).
+    have = ~np.isnan(att[:, 0, 0])
+    assert have.any()
+    eye = np.einsum("nij,nkj->nik", att[have], att[have])
+    assert np.max(np.abs(eye - np.eye(3))) < 1e-12
+    cal = pymagcal.calibrate(log)
+    assert cal.json == out and code == (0 if cal.usable else 3)
