@@ -113,7 +113,7 @@ pub fn report(
             }
             writeln!(w, "NO CALIBRATION under {}", json.reasons.join("; "))?;
             if let Some(f) = &json.flown {
-                super::print_flown(w, f, json.samples, None)?;
+                super::print::print_flown(w, f, json.samples, None)?;
             }
         }
         Ok(())
