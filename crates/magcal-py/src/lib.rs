@@ -543,7 +543,7 @@ fn export(
         .flag("strict", strict)
         .flag("force", force);
     let command: ExportCommand = parsed("export", &shown, &flags)?;
-    let made = export_command::made(&command.args, cal, &shown).map_err(raised)?;
+    let made = export_command::made(&command.args, cal, &shown, "").map_err(raised)?;
     String::from_utf8(made.text).map_err(|e| PyException::new_err(e.to_string()))
 }
 

@@ -74,21 +74,11 @@ pub fn run(args: &ExportArgs) -> Result<(), Failure> {
     out.check(&inputs)?;
     let shown = args.calibration.display().to_string();
     let cal = read_calibration(&args.calibration)?;
-    let converted = convert(args, &cal, &shown)?;
-    let made = render(args, &cal, &shown, &converted)?;
     let to = match &out {
         Output::File(path) => format!(" to {}", path.display()),
         Output::Stdout => " to standard output".to_string(),
     };
-    if !cal.usable && !args.force {
-        return Err(Failure::Unusable(format!(
-            "{shown}: nothing written{to}: {}; --force writes it all the same, its first line saying so",
-            not_usable(&cal)
-        )));
-    }
-    if args.strict {
-        refuse_strict(&shown, &made.problems)?;
-    }
+    let made = made(args, &cal, &shown, &to)?;
     out.write(&inputs, |w| Ok(w.write_all(&made.text)?))?;
     say(&cal, &shown, &made);
     if !cal.usable {
@@ -298,18 +288,19 @@ pub struct Made {
 }
 
 /// The export of `cal` (shown as `shown`) as `args` ask, made whole and not written: what the
-/// command line and the library bindings share. `args.calibration` and `args.out` are not read.
+/// command line and the library bindings share. `to` says where it would have gone, for the
+/// refusal (` to standard output`, or empty). `args.calibration` and `args.out` are not read.
 ///
 /// # Errors
 /// As [`run`]: a calibration that fails its checks, units unknown where the target needs them,
 /// a compass the target has no parameters for, `--strict` with a warning (exit 2); a calibration
 /// not marked usable without `--force` (exit 3).
-pub fn made(args: &ExportArgs, cal: &CalibrationJson, shown: &str) -> Result<Made, Failure> {
+pub fn made(args: &ExportArgs, cal: &CalibrationJson, shown: &str, to: &str) -> Result<Made, Failure> {
     let converted = convert(args, cal, shown)?;
     let made = render(args, cal, shown, &converted)?;
     if !cal.usable && !args.force {
         return Err(Failure::Unusable(format!(
-            "{shown}: nothing exported: {}; force exports it all the same, its first line saying so",
+            "{shown}: nothing written{to}: {}; --force writes it all the same, its first line saying so",
             not_usable(cal)
         )));
     }
