@@ -1,9 +1,10 @@
-"""magcal from Python: read a magnetometer log, calibrate it as `magcal calibrate` does, apply and
-export the calibration. Every keyword is the command line's flag of the same name, checked by the
+"""magcal from Python: plan the attitudes a vehicle should visit (`design`), read a magnetometer
+log, calibrate it as `magcal calibrate` does, judge it against a log's attitudes (`evaluate`),
+ask which attitudes add most (`next`), apply and export the calibration. Every keyword is the command line's flag of the same name, checked by the
 same parser, refused with the same one-line message."""
 
 from os import PathLike
-from typing import Optional, Sequence, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -144,3 +145,96 @@ def export(
 ) -> str:
     """The calibration as `magcal export --to TO` writes it: ardupilot, px4, motioncal, magneto
     or c."""
+
+class Design:
+    """One design of a plan: its attitudes in the order to fly them, its metrics and verdict."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def kind(self) -> str:
+        """optimum, pso, plan, grid, random, uniform or given."""
+    @property
+    def m(self) -> int:
+        """Readings in all."""
+    @property
+    def roll_deg(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def pitch_deg(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def yaw_deg(self) -> npt.NDArray[np.float64]:
+        """From the field's horizontal direction ([P1]'s yaw)."""
+    @property
+    def magnetic_heading_deg(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def readings(self) -> npt.NDArray[np.uint64]:
+        """Readings to log at each attitude."""
+    @property
+    def quaternions(self) -> npt.NDArray[np.float64]:
+        """Shape (k, 4), (w, x, y, z): body into north, east, down."""
+    @property
+    def d_efficiency(self) -> Optional[float]:
+        """Per reading, against the best design of the plan."""
+    @property
+    def certified_efficiency(self) -> Optional[float]:
+        """Lower bound against every design of as many readings in the box."""
+    @property
+    def identifiable(self) -> bool: ...
+    @property
+    def works(self) -> bool:
+        """Calibrated in at least 95 % of the scenario's check trials."""
+    @property
+    def heading_median_deg(self) -> Optional[float]: ...
+    @property
+    def metrics(self) -> dict[str, Any]:
+        """Its row of design_metrics.csv."""
+    @property
+    def points(self) -> list[dict[str, Any]]:
+        """Its rows of designs.csv, in the order to fly them."""
+    def __len__(self) -> int: ...
+
+class Plan:
+    """The designs of a scenario, as `magcal design` makes them."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def designs(self) -> list[Design]: ...
+    @property
+    def recommended(self) -> Optional[Design]:
+        """The design to fly; None when none works (see tables["advice.csv"])."""
+    @property
+    def recommendation(self) -> str:
+        """As `magcal design` prints it."""
+    @property
+    def tables(self) -> dict[str, list[dict[str, Any]]]:
+        """designs.csv, design_metrics.csv, approximate.csv, certificate.csv (and advice.csv
+        when no design works), rows as dicts with the files' numbers."""
+    def __getitem__(self, name: str) -> Design: ...
+    def __len__(self) -> int: ...
+
+def design(
+    scenario: Optional[Union[str, PathLike[str]]] = None,
+    *,
+    toml: Optional[str] = None,
+    seed: Optional[int] = None,
+    threads: Optional[int] = None,
+    allow_long: bool = False,
+) -> Plan:
+    """The designs of a scenario file (or of its text, `toml=`) as `magcal design` makes them."""
+
+def evaluate(
+    calibration: Union[Calibration, str, PathLike[str], None],
+    log: Union[str, PathLike[str]],
+    **options: Any,
+) -> dict[str, Any]:
+    """`magcal evaluate CAL LOG --json` as a dict (None: `--raw LOG`). Options are the flags of
+    the same name (quaternion="qw,qx,qy,qz", attitude_frame="enu", where=[...], start=, end=)."""
+
+def next(
+    calibration: Union[Calibration, str, PathLike[str]],
+    log: Union[str, PathLike[str]],
+    **options: Any,
+) -> dict[str, Any]:
+    """`magcal next CAL LOG --json` as a dict: the attitudes that add most to the log, in the box
+    of scenario= (or site=, date=, roll=, pitch=), or a vector calibration's own manoeuvres."""

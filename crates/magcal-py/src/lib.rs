@@ -1,11 +1,16 @@
-//! `pymagcal`: magcal from Python. A log read into numpy arrays (`read_log`), calibrated as
+//! `pymagcal`: magcal from Python. The attitudes a vehicle should visit planned as `magcal design`
+//! plans them (`design`, in [`design`]); a log read into numpy arrays (`read_log`), calibrated as
 //! `magcal calibrate` calibrates it (`calibrate`: the same function, the same numbers, the same
-//! JSON), applied to readings and exported to an autopilot or a tool (`export`).
+//! JSON), applied to readings and exported to an autopilot or a tool (`export`); judged against
+//! the log's attitudes and augmented (`evaluate` and `next`, in [`judge`]).
 //!
 //! Every option is handed to the command line's own parser, so that a value is checked, and
 //! refused with the same one-line message, exactly as the flag of the same name would be. Errors
 //! are Python exceptions: `InputError` (a `ValueError`: the command line's exit 2) and
 //! `UnusableError` (exit 3: an export of a calibration not marked usable).
+
+mod design;
+mod judge;
 
 use std::path::PathBuf;
 
@@ -77,8 +82,13 @@ impl Flags {
 
 /// Parses `flags` after the positional `first` as the command line would, into `T`.
 fn parsed<T: Parser>(command: &str, first: &str, flags: &Flags) -> PyResult<T> {
-    let argv = [command.to_string(), first.to_string()]
-        .into_iter()
+    parsed_after(command, &[first], flags)
+}
+
+/// Parses `flags` after the positionals `first` as the command line would, into `T`.
+fn parsed_after<T: Parser>(command: &str, first: &[&str], flags: &Flags) -> PyResult<T> {
+    let argv = std::iter::once(command.to_string())
+        .chain(first.iter().map(|f| f.to_string()))
         .chain(flags.0.iter().cloned());
     T::try_parse_from(argv).map_err(|e| InputError::new_err(magcal_runner::cli::one_line(&e)))
 }
@@ -301,6 +311,8 @@ fn open(py: Python<'_>, path: PathBuf, input: &LogArgs) -> PyResult<Log> {
 struct Calibration {
     /// `None` when no model fits the log.
     cal: Option<CalibrationJson>,
+    /// What messages call it: its file, or the log it was fitted to.
+    name: String,
     usable: bool,
     reasons: Vec<String>,
     json: String,
@@ -498,6 +510,7 @@ fn calibrate(
     json.push('\n');
     Ok(Calibration {
         cal,
+        name: format!("the calibration of {shown}"),
         usable,
         reasons,
         json,
@@ -511,6 +524,7 @@ fn read_calibration(path: PathBuf) -> PyResult<Calibration> {
     let cal = magcal_logs::calibration::parse_calibration(&text, &path.display().to_string())
         .map_err(|e| InputError::new_err(format!("{e:#}")))?;
     Ok(Calibration {
+        name: path.display().to_string(),
         usable: cal.usable,
         reasons: cal.reasons.clone(),
         json: String::from_utf8_lossy(&text).into_owned(),
@@ -547,7 +561,8 @@ fn export(
     String::from_utf8(made.text).map_err(|e| PyException::new_err(e.to_string()))
 }
 
-/// magcal from Python: read a magnetometer log, calibrate it, apply and export the calibration.
+/// magcal from Python: plan the attitudes, read a magnetometer log, calibrate it, judge it, apply
+/// and export the calibration.
 #[pymodule]
 fn pymagcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
@@ -555,9 +570,14 @@ fn pymagcal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("UnusableError", m.py().get_type::<UnusableError>())?;
     m.add_class::<Log>()?;
     m.add_class::<Calibration>()?;
+    m.add_class::<design::Plan>()?;
+    m.add_class::<design::Design>()?;
     m.add_function(wrap_pyfunction!(read_log, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(read_calibration, m)?)?;
     m.add_function(wrap_pyfunction!(export, m)?)?;
+    m.add_function(wrap_pyfunction!(design::design, m)?)?;
+    m.add_function(wrap_pyfunction!(judge::evaluate, m)?)?;
+    m.add_function(wrap_pyfunction!(judge::next, m)?)?;
     Ok(())
 }

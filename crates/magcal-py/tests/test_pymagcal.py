@@ -9,6 +9,7 @@ line is `target/release/magcal` (or `MAGCAL_BIN`); without them a test says it s
 `CI=true` it fails.
 """
 
+import csv
 import json
 import os
 import pathlib
@@ -178,3 +179,101 @@ def test_a_dataflash_log_is_read_in_its_units_with_its_attitudes():
     assert np.max(np.abs(eye - np.eye(3))) < 1e-12
     cal = pymagcal.calibrate(log)
     assert cal.json == out and code == (0 if cal.usable else 3)
+
+
+GLIDER = ROOT / "scenarios" / "glider.toml"
+BROAD_02 = DATA / "broad" / "02_undisturbed_slow_rotation_B.csv"
+BROAD_FLAGS = dict(
+    where=["movement=1"], columns="mx,my,mz", time="t_s", quaternion="qw,qx,qy,qz", attitude_frame="enu"
+)
+BROAD_ARGS = [
+    "--where", "movement=1", "--columns", "mx,my,mz", "--time", "t_s",
+    "--quaternion", "qw,qx,qy,qz", "--attitude-frame", "enu",
+]
+
+
+def same_cell(text, value):
+    """A cell of the command line's CSV file and the value Python has for it."""
+    if text == "":
+        return value is None
+    if isinstance(value, bool):
+        return text == ("true" if value else "false")
+    if isinstance(value, int):
+        return int(text) == value
+    if isinstance(value, float):
+        return float(text) == value
+    return text == value
+
+
+def test_a_plan_is_the_command_lines_design_set(tmp_path):
+    plan = pymagcal.design(GLIDER)
+    out = tmp_path / "set"
+    code, stdout, _ = magcal("design", GLIDER, "--out", out)
+    assert code == 0
+    assert set(plan.tables) == {"designs.csv", "design_metrics.csv", "approximate.csv", "certificate.csv"}
+    for name, rows in plan.tables.items():
+        with open(out / name, newline="") as f:
+            written = list(csv.DictReader(f))
+        assert len(written) == len(rows), name
+        for w, r in zip(written, rows):
+            assert list(w) == list(r), name
+            assert all(same_cell(w[k], r[k]) for k in w), (name, w, r)
+    # The recommendation is the one printed, and the design's arrays are its rows of designs.csv.
+    assert plan.recommendation in stdout
+    best = plan.recommended
+    assert best.name == "plan300" and best.works and best.m == 300
+    assert f"fly {best.name}:" in stdout
+    mine = [r for r in plan.tables["designs.csv"] if r["design"] == "plan300"]
+    assert best.roll_deg.tolist() == [r["roll_deg"] for r in mine]
+    assert best.readings.sum() == 300 and len(best) == len(mine)
+    assert np.allclose(np.linalg.norm(best.quaternions, axis=1), 1, atol=4e-16 * 4)
+    assert 0.9 < best.certified_efficiency <= 1
+    # A level turn does not fix the up axis: the surface circle does not work.
+    assert plan["surface12"].works is False
+
+
+def test_a_plan_from_the_scenarios_text_and_on_one_thread_is_the_same(tmp_path):
+    text = GLIDER.read_text()
+    a = pymagcal.design(GLIDER, threads=1)
+    b = pymagcal.design(toml=text, threads=2)
+    assert a.tables == b.tables
+    with pytest.raises(pymagcal.InputError) as e:
+        pymagcal.design(toml=text.replace("roll_deg = [-10.0, 10.0]", "roll_deg = [10.0, -10.0]"))
+    assert "<scenario>" in str(e.value) and "roll_deg" in str(e.value)
+    # A different seed gives other optimised designs.
+    assert pymagcal.design(GLIDER, seed=1).tables["designs.csv"] != a.tables["designs.csv"]
+
+
+def test_evaluate_and_next_are_the_command_lines_json(tmp_path):
+    need(BROAD_02)
+    cal = pymagcal.calibrate(pymagcal.read_log(BROAD_02, **BROAD_FLAGS), units="uT")
+    saved = tmp_path / "calibration.json"
+    saved.write_text(cal.json)
+    code, out, _ = magcal("evaluate", saved, BROAD_02, *BROAD_ARGS, "--json")
+    assert code == 0
+    assert pymagcal.evaluate(saved, BROAD_02, **BROAD_FLAGS) == json.loads(out)
+    # The object gives the same figures under another name.
+    by_object = pymagcal.evaluate(cal, BROAD_02, **BROAD_FLAGS)
+    assert by_object["calibrated"] == json.loads(out)["calibrated"]
+    code, out, _ = magcal("evaluate", "--raw", BROAD_02, *BROAD_ARGS, "--json")
+    assert code == 0 and pymagcal.evaluate(None, BROAD_02, **BROAD_FLAGS) == json.loads(out)
+    code, out, _ = magcal("next", saved, BROAD_02, *BROAD_ARGS, "--scenario", GLIDER, "--count", "4", "--json")
+    assert code == 0
+    nxt = pymagcal.next(saved, BROAD_02, scenario=GLIDER, count=4, **BROAD_FLAGS)
+    assert nxt == json.loads(out) and sum(a["readings"] for a in nxt["attitudes"]) == 4
+    # The command line's outputs are not options here; unknown options are the parser's errors.
+    with pytest.raises(pymagcal.InputError, match="report="):
+        pymagcal.evaluate(cal, BROAD_02, report=tmp_path / "page.html", **BROAD_FLAGS)
+    with pytest.raises(pymagcal.InputError, match="--bogus"):
+        pymagcal.next(cal, BROAD_02, bogus=1)
+
+
+def test_evaluate_without_attitudes_raises_the_command_lines_error(tmp_path):
+    need(CK)
+    cal = pymagcal.calibrate(pymagcal.read_log(CK, columns="mx,my,mz"))
+    saved = tmp_path / "calibration.json"
+    saved.write_text(cal.json)
+    with pytest.raises(pymagcal.InputError) as e:
+        pymagcal.evaluate(saved, CK)
+    code, _, err = magcal("evaluate", saved, CK)
+    assert code == 2 and err.strip() == "magcal: error: " + str(e.value)

@@ -146,7 +146,8 @@ fn next_inner(args: &NextArgs) -> Result<()> {
         return flight(args);
     }
     let page = page_output(args)?;
-    let (json, counts) = suggest(args)?;
+    let cal = read_calibration(&args.calibration)?;
+    let (json, counts) = suggest(args, &cal)?;
     // The report is formatted in memory (a few kilobytes) and written at the end, so that a
     // failed write is one error.
     let mut w = Vec::new();
@@ -184,9 +185,38 @@ struct FlightNextJson {
 /// the one it was fitted to, `--report` (the flight's manoeuvres are three, not a design in a
 /// box: `--count` does not apply).
 fn flight(args: &NextArgs) -> Result<()> {
+    let json = flight_json(args, &read_calibration(&args.calibration)?)?;
+    let mut w = Vec::new();
+    if args.json {
+        serde_json::to_writer_pretty(&mut w, &json)?;
+        writeln!(w)?;
+    } else {
+        write_flight(&mut w, &json)?;
+    }
+    to_stdout(|out| Ok(out.write_all(&w)?))
+}
+
+/// What `next --json` prints for the calibration `cal` (named by `args.calibration`) of the log
+/// `args.log`: the attitudes to add in the box of `--scenario` or the flags, or without a box a
+/// vector calibration's own manoeuvres; one JSON object and a line end.
+///
+/// # Errors
+/// As [`run`].
+pub fn json(args: &NextArgs, cal: &CalibrationJson) -> Result<String> {
+    let mut w = Vec::new();
+    if args.scenario.is_none() && args.site.is_none() {
+        serde_json::to_writer_pretty(&mut w, &flight_json(args, cal)?)?;
+    } else {
+        serde_json::to_writer_pretty(&mut w, &suggest(args, cal)?.0)?;
+    }
+    writeln!(w)?;
+    Ok(String::from_utf8(w)?)
+}
+
+/// The manoeuvres of [`flight`].
+fn flight_json(args: &NextArgs, cal: &CalibrationJson) -> Result<FlightNextJson> {
     let shown = args.calibration.display().to_string();
     let log_shown = args.log.display().to_string();
-    let cal = read_calibration(&args.calibration)?;
     if cal.heading_std_deg.is_none() && cal.headings_never_flown.is_empty() && cal.next_manoeuvres.is_empty() {
         bail!(
             "{shown}: give --scenario (the vehicle's attitude box, site and search) or --site, --date, --roll and --pitch: a box is needed unless the calibration is a vector one of a flight against the field along its track (calibrate --fit vector, vector-diagonal or vector-offsets on a log with GPS fixes), which is not ({} fit)",
@@ -208,7 +238,7 @@ fn flight(args: &NextArgs) -> Result<()> {
             &sha[..12]
         );
     }
-    let json = FlightNextJson {
+    Ok(FlightNextJson {
         log: log_shown,
         calibration: shown,
         fit: cal.fit.clone(),
@@ -216,15 +246,7 @@ fn flight(args: &NextArgs) -> Result<()> {
         heading_std_deg: cal.heading_std_deg,
         headings_never_flown: cal.headings_never_flown.clone(),
         next_manoeuvres: cal.next_manoeuvres.clone(),
-    };
-    let mut w = Vec::new();
-    if args.json {
-        serde_json::to_writer_pretty(&mut w, &json)?;
-        writeln!(w)?;
-    } else {
-        write_flight(&mut w, &json)?;
-    }
-    to_stdout(|out| Ok(out.write_all(&w)?))
+    })
 }
 
 /// The text report of [`flight`].
@@ -311,9 +333,8 @@ struct Augmented {
 
 /// The attitudes to add and every figure of them, with the readings per MotionCal region of the
 /// log's calibrated field directions before and after.
-fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
+fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize; 100]; 2])> {
     let shown = args.calibration.display().to_string();
-    let cal = read_calibration(&args.calibration)?;
     let place = args.site.zip(args.date).map(|(site, date)| Place {
         site,
         date,
@@ -322,8 +343,8 @@ fn suggest(args: &NextArgs) -> Result<(NextJson, [[usize; 100]; 2])> {
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?
         .context("next needs --scenario, or the box as flags with --site and --date")?;
     check_box(&vehicle)?;
-    let log = read_log(args, &cal)?;
-    let (planned, planned_under) = planning_sensor(&cal, &log.readings);
+    let log = read_log(args, cal)?;
+    let (planned, planned_under) = planning_sensor(cal, &log.readings);
     let (problem, factor) = fitted_problem(&planned, &vehicle).with_context(|| shown.clone())?;
     let a = augment(args, &planned, &vehicle, &problem, factor, log.readings)?;
     let (body_log, body_all) = (&a.body[..a.m], &a.body[..]);

@@ -58,22 +58,7 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     let scenario = &setup.scenario;
     let dir = out.map_or_else(|| PathBuf::from("results").join(&scenario.name), Path::to_path_buf);
     let mut set = ResultSet::begin(&dir, Target::Results, &[&common.scenario])?;
-    let options = RunOptions {
-        progress: &crate::output::progress::Bars { show: setup.progress },
-        designs_only,
-    };
-    let (mut run, advice) = setup
-        .pool
-        .install(|| -> Result<_> {
-            let run = pipeline::run(scenario, options)?;
-            // Only when no design works: what does instead.
-            let advice = match run.recommended() {
-                Some(_) => None,
-                None => advice::advise(scenario, &run.designs)?,
-            };
-            Ok((run, advice))
-        })
-        .with_context(|| format!("{}", scenario.path.display()))?;
+    let (mut run, advice) = planned(&setup, designs_only)?;
     let manifest = write_set(
         scenario,
         &mut run,
@@ -105,6 +90,66 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     Ok(())
 }
 
+/// The designs of `setup`'s scenario with their verdicts and, unless `designs_only`, their
+/// trials; with the advice of what works instead when no design does.
+///
+/// # Errors
+/// A scenario whose designs cannot be built (named by its path).
+pub fn planned(setup: &super::Setup, designs_only: bool) -> Result<(RunOutput, Option<Advice>)> {
+    let scenario = &setup.scenario;
+    let options = RunOptions {
+        progress: &crate::output::progress::Bars { show: setup.progress },
+        designs_only,
+    };
+    setup
+        .pool
+        .install(|| -> Result<_> {
+            let run = pipeline::run(scenario, options)?;
+            // Only when no design works: what does instead.
+            let advice = match run.recommended() {
+                Some(_) => None,
+                None => advice::advise(scenario, &run.designs)?,
+            };
+            Ok((run, advice))
+        })
+        .with_context(|| format!("{}", scenario.path.display()))
+}
+
+/// The tables of the designs, as the result set holds them: `designs.csv`, `design_metrics.csv`,
+/// `approximate.csv`, `certificate.csv` and, when no design works, `advice.csv`.
+///
+/// # Errors
+/// Only a row that cannot be formatted.
+pub fn design_tables(
+    scenario: &Scenario,
+    out: &RunOutput,
+    advice: Option<&Advice>,
+) -> Result<Vec<(&'static str, Vec<u8>)>> {
+    let headings = output::Headings::of(&scenario.field);
+    let mut tables = vec![
+        ("designs.csv", output::csv_bytes(output::design_rows(out, headings))?),
+        (
+            "design_metrics.csv",
+            output::csv_bytes(output::design_metrics_rows(out))?,
+        ),
+        (
+            "approximate.csv",
+            output::csv_bytes(output::approximate_rows(out, headings))?,
+        ),
+        (
+            "certificate.csv",
+            output::csv_bytes(output::certificate_rows(out, scenario.certificate.tolerance))?,
+        ),
+    ];
+    if let Some(a) = advice {
+        tables.push((
+            "advice.csv",
+            output::csv_bytes(output::advice_rows(out, a, &scenario.bounds))?,
+        ));
+    }
+    Ok(tables)
+}
+
 /// Writes every file of the set but the figures (`run.json` last); returns the manifest.
 fn write_set(
     scenario: &Scenario,
@@ -121,27 +166,8 @@ fn write_set(
         files.insert(name.to_string(), sha256_hex(&bytes));
         Ok(())
     };
-    put(
-        "designs.csv",
-        output::csv_bytes(output::design_rows(out, output::Headings::of(&scenario.field)))?,
-    )?;
-    put(
-        "design_metrics.csv",
-        output::csv_bytes(output::design_metrics_rows(out))?,
-    )?;
-    put(
-        "approximate.csv",
-        output::csv_bytes(output::approximate_rows(out, output::Headings::of(&scenario.field)))?,
-    )?;
-    put(
-        "certificate.csv",
-        output::csv_bytes(output::certificate_rows(out, scenario.certificate.tolerance))?,
-    )?;
-    if let Some(a) = advice {
-        put(
-            "advice.csv",
-            output::csv_bytes(output::advice_rows(out, a, &scenario.bounds))?,
-        )?;
+    for (name, bytes) in design_tables(scenario, out, advice)? {
+        put(name, bytes)?;
     }
     if with_trials {
         put("summary.csv", output::csv_bytes(output::summary_rows(out))?)?;

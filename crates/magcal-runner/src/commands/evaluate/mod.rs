@@ -114,46 +114,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
     }
     let cal = cal_path.map(read_calibration).transpose()?;
     let cal_shown = cal_path.map(|p| p.display().to_string());
-    let log = read_log(args, log_path, cal.as_ref().zip(cal_shown.as_deref()))?;
-    let used = Used::of(&log, log_path)?;
-    let log_shown = log_path.display().to_string();
-    let calibrated = match &cal {
-        Some(c) => Some(calibrate(
-            c,
-            &used,
-            &log_shown,
-            cal_shown.as_deref().unwrap_or_default(),
-        )?),
-        None => None,
-    };
-    // A calibration of other units or of another sensor gives figures that mean nothing: refused,
-    // as `next` refuses it.
-    if let (Some(c), Some(b)) = (&cal, &calibrated) {
-        let mut radius = RadiusMedian::new(c.magnitude);
-        for v in b {
-            radius.push(*v);
-        }
-        if let Some(why) = c.radius_mismatch(radius.ratio()) {
-            bail!(
-                "{log_shown}: {why} (evaluated with {})",
-                cal_shown.as_deref().unwrap_or_default()
-            );
-        }
-    }
-    // A vector calibration carries the alignment of its calibrated frame `P (raw - bias)` to the
-    // body: its figures are also given with Q held there. Q is fitted in every case.
-    let held = cal.as_ref().and_then(|c| c.alignment.as_ref()).map(|a| &a.rotation);
-    let fits = Fits::of(&used, calibrated.as_deref(), held).with_context(|| log_shown.clone())?;
-    let json = report::EvaluationJson::new(
-        report::Source {
-            log: &log,
-            log_shown: &log_shown,
-            cal: cal.as_ref(),
-            cal_shown: cal_shown.as_deref(),
-        },
-        &used,
-        &fits,
-    );
+    let Evaluated { json, used, fits, log } = evaluated(args, log_path, cal.as_ref().zip(cal_shown.as_deref()))?;
     if let Some(Output::File(path)) = &errors_out {
         let rows = report::error_rows(&used, fits.calibrated.as_ref().unwrap_or(&fits.raw), &fits.raw);
         replace_with(path, &inputs, |w| crate::output::write_csv(rows, w)).context("--errors")?;
@@ -175,6 +136,61 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
     })?;
     warn(&log, cal.as_ref().zip(cal_shown.as_deref()));
     Ok(())
+}
+
+/// What an evaluation finds, before it is written anywhere.
+pub struct Evaluated {
+    /// Every figure, as `--json` prints it.
+    pub json: EvaluationJson,
+    /// The readings with an attitude.
+    pub used: Used,
+    /// The alignments of the calibrated and the raw readings.
+    pub fits: Fits,
+    /// The log as read.
+    pub log: Log,
+}
+
+/// Evaluates `cal` (the calibration, with its name for messages; `None`: the raw readings) on
+/// the log at `log_path`, read as `args.input` says.
+///
+/// # Errors
+/// As [`run`], but for the output files.
+pub fn evaluated(args: &EvaluateArgs, log_path: &Path, cal: Option<(&CalibrationJson, &str)>) -> Result<Evaluated> {
+    let log = read_log(args, log_path, cal)?;
+    let cal_shown = cal.map(|(_, shown)| shown);
+    let cal = cal.map(|(c, _)| c);
+    let used = Used::of(&log, log_path)?;
+    let log_shown = log_path.display().to_string();
+    let calibrated = match cal {
+        Some(c) => Some(calibrate(c, &used, &log_shown, cal_shown.unwrap_or_default())?),
+        None => None,
+    };
+    // A calibration of other units or of another sensor gives figures that mean nothing: refused,
+    // as `next` refuses it.
+    if let (Some(c), Some(b)) = (cal, &calibrated) {
+        let mut radius = RadiusMedian::new(c.magnitude);
+        for v in b {
+            radius.push(*v);
+        }
+        if let Some(why) = c.radius_mismatch(radius.ratio()) {
+            bail!("{log_shown}: {why} (evaluated with {})", cal_shown.unwrap_or_default());
+        }
+    }
+    // A vector calibration carries the alignment of its calibrated frame `P (raw - bias)` to the
+    // body: its figures are also given with Q held there. Q is fitted in every case.
+    let held = cal.and_then(|c| c.alignment.as_ref()).map(|a| &a.rotation);
+    let fits = Fits::of(&used, calibrated.as_deref(), held).with_context(|| log_shown.clone())?;
+    let json = report::EvaluationJson::new(
+        report::Source {
+            log: &log,
+            log_shown: &log_shown,
+            cal,
+            cal_shown,
+        },
+        &used,
+        &fits,
+    );
+    Ok(Evaluated { json, used, fits, log })
 }
 
 /// The path of `--report`, checked before any work: a file (not `-`) that may be replaced and is
