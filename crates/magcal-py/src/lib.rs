@@ -1,8 +1,8 @@
 //! `pymagcal`: magcal from Python. The attitudes a vehicle should visit planned as `magcal design`
-//! plans them (`design`, in [`design`]); a log read into numpy arrays (`read_log`), calibrated as
+//! plans them (`design`, in `design.rs`); a log read into numpy arrays (`read_log`), calibrated as
 //! `magcal calibrate` calibrates it (`calibrate`: the same function, the same numbers, the same
 //! JSON), applied to readings and exported to an autopilot or a tool (`export`); judged against
-//! the log's attitudes and augmented (`evaluate` and `next`, in [`judge`]).
+//! the log's attitudes and augmented (`evaluate` and `next`, in `judge.rs`).
 //!
 //! Every option is handed to the command line's own parser, so that a value is checked, and
 //! refused with the same one-line message, exactly as the flag of the same name would be. Errors
