@@ -7,7 +7,7 @@ use crate::small::Mat3;
 /// of Table II, `[roll yaw pitch]`).
 ///
 /// Build it from degrees with [`Attitude::from_degrees`]; files and tables use degrees.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Attitude {
     /// Roll `r`, radians: rotation about the body x (nose) axis.
     pub roll: f64,
@@ -149,7 +149,7 @@ fn quaternion_of_transpose(c_nb: &Mat3) -> [f64; 4] {
 }
 
 /// A closed interval of one Euler angle, radians, with `min < max`, both finite.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AngleRange {
     min: f64,
     max: f64,
@@ -219,7 +219,7 @@ impl AngleRange {
 /// The attitudes a vehicle can take, \[P1\] eq. (3): a box in (roll, yaw, pitch).
 ///
 /// Every range is validated on construction (finite, `min < max`), so a box that exists is usable.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct AttitudeBox {
     /// Roll range.
     pub roll: AngleRange,

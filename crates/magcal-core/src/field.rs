@@ -27,7 +27,7 @@ pub fn inclination_deg(ned: Vec3) -> f64 {
 ///
 /// Given as the World Magnetic Model reports it, North-East-Down components in nT, and stored as
 /// `B^n = (X, -Z, Y)` in the paper's North-Up-East n-frame (docs/conventions.md).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ReferenceField {
     ned_nt: Vec3,
     b_n: Vec3,

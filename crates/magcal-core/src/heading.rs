@@ -40,7 +40,8 @@ use crate::small::{Mat3, Vec3, dot, sub};
 pub const YAWS: usize = 360;
 
 /// The heading error of one calibration: rms and maximum of `|e|` over the 360 yaws, degrees.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct HeadingError {
     /// Root mean square over the yaws, degrees.
     pub rms_deg: f64,

@@ -39,7 +39,7 @@ pub const PARAMETERS: [&str; 9] = [
 pub const UNITS: [&str; 9] = ["deg", "deg", "deg", "-", "-", "-", "nT", "nT", "nT"];
 
 /// How a verdict names the three sensor axes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 pub enum AxisNames {
     /// \[P1\]'s body frame, for designs (the sensor's axes are the body's, to first order): "1
     /// (nose)", "2 (up)", "3 (right)" (\[P1\] II.A).
@@ -60,7 +60,7 @@ impl AxisNames {
 }
 
 /// Scales beyond which a parameter is not determined.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PhysicalScales {
     /// Non-orthogonality angle, degrees. Default 10.
     pub psi_deg: f64,
@@ -81,7 +81,8 @@ impl Default for PhysicalScales {
 }
 
 /// The Cramer-Rao bound of a design at one noise level.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct CramerRao {
     /// Covariance of `(psi_deg, S, O_nt)`, row-major 9x9, or `None` when the information is
     /// singular to working precision.
@@ -95,7 +96,8 @@ pub struct CramerRao {
 }
 
 /// Whether a design determines every parameter, and its weakest combination.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Verdict {
     /// Every parameter's predicted std below its physical scale, and the information regular.
     pub identifiable: bool,

@@ -25,6 +25,12 @@
 //! # }
 //! ```
 //!
+//! The results a user keeps (sensor models, attitudes and boxes, fits, designs, certificates,
+//! statistics, alignments) are `serde::Serialize`, and all but those that name their parts with
+//! `&'static str` ([`log_fit::LogFit`], its profile and auto reasons, [`CalibrationError`]) read
+//! back with `serde::Deserialize`; those that will grow are `#[non_exhaustive]`. The example
+//! `fit_and_save` fits a known sensor and saves the fit as JSON.
+//!
 //! ## Equation index
 //! | \[P1\] | item |
 //! |---|---|

@@ -271,7 +271,8 @@ impl InformationMatrix {
 }
 
 /// Conditioning of a set of readings under the linear model, in the units of \[P1\] (`H` in nT).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Conditioning {
     /// `ln det M_F`, `H` in nT (\[P1\] eq. (12), (14)).
     pub ln_det_mf: f64,

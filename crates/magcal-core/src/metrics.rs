@@ -11,7 +11,8 @@ pub fn relative_error_percent(estimate: Vec3, truth: Vec3) -> Option<f64> {
 }
 
 /// The three criteria of \[P1\] IV.B, percent; each `None` where its truth is zero.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct RelativeErrors {
     /// `eta_psi`, \[P1\] eq. (21), from psi in degrees.
     pub psi: Option<f64>,
@@ -34,7 +35,8 @@ impl RelativeErrors {
 
 /// The absolute errors beside the relative ones: `|psi_hat - psi|` (degrees), `|S_hat - S|`,
 /// `|O_hat - O|` (nT). Defined for every truth, a nominal one included.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct AbsoluteErrors {
     /// `|psi_hat - psi|`, degrees.
     pub psi_deg: f64,
@@ -60,7 +62,8 @@ impl AbsoluteErrors {
 ///
 /// Percentiles interpolate linearly between order statistics (Hyndman-Fan type 7, the default of
 /// numpy and R). With no values every statistic is NaN; with one value `std` and `se_mean` are NaN.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Summary {
     /// Values summarised (successful trials).
     pub n: usize,

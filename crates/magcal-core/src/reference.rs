@@ -161,7 +161,8 @@ pub const ROTATION_TOLERANCE: f64 = 1e-6;
 pub const HORIZONTAL_TOLERANCE: f64 = 1e-9;
 
 /// Summary figures of the heading and direction errors, degrees.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct ErrorSummary {
     /// Root mean square of the heading errors.
     pub heading_rms_deg: f64,
@@ -174,7 +175,8 @@ pub struct ErrorSummary {
 }
 
 /// The fitted rotation and field, and the errors of every reading.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Alignment {
     /// `Q`: the rotation of calibrated-frame vectors into the body frame.
     pub rotation: Mat3,

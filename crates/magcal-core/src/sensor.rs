@@ -12,7 +12,7 @@ use crate::small::{Mat3, Vec3, add, mat_mul, mat_vec, norm, transpose, upper_tri
 ///
 /// `N` is upper triangular with unit rows (docs/conventions.md):
 /// `N = [[cos psi2 cos psi3, cos psi2 sin psi3, sin psi2], [0, cos psi1, sin psi1], [0, 0, 1]]`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ErrorModel {
     psi: Vec3,
     scale: Vec3,

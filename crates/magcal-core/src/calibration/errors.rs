@@ -2,7 +2,8 @@
 
 /// A calibration that produced no estimate. Each is an outcome to record, never a reason to abort a
 /// batch: the Monte Carlo runner counts them as failed trials.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+// Serialize only: it names its parts with `&'static str`, which a reader cannot borrow for ever.
+#[derive(Debug, Clone, PartialEq, thiserror::Error, serde::Serialize)]
 #[non_exhaustive]
 pub enum CalibrationError {
     /// Fewer readings than the 9 unknowns of \[P1\] eq. (9).
@@ -46,7 +47,7 @@ pub enum CalibrationError {
 }
 
 /// The status of a calibration, as written in a trial's row.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub enum CalibrationStatus {
     /// Both steps succeeded and step 2 converged.

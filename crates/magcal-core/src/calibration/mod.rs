@@ -26,7 +26,8 @@ use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, mat_vec, norm, sub, upper_triangular_inverse};
 
 /// The estimate of one step: `P` and `O`, the error model they imply, and the fit's residual.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Estimate {
     /// `P = K^-1`, upper triangular with positive diagonal, dimensionless (\[P1\] eq. (6)).
     pub p: Mat3,
@@ -105,7 +106,8 @@ impl Default for TwoStep {
 }
 
 /// The result of a successful two-step calibration.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Calibration {
     /// Step 1, the linear fit of \[P1\] eq. (11); with [`step2::Residual::Readings`], where that
     /// quadric is not an ellipsoid, the sphere of [`step1::sphere_fit`] instead.

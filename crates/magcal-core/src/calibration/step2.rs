@@ -25,7 +25,7 @@ pub const PARAMETERS: usize = 9;
 
 /// The residual step 2 minimises the squares of, over the same nine unknowns `x = (P, o)`,
 /// `o = O / R`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub enum Residual {
     /// `|P (u - o)| - 1` (\[P1\] IV.C, Gebre-Egziabher et al. 2006): the paper's estimator. Its
@@ -55,7 +55,7 @@ impl Residual {
 }
 
 /// Why step 2 stopped (the `TerminationReason` of the fit).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub enum Termination {
     /// The gradient `J^T r` fell below the gradient tolerance (converged).

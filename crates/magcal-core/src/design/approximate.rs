@@ -51,7 +51,7 @@ pub(super) const P: usize = UNKNOWNS;
 pub(super) type Row = [f64; P];
 
 /// Settings of the approximate design and its certificate.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Approximate {
     /// About how many grid candidates (the grid has the same angular step on every angle,
     /// at least 2 levels per bounded angle and 4 per periodic one). Default 20,000.
@@ -81,7 +81,8 @@ impl Default for Approximate {
 }
 
 /// The certificate of an approximate design: the largest variance found over the box.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Certificate {
     /// `d_max`, the largest `h(x)^T M(xi)^-1 h(x)` found over the continuous box (`p = 9` at the
     /// optimum).
@@ -118,7 +119,8 @@ impl Certificate {
 }
 
 /// An approximate design: support points, weights and its certificate.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct ApproximateDesign {
     /// Support attitudes (in the box), by decreasing weight.
     pub support: Vec<Attitude>,

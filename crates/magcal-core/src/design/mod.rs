@@ -25,7 +25,7 @@ use crate::small::{Mat3, Mat9, Vec3, cholesky_in_place, ln_det_spd, mat_vec};
 
 /// An optimality criterion of the linear model's information matrix, \[P1\] III.A. Every criterion is
 /// a value to **minimise**.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub enum DesignCriterion {
     /// D-optimality, \[P1\] eq. (14)-(15): `g = -ln det M_F`, `H` in nT (natural log).
@@ -359,7 +359,8 @@ fn trace_of_inverse(L: &Mat9) -> f64 {
 }
 
 /// Criteria of one design.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct DesignMetrics {
     /// `ln det M_F`, `H` in nT (\[P1\] eq. (12), (14)).
     pub ln_det_mf: f64,

@@ -57,7 +57,7 @@ pub fn ln_det_and_gradient(problem: &DesignProblem, x: &[f64], grad: &mut [f64])
 
 /// The criteria of [`ln_criterion_and_gradient`]: those of [`DesignCriterion`] other than D, whose
 /// logarithm has [`ln_det_and_gradient`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum InverseCriterion {
     /// [`DesignCriterion::A`]: `trace(M_F^-1)`.
     A,
@@ -178,7 +178,8 @@ impl Default for Optimum {
 }
 
 /// What the multi-start optimiser found.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct OptimumResult {
     /// The best design over all starts, angles in the box (periodic ones wrapped into range).
     pub design: Vec<Attitude>,

@@ -152,7 +152,8 @@ impl Default for PlanSearch {
 }
 
 /// An exact design with replication: attitudes and readings at each.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Plan {
     /// Distinct attitudes, by decreasing readings.
     pub attitudes: Vec<Attitude>,

@@ -65,7 +65,8 @@ impl Default for Swarm {
 }
 
 /// What one swarm run found.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct PsoResult {
     /// The swarm's best design (Gbest), \[P1\] eq. (20).
     pub design: Vec<Attitude>,
@@ -80,7 +81,8 @@ pub struct PsoResult {
 }
 
 /// The final result of one of several independent runs: the data of \[P1\] Fig. 4.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct RunSummary {
     /// Run index.
     pub run: usize,

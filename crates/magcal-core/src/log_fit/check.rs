@@ -35,7 +35,7 @@ pub const CHECK_SEED: u64 = 2014;
 pub const USABLE_SHARE: f64 = 0.95;
 
 /// The noise the trials of a check draw.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum TrialNoise {
     /// White Gaussian noise of `sigma` per component (the log's units).
     White {
@@ -83,7 +83,8 @@ impl TrialNoise {
 
 /// The outcome of a log's check by trials (see the module documentation). Every trial is in
 /// exactly one of `ok`, `not_converged`, `not_identifiable`, `failed`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct TrialCheck {
     /// Trials asked for.
     pub planned: usize,

@@ -125,7 +125,7 @@ fn bins(b: Vec3) -> Option<(usize, usize)> {
 
 /// One of the 100 regions of [`motioncal_gaps`]: the bounds of `sin(latitude)` (third component)
 /// and of the longitude as a fraction of a turn from the first axis towards the second.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MotionCalRegion {
     /// Lower and upper `sin(latitude)`.
     pub sin_latitude: [f64; 2],

@@ -164,7 +164,8 @@ pub enum FieldChangeError {
 }
 
 /// One piece of a log between changes of the field.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Segment {
     /// Time of its first reading, seconds.
     pub from_s: f64,
@@ -184,7 +185,7 @@ pub struct Segment {
 }
 
 /// A window tested: the strongest of a search.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Candidate {
     /// Start, seconds.
     pub from_s: f64,
@@ -197,7 +198,8 @@ pub struct Candidate {
 }
 
 /// What [`field_segments`] found.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct FieldChange {
     /// The pieces in time order; one piece: no change found.
     pub segments: Vec<Segment>,

@@ -14,7 +14,8 @@ use crate::small::{Mat3, Vec3, mat_t_vec, mat_vec, norm, sub};
 /// `F = ((Q_r - Q_f) / (p_f - p_r)) / (Q_f / (m - p_f))`, F-distributed with
 /// `(p_f - p_r, m - p_f)` degrees of freedom when the reduced model is true and the noise is
 /// Gaussian (to first order in the noise: the models are nonlinear).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct LackOfFit {
     /// The richer model of the most significant test.
     pub against: FitModel,

@@ -116,7 +116,7 @@ pub fn significant(x: f64, digits: usize) -> String {
 
 /// Which parameters a log fit estimates (MATLAB `magcal`'s `fitkind`, with \[P1\]'s
 /// non-orthogonality as the full model).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum FitModel {
     /// Non-orthogonality, scale factors and bias: 9 parameters.
     Full,
@@ -203,7 +203,7 @@ impl Default for FitSettings {
 }
 
 /// The noise per component a fit's standard errors rest on.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Noise {
     /// Given by the user ([`FitSettings::noise`]), in the log's units.
     Given(f64),
@@ -253,7 +253,7 @@ impl Noise {
 }
 
 /// Whether the readings lie on an ellipsoid (see the module documentation).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct EllipsoidTest {
     /// The rms of the readings' distances from the fitted ellipsoid (each `(|b| - R) / |P^T
     /// w|`), percent of the radius of the sphere that best fits them.
@@ -268,7 +268,8 @@ pub struct EllipsoidTest {
 }
 
 /// A calibration of a log.
-#[derive(Debug, Clone, PartialEq)]
+// Serialize only: it names its parts with `&'static str`, which a reader cannot borrow for ever.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LogFit {
     /// The model fitted.
     pub model: FitModel,
@@ -278,7 +279,9 @@ pub struct LogFit {
     pub p: Mat3,
     /// The bias, in the log's units.
     pub bias: Vec3,
-    /// `(psi, S, O)` of the fit (`psi = 0` but for the full model).
+    /// `(psi, S, O)` of the fit (`psi = 0` but for the full model). Its bias is in the log's
+    /// units, as [`Self::bias`] is: [`ErrorModel`] says nT for \[P1\]'s simulated sensors, and
+    /// its arithmetic is the same in any unit.
     pub errors: ErrorModel,
     /// The reference magnitude `R` the fit maps the readings to, in the log's units.
     pub magnitude: f64,
@@ -833,7 +836,8 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
 /// The least rise of a log's cost at 3 standard errors of an entry of `P` (the scale factors,
 /// and for the full model the non-orthogonalities too), the other unknowns re-fitted
 /// (`calibration::step2::profile_rise`).
-#[derive(Debug, Clone, Copy, PartialEq)]
+// Serialize only: it names its parts with `&'static str`, which a reader cannot borrow for ever.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Profile {
     /// The rise, in units of the residuals' variance (a chi-square's): 9 for a straight problem.
     pub rise: f64,
@@ -1196,7 +1200,8 @@ fn with_test(mut f: LogFit, richer: &[&LogFit], readings: &[Vec3]) -> LogFit {
 /// One step of [`fit_auto`]'s choice of model; its `Display` is the step in words
 /// (`full: not identifiable (...)`, `offset but rejected by the log (lack-of-fit p ... against
 /// full)`).
-#[derive(Debug, Clone, PartialEq)]
+// Serialize only: it names its parts with `&'static str`, which a reader cannot borrow for ever.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[non_exhaustive]
 pub enum AutoReason {
     /// The log has fewer readings than `model` has parameters.

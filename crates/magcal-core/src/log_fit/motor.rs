@@ -38,7 +38,7 @@ use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, mat_t_vec, mat_vec, norm, sub, upper_triangular_inverse};
 
 /// What drives the interference.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum MotorInput {
     /// Battery current, amperes.
     Current,
@@ -83,7 +83,8 @@ pub enum MotorError {
 }
 
 /// A calibration fitted jointly with the motor interference.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct MotorFit {
     /// The model of `P`.
     pub model: FitModel,

@@ -50,7 +50,7 @@ pub const PASS_EDGE_SIGMAS: f64 = 3.0;
 pub const PASS_SHIFT: f64 = 1.0;
 
 /// One run of readings that depart from the field.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Pass {
     /// Index of its first reading.
     pub first: usize,
@@ -61,7 +61,8 @@ pub struct Pass {
 }
 
 /// The passes of a log and the thresholds they were found with.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Passes {
     /// `R`, the median calibrated magnitude.
     pub magnitude: f64,

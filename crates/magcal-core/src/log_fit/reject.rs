@@ -62,7 +62,8 @@ pub enum RejectError {
 }
 
 /// The outcome of [`reject_outliers`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Rejection {
     /// Per reading, whether it is kept.
     pub keep: Vec<bool>,

@@ -60,7 +60,8 @@
 pub const MIN_BATCHES: usize = 10;
 
 /// How a fit's standard errors treat the order of its readings.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct Serial {
     /// The batch length `L` of the overlapping batch means, readings.
     pub batch: usize,

@@ -26,7 +26,8 @@ pub const WORSE_SIGMAS: f64 = 3.0;
 pub const MIN_BLOCKS: usize = 5;
 
 /// The comparison of a calibrated and a raw heading over the same readings.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
 pub struct HeadingVersusRaw {
     /// RMS of the calibrated heading errors, degrees.
     pub calibrated_rms_deg: f64,

@@ -60,7 +60,7 @@ use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, dot, mat_mul, mat_t_vec, mat_vec, norm, sub, transpose, upper_triangular_inverse};
 
 /// The field in the reference frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum ReferenceField {
     /// Known (the readings' units, reference frame z up): the WMM's field where the reference
     /// frame is geographic.
