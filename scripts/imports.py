@@ -12,8 +12,8 @@ the modules it uses, then any cycle; exits 1 when there is one.
     python3 scripts/imports.py --crate magcal-logs
     python3 scripts/imports.py --crates           # the crates' arrows (Cargo.toml), which point down
 
-The crates' layers, bottom first: magcal-core (the math), magcal-logs (files), magcal-runner (the
-command line), magcal-py (the Python package, over the command line's calibrate and export). Cargo refuses a cycle between crates; an arrow from a crate to one in a higher layer
+The crates' layers, bottom first: magcal-core (the math), magcal-logs (files), magcal-report (result
+sets read and shown: rows, manifests, pages, figures), magcal-runner (the command line), magcal-py (the Python package, over the command line's calibrate and export). Cargo refuses a cycle between crates; an arrow from a crate to one in a higher layer
 is what `--crates` refuses (exit 1).
 """
 import argparse
@@ -22,7 +22,7 @@ import re
 import sys
 
 CRATES = pathlib.Path(__file__).resolve().parent.parent / "crates"
-LAYERS = ["magcal-core", "magcal-logs", "magcal-runner", "magcal-py"]
+LAYERS = ["magcal-core", "magcal-logs", "magcal-report", "magcal-runner", "magcal-py"]
 ROOT = CRATES / "magcal-runner" / "src"
 CRATE_PATH = None
 SUPER_PATH = re.compile(r"\b((?:super::)+)([a-z_][a-z0-9_]*(?:::[a-z_][a-z0-9_]*)*)")

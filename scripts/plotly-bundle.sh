@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuilds the plotly.js the report pages embed (crates/magcal-runner/assets/plotly-custom.min.js):
+# Rebuilds the plotly.js the report pages embed (crates/magcal-report/assets/plotly-custom.min.js):
 # plotly.js's core and the trace types the pages draw (scripts/plotly-bundle/index.js), bundled and
 # minified as plotly.js bundles its own dist files (scripts/plotly-bundle/build.mjs), from the
 # versions package-lock.json pins (`npm ci`, checked by their integrity hashes). It writes the
@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 src="$PWD/scripts/plotly-bundle"
-assets="$PWD/crates/magcal-runner/assets"
+assets="$PWD/crates/magcal-report/assets"
 check=0
 [ "${1:-}" = "--check" ] && check=1
 

@@ -3,7 +3,7 @@
 
 The field is appended as the manifest's last member, exactly as magcal writes it (two spaces of
 indentation, the other bytes untouched), and holds the SHA-256 of the file with the field's value
-empty (`"manifest_sha256": ""`); see crates/magcal-runner/src/output/manifest.rs. Only the manifest
+empty (`"manifest_sha256": ""`); see crates/magcal-report/src/manifest.rs. Only the manifest
 changes: no other file of the set is read or written, so the file hashes it records stay true.
 A manifest that already has the field is left as it is.
 

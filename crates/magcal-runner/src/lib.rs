@@ -21,6 +21,6 @@ pub mod limits;
 pub mod log;
 pub mod output;
 pub mod pipeline;
-pub mod plots;
-pub mod report;
+pub use magcal_report::figures as plots;
+pub use magcal_report::pages as report;
 pub mod scenario;

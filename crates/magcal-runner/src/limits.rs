@@ -6,8 +6,7 @@
 
 /// Largest scenario file read, bytes.
 pub const MAX_SCENARIO_BYTES: u64 = 16 << 20;
-/// Largest `manifest.json` read, bytes.
-pub const MAX_MANIFEST_BYTES: u64 = 16 << 20;
+pub use magcal_report::manifest::MAX_MANIFEST_BYTES;
 /// Longest scenario or design name (it names files).
 pub const MAX_NAME: usize = 64;
 /// Noisy trials per design and noise level.

@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use super::{Common, Failure};
 use crate::digest::{Hashing, sha256_hex};
 use crate::output::file::to_stdout;
-use crate::output::manifest::{Manifest, RunRecord};
+use crate::output::manifest::Manifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::output::{self, print};
 use crate::pipeline::advice::{self, Advice};
@@ -188,10 +188,13 @@ fn write_set(
         files.insert("trials.csv".into(), hex);
     }
     out.stages.push(("total".into(), started.elapsed().as_secs_f64()));
-    let manifest = Manifest::new(scenario, files);
+    let manifest = crate::output::manifest::run(scenario, files);
     let (bytes, seal) = manifest.to_bytes()?;
     set.put("manifest.json", &bytes)?;
     // What varies from run to run, apart from the manifest, so that the manifest reproduces.
-    set.put("run.json", &RunRecord::new(seal, threads, out).to_bytes()?)?;
+    set.put(
+        "run.json",
+        &crate::output::manifest::record(seal, threads, out).to_bytes()?,
+    )?;
     Ok(manifest)
 }

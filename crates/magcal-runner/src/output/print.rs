@@ -5,6 +5,7 @@ use std::io::Write;
 use std::path::Path;
 
 use magcal_core::log_fit::significant;
+pub use magcal_report::rows::cells::declination_line;
 
 use crate::pipeline::advice::Advice;
 use crate::pipeline::{Check, RunOutput};
@@ -16,17 +17,6 @@ fn cell(x: f64) -> String {
 
 /// Rows of a flight plan shown on the screen per design; the rest are in `designs.csv`.
 const FLIGHT_PLAN_ROWS: usize = 40;
-
-/// The line above a table of headings: the declination used and where it comes from, or why
-/// there is no magnetic heading.
-pub fn declination_line(declination_deg: Option<f64>, source: &str) -> String {
-    match declination_deg {
-        Some(d) => format!("declination {d:+.2} deg ({source}); magnetic heading = true heading - declination"),
-        None => format!(
-            "declination undefined: the field ({source}) has no horizontal component, so a compass has no heading; true headings only"
-        ),
-    }
-}
 
 /// Each design as a pilot flies it: the attitudes in visiting order with roll, pitch, the true
 /// and the magnetic heading of the nose, the readings to log there and the turn from the previous

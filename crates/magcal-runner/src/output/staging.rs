@@ -519,6 +519,13 @@ pub(super) fn same_inode(_: &std::fs::Metadata, _: &std::fs::Metadata) -> bool {
     false
 }
 
+/// Figures go into the set with the rest of its files.
+impl magcal_report::figures::Figures for ResultSet {
+    fn put(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        ResultSet::put(self, name, bytes)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use std::collections::BTreeMap;

@@ -9,100 +9,12 @@ use magcal_core::monte_carlo::{self, TrialOutcome};
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::{CalibrationStatus, CramerRao, PhysicalScales, Summary, Vec3};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
+
+pub use magcal_report::rows::Metric;
 
 use super::{BuiltDesign, Progress};
 use crate::limits;
 use crate::scenario::Scenario;
-
-/// The Monte Carlo metrics of `summary.csv`: the relative errors of \[P1\] eq. (21)-(23)
-/// (percent), the absolute errors, and the heading error (docs/conventions.md).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Metric {
-    /// `eta_psi`, \[P1\] eq. (21), percent.
-    #[default]
-    EtaPsi,
-    /// `eta_S`, \[P1\] eq. (22), percent.
-    EtaS,
-    /// `eta_O`, \[P1\] eq. (23), percent.
-    EtaO,
-    /// `|psi_hat - psi|`, degrees.
-    AbsPsiDeg,
-    /// `|S_hat - S|`.
-    AbsS,
-    /// `|O_hat - O|`, nT.
-    AbsONt,
-    /// Rms heading error over the level yaws, degrees.
-    HeadingRmsDeg,
-    /// Largest heading error over the level yaws, degrees.
-    HeadingMaxDeg,
-}
-
-impl Metric {
-    /// In file order.
-    pub const ALL: [Self; 8] = [
-        Self::EtaPsi,
-        Self::EtaS,
-        Self::EtaO,
-        Self::AbsPsiDeg,
-        Self::AbsS,
-        Self::AbsONt,
-        Self::HeadingRmsDeg,
-        Self::HeadingMaxDeg,
-    ];
-
-    /// The name in files.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::EtaPsi => "eta_psi",
-            Self::EtaS => "eta_s",
-            Self::EtaO => "eta_o",
-            Self::AbsPsiDeg => "abs_psi_deg",
-            Self::AbsS => "abs_s",
-            Self::AbsONt => "abs_o_nt",
-            Self::HeadingRmsDeg => "heading_rms_deg",
-            Self::HeadingMaxDeg => "heading_max_deg",
-        }
-    }
-
-    /// An axis label.
-    pub fn label(self) -> &'static str {
-        match self {
-            Self::EtaPsi => "eta_psi, non-orthogonality error (%)",
-            Self::EtaS => "eta_S, scale factor error (%)",
-            Self::EtaO => "eta_O, bias error (%)",
-            Self::AbsPsiDeg => "|psi_hat - psi| (deg)",
-            Self::AbsS => "|S_hat - S|",
-            Self::AbsONt => "|O_hat - O| (nT)",
-            Self::HeadingRmsDeg => "rms heading error over level yaws (deg)",
-            Self::HeadingMaxDeg => "largest heading error over level yaws (deg)",
-        }
-    }
-
-    /// The metric of one trial, if it has it.
-    pub fn of(self, t: &magcal_core::monte_carlo::TrialOutcome) -> Option<f64> {
-        match self {
-            Self::EtaPsi => t.eta.and_then(|e| e.psi),
-            Self::EtaS => t.eta.and_then(|e| e.scale),
-            Self::EtaO => t.eta.and_then(|e| e.bias),
-            Self::AbsPsiDeg => t.abs.map(|a| a.psi_deg),
-            Self::AbsS => t.abs.map(|a| a.scale),
-            Self::AbsONt => t.abs.map(|a| a.bias_nt),
-            Self::HeadingRmsDeg => t.heading.map(|h| h.rms_deg),
-            Self::HeadingMaxDeg => t.heading.map(|h| h.max_deg),
-        }
-    }
-
-    /// The Cramer-Rao prediction of the metric's rms, where the bound defines one.
-    pub fn predicted_rms(self, bound: &magcal_core::CramerRao) -> Option<f64> {
-        match self {
-            Self::EtaPsi | Self::EtaS | Self::EtaO => bound.rms_eta()[self as usize],
-            Self::AbsPsiDeg | Self::AbsS | Self::AbsONt => bound.rms_abs()[self as usize - 3],
-            Self::HeadingRmsDeg | Self::HeadingMaxDeg => None,
-        }
-    }
-}
 
 /// The trials of one design at one noise level.
 #[derive(Debug, Clone)]

@@ -6,6 +6,7 @@
 mod design;
 mod raw;
 pub use magcal_logs::site;
+pub use magcal_report::rows::DesignKind;
 mod validate;
 mod values;
 
@@ -17,7 +18,6 @@ use magcal_core::design::optimum::Optimum;
 use magcal_core::design::plan::PlanLimits;
 use magcal_core::design::pso::Swarm;
 use magcal_core::{Attitude, AttitudeBox, ErrorModel, ReferenceField, TwoStep};
-use serde::{Deserialize, Serialize};
 
 use crate::limits;
 
@@ -38,45 +38,6 @@ pub const DEFAULT_MAX_ATTITUDES: usize = 12;
 
 /// Default noisy trials per design and noise level (\[P1\] IV.C: one thousand).
 pub const DEFAULT_TRIALS: usize = 1000;
-
-/// The kind of a design source, as `design_metrics.csv` names it.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DesignKind {
-    /// Attitudes listed in the scenario.
-    #[default]
-    Explicit,
-    /// A uniform grid.
-    Grid,
-    /// Uniform random attitudes.
-    Random,
-    /// The paper's PSO.
-    Pso,
-    /// The multi-start optimum optimiser.
-    Optimum,
-    /// The approximate D-optimal design rounded to a number of readings.
-    Plan,
-}
-
-impl DesignKind {
-    /// Whether an optimiser chose the attitudes. Many designs share the optimal `ln det M_F` with
-    /// different attitudes and conditioning, so `check` compares only `ln det` for these.
-    pub fn is_optimised(self) -> bool {
-        matches!(self, Self::Pso | Self::Optimum | Self::Plan)
-    }
-
-    /// The name used in files.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Explicit => "explicit",
-            Self::Grid => "grid",
-            Self::Random => "random",
-            Self::Pso => "pso",
-            Self::Optimum => "optimum",
-            Self::Plan => "plan",
-        }
-    }
-}
 
 /// How a design's attitudes are obtained.
 #[derive(Debug, Clone)]

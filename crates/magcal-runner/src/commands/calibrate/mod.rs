@@ -30,7 +30,6 @@ use crate::log::source::{self, Log, LogArgs};
 use crate::log::vehicle::{BoxFlags, Place, Vehicle, log_efficiency};
 use crate::output::file::to_stdout;
 use crate::output::log_rows::ResidualRow;
-use crate::output::manifest::CalibrationManifest;
 use crate::output::staging::{ResultSet, Target};
 use crate::output::stderr::to_stderr;
 use crate::output::{self, Derived, Real};
@@ -727,7 +726,7 @@ fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJso
         Ok(())
     })?;
     files.insert("residuals.csv".to_string(), hex);
-    let manifest = CalibrationManifest::new(path, log.sha256.clone(), log.bytes, rows, files);
+    let manifest = crate::output::manifest::calibration(path, log.sha256.clone(), log.bytes, rows, files);
     set.put("manifest.json", &manifest.to_bytes()?)?;
     set.commit()
 }

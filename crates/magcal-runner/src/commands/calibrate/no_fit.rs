@@ -14,7 +14,6 @@ use crate::log::calibration::NO_CALIBRATION_FORMAT;
 use crate::log::flown::{Flown, flown};
 use crate::log::source::Log;
 use crate::output::file::to_stdout;
-use crate::output::manifest::CalibrationManifest;
 use crate::output::staging::ResultSet;
 
 /// The report of a log without a calibration (`no_calibration.json`).
@@ -90,7 +89,7 @@ pub fn report(
         text.push(b'\n');
         set.put("no_calibration.json", &text)?;
         let files = BTreeMap::from([("no_calibration.json".to_string(), sha256_hex(&text))]);
-        let manifest = CalibrationManifest::new(&args.log, log.sha256.clone(), log.bytes, rows, files);
+        let manifest = crate::output::manifest::calibration(&args.log, log.sha256.clone(), log.bytes, rows, files);
         set.put("manifest.json", &manifest.to_bytes()?)?;
         set.commit()?;
     }

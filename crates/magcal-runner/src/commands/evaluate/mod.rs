@@ -180,7 +180,7 @@ pub fn evaluated(args: &EvaluateArgs, log_path: &Path, cal: Option<(&Calibration
     // body: its figures are also given with Q held there. Q is fitted in every case.
     let held = cal.and_then(|c| c.alignment.as_ref()).map(|a| &a.rotation);
     let fits = Fits::of(&used, calibrated.as_deref(), held).with_context(|| log_shown.clone())?;
-    let json = report::EvaluationJson::new(
+    let json = report::evaluation_json(
         report::Source {
             log: &log,
             log_shown: &log_shown,

@@ -23,43 +23,41 @@ pub struct Source<'a> {
     pub cal_shown: Option<&'a str>,
 }
 
-impl EvaluationJson {
-    /// The report of the fits of the readings `used`.
-    pub fn new(source: Source, used: &Used, fits: &Fits) -> Self {
-        let log = source.log;
-        let units = source.cal.and_then(|c| c.units.clone()).or_else(|| {
-            log.origin
-                .unit
-                .and_then(|u| clap::ValueEnum::to_possible_value(&u))
-                .map(|v| v.get_name().to_string())
-        });
-        let body = match used.frame {
-            NavFrame::Ned => "forward, right, down",
-            NavFrame::Enu => "forward, left, up",
-        };
-        Self {
-            log: source.log_shown.to_string(),
-            log_sha256: log.sha256.clone(),
-            calibration: source.cal_shown.map(str::to_string),
-            units,
-            against: against(&log.origin),
-            frames: format!(
-                "Q turns the calibrated frame into the body frame ({body}); F is in the reference frame with z up (east, north, up for NED attitudes)"
-            ),
-            rows: RowsJson {
-                readings: log.readings.len(),
-                used: used.raw.len(),
-                without_attitude: used.without,
-                skipped: log.skipped.len(),
-                left_out_by_where: log.filtered,
-                notes: log.origin.notes.clone(),
-            },
-            sector_deg: SECTOR_DEG,
-            tilt_bands_deg: TILT_BANDS_DEG.to_vec(),
-            calibrated: fits.calibrated.as_ref().map(|a| figures(a, used)),
-            calibrated_aligned: fits.aligned.as_ref().map(|a| figures(a, used)),
-            uncalibrated: figures(&fits.raw, used),
-        }
+/// The report of the fits of the readings `used`.
+pub fn evaluation_json(source: Source, used: &Used, fits: &Fits) -> EvaluationJson {
+    let log = source.log;
+    let units = source.cal.and_then(|c| c.units.clone()).or_else(|| {
+        log.origin
+            .unit
+            .and_then(|u| clap::ValueEnum::to_possible_value(&u))
+            .map(|v| v.get_name().to_string())
+    });
+    let body = match used.frame {
+        NavFrame::Ned => "forward, right, down",
+        NavFrame::Enu => "forward, left, up",
+    };
+    EvaluationJson {
+        log: source.log_shown.to_string(),
+        log_sha256: log.sha256.clone(),
+        calibration: source.cal_shown.map(str::to_string),
+        units,
+        against: against(&log.origin),
+        frames: format!(
+            "Q turns the calibrated frame into the body frame ({body}); F is in the reference frame with z up (east, north, up for NED attitudes)"
+        ),
+        rows: RowsJson {
+            readings: log.readings.len(),
+            used: used.raw.len(),
+            without_attitude: used.without,
+            skipped: log.skipped.len(),
+            left_out_by_where: log.filtered,
+            notes: log.origin.notes.clone(),
+        },
+        sector_deg: SECTOR_DEG,
+        tilt_bands_deg: TILT_BANDS_DEG.to_vec(),
+        calibrated: fits.calibrated.as_ref().map(|a| figures(a, used)),
+        calibrated_aligned: fits.aligned.as_ref().map(|a| figures(a, used)),
+        uncalibrated: figures(&fits.raw, used),
     }
 }
 

@@ -7,8 +7,8 @@ use plotly::layout::Axis;
 use plotly::{Layout, Plot, Scatter};
 
 use super::{Cell, Page, Table, drawn, significant};
-use crate::log::flown::{Flown, SECTOR_DEG};
-use crate::output::log_rows::ResidualRow;
+use crate::rows::log_rows::ResidualRow;
+use magcal_logs::flown::{Flown, SECTOR_DEG};
 
 /// Colour of a reading inside the box, and outside it.
 const INSIDE: &str = "#2ca02c";
@@ -172,8 +172,8 @@ fn flown_table(f: &Flown) -> Table {
 mod tests {
     #[test]
     fn the_box_in_degrees_holds_what_the_box_in_yaw_holds() {
-        use crate::log::flown::Bounds;
         use magcal_core::AttitudeBox;
+        use magcal_logs::flown::Bounds;
         for (yaw, offset) in [
             ([0.0, 90.0], 90.0),
             ([-20.0, 30.0], 0.0),

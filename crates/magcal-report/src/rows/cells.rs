@@ -162,6 +162,17 @@ pub fn compass_text(degrees: f64, decimals: usize) -> String {
     }
 }
 
+/// The line above a table of headings: the declination used and where it comes from, or why
+/// there is no magnetic heading.
+pub fn declination_line(declination_deg: Option<f64>, source: &str) -> String {
+    match declination_deg {
+        Some(d) => format!("declination {d:+.2} deg ({source}); magnetic heading = true heading - declination"),
+        None => format!(
+            "declination undefined: the field ({source}) has no horizontal component, so a compass has no heading; true headings only"
+        ),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -132,7 +132,7 @@ pub fn page(json: &NextJson, counts: &[usize; 100], after: &[usize; 100]) -> Res
     );
     verdict(&mut page, json);
     page.heading("Attitudes to add");
-    page.text(crate::output::print::declination_line(
+    page.text(crate::rows::cells::declination_line(
         json.declination_deg,
         &json.field_source,
     ));

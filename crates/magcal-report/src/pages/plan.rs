@@ -17,7 +17,7 @@ use plotly::{Layout, Mesh3D, Plot, Scatter3D};
 use serde_json::json;
 
 use super::{Cell, Page, Table, drawn, significant};
-use crate::output::{CertificateRow, DesignMetricsRow, DesignPointRow};
+use crate::rows::{CertificateRow, DesignMetricsRow, DesignPointRow};
 
 /// Length of the nose's stroke on the unit sphere of directions.
 const NOSE: f64 = 0.22;
@@ -259,7 +259,7 @@ fn attitude_table(page: &mut Page, index: usize, plan: &Plan) {
         value: Some(v),
     };
     let heading = |v: f64| Cell {
-        text: crate::output::compass_text(v, 1),
+        text: crate::rows::compass_text(v, 1),
         value: Some(v),
     };
     let rows = plan
@@ -515,7 +515,7 @@ fn plan_plot(plans: &[Plan], shown: usize) -> Plot {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::read_csv;
+    use crate::rows::read_csv;
 
     fn results(set: &str) -> std::path::PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR"))

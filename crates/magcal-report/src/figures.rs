@@ -2,7 +2,7 @@
 //! (relative errors per design), Fig. 4 (final fitness of repeated PSO runs), the noise sweep, and
 //! each design's attitudes and field directions.
 //!
-//! Every figure is rendered in memory and handed to the [`ResultSet`] being written, so figures are
+//! Every figure is rendered in memory and handed to a [`Figures`] sink (the command line's result set being written), so figures are
 //! replaced with the rest of the set or not at all. Axis ranges are built from finite values only:
 //! a cell with no successful trial, or a non-finite value, is drawn as absent and its label says
 //! so. PNG text is drawn with a bundled DejaVu Sans through plotters' `ab_glyph` feature, so no
@@ -19,11 +19,10 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
-use crate::limits::set_member;
-use crate::output::manifest::Manifest;
-use crate::output::staging::ResultSet;
-use crate::output::{DesignMetricsRow, DesignPointRow, PsoRunRow, SummaryRow, read_csv};
-use crate::pipeline::Metric;
+use crate::manifest::Manifest;
+use crate::rows::Metric;
+use crate::rows::{DesignMetricsRow, DesignPointRow, PsoRunRow, SummaryRow, read_csv};
+use magcal_logs::limits::set_member;
 
 /// Figure size, pixels: readable at 800 px wide.
 const SIZE: (u32, u32) = (960, 600);
@@ -64,7 +63,7 @@ struct Values {
 
 impl Stat {
     fn of(row: &SummaryRow) -> Self {
-        let get = |v: Option<crate::output::Real>| v.map(|r| r.0).filter(|x| x.is_finite());
+        let get = |v: Option<crate::rows::Real>| v.map(|r| r.0).filter(|x| x.is_finite());
         let values = match (get(row.mean), get(row.median), get(row.p05), get(row.p95)) {
             (Some(mean), Some(median), Some(p05), Some(p95)) => Some(Values {
                 mean,
@@ -134,12 +133,6 @@ pub trait Figures {
     /// Whether PNG copies are drawn too.
     fn png(&self) -> bool {
         true
-    }
-}
-
-impl Figures for ResultSet {
-    fn put(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
-        ResultSet::put(self, name, bytes)
     }
 }
 

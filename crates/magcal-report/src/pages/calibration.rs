@@ -14,9 +14,9 @@ use serde_json::json;
 
 use super::sphere::{coverage_plot, mesh};
 use super::{Cell, Page, Table, drawn, thin, thinned_note};
-use crate::log::calibration::{CalibrationJson, PassesJson, parse_calibration};
-use crate::output::log_rows::ResidualRow;
-use crate::output::manifest::{CalibrationManifest, verify};
+use crate::manifest::{CalibrationManifest, verify};
+use crate::rows::log_rows::ResidualRow;
+use magcal_logs::calibration::{CalibrationJson, PassesJson, parse_calibration};
 
 /// Readings drawn in each 3D and attitude figure at most: more add megabytes and nothing a
 /// person sees (at 2,500 the page of BROAD trial 02's calibration is 1.9 MB, 1.49 MB of it
@@ -205,8 +205,8 @@ fn d_efficiency_row(cal: &CalibrationJson) -> Vec<Cell> {
 
 /// The set's manifest, its own hash checked.
 fn read_manifest(dir: &Path) -> Result<CalibrationManifest> {
-    let path = crate::limits::set_member(dir, "manifest.json")?;
-    let bytes = crate::limits::read_bounded(&path, crate::limits::MAX_MANIFEST_BYTES)?;
+    let path = magcal_logs::limits::set_member(dir, "manifest.json")?;
+    let bytes = magcal_logs::limits::read_bounded(&path, crate::manifest::MAX_MANIFEST_BYTES)?;
     verify(&path, &bytes)?;
     serde_json::from_slice(&bytes).with_context(|| format!("{}: not a magcal calibration manifest", path.display()))
 }

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 
 use super::{Block, Cell, Page, Table, drawn, thinned_note};
-use crate::output::Real;
+use crate::rows::Real;
 
 /// Readings drawn in each figure against a reading's time, heading or tilt at most.
 pub const MAX_DRAWN: usize = 4000;

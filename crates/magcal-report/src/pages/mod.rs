@@ -38,7 +38,7 @@ use plotly::Plot;
 use plotly::configuration::Configuration;
 use serde_json::Value;
 
-use crate::output::manifest::SetKind;
+use crate::manifest::SetKind;
 
 /// One part of a page, in order.
 #[derive(Debug, Clone)]
@@ -185,7 +185,7 @@ pub fn figure_json(mut plot: Plot) -> Value {
 fn policy(scripts: &[&str]) -> String {
     let hashes: Vec<String> = scripts
         .iter()
-        .map(|s| format!("'sha256-{}'", crate::digest::sha256_base64(s.as_bytes())))
+        .map(|s| format!("'sha256-{}'", magcal_logs::digest::sha256_base64(s.as_bytes())))
         .collect();
     format!(
         "default-src 'none'; script-src {} 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:; base-uri 'none'; form-action 'none'",
@@ -390,10 +390,10 @@ pub(crate) fn sealed_bytes(
     command: &str,
 ) -> Result<(Vec<u8>, String)> {
     let want = recorded_hash(dir, name, recorded, command)?;
-    let member = crate::limits::set_member(dir, name)?;
-    let bytes = crate::limits::read_bounded(&member, crate::limits::max_result_file_bytes())?;
+    let member = magcal_logs::limits::set_member(dir, name)?;
+    let bytes = magcal_logs::limits::read_bounded(&member, magcal_logs::limits::max_result_file_bytes())?;
     let shown = member.display().to_string();
-    if crate::digest::sha256_hex(&bytes) != *want {
+    if magcal_logs::digest::sha256_hex(&bytes) != *want {
         bail!(edited(&shown, command));
     }
     Ok((bytes, shown))
@@ -405,7 +405,7 @@ pub(crate) fn sealed_bytes(
 /// Returns the number of rows and the path as messages name it.
 ///
 /// # Errors
-/// As [`sealed_bytes`], then a row that does not parse (as [`crate::output::parse_csv`] says it)
+/// As [`sealed_bytes`], then a row that does not parse (as [`crate::rows::parse_csv`] says it)
 /// or an error of `each`.
 pub(crate) fn sealed_rows<T: serde::de::DeserializeOwned>(
     dir: &Path,
@@ -415,11 +415,11 @@ pub(crate) fn sealed_rows<T: serde::de::DeserializeOwned>(
     each: impl FnMut(T) -> Result<()>,
 ) -> Result<(usize, String)> {
     let want = recorded_hash(dir, name, recorded, command)?;
-    let member = crate::limits::set_member(dir, name)?;
+    let member = magcal_logs::limits::set_member(dir, name)?;
     let shown = member.display().to_string();
     let file = std::fs::File::open(&member).with_context(|| format!("{shown}: cannot read"))?;
-    let mut input = crate::digest::Hashing::new(file);
-    let rows = crate::output::for_each_csv_row(&mut input, &shown, each);
+    let mut input = magcal_logs::digest::Hashing::new(file);
+    let rows = crate::rows::for_each_csv_row(&mut input, &shown, each);
     // The rest of the file, which a row that failed left unread, completes the hash.
     std::io::copy(&mut input, &mut std::io::sink()).with_context(|| format!("{shown}: cannot read"))?;
     if input.hex() != *want {
@@ -555,7 +555,7 @@ mod tests {
         let recorded = include_str!("../../assets/plotly-custom.min.js.sha256");
         assert_eq!(
             recorded.split_whitespace().next(),
-            Some(crate::digest::sha256_hex(PLOTLY_JS.as_bytes()).as_str()),
+            Some(magcal_logs::digest::sha256_hex(PLOTLY_JS.as_bytes()).as_str()),
             "assets/plotly-custom.min.js is not what scripts/plotly-bundle.sh built"
         );
         assert!(
@@ -611,7 +611,7 @@ mod tests {
             .nth(1)
             .and_then(|r| r.split('"').next())
             .unwrap();
-        let hash = crate::digest::sha256_base64(LOADER_JS.as_bytes());
+        let hash = magcal_logs::digest::sha256_base64(LOADER_JS.as_bytes());
         assert!(policy.contains(&format!("'sha256-{hash}'")), "{policy}");
         assert!(html.contains(&format!("<script type=\"text/javascript\">{LOADER_JS}</script>")));
         assert_eq!(policy.matches("'sha256-").count(), 1, "{policy}");

@@ -19,9 +19,9 @@ use serde_json::json;
 
 use super::plan::{self, Plan};
 use super::{Block, Cell, Page, Table, drawn, significant};
-use crate::output::manifest::Manifest;
-use crate::output::{CertificateRow, DesignMetricsRow, DesignPointRow, SummaryRow, parse_csv};
-use crate::pipeline::Metric;
+use crate::manifest::Manifest;
+use crate::rows::Metric;
+use crate::rows::{CertificateRow, DesignMetricsRow, DesignPointRow, SummaryRow, parse_csv};
 
 /// Colours of the sweep's series (plotly's own cycle).
 const PALETTE: [&str; 10] = [
@@ -162,7 +162,7 @@ fn verdict(page: &mut Page, metrics: &[DesignMetricsRow]) {
 
 /// `summary.csv` as it is, one row per design, noise level and metric.
 fn summary_table(page: &mut Page, summary: &[SummaryRow]) {
-    let n = |v: Option<crate::output::Real>| Cell::maybe(v.map(|r| r.0), 4);
+    let n = |v: Option<crate::rows::Real>| Cell::maybe(v.map(|r| r.0), 4);
     let rows = summary
         .iter()
         .map(|r| {
@@ -228,7 +228,7 @@ fn metric_traces(summary: &[SummaryRow], metric: Metric, shown: bool) -> MetricT
         if !order.contains(&name) {
             order.push(name.clone());
         }
-        let finite = |v: Option<crate::output::Real>| v.is_some_and(|x| x.0.is_finite() && x.0 > 0.0);
+        let finite = |v: Option<crate::rows::Real>| v.is_some_and(|x| x.0.is_finite() && x.0 > 0.0);
         if finite(r.median) && finite(r.p05) && finite(r.p95) && r.sigma_nt.0 > 0.0 {
             let k = order.iter().position(|o| *o == name).unwrap_or(0);
             series.entry((k, name)).or_default().push(r);
@@ -265,7 +265,7 @@ fn series_traces(
     traces: &mut Vec<Box<dyn Trace>>,
     values: &mut Vec<f64>,
 ) {
-    let get = |f: fn(&SummaryRow) -> Option<crate::output::Real>| {
+    let get = |f: fn(&SummaryRow) -> Option<crate::rows::Real>| {
         rows.iter()
             .map(|r| f(r).map_or(f64::NAN, |v| v.0))
             .collect::<Vec<f64>>()
@@ -408,8 +408,8 @@ fn figures(dir: &Path, manifest: &Manifest) -> Result<Vec<(String, String)>> {
             "magcal run",
         )?;
     }
-    let mut svgs = crate::plots::Svgs::default();
-    crate::plots::draw(dir, manifest, &mut svgs, "").context("drawing the set's figures")?;
+    let mut svgs = crate::figures::Svgs::default();
+    crate::figures::draw(dir, manifest, &mut svgs, "").context("drawing the set's figures")?;
     let mut figures: Vec<(String, String)> = svgs
         .0
         .into_iter()

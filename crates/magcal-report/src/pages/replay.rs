@@ -20,10 +20,10 @@ use plotly::{BoxPlot, Layout, Mesh3D, Plot, Scatter3D};
 use serde_json::json;
 
 use super::{Cell, Page, Table, drawn, significant};
-use crate::limits::{self, excerpt};
-use crate::output::manifest::{ReplayManifest, verify};
-use crate::output::parse_csv;
-use crate::output::replay_rows::{RealisationRow, ReplaySummaryRow, ReplayTrialRow, WholeLogRow};
+use crate::manifest::{ReplayManifest, verify};
+use crate::rows::parse_csv;
+use crate::rows::replay_rows::{RealisationRow, ReplaySummaryRow, ReplayTrialRow, WholeLogRow};
+use magcal_logs::limits::{self, excerpt};
 
 /// The models' colours, in the order `replay --models` lists them by default; one colour per
 /// model on every figure of the page.
@@ -70,7 +70,7 @@ impl ReplaySet {
     /// bytes are not the ones it records (edited since replay wrote it).
     fn read(dir: &Path) -> Result<Self> {
         let path = limits::set_member(dir, "manifest.json")?;
-        let bytes = limits::read_bounded(&path, limits::MAX_MANIFEST_BYTES)?;
+        let bytes = limits::read_bounded(&path, crate::manifest::MAX_MANIFEST_BYTES)?;
         verify(&path, &bytes)?;
         let manifest: ReplayManifest = serde_json::from_slice(&bytes).map_err(|e| {
             anyhow::anyhow!(
@@ -723,7 +723,7 @@ fn whole_log_table(page: &mut Page, set: &ReplaySet) {
         "eta_O (%)",
         "rms residual (nT)",
     ];
-    let n = |v: Option<crate::output::Real>| Cell::maybe(v.map(|r| r.0), 4);
+    let n = |v: Option<crate::rows::Real>| Cell::maybe(v.map(|r| r.0), 4);
     let rows = set
         .whole_log
         .iter()
@@ -773,7 +773,7 @@ fn summary_table(page: &mut Page, set: &ReplaySet) {
         "se of mean",
         "rms",
     ];
-    let n = |v: Option<crate::output::Real>| Cell::maybe(v.map(|r| r.0), 4);
+    let n = |v: Option<crate::rows::Real>| Cell::maybe(v.map(|r| r.0), 4);
     let rows = set
         .summary
         .iter()
@@ -810,8 +810,8 @@ fn summary_table(page: &mut Page, set: &ReplaySet) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::digest::sha256_hex;
-    use crate::report::Block;
+    use crate::pages::Block;
+    use magcal_logs::digest::sha256_hex;
 
     /// A copy of the shipped `results/replay-handheld-10` in a temporary directory, with `edit`
     /// applied to its manifest and files and the manifest sealed again over the edited files.

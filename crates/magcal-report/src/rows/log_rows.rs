@@ -55,7 +55,7 @@ pub struct SimulatedRow {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::{header, parse_csv, write_csv};
+    use crate::rows::{header, parse_csv, write_csv};
 
     #[test]
     fn headers_are_the_documented_columns() {
