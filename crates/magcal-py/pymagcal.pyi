@@ -4,7 +4,7 @@ ask which attitudes add most (`next`), apply and export the calibration. Every k
 same parser, refused with the same one-line message."""
 
 from os import PathLike
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Iterator, Optional, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -153,7 +153,7 @@ class Design:
     def name(self) -> str: ...
     @property
     def kind(self) -> str:
-        """optimum, pso, plan, grid, random, uniform or given."""
+        """optimum, pso, plan, grid, random or explicit (listed in the scenario)."""
     @property
     def m(self) -> int:
         """Readings in all."""
@@ -187,10 +187,10 @@ class Design:
     def heading_median_deg(self) -> Optional[float]: ...
     @property
     def metrics(self) -> dict[str, Any]:
-        """Its row of design_metrics.csv."""
+        """Its row of design_metrics.csv (a copy)."""
     @property
     def points(self) -> list[dict[str, Any]]:
-        """Its rows of designs.csv, in the order to fly them."""
+        """Its rows of designs.csv, in the order to fly them (copies)."""
     def __len__(self) -> int: ...
 
 class Plan:
@@ -209,8 +209,12 @@ class Plan:
     @property
     def tables(self) -> dict[str, list[dict[str, Any]]]:
         """designs.csv, design_metrics.csv, approximate.csv, certificate.csv (and advice.csv
-        when no design works), rows as dicts with the files' numbers."""
-    def __getitem__(self, name: str) -> Design: ...
+        when no design works), rows as dicts with the files' numbers (copies). Counts are
+        ints, every other number a float."""
+    def __getitem__(self, key: Union[str, int]) -> Design:
+        """A design by name or by its place in the scenario."""
+    def __contains__(self, name: object) -> bool: ...
+    def __iter__(self) -> Iterator[Design]: ...
     def __len__(self) -> int: ...
 
 def design(
@@ -221,7 +225,8 @@ def design(
     threads: Optional[int] = None,
     allow_long: bool = False,
 ) -> Plan:
-    """The designs of a scenario file (or of its text, `toml=`) as `magcal design` makes them."""
+    """The designs of a scenario file, or of its text (`toml=`, not both), as `magcal design`
+    makes them. Ctrl-C is seen when the designs are done."""
 
 def evaluate(
     calibration: Union[Calibration, str, PathLike[str], None],
@@ -229,7 +234,10 @@ def evaluate(
     **options: Any,
 ) -> dict[str, Any]:
     """`magcal evaluate CAL LOG --json` as a dict (None: `--raw LOG`). Options are the flags of
-    the same name (quaternion="qw,qx,qy,qz", attitude_frame="enu", where=[...], start=, end=)."""
+    the same name (quaternion="qw,qx,qy,qz", attitude_frame="enu", where=[...], start=, end=);
+    a switch takes True or False, a repeated flag a list, a MIN,MAX flag a tuple or its text; an
+    unknown keyword is a TypeError. Warnings (rows skipped, a calibration marked not
+    identifiable) go to standard error, as the command line's do."""
 
 def next(
     calibration: Union[Calibration, str, PathLike[str]],
@@ -237,4 +245,5 @@ def next(
     **options: Any,
 ) -> dict[str, Any]:
     """`magcal next CAL LOG --json` as a dict: the attitudes that add most to the log, in the box
-    of scenario= (or site=, date=, roll=, pitch=), or a vector calibration's own manoeuvres."""
+    of scenario= (or site=, date=, roll=(MIN, MAX), pitch=(MIN, MAX)), or a vector calibration's
+    own manoeuvres. Keywords as for evaluate."""

@@ -642,10 +642,8 @@ impl CalibrationJson {
                 self.bias.map(crate::limits::show).join(", "),
                 Some(largest / raw_size)
                     .filter(|r| r.is_finite())
-                    .map_or("more than 1e308".to_string(), |r| magcal_core::log_fit::significant(
-                        r, 3
-                    )),
-                magcal_core::log_fit::significant(raw_size, 7),
+                    .map_or("more than 1e308".to_string(), |r| crate::text::significant(r, 3)),
+                crate::text::significant(raw_size, 7),
             ));
         }
         // The noise is `null` where the log cannot give it (an exact fit without --noise).
@@ -812,12 +810,12 @@ impl CalibrationJson {
         } else if (1.0 / SITE_RATIO..=SITE_RATIO).contains(&ratio) {
             format!(
                 "its median radius under the calibration is {} times the magnitude {magnitude} (the fit's band: 1 +- {band:.4}): a field of another strength (another site, nearby iron), another sensor or other columns ({made_from})",
-                magcal_core::log_fit::significant(ratio, 5),
+                crate::text::significant(ratio, 5),
             )
         } else {
             format!(
                 "its median radius under the calibration is {} times the magnitude {magnitude}, which no site on Earth explains (fields of 22,000 to 67,000 nT): other units or the wrong log or columns ({made_from})",
-                magcal_core::log_fit::significant(ratio, 5),
+                crate::text::significant(ratio, 5),
             )
         })
     }

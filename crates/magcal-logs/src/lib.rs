@@ -16,7 +16,8 @@
 //!   ([`parameters`]) and of where and when they were flown ([`gps`]).
 //! - [`calibration`]: `calibration.json`, written and read back (sealed by its digest).
 //! - [`export`]: a calibration as an autopilot's parameters or a tool's input.
-//! - [`site`]: sites, dates and units; [`limits`]: reading untrusted input within bounds.
+//! - [`site`]: sites, dates and units; [`limits`]: reading untrusted input within bounds;
+//!   [`text`]: numbers written for a person (messages, sentences, tables).
 //!
 //! Every error names the file and, where it has one, the line, byte offset or message.
 //!
@@ -69,5 +70,6 @@ pub mod parameters;
 pub mod read;
 pub mod site;
 pub mod source;
+pub mod text;
 pub mod tlog;
 pub mod ulog;

@@ -19,11 +19,24 @@ struct DesignCommand {
     common: Common,
 }
 
-/// One cell of a table as Python has it: empty is `None`; a column whose every other cell is an
-/// integer holds `int`s (a count), unless its name ends with a unit (`_deg`, `_nt`: a measure
-/// that happens to be whole); else one whose every cell is a number holds `float`s (the files'
-/// shortest text that reads back to the same `f64`, so the same bits); else `true`/`false` are
-/// `bool`s; else text.
+/// The columns of the design tables that count (attitudes, readings, trials, rounds): `int`s.
+/// Every other number is a measure, a `float` even where it happens to be whole.
+const COUNTS: [&str; 10] = [
+    "visit",
+    "point",
+    "readings",
+    "m",
+    "check_trials",
+    "check_ok",
+    "rounds",
+    "candidates",
+    "support_points",
+    "attitudes",
+];
+
+/// One cell of a table as Python has it: empty is `None`; a count ([`COUNTS`]) is an `int`; a
+/// column whose every cell is a number holds `float`s (the files' shortest text that reads back
+/// to the same `f64`, so the same bits); else `true`/`false` are `bool`s; else text.
 #[derive(Clone, Copy, PartialEq)]
 enum Column {
     Int,
@@ -33,16 +46,19 @@ enum Column {
 }
 
 fn column_of<'a>(name: &str, cells: impl Iterator<Item = &'a str>) -> Column {
-    let measure = name.ends_with("_deg") || name.ends_with("_nt");
-    let mut kind = if measure { Column::Float } else { Column::Int };
+    let mut kind = if COUNTS.contains(&name) {
+        Column::Int
+    } else {
+        Column::Float
+    };
     for c in cells.filter(|c| !c.is_empty()) {
         let int = c.parse::<i64>().is_ok();
         let float = c.parse::<f64>().is_ok();
         let boolean = c == "true" || c == "false";
         kind = match kind {
             Column::Int if int => Column::Int,
-            Column::Int | Column::Float if float => Column::Float,
-            Column::Int if boolean => Column::Bool,
+            Column::Float if float => Column::Float,
+            Column::Float if boolean => Column::Bool,
             Column::Bool if boolean => Column::Bool,
             _ => return Column::Text,
         };
@@ -123,7 +139,8 @@ impl Design {
         &self.name
     }
 
-    /// How it was made: `optimum`, `pso`, `plan`, `grid`, `random`, `uniform` or `given`.
+    /// How it was made: `optimum`, `pso`, `plan`, `grid`, `random` or `explicit` (listed in the
+    /// scenario).
     #[getter]
     fn kind(&self, py: Python<'_>) -> PyResult<String> {
         self.metric(py, "kind")
@@ -209,16 +226,16 @@ impl Design {
         self.metric(py, "check_heading_median_deg")
     }
 
-    /// Its row of `design_metrics.csv`, every column.
+    /// Its row of `design_metrics.csv`, every column (a copy).
     #[getter]
-    fn metrics(&self, py: Python<'_>) -> Py<PyDict> {
-        self.metrics.clone_ref(py)
+    fn metrics<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        self.metrics.bind(py).copy()
     }
 
-    /// Its rows of `designs.csv`, in the order to fly them.
+    /// Its rows of `designs.csv`, in the order to fly them (copies).
     #[getter]
-    fn points(&self, py: Python<'_>) -> Py<PyList> {
-        self.points.clone_ref(py)
+    fn points<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        copies(self.points.bind(py))
     }
 
     fn __len__(&self) -> usize {
@@ -277,19 +294,44 @@ impl Plan {
 
     /// The result set's tables by file name (`designs.csv`, `design_metrics.csv`,
     /// `approximate.csv`, `certificate.csv`, and `advice.csv` when no design works), each a list
-    /// of rows as dicts with the files' numbers.
+    /// of rows as dicts with the files' numbers (copies).
     #[getter]
-    fn tables(&self, py: Python<'_>) -> Py<PyDict> {
-        self.tables.clone_ref(py)
+    fn tables<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let out = PyDict::new(py);
+        for (name, rows) in self.tables.bind(py).iter() {
+            out.set_item(name, copies(rows.cast::<PyList>()?)?)?;
+        }
+        Ok(out)
     }
 
-    /// A design by name.
-    fn __getitem__(&self, py: Python<'_>, name: &str) -> PyResult<Py<Design>> {
+    /// A design by name, or by its place in the scenario's order.
+    fn __getitem__(&self, py: Python<'_>, key: &Bound<'_, PyAny>) -> PyResult<Py<Design>> {
+        if let Ok(i) = key.extract::<isize>() {
+            let n = self.designs.len() as isize;
+            let at = if i < 0 { i + n } else { i };
+            return (0..n)
+                .contains(&at)
+                .then(|| self.designs[at as usize].clone_ref(py))
+                .ok_or_else(|| pyo3::exceptions::PyIndexError::new_err(format!("design {i} of {n}")));
+        }
+        let name: String = key.extract()?;
         self.designs
             .iter()
             .find(|d| d.get().name == name)
             .map(|d| d.clone_ref(py))
-            .ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(name.to_string()))
+            .ok_or_else(|| pyo3::exceptions::PyKeyError::new_err(name))
+    }
+
+    /// Whether a design of that name is in the plan.
+    fn __contains__(&self, name: &Bound<'_, PyAny>) -> bool {
+        name.extract::<String>()
+            .is_ok_and(|n| self.designs.iter().any(|d| d.get().name == n))
+    }
+
+    /// The designs, in the scenario's order.
+    fn __iter__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyIterator>> {
+        let list = PyList::new(py, self.designs.iter().map(|d| d.clone_ref(py)))?;
+        list.try_iter()
     }
 
     fn __len__(&self) -> usize {
@@ -309,19 +351,26 @@ impl Plan {
 
 /// The designs of a scenario as `magcal design SCENARIO` makes them: each design's attitudes in
 /// the order to fly them, its certified D-efficiency and its verdict from the scenario's check
-/// trials, and the design to fly. `scenario` is a scenario file, or with `toml` the scenario's
-/// text itself (`scenario` then names it in messages). Each keyword is the flag of the same name.
+/// trials, and the design to fly. `scenario` is a scenario file, or `toml` the scenario's text
+/// itself (named `<scenario>` in messages). Each keyword is the flag of the same name. The
+/// interpreter's Ctrl-C is seen when the designs are done.
 #[pyfunction]
 #[pyo3(signature = (scenario=None, *, toml=None, seed=None, threads=None, allow_long=false))]
 pub fn design(
     py: Python<'_>,
     scenario: Option<PathBuf>,
     toml: Option<String>,
-    seed: Option<u64>,
-    threads: Option<u64>,
+    seed: Option<i128>,
+    threads: Option<i128>,
     allow_long: bool,
 ) -> PyResult<Plan> {
     let path = match (&scenario, &toml) {
+        (Some(p), Some(_)) => {
+            return Err(InputError::new_err(format!(
+                "design: give the scenario file {} or its text as toml=, not both",
+                p.display()
+            )));
+        }
         (Some(p), _) => p.clone(),
         (None, Some(_)) => PathBuf::from("<scenario>"),
         (None, None) => {
@@ -370,6 +419,15 @@ pub fn design(
         recommendation: String::from_utf8_lossy(&recommendation).into_owned(),
         tables: dict.unbind(),
     })
+}
+
+/// A list of dicts, each copied.
+fn copies<'py>(rows: &Bound<'py, PyList>) -> PyResult<Bound<'py, PyList>> {
+    let out = PyList::empty(rows.py());
+    for row in rows.iter() {
+        out.append(row.cast::<PyDict>()?.copy()?)?;
+    }
+    Ok(out)
 }
 
 /// A design from its row of `design_metrics.csv` and its rows of `designs.csv`.

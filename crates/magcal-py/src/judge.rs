@@ -8,6 +8,7 @@ use clap::Parser;
 use magcal_logs::calibration::{CalibrationJson, read_calibration};
 use magcal_runner::commands::evaluate::{self as evaluate_command, EvaluateArgs};
 use magcal_runner::commands::next::{self as next_command, NextArgs};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyList, PyTuple};
 
@@ -25,15 +26,19 @@ struct NextCommand {
     args: NextArgs,
 }
 
-/// Keywords as the command line's flags: `snake_case` is `--kebab-case`, `start` and `end` are
-/// `--from` and `--to` (Python keeps `from` for itself); `True` is the flag set, `False` and
-/// `None` are the flag not given, a list or tuple is the flag repeated, a float its shortest
-/// text that reads back to the same value, anything else its `str()` (a path its `os.fspath`).
-fn flags_of(options: Option<&Bound<'_, PyDict>>) -> PyResult<Flags> {
+/// Keywords as the flags of `T`'s command line: `snake_case` is `--kebab-case`, `start` and `end`
+/// are `--from` and `--to` (Python keeps `from` for itself). A switch takes `True` or `False`; a
+/// flag that may be repeated takes a list or tuple (one flag each) or one value; any other flag
+/// takes one value, a list or tuple being its comma-separated form (`roll=(-10, 10)` is
+/// `--roll=-10,10`). `None` is the flag not given. A float is its shortest text that reads back
+/// to the same value, a path its `os.fspath`, anything else its `str()`. A keyword that is no
+/// flag of the command is the `TypeError` of any Python function.
+fn flags_of<T: clap::CommandFactory>(function: &str, options: Option<&Bound<'_, PyDict>>) -> PyResult<Flags> {
     let mut flags = Flags::default();
     let Some(options) = options else {
         return Ok(flags);
     };
+    let command = T::command();
     for (key, value) in options.iter() {
         let key: String = key.extract()?;
         let name = match key.as_str() {
@@ -41,27 +46,59 @@ fn flags_of(options: Option<&Bound<'_, PyDict>>) -> PyResult<Flags> {
             "end" => "to".to_string(),
             k => k.replace('_', "-"),
         };
-        let items: Vec<Bound<'_, PyAny>> = if value.is_instance_of::<PyList>() || value.is_instance_of::<PyTuple>() {
-            value.try_iter()?.collect::<PyResult<_>>()?
-        } else {
-            vec![value]
-        };
-        for v in items {
-            if v.is_none() {
-                continue;
+        let arg = command
+            .get_arguments()
+            .find(|a| a.get_long() == Some(name.as_str()) && !matches!(name.as_str(), "help" | "version"))
+            .ok_or_else(|| PyTypeError::new_err(format!("{function}() got an unexpected keyword argument '{key}'")))?;
+        if value.is_none() {
+            continue;
+        }
+        let sequence = value.is_instance_of::<PyList>() || value.is_instance_of::<PyTuple>();
+        match arg.get_action() {
+            clap::ArgAction::SetTrue => {
+                if !value.is_instance_of::<PyBool>() {
+                    return Err(InputError::new_err(format!(
+                        "{key}=: True or False, not {}",
+                        value.repr()?
+                    )));
+                }
+                flags.flag(&name, value.extract::<bool>()?);
             }
-            if v.is_instance_of::<PyBool>() {
-                flags.flag(&name, v.extract::<bool>()?);
-            } else if v.is_instance_of::<PyFloat>() {
-                flags.number(&name, Some(v.extract::<f64>()?));
-            } else if let Ok(path) = v.extract::<PathBuf>() {
-                flags.value(&name, Some(path.display()));
-            } else {
-                flags.value(&name, Some(v.str()?.to_string()));
+            _ if value.is_instance_of::<PyBool>() => {
+                return Err(InputError::new_err(format!(
+                    "{key}=: takes a value ({}), not {}",
+                    arg.get_value_names().map_or("VALUE".to_string(), |v| v.join(" ")),
+                    value.repr()?
+                )));
+            }
+            clap::ArgAction::Append if sequence => {
+                for v in value.try_iter()? {
+                    flags.value(&name, Some(text(&v?)?));
+                }
+            }
+            _ if sequence => {
+                let parts: Vec<String> = value.try_iter()?.map(|v| text(&v?)).collect::<PyResult<_>>()?;
+                flags.value(&name, Some(parts.join(",")));
+            }
+            _ => {
+                flags.value(&name, Some(text(&value)?));
             }
         }
     }
     Ok(flags)
+}
+
+/// A keyword's value as the command line's text.
+fn text(v: &Bound<'_, PyAny>) -> PyResult<String> {
+    if v.is_instance_of::<PyFloat>() {
+        Ok(format!("{:?}", v.extract::<f64>()?))
+    } else if !v.is_instance_of::<pyo3::types::PyString>()
+        && let Ok(path) = v.extract::<PathBuf>()
+    {
+        Ok(path.display().to_string())
+    } else {
+        Ok(v.str()?.to_string())
+    }
 }
 
 /// The calibration given as a `Calibration` or a path to its file: its estimates and the name
@@ -84,9 +121,11 @@ fn refuse_outputs(options: Option<&Bound<'_, PyDict>>, names: &[&str]) -> PyResu
         if let Some(options) = options
             && options.contains(*name)?
         {
-            return Err(InputError::new_err(format!(
-                "{name}=: the result is returned as a dict; the command line writes files and prints"
-            )));
+            return Err(InputError::new_err(if *name == "raw" {
+                "raw=: give None as the calibration to evaluate the log's raw readings".to_string()
+            } else {
+                format!("{name}=: the result is returned as a dict; the command line writes files and prints")
+            }));
         }
     }
     Ok(())
@@ -111,8 +150,8 @@ pub fn evaluate<'py>(
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let log_shown = log.display().to_string();
-    refuse_outputs(options, &["report", "errors", "json"])?;
-    let mut flags = flags_of(options)?;
+    refuse_outputs(options, &["report", "errors", "json", "raw"])?;
+    let mut flags = flags_of::<EvaluateCommand>("evaluate", options)?;
     let text = if calibration.is_none() {
         flags.flag("raw", true);
         let command: EvaluateCommand = parsed_after("evaluate", &[&log_shown], &flags)?;
@@ -145,7 +184,7 @@ pub fn next<'py>(
 ) -> PyResult<Bound<'py, PyAny>> {
     refuse_outputs(options, &["report", "json"])?;
     let (cal, name) = given(calibration)?;
-    let flags = flags_of(options)?;
+    let flags = flags_of::<NextCommand>("next", options)?;
     let command: NextCommand = parsed_after("next", &[&name, &log.display().to_string()], &flags)?;
     let args = &command.args;
     let text = py

@@ -85,11 +85,13 @@ fn parsed<T: Parser>(command: &str, first: &str, flags: &Flags) -> PyResult<T> {
     parsed_after(command, &[first], flags)
 }
 
-/// Parses `flags` after the positionals `first` as the command line would, into `T`.
+/// Parses `flags` and the positionals `first` as the command line would, into `T`. The
+/// positionals come after `--`, so that a path beginning with `-` is a path.
 fn parsed_after<T: Parser>(command: &str, first: &[&str], flags: &Flags) -> PyResult<T> {
     let argv = std::iter::once(command.to_string())
-        .chain(first.iter().map(|f| f.to_string()))
-        .chain(flags.0.iter().cloned());
+        .chain(flags.0.iter().cloned())
+        .chain(std::iter::once("--".to_string()))
+        .chain(first.iter().map(|f| f.to_string()));
     T::try_parse_from(argv).map_err(|e| InputError::new_err(magcal_runner::cli::one_line(&e)))
 }
 

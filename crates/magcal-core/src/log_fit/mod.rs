@@ -96,8 +96,10 @@ use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_solve, mat_t_vec, mat
 pub const ELLIPSOID_LIMIT_PERCENT: f64 = 10.0;
 
 /// `x` with `digits` significant digits: fixed notation from 1e-4 to 1e7, scientific beyond
-/// (`0.0001234`, `48277.79`, `1.234e-10`, `1.000e-300`); `0` for zero, `NaN`, `inf`.
-pub fn significant(x: f64, digits: usize) -> String {
+/// (`0.0001234`, `48277.79`, `1.234e-10`, `1.000e-300`); `0` for zero, `NaN`, `inf`. For the
+/// core's own sentences (verdicts, reasons) alone: what prints numbers for a person uses
+/// `magcal_logs::text::significant`, the same rule, so that the math crate exports no formatting.
+pub(crate) fn significant(x: f64, digits: usize) -> String {
     let digits = digits.max(1);
     if !x.is_finite() {
         return format!("{x}");

@@ -260,7 +260,7 @@ fn write_flight(w: &mut dyn Write, j: &FlightNextJson) -> std::io::Result<()> {
         writeln!(
             w,
             "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
-            log_fit::significant(h, 3),
+            magcal_logs::text::significant(h, 3),
             super::calibrate::vector::MAX_HEADING_STD_DEG
         )?;
     }

@@ -4,7 +4,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use magcal_core::log_fit::significant;
+use magcal_logs::text::significant;
 pub use magcal_report::rows::cells::declination_line;
 
 use crate::pipeline::advice::Advice;

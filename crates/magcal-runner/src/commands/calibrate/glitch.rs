@@ -4,8 +4,8 @@
 //! fails; so glitches are found before any fit, named in the reasons, and dropped by `--reject`.
 
 use magcal_core::Vec3;
-use magcal_core::log_fit::significant;
 use magcal_core::metrics::median_of;
+use magcal_logs::text::significant;
 use rayon::prelude::*;
 
 use crate::log::source::Log;

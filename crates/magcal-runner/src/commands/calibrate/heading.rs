@@ -2,8 +2,9 @@
 
 use magcal_core::Vec3;
 use magcal_core::aviation::z_up_of_ned;
-use magcal_core::log_fit::{LogFit, WORSE_SIGMAS, heading_versus_raw, significant, time_blocks};
+use magcal_core::log_fit::{LogFit, WORSE_SIGMAS, heading_versus_raw, time_blocks};
 use magcal_core::reference::{AlignSettings, Alignment, align};
+use magcal_logs::text::significant;
 
 use crate::log::calibration::{HeadingCheckJson, HeadingFiguresJson, VersusRawJson};
 use crate::log::flight::Format;

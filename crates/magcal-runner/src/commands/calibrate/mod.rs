@@ -13,8 +13,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
-use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, Order, significant};
+use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, Order};
 use magcal_core::small::upper_triangular_inverse;
+use magcal_logs::text::significant;
 
 use super::Failure;
 use crate::digest::{Hashing, sha256_hex};

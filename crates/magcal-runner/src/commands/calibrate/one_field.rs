@@ -9,9 +9,10 @@ use std::io::Write;
 use magcal_core::Vec3;
 use magcal_core::log_fit::{
     self, FieldChange, FieldChangeSettings, FitModel, FitSettings, LogFit, PASS_EDGE_SIGMAS, PASS_SHARE, PASS_SHIFT,
-    Passes, REJECT_MIN_K, best_sphere, field_segments, significant,
+    Passes, REJECT_MIN_K, best_sphere, field_segments,
 };
 use magcal_core::small::{norm, sub};
+use magcal_logs::text::significant;
 use rayon::prelude::*;
 
 use crate::log::calibration::{

@@ -3,7 +3,8 @@
 
 use std::io::Write;
 
-use magcal_core::log_fit::{AutoReason, significant};
+use magcal_core::log_fit::AutoReason;
+use magcal_logs::text::significant;
 
 use super::{one_field, vector};
 use crate::log::calibration::{CalibrationJson, HeadingCheckJson, PassesJson};

@@ -6,13 +6,14 @@ use std::io::Write;
 
 use anyhow::{Context, Result, bail};
 use magcal_core::aviation::z_up_of_ned;
-use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise, significant};
+use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
 use magcal_core::vector::{
     Manoeuvre, ReferenceField, VectorError, VectorFit, VectorModel, fit_track, fit_vector_in, headings_never_flown,
     lack_of_fit, next_manoeuvres,
 };
+use magcal_logs::text::significant;
 
 use super::CalibrateArgs;
 use crate::log::calibration::{AlignmentJson, CalibrationJson, HeadingFiguresJson, MotorJson};
