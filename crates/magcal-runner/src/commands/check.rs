@@ -23,15 +23,17 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use magcal_core::{CalibrationStatus, Summary};
 
 use super::{Common, Failure};
 use crate::digest::sha256_hex;
 use crate::output::manifest::{Manifest, Seal};
 use crate::output::stderr::to_stderr;
-use crate::output::{self, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv};
-use crate::pipeline::{self, RunOptions, RunOutput};
+use crate::output::{
+    self, AdviceRow, DesignMetricsRow, DesignPointRow, PsoRunRow, Real, SummaryRow, TrialRow, read_csv,
+};
+use crate::pipeline::RunOutput;
 use crate::{limits, scenario};
 
 /// `magcal check`.
@@ -93,15 +95,13 @@ pub fn run(args: &CheckArgs) -> Result<(), Failure> {
         Some(manifest.trials),
         with_trials,
     )?;
-    let options = RunOptions {
-        progress: &crate::output::progress::Bars { show: setup.progress },
-        designs_only: !with_trials,
+    // The designs, their verdicts and, when none works, the advice, as `run` and `design` make them.
+    let (out, advice) = super::run::planned(&setup, !with_trials)?;
+    let now_advice = match &advice {
+        Some(a) => output::advice_rows(&out, a, &setup.scenario.bounds).collect(),
+        None => Vec::new(),
     };
-    let out = setup
-        .pool
-        .install(|| pipeline::run(&setup.scenario, options))
-        .with_context(|| format!("{}", setup.scenario.path.display()))?;
-    let moved = compare(&out, &dir, &manifest)?;
+    let moved = compare(&out, &now_advice, &dir, &manifest)?;
     if !moved.is_empty() {
         return Err(Failure::Regression(report(&moved)));
     }
@@ -194,11 +194,12 @@ fn cell_key(design: &str, sigma: f64, attitude_sigma: f64) -> String {
     }
 }
 
-/// Compares `out` with the baseline directory; returns what moved (empty: no regression).
+/// Compares `out` and the rows of its advice (empty when a design works) with the baseline
+/// directory; returns what moved (empty: no regression).
 ///
 /// # Errors
 /// A missing or malformed baseline file, or a baseline whose tolerance is not finite.
-pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<Vec<Moved>> {
+pub fn compare(out: &RunOutput, advice: &[AdviceRow], baseline: &Path, manifest: &Manifest) -> Result<Vec<Moved>> {
     let mut f = Findings::default();
     file_hashes(&mut f, baseline, manifest)?;
     if manifest.lists("summary.csv") {
@@ -231,8 +232,57 @@ pub fn compare(out: &RunOutput, baseline: &Path, manifest: &Manifest) -> Result<
         }
     }
     compare_designs(&mut f, out, baseline, manifest)?;
+    compare_advice(&mut f, advice, baseline, manifest)?;
     compare_pso_runs(&mut f, out, baseline, manifest)?;
     Ok(f.0)
+}
+
+/// Tolerance of a count of `ok` trials out of `trials` with a fixed seed: 4 binomial standard
+/// deviations, `sqrt(n p (1 - p))` taken as `sqrt(min(ok, trials - ok))`, at least 4 (a verdict
+/// of 200 of 200 may move to 196, not to 28).
+fn count_tolerance(ok: usize, trials: usize) -> f64 {
+    4.0 * (ok.min(trials.saturating_sub(ok)).max(1) as f64).sqrt()
+}
+
+/// `advice.csv`: what works instead when no design does, one row per option, each with the
+/// trials of its own verdict.
+fn compare_advice(f: &mut Findings, now: &[AdviceRow], baseline: &Path, manifest: &Manifest) -> Result<()> {
+    let base: Vec<AdviceRow> = if manifest.lists("advice.csv") {
+        read_csv(&limits::set_member(baseline, "advice.csv")?)?
+    } else {
+        Vec::new()
+    };
+    compare_advice_rows(f, &base, now);
+    Ok(())
+}
+
+/// [`compare_advice`] of rows read.
+fn compare_advice_rows(f: &mut Findings, base: &[AdviceRow], now: &[AdviceRow]) {
+    let by = |rows: &[AdviceRow]| -> BTreeMap<String, AdviceRow> {
+        rows.iter()
+            .map(|r| (format!("advice.csv {} {} {}", r.option, r.model, r.design), r.clone()))
+            .collect()
+    };
+    let (base_by, now_by) = (by(base), by(now));
+    keys_match(f, &base_by, &now_by);
+    for (k, b) in &base_by {
+        let Some(n) = now_by.get(k) else { continue };
+        f.value(
+            k,
+            "check_trials",
+            Some(b.check_trials as f64),
+            Some(n.check_trials as f64),
+            0.0,
+        );
+        f.value(
+            k,
+            "check_ok",
+            Some(b.check_ok as f64),
+            Some(n.check_ok as f64),
+            count_tolerance(b.check_ok, b.check_trials),
+        );
+        f.value(k, "readings", Some(b.readings as f64), Some(n.readings as f64), 0.0);
+    }
 }
 
 /// Every file as it was written: the SHA-256 its manifest recorded. Only plain names of regular
@@ -337,6 +387,14 @@ fn compare_designs(f: &mut Findings, out: &RunOutput, baseline: &Path, manifest:
     for (k, b) in &base_by {
         let Some(n) = now_by.get(k) else { continue };
         f.value(k, "m", Some(b.m as f64), Some(n.m as f64), 0.0);
+        // The verdict's own trials.
+        f.value(
+            k,
+            "check_ok",
+            Some(b.check_ok as f64),
+            Some(n.check_ok as f64),
+            count_tolerance(b.check_ok, b.check_trials),
+        );
         f.value(
             k,
             "ln_det_mf",
@@ -603,6 +661,36 @@ mod tests {
         let failed = 1000 - ok;
         let text = format!("{HEADER}a,30,0,1000,{ok},0,0,{failed},eta_psi,{mean},3.0,{mean},1,9,{se},5,5\n");
         parse_csv(text.as_bytes(), "summary.csv").unwrap()
+    }
+
+    /// A verdict's trials move by their binomial noise, not from failing to working: the ground
+    /// vehicle's advice with the up axis's scale held went from 28 to 200 of 200.
+    #[test]
+    fn an_advice_whose_verdict_moved_is_a_regression() {
+        let row = |ok: usize| AdviceRow {
+            option: "reduced".into(),
+            model: "axis2_held".into(),
+            design: "optimum12".into(),
+            readings: 12,
+            check_trials: 200,
+            check_ok: ok,
+            ..AdviceRow::default()
+        };
+        let moved = |base: usize, now: usize| {
+            let mut f = Findings::default();
+            compare_advice_rows(&mut f, &[row(base)], &[row(now)]);
+            f.0.into_iter().map(|m| m.quantity).collect::<Vec<_>>()
+        };
+        assert_eq!(moved(28, 200), ["check_ok"]);
+        assert!(moved(200, 196).is_empty(), "4 of a verdict at 200 of 200 is noise");
+        assert_eq!(moved(200, 195), ["check_ok"]);
+        // sqrt(min(100, 100)) = 10: 40 either way.
+        assert!(moved(100, 140).is_empty());
+        assert_eq!(moved(100, 141), ["check_ok"]);
+        // An option that appears or goes is named.
+        let mut f = Findings::default();
+        compare_advice_rows(&mut f, &[row(28)], &[]);
+        assert_eq!(f.0[0].quantity, "row missing in this run");
     }
 
     fn moved(base: &[SummaryRow], now: &[SummaryRow]) -> Vec<(String, String)> {
