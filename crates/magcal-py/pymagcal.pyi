@@ -236,8 +236,8 @@ def evaluate(
     """`magcal evaluate CAL LOG --json` as a dict (None: `--raw LOG`). Options are the flags of
     the same name (quaternion="qw,qx,qy,qz", attitude_frame="enu", where=[...], start=, end=);
     a switch takes True or False, a repeated flag a list, a MIN,MAX flag a tuple or its text; an
-    unknown keyword is a TypeError. Warnings (rows skipped, a calibration marked not
-    identifiable) go to standard error, as the command line's do."""
+    unknown keyword is a TypeError. The command line's warnings (rows skipped, a calibration
+    marked not identifiable) arrive as UserWarning."""
 
 def next(
     calibration: Union[Calibration, str, PathLike[str]],

@@ -11,7 +11,7 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::{Flags, InputError, parsed, raised};
+use crate::{Flags, InputError, parsed, quietly, raised};
 
 #[derive(Parser)]
 struct DesignCommand {
@@ -387,7 +387,7 @@ pub fn design(
         .flag("allow-long", allow_long);
     let command: DesignCommand = parsed("design", &path.display().to_string(), &flags)?;
     let common = &command.common;
-    let made = py.detach(|| -> anyhow::Result<_> {
+    let made = quietly(py, || -> anyhow::Result<_> {
         let loaded = match &toml {
             Some(text) => magcal_runner::scenario::parse(text.as_bytes(), Path::new(&path))?,
             None => magcal_runner::scenario::load(&common.scenario)?,
@@ -398,7 +398,7 @@ pub fn design(
         let mut recommendation = Vec::new();
         print::recommendation(&mut recommendation, &run, advice.as_ref())?;
         Ok((setup.scenario.name.clone(), run.recommended(), tables, recommendation))
-    });
+    })?;
     let (name, recommended, tables, recommendation) = made.map_err(|e| raised(e.into()))?;
     let dict = PyDict::new(py);
     for (file, bytes) in &tables {

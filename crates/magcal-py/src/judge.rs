@@ -12,7 +12,7 @@ use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyList, PyTuple};
 
-use crate::{Calibration, Flags, InputError, parsed_after, raised};
+use crate::{Calibration, Flags, InputError, parsed_after, quietly, raised};
 
 #[derive(Parser)]
 struct EvaluateCommand {
@@ -156,12 +156,12 @@ pub fn evaluate<'py>(
         flags.flag("raw", true);
         let command: EvaluateCommand = parsed_after("evaluate", &[&log_shown], &flags)?;
         let args = &command.args;
-        py.detach(|| evaluate_command::evaluated(args, &args.calibration, None))
+        quietly(py, || evaluate_command::evaluated(args, &args.calibration, None))?
     } else {
         let (cal, name) = given(calibration)?;
         let command: EvaluateCommand = parsed_after("evaluate", &[&name, &log_shown], &flags)?;
         let args = &command.args;
-        py.detach(|| evaluate_command::evaluated(args, &log, Some((&cal, &name))))
+        quietly(py, || evaluate_command::evaluated(args, &log, Some((&cal, &name))))?
     }
     .map_err(|e| raised(e.into()))
     .and_then(|e| {
@@ -187,8 +187,6 @@ pub fn next<'py>(
     let flags = flags_of::<NextCommand>("next", options)?;
     let command: NextCommand = parsed_after("next", &[&name, &log.display().to_string()], &flags)?;
     let args = &command.args;
-    let text = py
-        .detach(|| next_command::json(args, &cal))
-        .map_err(|e| raised(e.into()))?;
+    let text = quietly(py, || next_command::json(args, &cal))?.map_err(|e| raised(e.into()))?;
     loaded(py, &text)
 }

@@ -296,12 +296,24 @@ fn read_log(
     open(py, command.log, &command.input)
 }
 
+/// Runs `f` without the interpreter's lock and with what the command prints kept: its
+/// warnings and notes (the command line's standard error, one line each) become Python
+/// warnings (`UserWarning`) once it is done.
+fn quietly<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
+    let (value, captured) = py.detach(|| magcal_runner::output::file::capturing(f));
+    let warnings = py.import("warnings")?;
+    for line in String::from_utf8_lossy(&captured.stderr).lines() {
+        let line = line.strip_prefix("magcal: ").unwrap_or(line);
+        // Level 1: the Python line that called the function (no Python frame lies between).
+        warnings.call_method1("warn", (line, py.get_type::<pyo3::exceptions::PyUserWarning>(), 1))?;
+    }
+    Ok(value)
+}
+
 /// The log at `path` read as `input` says, without the interpreter's lock.
 fn open(py: Python<'_>, path: PathBuf, input: &LogArgs) -> PyResult<Log> {
     let held = magcal_logs::read::HELD_BYTES_PER_READING;
-    let log = py
-        .detach(|| source::open(&path, input, held))
-        .map_err(|e| raised(e.into()))?;
+    let log = quietly(py, || source::open(&path, input, held))?.map_err(|e| raised(e.into()))?;
     Ok(Log {
         log,
         path: path.display().to_string(),
@@ -495,9 +507,7 @@ fn calibrate(
         .value("seed", seed)
         .value("scenario", scenario.map(|p| p.display().to_string()));
     let command: CalibrateCommand = parsed("calibrate", &shown, &flags)?;
-    let calibrated = py
-        .detach(|| calibrate_command::calibrate(&command.args, &mut readings))
-        .map_err(raised)?;
+    let calibrated = quietly(py, || calibrate_command::calibrate(&command.args, &mut readings))?.map_err(raised)?;
     let (usable, reasons) = (calibrated.usable(), calibrated.reasons().to_vec());
     let (cal, mut json) = match calibrated {
         Calibrated::Fit { json, .. } => {

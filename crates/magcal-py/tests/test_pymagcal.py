@@ -177,7 +177,11 @@ def test_a_dataflash_log_is_read_in_its_units_with_its_attitudes():
     assert have.any()
     eye = np.einsum("nij,nkj->nik", att[have], att[have])
     assert np.max(np.abs(eye - np.eye(3))) < 1e-12
-    cal = pymagcal.calibrate(log)
+    # The log's readings lie far inside the field's magnitude at its site: the command line warns
+    # about the units, and Python so.
+    with pytest.warns(UserWarning, match="are they in the same units") as caught:
+        cal = pymagcal.calibrate(log)
+    assert caught[0].filename == __file__
     assert cal.json == out and code == (0 if cal.usable else 3)
 
 
@@ -328,3 +332,19 @@ def test_a_path_that_begins_with_a_dash_is_a_path(tmp_path, monkeypatch):
     cal = pymagcal.calibrate(pymagcal.read_log("-log.csv", columns="mx,my,mz"))
     pathlib.Path("-cal.json").write_text(cal.json)
     assert pymagcal.read_calibration("-cal.json").json == cal.json
+
+
+def test_the_command_lines_warnings_are_python_warnings(tmp_path):
+    need(BROAD_10)
+    # BROAD 10's calibration is marked not identifiable: evaluating with it says so, as a warning.
+    cal = pymagcal.calibrate(pymagcal.read_log(BROAD_10, **BROAD_FLAGS), units="uT")
+    assert cal.fit is not None and not cal.usable
+    with pytest.warns(UserWarning, match="marked not identifiable"):
+        ev = pymagcal.evaluate(cal, BROAD_10, **BROAD_FLAGS)
+    assert ev["calibration"] == f"the calibration of {BROAD_10}"
+    # As errors, warnings stop the call.
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(UserWarning):
+            pymagcal.evaluate(cal, BROAD_10, **BROAD_FLAGS)

@@ -7,12 +7,15 @@
 
 use std::io::Write;
 
-/// Writes `line` and a newline to standard error in one write; a failure is ignored.
+/// Writes `line` and a newline to standard error in one write (kept instead within
+/// [`super::file::capturing`]); a failure is ignored.
 pub fn line(line: &str) {
     let mut bytes = Vec::with_capacity(line.len() + 1);
     bytes.extend_from_slice(line.as_bytes());
     bytes.push(b'\n');
-    let _ = std::io::stderr().lock().write_all(&bytes);
+    if !super::file::captured(&bytes, true) {
+        let _ = std::io::stderr().lock().write_all(&bytes);
+    }
 }
 
 /// `eprintln!` that ignores a standard error that cannot be written (see [the module](self)).

@@ -367,7 +367,7 @@ proptest! {
         let out = tmp.path().join("out");
         let common = || Common { scenario: scenario.clone(), seed: None, threads: Some(2), quiet: true, allow_long: false };
         let run = RunArgs { common: common(), out: Some(out.clone()), trials: None };
-        match commands::run::run(&run) {
+        match quietly(|| commands::run::run(&run)) {
             Ok(()) => {}
             // The generator keeps to accepted ranges; a refusal must still be a clear message.
             Err(Failure::Input(e)) => {
@@ -384,7 +384,7 @@ proptest! {
         }
         prop_assert!(out.join("plots/eta_psi.png").is_file());
         let check = CheckArgs { common: common(), baseline: Some(out.clone()) };
-        match commands::check::run(&check) {
+        match quietly(|| commands::check::run(&check)) {
             Ok(()) => {}
             Err(Failure::Regression(r)) => prop_assert!(false, "check against itself moved:\n{r}\n{}", x.toml()),
             Err(Failure::Input(e)) => prop_assert!(false, "check: {e:#}\n{}", x.toml()),
@@ -979,7 +979,7 @@ fn calibrate_apply_next(x: &FuzzLog) -> Result<(), TestCaseError> {
         }
     };
     let json = out.join("calibration.json");
-    let usable = match calibrate::run(&args) {
+    let usable = match quietly(|| calibrate::run(&args)) {
         Ok(()) => {
             let written: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
             prop_assert!(written["usable"] == true, "exit 0 with {}", written["usable"]);
@@ -1038,7 +1038,7 @@ fn calibrate_apply_next(x: &FuzzLog) -> Result<(), TestCaseError> {
         matrix: Default::default(),
         out: Some(applied.clone()),
     };
-    match apply::run(&apply) {
+    match quietly(|| apply::run(&apply)) {
         Ok(()) => {
             let why = check_applied(&applied);
             prop_assert!(
@@ -1084,7 +1084,7 @@ fn calibrate_apply_next(x: &FuzzLog) -> Result<(), TestCaseError> {
         argv.push("--skip-bad".into());
     }
     let next = Next::try_parse_from(&argv).unwrap().args;
-    if let Err(e) = next::run(&next) {
+    if let Err(e) = quietly(|| next::run(&next)) {
         let why = names_the_input(e, &[&log, &cal]);
         prop_assert!(
             why.is_ok(),
@@ -1125,6 +1125,12 @@ fn a_log_of_one_reading_repeated_and_nine_others() {
     }
 }
 
+/// A command run in this process with what it prints kept, not printed: a passing run of the
+/// tests prints what a reader needs, not thousands of reports.
+fn quietly<T>(f: impl FnOnce() -> T) -> T {
+    magcal_runner::output::file::capturing(f).0
+}
+
 /// `calibrate LOG ARGS --json --out DIR` in-process: the outcome and the calibration written.
 fn calibrate_in(dir: &Path, log_text: &str, args: &[&str]) -> (Result<(), Failure>, Option<serde_json::Value>) {
     use clap::Parser;
@@ -1145,7 +1151,7 @@ fn calibrate_in(dir: &Path, log_text: &str, args: &[&str]) -> (Result<(), Failur
         out.display().to_string(),
     ];
     argv.extend(args.iter().map(|a| a.to_string()));
-    let result = calibrate::run(&Calibrate::try_parse_from(&argv).unwrap().args);
+    let result = quietly(|| calibrate::run(&Calibrate::try_parse_from(&argv).unwrap().args));
     let json = std::fs::read(out.join("calibration.json"))
         .ok()
         .map(|b| serde_json::from_slice(&b).unwrap());
@@ -1242,7 +1248,7 @@ fn apply_finds_the_recorded_columns_in_logs_of_every_separator() {
             matrix: Default::default(),
             out: Some(out.clone()),
         };
-        if let Err(Failure::Input(e)) = apply::run(&apply) {
+        if let Err(Failure::Input(e)) = quietly(|| apply::run(&apply)) {
             panic!("{sep:?}: {e:#}");
         }
         // The log's own readings calibrated: 60 rows on the sphere of the magnitude, to the
@@ -1319,7 +1325,7 @@ fn a_bad_row_met_by_apply_is_the_logs_fault_not_the_outputs() {
         matrix: Default::default(),
         out: Some(out.clone()),
     };
-    let Err(Failure::Input(e)) = apply::run(&apply) else {
+    let Err(Failure::Input(e)) = quietly(|| apply::run(&apply)) else {
         panic!("apply took a bad row")
     };
     let message = format!("{e:#}");
@@ -1355,7 +1361,7 @@ fn apply_gives_the_length_of_calibrated_readings_near_the_largest_number() {
         matrix: Default::default(),
         out: Some(out.clone()),
     };
-    if let Err(Failure::Input(e)) = apply::run(&apply) {
+    if let Err(Failure::Input(e)) = quietly(|| apply::run(&apply)) {
         panic!("{e:#}");
     }
     check_applied(&out).unwrap();

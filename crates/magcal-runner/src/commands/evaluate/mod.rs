@@ -114,7 +114,7 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
     }
     let cal = cal_path.map(read_calibration).transpose()?;
     let cal_shown = cal_path.map(|p| p.display().to_string());
-    let Evaluated { json, used, fits, log } = evaluated(args, log_path, cal.as_ref().zip(cal_shown.as_deref()))?;
+    let Evaluated { json, used, fits, .. } = evaluated(args, log_path, cal.as_ref().zip(cal_shown.as_deref()))?;
     if let Some(Output::File(path)) = &errors_out {
         let rows = report::error_rows(&used, fits.calibrated.as_ref().unwrap_or(&fits.raw), &fits.raw);
         replace_with(path, &inputs, |w| crate::output::write_csv(rows, w)).context("--errors")?;
@@ -134,7 +134,6 @@ fn evaluate(args: &EvaluateArgs) -> Result<()> {
         }
         Ok(())
     })?;
-    warn(&log, cal.as_ref().zip(cal_shown.as_deref()));
     Ok(())
 }
 
@@ -190,6 +189,7 @@ pub fn evaluated(args: &EvaluateArgs, log_path: &Path, cal: Option<(&Calibration
         &used,
         &fits,
     );
+    warn(&log, cal.zip(cal_shown));
     Ok(Evaluated { json, used, fits, log })
 }
 
@@ -406,7 +406,7 @@ fn calibrate(cal: &CalibrationJson, used: &Used, log_shown: &str, cal_shown: &st
         .collect()
 }
 
-/// The warnings of `apply`, after the report: rows skipped, a calibration not marked
+/// The warnings of `apply`: rows skipped, a calibration not marked
 /// identifiable.
 fn warn(log: &Log, cal: Option<(&CalibrationJson, &str)>) {
     for (line, reason) in &log.skipped {
