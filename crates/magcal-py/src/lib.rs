@@ -300,7 +300,7 @@ fn read_log(
 /// warnings and notes (the command line's standard error, one line each) become Python
 /// warnings (`UserWarning`) once it is done.
 fn quietly<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
-    let (value, captured) = py.detach(|| magcal_runner::output::file::capturing(f));
+    let (value, captured) = py.detach(|| magcal_runner::output::capture::capturing(f));
     let warnings = py.import("warnings")?;
     for line in String::from_utf8_lossy(&captured.stderr).lines() {
         let line = line.strip_prefix("magcal: ").unwrap_or(line);

@@ -3,6 +3,7 @@
 //! manifests ([`manifest`]); the result set that is written into a staging directory and swapped
 //! in whole ([`staging`]); and the screen table ([`mod@print`]).
 
+pub mod capture;
 pub mod file;
 pub mod manifest;
 pub mod print;

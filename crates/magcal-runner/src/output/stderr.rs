@@ -8,12 +8,12 @@
 use std::io::Write;
 
 /// Writes `line` and a newline to standard error in one write (kept instead within
-/// [`super::file::capturing`]); a failure is ignored.
+/// [`super::capture::capturing`]); a failure is ignored.
 pub fn line(line: &str) {
     let mut bytes = Vec::with_capacity(line.len() + 1);
     bytes.extend_from_slice(line.as_bytes());
     bytes.push(b'\n');
-    if !super::file::captured(&bytes, true) {
+    if !super::capture::keep(&bytes, true) {
         let _ = std::io::stderr().lock().write_all(&bytes);
     }
 }

@@ -1128,7 +1128,7 @@ fn a_log_of_one_reading_repeated_and_nine_others() {
 /// A command run in this process with what it prints kept, not printed: a passing run of the
 /// tests prints what a reader needs, not thousands of reports.
 fn quietly<T>(f: impl FnOnce() -> T) -> T {
-    magcal_runner::output::file::capturing(f).0
+    magcal_runner::output::capture::capturing(f).0
 }
 
 /// `calibrate LOG ARGS --json --out DIR` in-process: the outcome and the calibration written.
