@@ -26,7 +26,7 @@
 //! calibrations from exact to absurd, and on ones that mirror or flatten the plane). The loop is
 //! compiled a second time for AVX2 and chosen at run time, as the PSO kernel is (bit-identical,
 //! tested): about ten times faster than one `atan2` per yaw (`benches/calibration.rs`,
-//! `heading_error/one_trial`; the README's benchmark table has the numbers). Of 2000 trials at
+//! `heading_error/one_trial`; docs/research/benchmarks.md has the numbers). Of 2000 trials at
 //! 30 nT of the Uniformity design 6 take the definition.
 
 use std::f64::consts::PI;

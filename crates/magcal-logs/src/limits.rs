@@ -319,6 +319,16 @@ pub fn available_memory() -> Option<(u64, &'static str)> {
     {
         take(kib * 1024, "memory available (MemAvailable)");
     }
+    #[cfg(not(target_os = "linux"))]
+    {
+        use sysinfo::{MemoryRefreshKind, RefreshKind, System};
+        let system =
+            System::new_with_specifics(RefreshKind::nothing().with_memory(MemoryRefreshKind::nothing().with_ram()));
+        let available = system.available_memory();
+        if available > 0 {
+            take(available, "memory available (the system's count)");
+        }
+    }
     #[cfg(unix)]
     {
         use rustix::process::{Resource, getrlimit};

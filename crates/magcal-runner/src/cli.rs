@@ -4,16 +4,28 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 use crate::commands::{self, Failure};
 use crate::output::file::Output;
 use crate::output::stderr::to_stderr;
 
-/// Calibration of strapdown three-axis magnetometers and D-optimal calibration manoeuvres, after
-/// Wu, Hu, Wu, Liu, "D-Optimal Design Applied to Calibration of Strapdown Three-axis Magnetometer".
+/// The command line's raw flags: the command and its arguments.
 #[derive(Debug, Parser)]
-#[command(name = "magcal", version, about)]
+#[command(
+    name = "magcal",
+    version,
+    about = "Plan the attitudes a vehicle should visit to calibrate its magnetometer, calibrate what it \
+             logged (CSV, ArduPilot, MAVLink, PX4), judge the result, export it to the autopilot and look \
+             at it.",
+    long_about = "Plan the attitudes a vehicle should visit to calibrate its magnetometer, calibrate what it \
+                  logged (CSV, ArduPilot, MAVLink, PX4), judge the result, export it to the autopilot and \
+                  look at it.\n\nThe attitudes are D-optimal for the vehicle's box of roll, pitch and \
+                  heading, after Wu, Hu, Wu, Liu, \"D-Optimal Design Applied to Calibration of Strapdown \
+                  Three-axis Magnetometer\" ([P1]); every verdict is a Monte Carlo check at the sensor's \
+                  noise. Start with `magcal design scenarios/usv.toml` (a plan for a boat) or `magcal \
+                  calibrate LOG` (a log you have)."
+)]
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -21,36 +33,78 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Build the designs, run the noisy trials, write statistics, designs, figures and a manifest.
+    /// Reproduce a scenario: designs, noisy trials, statistics and figures.
+    ///
+    /// Builds the designs, runs the noisy trials, writes statistics, designs, figures and a
+    /// manifest (the paper's Monte Carlo, [P1] IV).
     Run(commands::run::RunArgs),
-    /// Build the designs and write only their attitudes, metrics and figures.
+    /// Plan a vehicle's calibration attitudes: the recommended flight plan first.
+    ///
+    /// Builds the designs of the scenario's attitude box, checks each by Monte Carlo at the
+    /// sensor's noise, prints the recommendation (or what works instead), the table of designs and
+    /// the recommended flight plan, and writes their attitudes, metrics and figures.
     Design(commands::design::DesignArgs),
-    /// Run again with the baseline's seed and trials and compare; exit 1 when something moved.
+    /// Compare a run with its committed baseline; exit 1 when something moved.
+    ///
+    /// Runs again with the baseline's seed and trials and compares every statistic within its
+    /// tolerance.
     Check(commands::check::CheckArgs),
-    /// Redraw the figures of a results directory from its CSV files (into DIR/plots/).
+    /// Redraw a result set's figures from its CSV files (into DIR/plots/).
     Plot(commands::plot::PlotArgs),
-    /// Fit a log of raw readings: bias, non-orthogonality, scale factors, their standard errors,
+    /// Calibrate a log: bias, non-orthogonality, scale factors and a verdict.
+    ///
+    /// Fits a log of raw readings: bias, non-orthogonality, scale factors, their standard errors,
     /// and whether the log determines them; exit 3 when it does not, or when the log rejects the
     /// model (the outputs are written all the same).
     Calibrate(commands::calibrate::CalibrateArgs),
     /// Calibrate every reading of a log with a calibration.json.
     Apply(commands::apply::ApplyArgs),
+    /// Judge a calibration as a compass against the attitudes a log carries.
+    ///
     /// How good a calibration is as a compass against the independent attitudes a log carries
     /// (or, with --raw, the log's raw readings): heading and direction errors, by heading and tilt.
     Evaluate(commands::evaluate::EvaluateArgs),
-    /// The attitudes a vehicle should visit next to most increase the information of its log.
+    /// The attitudes to visit next to most increase a log's information.
+    ///
+    /// The attitudes a vehicle should visit next to most increase the information of its log
+    /// (D-optimal augmentation), with every parameter's standard error before and after.
     Next(commands::next::NextArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
     Simulate(commands::simulate::SimulateArgs),
-    /// The paper's Monte Carlo on a real log with reference attitudes: each design's attitudes
-    /// realised by the log's own readings, every model scored against the reference.
+    /// The paper's Monte Carlo on a real log with reference attitudes.
+    ///
+    /// Each design's attitudes realised by the log's own readings, every model scored against
+    /// the reference.
     Replay(commands::replay::ReplayArgs),
-    /// Write a calibration.json as an autopilot's parameters (ArduPilot, PX4) or a tool's form
+    /// Write a calibration as an autopilot's parameters (ArduPilot, PX4) or a tool's form.
+    ///
+    /// Writes a calibration.json as an autopilot's parameters (ArduPilot, PX4) or a tool's form
     /// (MotionCal, Magneto, a C header); a calibration not marked usable writes nothing and exits
     /// 3, unless `--force` writes it under a first line that says so (still exit 3).
     Export(commands::export::ExportArgs),
     /// One self-contained HTML page of a result, to turn and hover in a browser, offline.
     Report(commands::report::ReportArgs),
+    /// Print a shell's completion script.
+    ///
+    /// For example `magcal completions bash > ~/.local/share/bash-completion/completions/magcal`.
+    Completions(ShellArgs),
+    /// Print the man page, every command in it.
+    ///
+    /// For example `magcal man > magcal.1 && man ./magcal.1`.
+    Man,
+}
+
+/// `magcal completions`.
+#[derive(Debug, clap::Args)]
+struct ShellArgs {
+    /// The shell.
+    shell: clap_complete::Shell,
+}
+
+/// The command definition with its grouped help: what `--help`, the completions and the man page
+/// are made from.
+pub fn command() -> clap::Command {
+    crate::help::grouped(Cli::command())
 }
 
 impl Command {
@@ -62,7 +116,13 @@ impl Command {
             Self::Replay(a) => !a.common.quiet,
             Self::Design(a) => !a.common.quiet,
             Self::Check(a) => !a.common.quiet,
-            Self::Plot(_) | Self::Calibrate(_) | Self::Next(_) | Self::Evaluate(_) | Self::Report(_) => true,
+            Self::Plot(_)
+            | Self::Calibrate(_)
+            | Self::Next(_)
+            | Self::Evaluate(_)
+            | Self::Report(_)
+            | Self::Completions(_)
+            | Self::Man => true,
             Self::Apply(a) => to_stdout(&a.out),
             Self::Simulate(a) => to_stdout(&a.out),
             Self::Export(a) => to_stdout(&a.out),
@@ -72,6 +132,25 @@ impl Command {
 
 /// Longest error line about the command line, characters (it may quote a value as given).
 const MAX_USAGE_ERROR: usize = 300;
+
+/// A clap error in clap's own layout (the message, its tip, the usage line and the pointer to
+/// `--help`), each line made printable and cut at 300 characters (`MAX_USAGE_ERROR`): a value
+/// quoted as given can be anything.
+pub fn shown(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    text.trim_end()
+        .lines()
+        .map(|l| {
+            let l = crate::limits::printable(l);
+            if l.chars().count() > MAX_USAGE_ERROR {
+                format!("{}...", l.chars().take(MAX_USAGE_ERROR).collect::<String>())
+            } else {
+                l
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
 
 /// A clap error as one line: its message and tips, without the usage and help pointers, at most
 /// 300 characters (`MAX_USAGE_ERROR`).
@@ -100,7 +179,8 @@ pub fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
-    let cli = match Cli::try_parse() {
+    let parsed = command().try_get_matches().and_then(|m| Cli::from_arg_matches(&m));
+    let cli = match parsed {
         Ok(cli) => cli,
         Err(e) => {
             use clap::error::ErrorKind;
@@ -114,7 +194,7 @@ pub fn main() -> ExitCode {
                     ExitCode::from(2)
                 }
                 _ => {
-                    to_stderr!("magcal: error: {}", one_line(&e));
+                    to_stderr!("magcal: {}", shown(&e));
                     ExitCode::from(2)
                 }
             };
@@ -139,6 +219,11 @@ pub fn main() -> ExitCode {
         Command::Export(args) => commands::export::run(&args),
         Command::Report(args) => commands::report::run(&args),
         Command::Replay(args) => commands::replay::run(&args),
+        Command::Completions(args) => {
+            crate::output::file::to_stdout(|w| crate::help::completions(&mut command(), args.shell, w))
+                .map_err(Failure::from)
+        }
+        Command::Man => crate::output::file::to_stdout(|w| crate::help::man(command(), w)).map_err(Failure::from),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

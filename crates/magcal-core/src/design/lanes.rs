@@ -2,7 +2,7 @@
 //!
 //! The paper's PSO evaluates 900,000 designs of 27 angles. Evaluated one at a time, a design costs
 //! about 9,000 instructions, a third of them in libm's `sincos` (a scalar routine with branches),
-//! too many for the full PSO's target of 0.3 s on two cores (the README's benchmark table). Here
+//! too many for the full PSO's target of 0.3 s on two cores (docs/research/benchmarks.md). Here
 //! [`LANES`] designs are evaluated together with every loop over the lanes innermost: the
 //! branch-free `sin_cos` polynomial below, the moments and the Cholesky factorisation then run as
 //! SIMD instructions on baseline x86-64 (SSE2) without any `unsafe` or hand-written intrinsics.

@@ -21,7 +21,8 @@ use crate::output::{self, Real};
 pub struct ApplyArgs {
     /// A calibration.json written by `magcal calibrate --out` (or its `--json` output).
     pub calibration: PathBuf,
-    /// The log to calibrate.
+    /// The log to calibrate (`-`: standard input).
+    #[arg(value_parser = crate::log::path_parser())]
     pub log: PathBuf,
     /// How to read the log, as for `calibrate` (default columns: those the calibration was made
     /// from; rows dropped by `--skip-bad` are named on stderr).

@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
+use super::run::Plans;
 use super::{Common, Failure};
 
 /// `magcal design`.
@@ -14,6 +15,10 @@ pub struct DesignArgs {
     /// Output directory (default: results/SCENARIO_NAME/), replaced as for `run`.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Print every design's flight plan (by default only the recommended design's; all of them
+    /// are in designs.csv).
+    #[arg(long)]
+    pub plans: bool,
 }
 
 /// Runs the command.
@@ -21,5 +26,6 @@ pub struct DesignArgs {
 /// # Errors
 /// As [`super::run::produce`].
 pub fn run(args: &DesignArgs) -> Result<(), Failure> {
-    super::run::produce(&args.common, args.out.as_deref(), None, true)
+    let plans = if args.plans { Plans::All } else { Plans::Recommended };
+    super::run::produce(&args.common, args.out.as_deref(), None, Some(plans))
 }

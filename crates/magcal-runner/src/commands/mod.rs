@@ -32,7 +32,7 @@ use crate::scenario::{self, Scenario};
 /// Flags every scenario command takes.
 #[derive(Debug, Args)]
 pub struct Common {
-    /// The scenario file (TOML; see README "Scenario files").
+    /// The scenario file (TOML; every key commented in scenarios/template.toml, docs/reference/scenarios.md).
     pub scenario: PathBuf,
     /// Override the scenario's seed.
     #[arg(long)]

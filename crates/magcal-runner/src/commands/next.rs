@@ -24,7 +24,8 @@ use crate::scenario::site::{Date, Site, parse_model};
 pub struct NextArgs {
     /// A calibration.json written by `magcal calibrate --out` (or its `--json` output).
     pub calibration: PathBuf,
-    /// The log it was fitted to.
+    /// The log it was fitted to (`-`: standard input).
+    #[arg(value_parser = crate::log::path_parser())]
     pub log: PathBuf,
     /// A scenario file giving the vehicle's attitude box (`[attitude_box]`), the site
     /// (`[field]`, for the field's direction) and the search (`[certificate]`); or the flags

@@ -38,22 +38,33 @@ pub struct RunArgs {
 /// # Errors
 /// As [`produce`].
 pub fn run(args: &RunArgs) -> Result<(), Failure> {
-    produce(
-        &args.common,
-        args.out.as_deref(),
-        args.trials.map(|t| t as usize),
-        false,
-    )
+    produce(&args.common, args.out.as_deref(), args.trials.map(|t| t as usize), None)
 }
 
-/// Builds the designs and, unless `designs_only`, runs the trials; writes the result set to `out`
-/// (default `results/<name>/`) and swaps it in whole.
+/// Which flight plans `design` prints (designs.csv has all of them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Plans {
+    /// The recommended design's, under the recommendation.
+    Recommended,
+    /// Every design's.
+    All,
+}
+
+/// Builds the designs and, unless `plans` is given (`design`: only the designs, and which flight
+/// plans to print), runs the trials; writes the result set to `out` (default `results/<name>/`)
+/// and swaps it in whole. `design` prints its recommendation first, `run` its table first.
 ///
 /// # Errors
 /// A bad scenario, an output directory that may not be replaced (checked before any work), a run
 /// too large for the machine, or a file that cannot be written; the earlier set is then untouched.
-pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, designs_only: bool) -> Result<(), Failure> {
+pub fn produce(
+    common: &Common,
+    out: Option<&Path>,
+    trials: Option<usize>,
+    plans: Option<Plans>,
+) -> Result<(), Failure> {
     let started = Instant::now();
+    let designs_only = plans.is_some();
     let setup = super::setup(common, common.seed, trials, !designs_only)?;
     let scenario = &setup.scenario;
     let dir = out.map_or_else(|| PathBuf::from("results").join(&scenario.name), Path::to_path_buf);
@@ -73,11 +84,32 @@ pub fn produce(common: &Common, out: Option<&Path>, trials: Option<usize>, desig
     set.commit()?;
     if !common.quiet {
         to_stdout(|w| {
-            if designs_only {
-                print::flight_plans(w, &run, output::Headings::of(&scenario.field), &scenario.field_source)?;
+            let headings = output::Headings::of(&scenario.field);
+            match plans {
+                Some(plans) => {
+                    print::recommendation(w, &run, advice.as_ref())?;
+                    writeln!(w)?;
+                    print::summary(w, &run, &dir)?;
+                    let only = match plans {
+                        Plans::All => None,
+                        Plans::Recommended => Some(run.recommended()),
+                    };
+                    if only != Some(None) {
+                        writeln!(w)?;
+                        print::flight_plans(w, &run, headings, &scenario.field_source, only.flatten())?;
+                    }
+                    if plans == Plans::Recommended && run.designs.len() > 1 {
+                        writeln!(
+                            w,
+                            "(--plans prints every design's flight plan; designs.csv has them all)"
+                        )?;
+                    }
+                }
+                None => {
+                    print::summary(w, &run, &dir)?;
+                    print::recommendation(w, &run, advice.as_ref())?;
+                }
             }
-            print::summary(w, &run, &dir)?;
-            print::recommendation(w, &run, advice.as_ref())?;
             writeln!(
                 w,
                 "{} figures (SVG and PNG) in {}",

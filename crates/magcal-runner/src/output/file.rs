@@ -24,7 +24,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use anyhow::{Context, Result, bail};
 
 use super::manifest::SetKind;
-use super::staging::{alive, same_inode, step};
+use super::staging::{left_by_the_dead, step};
 
 const TEMPORARY: &str = "magcal-tmp";
 
@@ -317,12 +317,10 @@ fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
     }
 }
 
-/// Whether `a` and `b` name the same file (device and inode; symbolic links followed).
+/// Whether `a` and `b` name the same file (device and inode, or volume and file index off Unix;
+/// symbolic links followed).
 pub fn same_file(a: &Path, b: &Path) -> bool {
-    match (std::fs::metadata(a), std::fs::metadata(b)) {
-        (Ok(a), Ok(b)) => same_inode(&a, &b),
-        _ => false,
-    }
+    ::same_file::is_same_file(a, b).unwrap_or(false)
 }
 
 /// Whether two outputs name one file: the same file, or the same name in the same directory
@@ -349,7 +347,7 @@ fn remove_stale_temporaries(parent: &Path, name: &str) {
         let (Ok(pid), Ok(_)) = (pid.parse::<u32>(), n.parse::<usize>()) else {
             continue;
         };
-        if pid != std::process::id() && !alive(pid) {
+        if left_by_the_dead(pid, &entry.path()) {
             let _ = std::fs::remove_file(entry.path());
         }
     }

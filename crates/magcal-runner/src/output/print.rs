@@ -18,18 +18,24 @@ fn cell(x: f64) -> String {
 /// Rows of a flight plan shown on the screen per design; the rest are in `designs.csv`.
 const FLIGHT_PLAN_ROWS: usize = 40;
 
-/// Each design as a pilot flies it: the attitudes in visiting order with roll, pitch, the true
-/// and the magnetic heading of the nose, the readings to log there and the turn from the previous
-/// attitude; under one line naming the declination and its source.
+/// Each design (or only design `only`) as a pilot flies it: the attitudes in visiting order with
+/// roll, pitch, the true and the magnetic heading of the nose, the readings to log there and the
+/// turn from the previous attitude; under one line naming the declination and its source.
 pub fn flight_plans(
     w: &mut dyn Write,
     out: &RunOutput,
     headings: crate::output::Headings,
     field_source: &str,
+    only: Option<usize>,
 ) -> std::io::Result<()> {
     let rows: Vec<_> = crate::output::design_rows(out, headings).collect();
     writeln!(w, "{}", declination_line(headings.declination_deg, field_source))?;
-    for d in &out.designs {
+    for (_, d) in out
+        .designs
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| only.is_none_or(|o| o == *i))
+    {
         let plan: Vec<_> = rows.iter().filter(|r| r.design == d.name).collect();
         let total: f64 = plan.iter().filter_map(|r| r.turn_deg.map(|t| t.0)).sum();
         writeln!(
@@ -682,7 +688,7 @@ attitudes = [
     #[test]
     fn flight_plans_list_every_attitude_in_visiting_order_and_cut_long_plans() {
         let (mut out, headings, source) = run();
-        let printed = text(|w| flight_plans(w, &out, headings, &source));
+        let printed = text(|w| flight_plans(w, &out, headings, &source, None));
         let lines: Vec<&str> = printed.lines().collect();
         assert_eq!(lines[0], declination_line(headings.declination_deg, &source));
         let declination = headings.declination_deg.unwrap();
@@ -727,7 +733,7 @@ attitudes = [
             declination_deg: None,
             ..headings
         };
-        let printed = text(|w| flight_plans(w, &out, level, "a vertical field"));
+        let printed = text(|w| flight_plans(w, &out, level, "a vertical field", None));
         let lines: Vec<&str> = printed.lines().collect();
         assert_eq!(
             lines[0],
@@ -753,6 +759,6 @@ attitudes = [
         };
         full(&|w| summary(w, &out, Path::new("r")));
         full(&|w| recommendation(w, &out, None));
-        full(&|w| flight_plans(w, &out, headings, &source));
+        full(&|w| flight_plans(w, &out, headings, &source, None));
     }
 }

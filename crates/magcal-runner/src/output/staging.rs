@@ -371,16 +371,16 @@ fn refuse_foreign(target: &Path, mut foreign: Vec<String>, what: &str, why: &str
 /// Refuses a target that is, or holds, one of `inputs` (compared by device and inode, so that a
 /// relative and an absolute path of the same file are caught).
 fn check_inputs(target: &Path, inputs: &[&Path]) -> Result<()> {
-    let Ok(dir) = std::fs::symlink_metadata(target) else {
+    if std::fs::symlink_metadata(target).is_err() {
         return Ok(());
-    };
+    }
     for input in inputs {
         // An input that cannot be found is the command's to report.
         let Ok(real) = std::fs::canonicalize(input) else {
             continue;
         };
         for ancestor in real.ancestors() {
-            if std::fs::metadata(ancestor).is_ok_and(|m| same_inode(&m, &dir)) {
+            if same_file::is_same_file(ancestor, target).unwrap_or(false) {
                 bail!(
                     "{}: holds the input {}; replacing the directory would destroy it: give another --out",
                     target.display(),
@@ -407,10 +407,10 @@ fn recover(parent: &Path, name: &str, target: &Path) -> Result<()> {
             continue;
         };
         let Ok(pid) = pid.parse::<u32>() else { continue };
-        if !(what == STAGING || what == OLD) || pid == std::process::id() || alive(pid) {
+        let path = entry.path();
+        if !(what == STAGING || what == OLD) || !left_by_the_dead(pid, &path) {
             continue;
         }
-        let path = entry.path();
         // Only what magcal could have written there: a directory of the user's under such a
         // name is left as it is.
         if !looks_ours(&path) {
@@ -455,9 +455,41 @@ fn looks_ours(dir: &Path) -> bool {
     })
 }
 
-/// Whether process `pid` runs (Linux: it has a `/proc` entry; elsewhere assumed not).
-pub(super) fn alive(pid: u32) -> bool {
-    cfg!(target_os = "linux") && Path::new("/proc").join(pid.to_string()).exists()
+/// Whether process `pid` runs: on Unix, whether signal 0 reaches it (`EPERM` is another user's
+/// process, running); `None` where that cannot be told (not Unix), and then what it left must be
+/// kept: it may be in use.
+fn alive(pid: u32) -> Option<bool> {
+    #[cfg(unix)]
+    {
+        use rustix::process::{Pid, test_kill_process};
+        let Some(pid) = i32::try_from(pid).ok().and_then(Pid::from_raw) else {
+            return Some(false);
+        };
+        Some(test_kill_process(pid) != Err(rustix::io::Errno::SRCH))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = pid;
+        None
+    }
+}
+
+/// Whether what process `pid` left at `path` may be removed: the process does not run. Where that
+/// cannot be told, the path is kept and a note says so.
+pub(super) fn left_by_the_dead(pid: u32, path: &Path) -> bool {
+    if pid == std::process::id() {
+        return false;
+    }
+    match alive(pid) {
+        Some(running) => !running,
+        None => {
+            crate::output::stderr::to_stderr!(
+                "magcal: note: {} was left by process {pid}, and whether it still runs cannot be told on this platform: kept; remove it when no magcal runs",
+                path.display()
+            );
+            false
+        }
+    }
 }
 
 fn rename(from: &Path, to: &Path) -> Result<()> {
@@ -505,18 +537,6 @@ pub(super) fn step() {
     if *limit == Some(n) {
         std::process::abort();
     }
-}
-
-/// Whether two files' metadata name the same file (device and inode).
-#[cfg(unix)]
-pub(super) fn same_inode(a: &std::fs::Metadata, b: &std::fs::Metadata) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    a.dev() == b.dev() && a.ino() == b.ino()
-}
-
-#[cfg(not(unix))]
-pub(super) fn same_inode(_: &std::fs::Metadata, _: &std::fs::Metadata) -> bool {
-    false
 }
 
 /// Figures go into the set with the rest of its files.

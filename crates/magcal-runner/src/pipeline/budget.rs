@@ -64,7 +64,7 @@ pub fn estimate(scenario: &Scenario, with_trials: bool, threads: usize) -> Vec<(
 
 /// Seconds of one PSO fitness evaluation and particle update for 9 attitudes on one thread: one
 /// paper PSO run (300 particles x 3000 iterations, 903,000 evaluations) takes 0.34 s on one
-/// thread (README, benchmarks); the cost grows with the attitudes per design.
+/// thread (docs/research/benchmarks.md); the cost grows with the attitudes per design.
 pub const PSO_SECONDS_PER_EVALUATION: f64 = 0.38e-6;
 /// Estimated work above which a run is refused unless the user passes `--allow-long`, seconds
 /// (one day).
@@ -147,6 +147,10 @@ pub fn check_memory(scenario: &Scenario, with_trials: bool, threads: usize) -> R
     let items = estimate(scenario, with_trials, threads);
     let total: u64 = items.iter().map(|(_, b)| b).sum();
     let Some((available, what)) = available_memory() else {
+        crate::output::stderr::to_stderr!(
+            "magcal: note: the run needs about {} of memory, which is not checked: this system tells no memory available",
+            bytes(total)
+        );
         return Ok(());
     };
     let limit = available / 2;

@@ -33,7 +33,7 @@ pub const MIN_CHECK_TRIALS: usize = 20;
 /// Default `max_attitudes` of a plan: 12. A crew holds a dozen attitudes, each for `N / 12`
 /// readings; the approximate D-optimum of the \[P1\] AUV box has 12 support points, so its plans
 /// lose nothing, and on boxes with wider supports the dozen best costs little (a box of every
-/// attitude, 37 support points: see the README's "Certified designs"). `"all"` lifts the limit.
+/// attitude, 37 support points: see docs/research/certified.md). `"all"` lifts the limit.
 pub const DEFAULT_MAX_ATTITUDES: usize = 12;
 
 /// Default noisy trials per design and noise level (\[P1\] IV.C: one thousand).

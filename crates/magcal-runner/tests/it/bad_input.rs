@@ -550,7 +550,7 @@ fn refusal(args: &[&std::ffi::OsStr], out: &Path, needles: &[String], one_line: 
             .filter(|n| !stderr.contains(n.as_str()))
             .map(|n| format!("{n:?} missing")),
     );
-    if one_line && stderr.trim().lines().count() != 1 {
+    if one_line && crate::common::error_lines(&stderr).len() != 1 {
         wrong.push("not one line".into());
     }
     if stderr.contains("panicked") {

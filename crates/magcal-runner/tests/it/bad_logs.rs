@@ -60,8 +60,9 @@ fn refused_with(mut cmd: assert_cmd::Command, dir: &Path, args: &[&str], needles
         stderr.starts_with("magcal: error: ") && stderr.ends_with('\n'),
         "{what}"
     );
-    assert_eq!(stderr.lines().count(), 1, "{what}");
-    assert!(stderr.len() <= 400, "{} characters: {what}", stderr.len());
+    let lines = crate::common::error_lines(&stderr);
+    assert_eq!(lines.len(), 1, "{what}");
+    assert!(lines[0].len() <= 400, "{} characters: {what}", lines[0].len());
     for needle in needles {
         assert!(stderr.contains(needle), "{needle:?} missing: {what}");
     }

@@ -279,7 +279,7 @@ const SMOKE_FIELD: &str = "north_nt = 35272.34\neast_nt = -2085.74\ndown_nt = 32
 /// Runs `magcal design` on `scenario` into `dir`; its stdout.
 fn design_stdout(scenario: &Path, dir: &Path) -> String {
     let out = magcal()
-        .args(["design", "--out"])
+        .args(["design", "--plans", "--out"])
         .arg(dir)
         .arg(scenario)
         .assert()
@@ -322,7 +322,7 @@ fn design_gives_magnetic_headings_at_cape_town() {
     let line = format!(
         "declination {declination:+.2} deg (WMM2025 at 33.92 S, 18.42 E, 0 m, 2026.00); magnetic heading = true heading - declination"
     );
-    assert!(stdout.lines().next() == Some(line.as_str()), "{stdout}");
+    assert!(stdout.lines().any(|l| l == line.as_str()), "{stdout}");
     assert!(stdout.contains("true_hdg   mag_hdg"), "{stdout}");
 
     let rows: Vec<DesignPointRow> = read_csv(&out.join("designs.csv")).unwrap();
@@ -366,12 +366,8 @@ fn design_says_where_the_declination_comes_from_or_why_there_is_none() {
     // atan2(-2085.74, 35272.34) = -3.38 degrees.
     let stdout = design_stdout(&smoke(), &tmp.path().join("ned"));
     let declination = (-2085.74f64).atan2(35272.34).to_degrees();
-    assert!(
-        stdout.starts_with(&format!(
-            "declination {declination:+.2} deg (field.north_nt, east_nt, down_nt)"
-        )),
-        "{stdout}"
-    );
+    let line = format!("declination {declination:+.2} deg (field.north_nt, east_nt, down_nt)");
+    assert!(stdout.lines().any(|l| l.starts_with(&line)), "{stdout}");
     // A vertical field has no declination: no magnetic heading is written or shown.
     let vertical = edited_from(
         &smoke(),
@@ -381,7 +377,10 @@ fn design_says_where_the_declination_comes_from_or_why_there_is_none() {
     );
     let out = tmp.path().join("vertical");
     let stdout = design_stdout(&vertical, &out);
-    assert!(stdout.starts_with("declination undefined"), "{stdout}");
+    assert!(
+        stdout.lines().any(|l| l.starts_with("declination undefined")),
+        "{stdout}"
+    );
     let rows: Vec<DesignPointRow> = read_csv(&out.join("designs.csv")).unwrap();
     assert!(!rows.is_empty() && rows.iter().all(|r| r.magnetic_heading_deg.is_none()));
     let raw = csv_rows(&out.join("designs.csv"));
@@ -395,6 +394,133 @@ fn help_and_usage() {
     }
     magcal().arg("frobnicate").assert().code(2);
     magcal().args(["run"]).assert().code(2);
+    // A usage error in clap's layout: the message with the flag as given, the usage line, the
+    // pointer to --help.
+    let out = magcal().args(["calibrate", "x.csv", "--bogus"]).output().unwrap();
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(
+        lines[0], "magcal: error: unexpected argument '--bogus' found",
+        "{stderr}"
+    );
+    assert!(
+        lines.iter().any(|l| l.starts_with("Usage: magcal calibrate ")),
+        "{stderr}"
+    );
+    assert_eq!(lines.last(), Some(&"For more information, try '--help'."), "{stderr}");
+    // The top-level help groups the commands by task within 100 columns.
+    let help = String::from_utf8(magcal().arg("--help").output().unwrap().stdout).unwrap();
+    let headings: Vec<&str> = help
+        .lines()
+        .filter(|l| !l.starts_with(' ') && l.ends_with(':'))
+        .collect();
+    assert_eq!(
+        headings,
+        [
+            "Plan a vehicle's calibration:",
+            "Calibrate a log:",
+            "Judge a calibration:",
+            "Look at a result:",
+            "Reproduce and check [P1]:",
+            "Shell:",
+            "Options:"
+        ],
+        "{help}"
+    );
+    assert!(help.lines().all(|l| l.chars().count() <= 100), "{help}");
+}
+
+#[test]
+fn completions_for_every_shell_and_a_man_page_with_every_command() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let out = magcal().args(["completions", shell]).output().unwrap();
+        assert_eq!(out.status.code(), Some(0), "{shell}");
+        let script = String::from_utf8(out.stdout).unwrap();
+        for word in ["calibrate", "--fit", "completions"] {
+            assert!(script.contains(word), "{shell}: {word}");
+        }
+        // Bash's, zsh's and fish's completions offer a flag's values too.
+        assert!(
+            !["bash", "zsh", "fish"].contains(&shell) || script.contains("vector-diagonal"),
+            "{shell}"
+        );
+    }
+    let out = magcal().arg("man").output().unwrap();
+    assert_eq!(out.status.code(), Some(0));
+    let page = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        page.starts_with(".ie") && page.contains(".TH magcal 1"),
+        "{}",
+        &page[..200]
+    );
+    for command in ["design", "calibrate", "export", "evaluate", "next", "report", "replay"] {
+        let heading = format!(".SH \"MAGCAL {}\"", command.to_uppercase());
+        assert_eq!(page.matches(&heading).count(), 1, "{heading}");
+    }
+    assert!(page.contains("vector\\-diagonal"), "the --fit values are in the page");
+}
+
+#[test]
+fn design_prints_its_recommendation_first_then_the_table_and_the_recommended_plan() {
+    let tmp = TempDir::new().unwrap();
+    let out = magcal()
+        .args(["design", "--out"])
+        .arg(tmp.path().join("set"))
+        .arg(smoke())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0));
+    let stdout = String::from_utf8(out.stdout).unwrap();
+    let first = stdout.lines().next().unwrap();
+    assert!(first.starts_with("fly optimum: 9 readings at 9 attitudes"), "{stdout}");
+    let plans: Vec<&str> = stdout.lines().filter(|l| l.starts_with("flight plan ")).collect();
+    assert_eq!(plans.len(), 1, "{stdout}");
+    assert!(
+        plans[0].starts_with("flight plan optimum (9 attitudes, 9 readings"),
+        "{stdout}"
+    );
+    let table = stdout.lines().position(|l| l.starts_with("design ")).unwrap();
+    let plan = stdout.lines().position(|l| l.starts_with("flight plan ")).unwrap();
+    assert!(table < plan, "{stdout}");
+    assert!(
+        stdout.contains("(--plans prints every design's flight plan"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn a_log_on_standard_input_calibrates_as_the_file_does() {
+    let tmp = TempDir::new().unwrap();
+    let log = tmp.path().join("log.csv");
+    magcal()
+        .args(["simulate", "--design", "optimum", "--seed", "3", "--out"])
+        .arg(&log)
+        .arg(smoke())
+        .assert()
+        .success();
+    let from_file = magcal().args(["calibrate", "--json"]).arg(&log).output().unwrap();
+    let piped = magcal()
+        .args(["calibrate", "-", "--json"])
+        .write_stdin(fs::read(&log).unwrap())
+        .output()
+        .unwrap();
+    let redirected = std::process::Command::new(env!("CARGO_BIN_EXE_magcal"))
+        .args(["calibrate", "-", "--json"])
+        .stdin(fs::File::open(&log).unwrap())
+        .output()
+        .unwrap();
+    let json = |o: &std::process::Output| -> serde_json::Value {
+        let mut v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v.as_object_mut().unwrap().remove("log");
+        v
+    };
+    assert_eq!(from_file.status.code(), piped.status.code());
+    assert_eq!(json(&from_file), json(&piped));
+    assert_eq!(json(&from_file), json(&redirected));
+    assert_eq!(json(&piped)["bias"], json(&from_file)["bias"]);
+    let shown: serde_json::Value = serde_json::from_slice(&piped.stdout).unwrap();
+    assert_eq!(shown["log"], "/dev/stdin");
 }
 
 /// A copy of `source` with `from` replaced by `to` (which must occur).

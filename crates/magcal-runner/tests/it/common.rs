@@ -173,12 +173,27 @@ pub fn broad_02_moving(dir: &Path) -> Option<PathBuf> {
     Some(log)
 }
 
-/// Exit 2 with one line on stderr that starts with `magcal: error: ` and holds every `needle`,
-/// and nothing on stdout.
+/// The lines of an error on stderr, without what clap adds to a usage error: its indented
+/// details (tips, possible values, the arguments missing), blank lines, the usage line and the
+/// pointer to `--help`.
+pub fn error_lines(stderr: &str) -> Vec<&str> {
+    stderr
+        .lines()
+        .filter(|l| {
+            !l.trim().is_empty()
+                && !l.starts_with(char::is_whitespace)
+                && !l.starts_with("Usage: ")
+                && !l.starts_with("For more information, try")
+        })
+        .collect()
+}
+
+/// Exit 2 with one line on stderr (and clap's trailer to a usage error) that starts with
+/// `magcal: error: ` and holds every `needle`, and nothing on stdout.
 pub fn assert_refused((code, stdout, stderr): &(i32, String, String), needles: &[&str]) {
     assert_eq!(*code, 2, "{stderr}");
     assert!(stdout.is_empty(), "{stdout}");
-    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert_eq!(error_lines(stderr).len(), 1, "{stderr}");
     assert!(stderr.starts_with("magcal: error: "), "{stderr}");
     for n in needles {
         assert!(stderr.contains(n), "{n:?} not in {stderr}");

@@ -461,9 +461,13 @@ fn a_gps_yaw_is_the_reference_where_the_autopilots_yaw_is_wrong() {
 /// 10 Hz, `vehicle_gps_position` at 5 Hz (the layout with doubles, its UTC); the compass of
 /// [`flight_log`] in Gauss.
 fn flight_ulog(dir: &Path, seed: u64) -> std::path::PathBuf {
+    flight_ulog_of(dir, seed, &FlightPlan::default())
+}
+
+/// [`flight_ulog`] of the flight `plan`.
+fn flight_ulog_of(dir: &Path, seed: u64, plan: &FlightPlan) -> std::path::PathBuf {
     use crate::ulog::Writer;
-    let plan = FlightPlan::default();
-    let f = fly(&plan, seed);
+    let f = fly(plan, seed);
     let mut rng = stream_rng(seed, 0xDF);
     let mut w = Writer::new();
     w.flag_bits(0, 0);
@@ -630,6 +634,11 @@ fn an_ordinary_px4_flight_calibrates_against_the_field_along_its_track() {
 /// `RAW_IMU` (mGauss as int16, no calibration in force), `ATTITUDE` and `SYS_STATUS` at 10 Hz,
 /// `GPS_RAW_INT` at 5 Hz with the fix's UTC; the compass of [`flight_log`].
 fn flight_tlog(dir: &Path, seed: u64) -> std::path::PathBuf {
+    flight_tlog_of(dir, seed, &FlightPlan::default())
+}
+
+/// [`flight_tlog`] of the flight `plan`.
+fn flight_tlog_of(dir: &Path, seed: u64, plan: &FlightPlan) -> std::path::PathBuf {
     use mavlink::MavlinkVersion::V2;
     use mavlink::dialects::ardupilotmega::{
         ATTITUDE_DATA, GPS_RAW_INT_DATA, GpsFixType, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavType, RAW_IMU_DATA,
@@ -637,8 +646,7 @@ fn flight_tlog(dir: &Path, seed: u64) -> std::path::PathBuf {
     };
 
     use crate::tlog::Tlog;
-    let plan = FlightPlan::default();
-    let f = fly(&plan, seed);
+    let f = fly(plan, seed);
     let mut rng = stream_rng(seed, 0xDF);
     let mut w = Tlog::default();
     let hb = HEARTBEAT_DATA {
@@ -744,6 +752,49 @@ fn write_flights_for_the_peers() {
     }
     let truth = serde_json::json!({"scale": K_DIAG, "bias": O, "motor_per_amp": D, "noise": SIGMA, "units": "mGauss", "frame": "body (forward, right, down)"});
     std::fs::write(dir.join("truth.json"), truth.to_string()).unwrap();
+}
+
+/// The synthetic flights shipped in `data/synthetic/` for the README's flight-log recipe: the
+/// default flight of seed 1 at 2 readings per second as DataFlash, MAVLink and ULog. Each is what
+/// these writers write (`MAGCAL_WRITE_SHIPPED=1 cargo test --release --test it shipped_flights`
+/// writes them), and each calibrates to its compass within 4 standard errors.
+#[test]
+fn the_shipped_flights_are_what_their_generator_writes_and_calibrate() {
+    let plan = FlightPlan {
+        rate_hz: 2.0,
+        ..FlightPlan::default()
+    };
+    let dir = TempDir::new().unwrap();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/synthetic");
+    let made = [
+        (flight_log_of(dir.path(), 1, &plan, 0.0, false), "flight.bin"),
+        (flight_tlog_of(dir.path(), 1, &plan), "flight.tlog"),
+        (flight_ulog_of(dir.path(), 1, &plan), "flight.ulg"),
+    ];
+    for (path, name) in &made {
+        let bytes = std::fs::read(path).unwrap();
+        let target = shipped.join(name);
+        if std::env::var_os("MAGCAL_WRITE_SHIPPED").is_some() {
+            std::fs::write(&target, &bytes).unwrap();
+        }
+        let kept = std::fs::read(&target).unwrap_or_default();
+        assert!(
+            kept == bytes,
+            "{}: not what the generator writes ({} bytes against {}): MAGCAL_WRITE_SHIPPED=1 writes it",
+            target.display(),
+            kept.len(),
+            bytes.len()
+        );
+        let (code, c, stderr) = calibrate_json(&target, &["--fit", "vector-diagonal", "--motor", "current"]);
+        assert_eq!(code, Some(0), "{name}: {stderr} {:?}", c.reasons);
+        let (se, ses) = (c.std_error.bias.unwrap(), c.std_error.scale.unwrap());
+        // ULog's Gauss, the others' mGauss.
+        let unit = if name.ends_with("ulg") { 1e-3 } else { 1.0 };
+        for i in 0..3 {
+            let z = [(c.bias[i] - O[i] * unit) / se[i], (c.scale[i] - K_DIAG[i]) / ses[i]];
+            assert!(z.iter().all(|z| z.abs() < 4.0), "{name} axis {i}: z {z:?}");
+        }
+    }
 }
 
 #[test]

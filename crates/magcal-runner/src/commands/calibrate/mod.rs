@@ -128,7 +128,8 @@ impl ResidualArg {
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
     /// The log: a CSV file (one reading per row), an ArduPilot DataFlash log (`.bin`), a MAVLink
-    /// telemetry log (`.tlog`) or a PX4 ULog (`.ulg`).
+    /// telemetry log (`.tlog`) or a PX4 ULog (`.ulg`); `-` reads standard input (a flight log from a pipe needs `--format`).
+    #[arg(value_parser = crate::log::path_parser())]
     pub log: PathBuf,
     #[command(flatten)]
     pub input: LogArgs,

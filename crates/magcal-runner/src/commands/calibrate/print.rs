@@ -95,7 +95,7 @@ fn print_estimates(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()
             )?;
             writeln!(
                 w,
-                "  read them as a lower bound on a real log: a drift slower than a tenth of the log does not show in its residuals (on windows of 5 to 40 s of BROAD's motion-capture trials, 95 % intervals held an imposed sensor in 82 to 58 % of cases; README, \"On real readings\")"
+                "  read them as a lower bound on a real log: a drift slower than a tenth of the log does not show in its residuals (on windows of 5 to 40 s of BROAD's motion-capture trials, 95 % intervals held an imposed sensor in 82 to 58 % of cases; docs/workflows/calibrate.md, \"What the fit says\")"
             )?;
         }
         if let Some(i) = &j.interval95 {

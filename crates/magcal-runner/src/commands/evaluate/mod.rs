@@ -45,11 +45,11 @@ pub const TILT_BANDS_DEG: [f64; 6] = [0.0, 15.0, 30.0, 60.0, 90.0, 180.0];
 #[derive(Debug, Args)]
 pub struct EvaluateArgs {
     /// A calibration.json written by `magcal calibrate`; with `--raw`, the log (`magcal evaluate
-    /// --raw LOG`).
-    #[arg(value_name = "CAL.json")]
+    /// --raw LOG`; `-`: standard input).
+    #[arg(value_name = "CAL.json", value_parser = crate::log::path_parser())]
     pub calibration: PathBuf,
-    /// The log to judge the calibration on.
-    #[arg(value_name = "LOG")]
+    /// The log to judge the calibration on (`-`: standard input).
+    #[arg(value_name = "LOG", value_parser = crate::log::path_parser())]
     pub log: Option<PathBuf>,
     /// Evaluate the log's raw readings, uncalibrated, without a calibration file.
     #[arg(long)]

@@ -46,7 +46,8 @@ pub struct ReplayArgs {
     #[command(flatten)]
     pub common: Common,
     /// A log whose readings carry a reference attitude (motion capture, a turntable, a better
-    /// navigation system), read as `calibrate` reads logs.
+    /// navigation system), read as `calibrate` reads logs (`-`: standard input).
+    #[arg(value_parser = crate::log::path_parser())]
     pub log: PathBuf,
     #[command(flatten)]
     pub input: LogArgs,
