@@ -17,7 +17,7 @@ import subprocess
 import sys
 import tempfile
 
-MAGCAL = os.path.join(os.path.dirname(__file__), "..", "target", "release", "magcal")
+MAGCAL = os.environ.get("MAGCAL_BIN") or os.path.join(os.path.dirname(__file__), "..", "target", "release", "magcal")
 SHIFTS = [-10, -5, -3, 0, 3, 4, 5, 6, 7, 10]
 
 

@@ -6,8 +6,12 @@
 # Extra arguments go to every `magcal run` (e.g. --threads 1).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --locked -p magcal-runner
+# MAGCAL_BIN=PATH runs that binary instead of building one.
+if [ -n "${MAGCAL_BIN:-}" ]; then magcal=$MAGCAL_BIN; else
+  cargo build --release --locked -p magcal-runner
+  magcal=./target/release/magcal
+fi
 for scenario in criteria plan300 execution-error; do
   echo "== $scenario"
-  ./target/release/magcal run "scenarios/$scenario.toml" "$@"
+  "$magcal" run "scenarios/$scenario.toml" "$@"
 done

@@ -6,6 +6,9 @@ directory) must give the same CSV files: the same rows and columns, numbers with
 2 when the set is damaged or the replay fails. Standard library only.
 
 Usage: scripts/check-replay.py results/replay-handheld-02 [...]
+       scripts/check-replay.py --against FRESH results/replay-handheld-02
+With --against, the set is compared with FRESH, a replay already made with its command (as
+scripts/replay-broad.sh makes one), instead of replaying again.
 """
 import csv
 import hashlib
@@ -15,7 +18,7 @@ import subprocess
 import sys
 import tempfile
 
-MAGCAL = os.path.join(os.path.dirname(__file__), "..", "target", "release", "magcal")
+MAGCAL = os.environ.get("MAGCAL_BIN") or os.path.join(os.path.dirname(__file__), "..", "target", "release", "magcal")
 
 
 def same(a, b):
@@ -28,7 +31,7 @@ def same(a, b):
     return abs(x - y) <= 1e-9 * max(abs(x), abs(y))
 
 
-def check(directory):
+def check(directory, against=None):
     with open(os.path.join(directory, "manifest.json"), "rb") as f:
         manifest = json.loads(f.read())
     if manifest.get("kind") != "replay":
@@ -39,17 +42,20 @@ def check(directory):
             if hashlib.sha256(f.read()).hexdigest() != digest:
                 print(f"{directory}/{name}: edited since it was written (SHA-256 differs)", file=sys.stderr)
                 return 2
-    command = list(manifest["command"][1:])
     with tempfile.TemporaryDirectory() as tmp:
-        out = os.path.join(tmp, "again")
-        i = command.index("--out")
-        command[i + 1] = out
-        if "--quiet" not in command:
-            command.append("--quiet")
-        done = subprocess.run([MAGCAL] + command, capture_output=True, text=True)
-        if done.returncode != 0:
-            print(f"{directory}: the replay failed: {done.stderr.strip()}", file=sys.stderr)
-            return 2
+        if against is not None:
+            out = against
+        else:
+            command = list(manifest["command"][1:])
+            out = os.path.join(tmp, "again")
+            i = command.index("--out")
+            command[i + 1] = out
+            if "--quiet" not in command:
+                command.append("--quiet")
+            done = subprocess.run([MAGCAL] + command, capture_output=True, text=True)
+            if done.returncode != 0:
+                print(f"{directory}: the replay failed: {done.stderr.strip()}", file=sys.stderr)
+                return 2
         moved = []
         for name in manifest["files"]:
             if not name.endswith(".csv"):
@@ -72,8 +78,14 @@ def check(directory):
 
 if __name__ == "__main__":
     status = 0
-    for d in sys.argv[1:]:
-        s = check(d)
+    args = sys.argv[1:]
+    against = None
+    if args[:1] == ["--against"]:
+        if len(args) != 3:
+            sys.exit("usage: scripts/check-replay.py --against FRESH SET")
+        against, args = args[1], args[2:]
+    for d in args:
+        s = check(d, against)
         print(("ok      " if s == 0 else "MOVED   ") + d)
         status = max(status, s)
     sys.exit(status)

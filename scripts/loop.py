@@ -49,7 +49,7 @@ from concurrent.futures import ThreadPoolExecutor
 from student_t import normal_quantile, t_quantile
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-MAGCAL = ROOT / "target" / "release" / "magcal"
+MAGCAL = pathlib.Path(os.environ["MAGCAL_BIN"]) if os.environ.get("MAGCAL_BIN") else ROOT / "target" / "release" / "magcal"
 OUT = ROOT / "results" / "loop"
 
 # Each vehicle and the design of it that `design` calls FAILS to fly beside the recommended one

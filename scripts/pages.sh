@@ -15,8 +15,11 @@ for a in "$@"; do
     *) out="$a" ;;
   esac
 done
-cargo build --release --locked -q -p magcal-runner
-magcal=./target/release/magcal
+# MAGCAL_BIN=PATH runs that binary instead of building one.
+if [ -n "${MAGCAL_BIN:-}" ]; then magcal=$MAGCAL_BIN; else
+  cargo build --release --locked -q -p magcal-runner
+  magcal=./target/release/magcal
+fi
 data=../shared/data
 mkdir -p "$out"
 

@@ -23,7 +23,7 @@ import sys
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-MAGCAL = ROOT / "target" / "release" / "magcal"
+MAGCAL = pathlib.Path(os.environ["MAGCAL_BIN"]) if os.environ.get("MAGCAL_BIN") else ROOT / "target" / "release" / "magcal"
 OUT = pathlib.Path("/tmp/magcal-peers-flights")
 
 

@@ -36,7 +36,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-MAGCAL = ROOT / "target" / "release" / "magcal"
+MAGCAL = pathlib.Path(os.environ["MAGCAL_BIN"]) if os.environ.get("MAGCAL_BIN") else ROOT / "target" / "release" / "magcal"
 OUT = ROOT / "results" / "verdict-grid"
 
 LIMITS_DEG = [0, 5, 15, 30, 45]
