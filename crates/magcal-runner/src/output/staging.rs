@@ -380,7 +380,7 @@ fn check_inputs(target: &Path, inputs: &[&Path]) -> Result<()> {
             continue;
         };
         for ancestor in real.ancestors() {
-            if same_file::is_same_file(ancestor, target).unwrap_or(false) {
+            if super::file::same_file(ancestor, target) {
                 bail!(
                     "{}: holds the input {}; replacing the directory would destroy it: give another --out",
                     target.display(),
@@ -554,6 +554,21 @@ mod tests {
 
     /// A process id above the largest Linux gives (2^22): never running.
     const DEAD: u32 = 4_194_305;
+
+    #[cfg(unix)]
+    #[test]
+    fn a_process_runs_until_it_has_ended_and_been_reaped() {
+        assert_eq!(alive(std::process::id()), Some(true));
+        // PID 1 is another user's process here or in a container, and runs: signal 0 says EPERM
+        // or succeeds, both "running".
+        assert_eq!(alive(1), Some(true));
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let pid = child.id();
+        child.wait().unwrap();
+        assert_eq!(alive(pid), Some(false));
+        assert_eq!(alive(DEAD), Some(false));
+        assert_eq!(alive(u32::MAX), Some(false), "not a process id at all");
+    }
 
     /// The manifest of a run set as [`SetKind::of`] recognises it (a name and a scenario hash).
     const RUN_MANIFEST: &str =
