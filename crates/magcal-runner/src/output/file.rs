@@ -317,25 +317,7 @@ fn check_file(path: &Path, inputs: &[&Path]) -> Result<()> {
     }
 }
 
-/// Whether `a` and `b` name the same file (symbolic links followed): on Unix the same device and
-/// inode, from `stat`; elsewhere the same volume and file index, by the `same-file` crate. The
-/// crate is not used on Unix because it opens both paths, and opening a FIFO blocks until a writer
-/// comes and then takes the writer's first bytes from the command that reads it (a test of an
-/// endless FIFO saw its log end at line 1).
-pub fn same_file(a: &Path, b: &Path) -> bool {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        match (std::fs::metadata(a), std::fs::metadata(b)) {
-            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
-            _ => false,
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        ::same_file::is_same_file(a, b).unwrap_or(false)
-    }
-}
+pub use super::staging::same_file;
 
 /// Whether two outputs name one file: the same file, or the same name in the same directory
 /// (where the file does not exist yet).

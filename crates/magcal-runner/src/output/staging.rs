@@ -380,7 +380,7 @@ fn check_inputs(target: &Path, inputs: &[&Path]) -> Result<()> {
             continue;
         };
         for ancestor in real.ancestors() {
-            if super::file::same_file(ancestor, target) {
+            if same_file(ancestor, target) {
                 bail!(
                     "{}: holds the input {}; replacing the directory would destroy it: give another --out",
                     target.display(),
@@ -536,6 +536,26 @@ pub(super) fn step() {
     let n = STEPS.fetch_add(1, Ordering::SeqCst) + 1;
     if *limit == Some(n) {
         std::process::abort();
+    }
+}
+
+/// Whether `a` and `b` name the same file (symbolic links followed): on Unix the same device and
+/// inode, from `stat`; elsewhere the same volume and file index, by the `same-file` crate. The
+/// crate is not used on Unix because it opens both paths, and opening a FIFO blocks until a writer
+/// comes and then takes the writer's first bytes from the command that reads it (a test of an
+/// endless FIFO saw its log end at line 1).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        match (std::fs::metadata(a), std::fs::metadata(b)) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        ::same_file::is_same_file(a, b).unwrap_or(false)
     }
 }
 
