@@ -12,7 +12,10 @@ for target in "${targets[@]}"; do
     continue
   fi
   echo "== $target"
-  cargo build --locked --profile dist -p magcal-runner --target "$target"
+  if ! cargo build --locked --profile dist -p magcal-runner --target "$target"; then
+    echo "$target: not built: see the error above (another target needs its linker, e.g. mingw-w64 for windows-gnu)" >&2
+    continue
+  fi
   exe=magcal
   case "$target" in *windows*) exe=magcal.exe ;; esac
   mkdir -p "target/dist/$target"

@@ -131,6 +131,14 @@ impl Bounded {
             bail!("{shown}: is a directory, not a log");
         }
         let stream = !meta.is_file();
+        // A stream's idle bound waits with poll(2); without it a pipe nobody writes to would
+        // hang the command, so off Unix only regular files are read.
+        #[cfg(not(unix))]
+        if stream {
+            bail!(
+                "{shown}: is a pipe or a device, which magcal reads only on Unix (its 30-s idle bound needs poll): save it to a file"
+            );
+        }
         let mut options = std::fs::OpenOptions::new();
         options.read(true);
         #[cfg(unix)]
@@ -189,8 +197,10 @@ impl Bounded {
         }
     }
 
+    /// Off Unix no stream is opened ([`Self::open`] refuses them), so there is nothing to wait for.
     #[cfg(not(unix))]
     fn wait(&self) -> std::io::Result<()> {
+        let _ = self.idle;
         Ok(())
     }
 
