@@ -90,13 +90,14 @@ pub fn produce(
                     print::recommendation(w, &run, advice.as_ref())?;
                     writeln!(w)?;
                     print::summary(w, &run, &dir)?;
-                    let only = match plans {
-                        Plans::All => None,
-                        Plans::Recommended => Some(run.recommended()),
+                    // Every plan, or the recommended one's; none when nothing is recommended.
+                    let shown = match plans {
+                        Plans::All => Some(None),
+                        Plans::Recommended => run.recommended().map(Some),
                     };
-                    if only != Some(None) {
+                    if let Some(only) = shown {
                         writeln!(w)?;
-                        print::flight_plans(w, &run, headings, &scenario.field_source, only.flatten())?;
+                        print::flight_plans(w, &run, headings, &scenario.field_source, only)?;
                     }
                     if plans == Plans::Recommended && run.designs.len() > 1 {
                         writeln!(
