@@ -173,6 +173,73 @@ impl Extras {
     }
 }
 
+/// MAVLink frames cut from a byte stream as it arrives (a radio, UDP datagrams, a TCP socket),
+/// for a telemetry log written live: each frame of a known message whose checksum holds, whole
+/// and in order. What is not such a frame is counted, never passed on: a frame whose checksum
+/// fails and a frame of a message the dialect does not know (the stream resumes at its next byte:
+/// neither says where the next frame starts), bytes between frames. At most one frame's bytes
+/// (280) wait for the rest of their frame.
+#[derive(Default)]
+pub struct Framer {
+    pending: Vec<u8>,
+    extras: Extras,
+    /// Frames passed on.
+    pub valid: u64,
+    /// Frames whose checksum failed.
+    pub bad_crc: u64,
+    /// Frames of messages the dialect does not know.
+    pub unknown: u64,
+    /// Bytes outside any frame.
+    pub between: u64,
+}
+
+impl Framer {
+    /// Takes `bytes` and passes each whole valid frame completed by them to `frame`, with its
+    /// message id.
+    pub fn push(&mut self, bytes: &[u8], mut frame: impl FnMut(&[u8], u32)) {
+        self.pending.extend_from_slice(bytes);
+        let mut at = 0;
+        while at < self.pending.len() {
+            let w = &self.pending[at..];
+            match look(w) {
+                Look::Frame(f) => match self.extras.valid(w, &f) {
+                    Some(true) => {
+                        self.valid += 1;
+                        frame(&w[..f.len], f.id);
+                        at += f.len;
+                    }
+                    Some(false) => {
+                        self.bad_crc += 1;
+                        self.between += 1;
+                        at += 1;
+                    }
+                    // Whose checksum cannot be checked: its bytes are searched for frames.
+                    None => {
+                        self.unknown += 1;
+                        self.between += 1;
+                        at += 1;
+                    }
+                },
+                Look::Short => break,
+                Look::Not => {
+                    self.between += 1;
+                    at += 1;
+                }
+            }
+        }
+        self.pending.drain(..at);
+    }
+}
+
+/// One record of a telemetry log: the reception time (microseconds since 1970, big-endian) and
+/// the frame.
+pub fn record(received_us: u64, frame: &[u8]) -> Vec<u8> {
+    let mut r = Vec::with_capacity(STAMP + frame.len());
+    r.extend_from_slice(&received_us.to_be_bytes());
+    r.extend_from_slice(frame);
+    r
+}
+
 /// The readings of one instance and where they came from.
 #[derive(Default)]
 struct Instance {

@@ -69,6 +69,12 @@ enum Command {
     /// The attitudes a vehicle should visit next to most increase the information of its log
     /// (D-optimal augmentation), with every parameter's standard error before and after.
     Next(commands::next::NextArgs),
+    /// Calibrate while the vehicle turns, and say where to turn next.
+    ///
+    /// Reads a MAVLink stream (UDP, TCP, serial) or lines of readings (MotionCal's `Raw:`, CSV)
+    /// as they arrive, fits them as `calibrate` does at most once a second, says the attitude to
+    /// visit next as `next` does, and writes the calibration set at every usable fit.
+    Live(commands::live::LiveArgs),
     /// Write a log of noisy readings of a scenario's sensor at one design's attitudes.
     Simulate(commands::simulate::SimulateArgs),
     /// The paper's Monte Carlo on a real log with reference attitudes.
@@ -118,6 +124,7 @@ impl Command {
             Self::Check(a) => !a.common.quiet,
             Self::Plot(_)
             | Self::Calibrate(_)
+            | Self::Live(_)
             | Self::Next(_)
             | Self::Evaluate(_)
             | Self::Report(_)
@@ -215,6 +222,7 @@ pub fn main() -> ExitCode {
         Command::Apply(args) => commands::apply::run(&args),
         Command::Evaluate(args) => commands::evaluate::run(&args),
         Command::Next(args) => commands::next::run(&args),
+        Command::Live(args) => commands::live::run(&args),
         Command::Simulate(args) => commands::simulate::run(&args),
         Command::Export(args) => commands::export::run(&args),
         Command::Report(args) => commands::report::run(&args),

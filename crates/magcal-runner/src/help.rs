@@ -14,7 +14,7 @@ pub const HELP_WIDTH: usize = 100;
 /// (a unit test checks it against the command definition).
 pub const GROUPS: &[(&str, &[&str])] = &[
     ("Plan a vehicle's calibration", &["design", "simulate", "next"]),
-    ("Calibrate a log", &["calibrate", "apply", "export"]),
+    ("Calibrate a log", &["calibrate", "live", "apply", "export"]),
     ("Judge a calibration", &["evaluate", "replay"]),
     ("Look at a result", &["report", "plot"]),
     ("Reproduce and check [P1]", &["run", "check"]),

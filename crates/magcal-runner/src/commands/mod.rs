@@ -12,6 +12,7 @@ pub mod check;
 pub mod design;
 pub mod evaluate;
 pub mod export;
+pub mod live;
 pub mod next;
 pub mod plot;
 pub mod replay;

@@ -332,6 +332,15 @@ struct Augmented {
     after_fit: Result<log_fit::LogFit, magcal_core::CalibrationError>,
 }
 
+/// What `next --json` says of the calibration `cal` and the log `args.log` in the box of
+/// `--scenario` or the flags: the attitudes to add, the first the one to visit next.
+///
+/// # Errors
+/// As [`run`].
+pub fn suggestion(args: &NextArgs, cal: &CalibrationJson) -> Result<NextJson> {
+    Ok(suggest(args, cal)?.0)
+}
+
 /// The attitudes to add and every figure of them, with the readings per MotionCal region of the
 /// log's calibrated field directions before and after.
 fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize; 100]; 2])> {

@@ -33,7 +33,7 @@ impl std::str::FromStr for Range {
 }
 
 /// A vehicle's attitude box as flags (with `--site` and `--date` for the field's direction).
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub struct BoxFlags {
     /// Roll range, degrees: `MIN,MAX` (with `--site`).
     #[arg(long, requires = "site", allow_hyphen_values = true, value_name = "MIN,MAX")]

@@ -19,6 +19,7 @@ mod export;
 mod fuzz;
 mod gps;
 mod hostile;
+mod live;
 mod log_outputs;
 mod loop_design_log;
 mod motor;

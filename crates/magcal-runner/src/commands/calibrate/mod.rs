@@ -692,7 +692,7 @@ fn median_interval(times: &[f64]) -> Option<f64> {
 /// Writes the calibration set: `calibration.json`, `residuals.csv` (one [`ResidualRow`] per
 /// reading fitted) and `manifest.json` with the log's and every file's SHA-256, into the staging
 /// directory of `set`, and swaps it in. `rows`: the data rows read from the log.
-fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJson, log: &Log) -> Result<()> {
+pub(crate) fn write_out(mut set: ResultSet, path: &Path, rows: usize, json: &CalibrationJson, log: &Log) -> Result<()> {
     let mut files = BTreeMap::new();
     let mut text = serde_json::to_vec_pretty(json).context("JSON")?;
     text.push(b'\n');

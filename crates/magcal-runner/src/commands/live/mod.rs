@@ -1,0 +1,646 @@
+//! `magcal live SOURCE`: calibrate while the vehicle turns, and say where to turn next.
+//!
+//! A reader thread ([`source`]) takes the stream as it arrives (MAVLink over UDP, TCP or a serial
+//! device; MotionCal's `Raw:` lines or CSV rows) into a bounded ring ([`buffer`]). The command's
+//! own thread fits: at most once per `--every` seconds, on a snapshot of the ring written as the
+//! log it is (a telemetry log, a CSV log) and read by the same reader, calibration and verdict as
+//! `calibrate` ([`crate::commands::calibrate::calibrate`]), then the attitude to visit next as
+//! `next` gives it for those readings ([`crate::commands::next::suggestion`]). So what `live`
+//! says of its readings is what `calibrate` and `next` say of the same readings saved to a file
+//! (`--record`). The reader never waits on a fit: a fit that takes longer than the stream means
+//! fewer fits, each on the newest readings.
+//!
+//! At every usable fit the calibration set of `--out` is replaced whole (as `calibrate --out`
+//! writes it) and the export for the source's autopilot is shown; Ctrl-C ends the command after
+//! the fit under way, with what it has written whole.
+
+pub mod buffer;
+pub mod source;
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+
+use self::source::{Counts, Shared, Source};
+use super::Failure;
+use super::calibrate::{CalibrateArgs, Calibrated, Fit, ResidualArg};
+use super::next::NextArgs;
+use crate::log::calibration::CalibrationJson;
+use crate::log::export::Target as ExportTarget;
+use crate::log::read::HELD_BYTES_PER_READING;
+use crate::log::source::{FormatArg, LogArgs};
+use crate::log::vehicle::BoxFlags;
+use crate::output::staging::{ResultSet, Target};
+use crate::output::stderr::to_stderr;
+use crate::scenario::site::{Date, Site, Units, parse_model};
+
+/// `magcal live`.
+#[derive(Debug, Args)]
+pub struct LiveArgs {
+    /// Where the readings come from: `udpin:ADDR:PORT` (MAVLink datagrams sent to this address,
+    /// as a vehicle's telemetry or MAVProxy's `--out` forwards them), `tcp:HOST:PORT` (MAVLink
+    /// from a TCP server: SITL's `tcp:127.0.0.1:5760`), `serial:PATH:BAUD` (MAVLink on a serial
+    /// device), `lines:PATH[:BAUD]` (text lines from a device or a file: MotionCal's `Raw:` lines
+    /// from the Adafruit calibration sketch, or CSV rows), or `-` (lines on standard input).
+    #[arg(value_parser = parse_source, allow_hyphen_values = true)]
+    pub source: Source,
+    /// The calibration set to write (as `calibrate --out`): replaced whole at every usable fit;
+    /// where no fit was usable, the last fit's at the end. DIR must be missing, empty or an
+    /// earlier calibration set.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Also write what the stream brought, as it arrives: a telemetry log (MAVLink sources: every
+    /// valid frame with its time of arrival) or a CSV log (lines: the readings' rows), for
+    /// `calibrate` and `next` afterwards. The file must not exist.
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
+    /// The stream held in memory, MiB: the newest records within it (older ones are dropped and
+    /// counted; a vehicle's parameters are kept). A fit reads a snapshot of them, and needs about
+    /// as much again for its readings.
+    #[arg(long = "memory", value_name = "MIB", default_value_t = 64, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    pub memory_mib: u64,
+    /// Seconds between the starts of two fits, at least.
+    #[arg(long, value_name = "SECONDS", default_value_t = 1.0, value_parser = crate::limits::finite)]
+    pub every: f64,
+    /// End at the first usable fit.
+    #[arg(long)]
+    pub until_usable: bool,
+    /// End when nothing arrived for this many seconds (default: a network or serial source runs
+    /// until Ctrl-C; a file or standard input ends at its end).
+    #[arg(long, value_name = "SECONDS", value_parser = crate::limits::finite)]
+    pub idle: Option<f64>,
+    /// A scenario file: the attitude box the next attitude is chosen in, its site and search,
+    /// and the coverage's D-efficiency (as for `calibrate` and `next`); or the box as flags.
+    #[arg(long, conflicts_with_all = ["roll", "pitch", "yaw"])]
+    pub scenario: Option<PathBuf>,
+    #[command(flatten)]
+    pub attitude: BoxFlags,
+    /// The site, `LAT,LON[,ALT_M]` (with `--date`): the field's magnitude and direction from the
+    /// World Magnetic Model.
+    #[arg(long, requires = "date", allow_hyphen_values = true, value_name = "LAT,LON[,ALT_M]")]
+    pub site: Option<Site>,
+    /// The date, `YYYY-MM-DD` or a decimal year.
+    #[arg(long, value_name = "DATE")]
+    pub date: Option<Date>,
+    /// The World Magnetic Model (default: the newest whose window holds the date).
+    #[arg(long, requires = "site", value_parser = parse_model, value_name = "MODEL")]
+    pub wmm: Option<magcal_core::wmm::Model>,
+    /// The readings' units (MAVLink: mG, fixed; `Raw:` lines: uT; CSV rows: say them).
+    #[arg(long, value_enum)]
+    pub units: Option<Units>,
+    /// The field magnitude in the readings' units (default: the WMM's at `--site`, else the
+    /// fitted mean radius).
+    #[arg(long, conflicts_with = "units", value_parser = crate::limits::finite)]
+    pub magnitude: Option<f64>,
+    /// The model, as for `calibrate`.
+    #[arg(long, value_enum, default_value = "full")]
+    pub fit: Fit,
+    /// The readings' noise per component, in their units (default: estimated from the residuals).
+    #[arg(long, value_name = "SIGMA", value_parser = crate::limits::finite)]
+    pub noise: Option<f64>,
+    /// Noisy trials of each fit's verdict, as for `calibrate`.
+    #[arg(long, default_value_t = magcal_core::log_fit::CHECK_TRIALS as u64, value_parser = clap::value_parser!(u64).range(20..=100_000))]
+    pub trials: u64,
+    /// The seed of the trials' random streams.
+    #[arg(long, default_value_t = magcal_core::log_fit::CHECK_SEED)]
+    pub seed: u64,
+    /// Attitudes to suggest at each fit (the first is the one to visit next).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=100))]
+    pub count: u64,
+    /// Print one JSON object when it ends (what arrived and was dropped, the fits, the last
+    /// fit's verdict and next attitude, the set written) instead of the text.
+    #[arg(long)]
+    pub json: bool,
+    /// How to read the readings, as for `calibrate` (`--format` is the source's).
+    #[command(flatten)]
+    pub input: LogArgs,
+}
+
+fn parse_source(s: &str) -> Result<Source, String> {
+    s.parse()
+}
+
+/// What one fit of the stream gave.
+struct Fitted {
+    /// Readings fitted.
+    readings: usize,
+    json: Option<CalibrationJson>,
+    /// Why there is no calibration, or why it is not usable.
+    why: String,
+    next: Result<Option<magcal_report::pages::next::AttitudeJson>, String>,
+    seconds: f64,
+    /// The log as read, for the calibration set.
+    log: Option<crate::log::source::Log>,
+    rows: usize,
+    /// Whether `why` is an option that does not apply to the stream (exit 2 if it is the last).
+    bad_option: bool,
+}
+
+/// Runs `live` until the source ends, `--idle` passes, Ctrl-C, or (with `--until-usable`) the
+/// first usable fit.
+///
+/// # Errors
+/// A bad option, a source that cannot be opened, an output that cannot be written (exit 2,
+/// before anything is written); no usable fit when it ends ([`Failure::Unusable`], exit 3, after
+/// the last fit's set is written).
+pub fn run(args: &LiveArgs) -> Result<(), Failure> {
+    check(args)?;
+    let record = match &args.record {
+        Some(p) => Some(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(p)
+                .with_context(|| format!("--record {}: cannot be created (it must not exist)", p.display()))?,
+        ),
+        None => None,
+    };
+    let inputs: Vec<&Path> = args
+        .record
+        .iter()
+        .map(PathBuf::as_path)
+        .chain(args.scenario.as_deref())
+        .collect();
+    drop(ResultSet::begin(&args.out, Target::Calibration, &inputs)?);
+    let shared = Shared::new(usize::try_from(args.memory_mib << 20).unwrap_or(usize::MAX));
+    let (_reader, reading) = source::start(&args.source, &shared, record)?;
+    to_stderr!(
+        "live: reading {reading}; fits at most every {} s; Ctrl-C ends it",
+        args.every
+    );
+    let stop = Arc::clone(&shared);
+    // A second handler cannot be set in one process (the library bindings run commands in theirs).
+    let _ = ctrlc::set_handler(move || {
+        stop.stop.store(true, Ordering::Relaxed);
+        stop.changed.notify_all();
+    });
+    let snapshot = Snapshot::new(args.source.is_mavlink());
+    let result = fit_loop(args, &shared, &snapshot, &inputs);
+    shared.stop.store(true, Ordering::Relaxed);
+    result
+}
+
+/// Options that do not depend on the stream.
+fn check(args: &LiveArgs) -> Result<()> {
+    if args.every <= 0.0 {
+        bail!("--every {}: give a positive number of seconds", args.every);
+    }
+    if let Some(i) = args.idle
+        && i <= 0.0
+    {
+        bail!("--idle {i}: give a positive number of seconds");
+    }
+    let wanted = if args.source.is_mavlink() {
+        FormatArg::Tlog
+    } else {
+        FormatArg::Csv
+    };
+    if args.input.format != FormatArg::Auto && args.input.format != wanted {
+        bail!(
+            "--format: {} carries {} (the format is the source's)",
+            source::shown(&args.source),
+            if args.source.is_mavlink() {
+                "MAVLink"
+            } else {
+                "lines of CSV"
+            }
+        );
+    }
+    if args.site.is_some() != args.date.is_some() {
+        bail!("--site and --date go together");
+    }
+    Ok(())
+}
+
+/// The file a fit reads: the ring's snapshot as a log, removed when the command ends.
+struct Snapshot {
+    path: PathBuf,
+}
+
+impl Snapshot {
+    fn new(mavlink: bool) -> Self {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos());
+        let name = format!(
+            "magcal-live-{}-{nanos}.{}",
+            std::process::id(),
+            if mavlink { "tlog" } else { "csv" }
+        );
+        Self {
+            path: std::env::temp_dir().join(name),
+        }
+    }
+}
+
+impl Drop for Snapshot {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// What `live --json` prints when it ends.
+#[derive(Debug, serde::Serialize)]
+struct LiveJson {
+    source: String,
+    /// Bytes received; MAVLink frames whose checksum held, failed, or whose message is unknown;
+    /// lines taken as readings, malformed, or other.
+    bytes: u64,
+    frames: u64,
+    bad_crc: u64,
+    unknown_frames: u64,
+    lines: u64,
+    malformed_lines: u64,
+    other_lines: u64,
+    /// Records dropped (oldest first) to stay within `--memory`.
+    dropped_records: u64,
+    fits: u64,
+    /// The last fit: its readings, whether usable, why not, and the attitude to visit next.
+    readings: usize,
+    usable: bool,
+    reasons: String,
+    next: Option<magcal_report::pages::next::AttitudeJson>,
+    next_error: Option<String>,
+    /// The fit whose calibration set `out` holds, and whether it was usable.
+    written_fit: Option<u64>,
+    written_usable: bool,
+    out: String,
+}
+
+/// What the fit loop knows between fits.
+#[derive(Default)]
+struct Progress {
+    counts: Counts,
+    dropped: u64,
+    fits: u64,
+    /// The fit whose set `--out` holds, and whether it was usable.
+    written: Option<(u64, bool)>,
+    last: Option<Fitted>,
+}
+
+fn fit_loop(args: &LiveArgs, shared: &Arc<Shared>, snapshot: &Snapshot, inputs: &[&Path]) -> Result<(), Failure> {
+    let mut progress = Progress::default();
+    let mut seen = 0u64;
+    let mut last_start: Option<Instant> = None;
+    let tty = std::io::stderr().is_terminal();
+    loop {
+        let (bytes, counts, dropped, held, ended, units) = {
+            let mut state = shared.lock();
+            loop {
+                let due = last_start.is_none_or(|t| t.elapsed().as_secs_f64() >= args.every);
+                let idle = args
+                    .idle
+                    .is_some_and(|i| state.counts.last.map_or(i <= 0.0, |t| t.elapsed().as_secs_f64() >= i));
+                let stopping = shared.stop.load(Ordering::Relaxed);
+                if (state.ring.generation != seen && due) || state.ended.is_some() || idle || stopping {
+                    break;
+                }
+                state = shared
+                    .changed
+                    .wait_timeout(state, Duration::from_millis(100))
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .0;
+            }
+            let idle = args
+                .idle
+                .is_some_and(|i| state.counts.last.is_some_and(|t| t.elapsed().as_secs_f64() >= i));
+            let ending = state
+                .ended
+                .clone()
+                .or_else(|| (idle || shared.stop.load(Ordering::Relaxed)).then_some(Ok(())));
+            let fresh = state.ring.generation != seen;
+            seen = state.ring.generation;
+            let bytes = fresh.then(|| state.ring.snapshot(&state.head));
+            (
+                bytes,
+                state.counts.clone(),
+                state.ring.dropped,
+                state.ring.bytes(),
+                ending,
+                state.units,
+            )
+        };
+        if let Some(Err(why)) = &ended {
+            return Err(Failure::Input(anyhow::anyhow!("{why}")));
+        }
+        if let Some(bytes) = bytes {
+            last_start = Some(Instant::now());
+            std::fs::write(&snapshot.path, &bytes).context("the live snapshot")?;
+            progress.fits += 1;
+            progress.counts = counts.clone();
+            progress.dropped = dropped;
+            let fitted = fit(args, &snapshot.path, units);
+            status(args, &progress, &fitted, &counts, dropped, held, tty);
+            if fitted.json.as_ref().is_some_and(|j| j.usable) {
+                write_set(args, &fitted, inputs)?;
+                if progress.written.is_none_or(|(_, usable)| !usable) && !args.json {
+                    announce(args, fitted.json.as_ref().unwrap_or_else(|| unreachable!()))?;
+                }
+                progress.written = Some((progress.fits, true));
+                if args.until_usable {
+                    progress.last = Some(fitted);
+                    break;
+                }
+            }
+            progress.last = Some(fitted);
+        }
+        if ended.is_some() {
+            break;
+        }
+    }
+    if tty {
+        to_stderr!("");
+    }
+    finish(args, progress, inputs)
+}
+
+/// The fit of the snapshot at `path`: `calibrate`'s calibration and verdict, and `next`'s first
+/// attitude where a box is given.
+fn fit(args: &LiveArgs, path: &Path, units: Option<Units>) -> Fitted {
+    let started = Instant::now();
+    let (cal_args, input) = calibrate_args(args, path, units);
+    let mut fitted = Fitted {
+        readings: 0,
+        json: None,
+        why: String::new(),
+        next: Ok(None),
+        seconds: 0.0,
+        log: None,
+        rows: 0,
+        bad_option: false,
+    };
+    let mut log = match crate::log::source::open(path, &input, HELD_BYTES_PER_READING) {
+        Ok(log) => log,
+        Err(e) => {
+            fitted.why = format!("waiting for readings: {}", first_words(&format!("{e:#}"), path));
+            fitted.seconds = started.elapsed().as_secs_f64();
+            return fitted;
+        }
+    };
+    fitted.readings = log.readings.len();
+    fitted.rows = log.readings.len() + log.skipped.len();
+    match super::calibrate::calibrate(&cal_args, &mut log) {
+        Ok(Calibrated::Fit { json, .. }) => {
+            fitted.why = json.reasons.join("; ");
+            fitted.next = next_attitude(args, path, &input, &json);
+            fitted.json = Some(*json);
+        }
+        Ok(Calibrated::NoFit(j)) => fitted.why = j.reasons.join("; "),
+        Err(e) => {
+            fitted.bad_option = matches!(e, Failure::Input(_));
+            fitted.why = first_words(&words(&e), path);
+        }
+    }
+    fitted.log = Some(log);
+    fitted.seconds = started.elapsed().as_secs_f64();
+    fitted
+}
+
+/// A failure in words.
+fn words(f: &Failure) -> String {
+    match f {
+        Failure::Input(e) => format!("{e:#}"),
+        Failure::Regression(s) | Failure::Unusable(s) => s.clone(),
+    }
+}
+
+/// A message about the snapshot, with its temporary path replaced by "the stream".
+fn first_words(message: &str, path: &Path) -> String {
+    message.replace(&path.display().to_string(), "the stream")
+}
+
+/// `calibrate`'s arguments for the snapshot at `path`, and how to read it; `units`: those the
+/// stream's lines fix (MotionCal's `Raw:` lines are in uT), unless `--units` or `--magnitude`
+/// says.
+fn calibrate_args(args: &LiveArgs, path: &Path, units: Option<Units>) -> (CalibrateArgs, LogArgs) {
+    let mut input = args.input.clone();
+    input.format = if args.source.is_mavlink() {
+        FormatArg::Tlog
+    } else {
+        FormatArg::Csv
+    };
+    let units = args.units.or(units.filter(|_| args.magnitude.is_none()));
+    let cal = CalibrateArgs {
+        log: path.to_path_buf(),
+        input: input.clone(),
+        magnitude: args.magnitude,
+        site: args.site,
+        date: args.date,
+        units,
+        wmm: args.wmm,
+        fit: args.fit,
+        reject: None,
+        noise: args.noise,
+        residual: ResidualArg::Readings,
+        trials: args.trials,
+        seed: args.seed,
+        json: false,
+        out: None,
+        scenario: args.scenario.clone(),
+        attitude: args.attitude.clone(),
+        motor: None,
+    };
+    (cal, input)
+}
+
+/// The first attitude `next` gives for the snapshot at `path` and its calibration; `None`
+/// without a box.
+fn next_attitude(
+    args: &LiveArgs,
+    path: &Path,
+    input: &LogArgs,
+    cal: &CalibrationJson,
+) -> Result<Option<magcal_report::pages::next::AttitudeJson>, String> {
+    if args.scenario.is_none() && !args.attitude.any() {
+        return Ok(None);
+    }
+    let next = NextArgs {
+        calibration: PathBuf::from("the live fit"),
+        log: path.to_path_buf(),
+        scenario: args.scenario.clone(),
+        attitude: args.attitude.clone(),
+        site: args.site,
+        date: args.date,
+        wmm: args.wmm,
+        count: args.count,
+        json: true,
+        report: None,
+        input: input.clone(),
+    };
+    super::next::suggestion(&next, cal)
+        .map(|j| j.attitudes.into_iter().next())
+        .map_err(|e| first_words(&format!("{e:#}"), path))
+}
+
+/// One line on stderr: what arrived, what was kept and dropped, the fit and the next attitude;
+/// on a terminal it replaces the line before.
+fn status(args: &LiveArgs, progress: &Progress, f: &Fitted, c: &Counts, dropped: u64, held: usize, tty: bool) {
+    let mut line = format!("live: {} readings", f.readings);
+    if args.source.is_mavlink() {
+        line += &format!(" ({} frames, {} bad", c.frames, c.bad_crc + c.unknown);
+    } else {
+        line += &format!(
+            " ({} lines, {} malformed, {} other",
+            c.lines, c.malformed_lines, c.other_lines
+        );
+    }
+    line += &format!(
+        ", {dropped} records dropped, {:.1} of {} MiB held)",
+        held as f64 / f64::from(1u32 << 20),
+        args.memory_mib
+    );
+    line += &format!(" | fit {} in {:.2} s: ", progress.fits, f.seconds);
+    match &f.json {
+        Some(j) if j.usable => {
+            line += "USABLE";
+            if let Some(se) = j.std_error.bias {
+                line += &format!(", bias se {:.3} {:.3} {:.3}", se[0], se[1], se[2]);
+            }
+        }
+        _ => line += &format!("not usable: {}", crate::limits::excerpt(&f.why, 160)),
+    }
+    match &f.next {
+        Ok(Some(a)) => {
+            line += &format!(" | next: roll {:.0}, pitch {:.0}, ", a.roll_deg, a.pitch_deg);
+            line += &match a.magnetic_heading_deg {
+                Some(m) => format!("magnetic heading {m:.0} deg"),
+                None => format!("true heading {:.0} deg", a.true_heading_deg),
+            };
+        }
+        Ok(None) => {}
+        Err(e) => line += &format!(" | next: {}", crate::limits::excerpt(e, 120)),
+    }
+    let line = crate::limits::printable(&line);
+    if tty {
+        let _ = write!(std::io::stderr(), "\r\x1b[2K{line}");
+    } else {
+        to_stderr!("{line}");
+    }
+}
+
+/// Writes the calibration set of `fitted` into `--out`, replaced whole.
+fn write_set(args: &LiveArgs, fitted: &Fitted, inputs: &[&Path]) -> Result<()> {
+    let (Some(json), Some(log)) = (&fitted.json, &fitted.log) else {
+        return Ok(());
+    };
+    let set = ResultSet::begin(&args.out, Target::Calibration, inputs)?;
+    let shown = args
+        .record
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("{} (live)", source::shown(&args.source))));
+    let mut json = json.clone();
+    json.log = shown.display().to_string();
+    super::calibrate::write_out(set, &shown, fitted.rows, &json, log)
+}
+
+/// The first usable fit: said on stdout, with the export for the source's autopilot.
+fn announce(args: &LiveArgs, json: &CalibrationJson) -> Result<()> {
+    let to = if args.source.is_mavlink() {
+        "ardupilot"
+    } else {
+        "motioncal"
+    };
+    let mut text = format!(
+        "usable at {} readings: {} written; its export (magcal export {} --to {to}):\n",
+        json.samples,
+        args.out.join("calibration.json").display(),
+        args.out.join("calibration.json").display()
+    );
+    let export = super::export::ExportArgs {
+        calibration: args.out.join("calibration.json"),
+        to: if args.source.is_mavlink() {
+            ExportTarget::ArduPilot
+        } else {
+            ExportTarget::MotionCal
+        },
+        compass: None,
+        units: None,
+        offs_max: None,
+        strict: false,
+        force: false,
+        out: None,
+    };
+    match super::export::made(&export, json, "the live fit", "") {
+        Ok(made) => text += &String::from_utf8_lossy(&made.text),
+        Err(e) => text += &format!("(no export: {})\n", words(&e)),
+    }
+    crate::output::file::to_stdout(|w| Ok(w.write_all(text.as_bytes())?))?;
+    Ok(())
+}
+
+/// The end: where no fit was usable, the last fit's set is written (as `calibrate` writes an
+/// unusable one) and the command fails with why.
+fn finish(args: &LiveArgs, mut progress: Progress, inputs: &[&Path]) -> Result<(), Failure> {
+    if progress.written.is_none()
+        && let Some(last) = &progress.last
+        && last.json.is_some()
+    {
+        write_set(args, last, inputs)?;
+        progress.written = Some((progress.fits, false));
+    }
+    if args.json {
+        let c = &progress.counts;
+        let last = progress.last.as_ref();
+        let json = LiveJson {
+            source: source::shown(&args.source),
+            bytes: c.bytes,
+            frames: c.frames,
+            bad_crc: c.bad_crc,
+            unknown_frames: c.unknown,
+            lines: c.lines,
+            malformed_lines: c.malformed_lines,
+            other_lines: c.other_lines,
+            dropped_records: progress.dropped,
+            fits: progress.fits,
+            readings: last.map_or(0, |l| l.readings),
+            usable: last.is_some_and(|l| l.json.as_ref().is_some_and(|j| j.usable)),
+            reasons: last.map_or_else(|| "no readings arrived".to_string(), |l| l.why.clone()),
+            next: last.and_then(|l| l.next.clone().ok().flatten()),
+            next_error: last.and_then(|l| l.next.clone().err()),
+            written_fit: progress.written.map(|w| w.0),
+            written_usable: progress.written.is_some_and(|w| w.1),
+            out: args.out.display().to_string(),
+        };
+        crate::output::file::to_stdout(|w| {
+            serde_json::to_writer_pretty(&mut *w, &json)?;
+            writeln!(w)?;
+            Ok(())
+        })?;
+    }
+    if let Some(last) = progress.last.as_ref().filter(|l| l.bad_option) {
+        return Err(Failure::Input(anyhow::anyhow!("{}", last.why)));
+    }
+    match (progress.written, progress.last) {
+        (Some((k, true)), last) => {
+            let later = last.filter(|l| !l.json.as_ref().is_some_and(|j| j.usable));
+            match later {
+                None => Ok(()),
+                Some(l) => Err(Failure::Unusable(format!(
+                    "the last fit is not usable ({}); {} holds fit {k}'s, which was",
+                    l.why,
+                    args.out.display()
+                ))),
+            }
+        }
+        (written, Some(last)) => Err(Failure::Unusable(format!(
+            "{}: no fit was usable; the last ({} readings): {}; {}",
+            source::shown(&args.source),
+            last.readings,
+            last.why,
+            if written.is_some() {
+                format!("its set is in {}", args.out.display())
+            } else {
+                format!("no model fits it: nothing written to {}", args.out.display())
+            }
+        ))),
+        (_, None) => Err(Failure::Unusable(format!(
+            "{}: no readings arrived",
+            source::shown(&args.source)
+        ))),
+    }
+}

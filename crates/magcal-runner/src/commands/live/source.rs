@@ -1,0 +1,592 @@
+//! Where `live` reads: a MAVLink stream (UDP, TCP, a serial device) or a stream of text lines
+//! (MotionCal's `Raw:` lines from the Adafruit calibration sketch, or CSV rows) from a device, a
+//! file or standard input. A reader thread per source turns what arrives into records (a
+//! telemetry log's records, or CSV rows) in the shared [`Ring`], and into the `--record` file.
+
+use std::fs::File;
+use std::io::{BufWriter, ErrorKind, Read, Write};
+use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant, SystemTime};
+
+#[cfg(not(unix))]
+use anyhow::bail;
+use anyhow::{Context, Result};
+
+use super::buffer::Ring;
+use crate::log::tlog::{Framer, record};
+use crate::scenario::site::Units;
+
+/// `PARAM_VALUE`'s message id: a vehicle's parameters are sent once, when a ground station asks,
+/// and must outlive the ring.
+const PARAM_VALUE: u32 = 22;
+/// The longest text line taken, bytes; a longer one is counted as malformed.
+const MAX_LINE: usize = 4096;
+/// How often a waiting reader looks whether the command is ending.
+const POLL: Duration = Duration::from_millis(200);
+
+/// A source as the command line names it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Source {
+    /// MAVLink datagrams received on this address (`udpin:ADDR:PORT`).
+    Udp(String),
+    /// MAVLink from a TCP server (`tcp:HOST:PORT`: SITL's 5760, a telemetry bridge).
+    Tcp(String),
+    /// MAVLink on a serial device at a baud rate (`serial:PATH:BAUD`).
+    Serial(PathBuf, u32),
+    /// Text lines from a device (at a baud rate), a file, or standard input (`-`)
+    /// (`lines:PATH[:BAUD]`).
+    Lines(PathBuf, Option<u32>),
+}
+
+impl std::str::FromStr for Source {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let baud = |b: &str| {
+            b.parse::<u32>()
+                .ok()
+                .filter(|b| (50..=4_000_000).contains(b))
+                .ok_or_else(|| format!("{s}: the baud rate {b:?} is not a number from 50 to 4000000"))
+        };
+        let path_baud = |rest: &str| match rest.rsplit_once(':') {
+            Some((p, b)) if !p.is_empty() && b.bytes().all(|c| c.is_ascii_digit()) && !b.is_empty() => {
+                baud(b).map(|b| (PathBuf::from(p), Some(b)))
+            }
+            _ => Ok((PathBuf::from(rest), None)),
+        };
+        if s == "-" {
+            return Ok(Self::Lines(PathBuf::from("-"), None));
+        }
+        let (kind, rest) = s.split_once(':').ok_or_else(|| {
+            format!("{s}: give udpin:ADDR:PORT, tcp:HOST:PORT, serial:PATH:BAUD, lines:PATH[:BAUD] or - (lines on standard input)")
+        })?;
+        if rest.is_empty() {
+            return Err(format!("{s}: nothing after {kind}:"));
+        }
+        match kind {
+            "udpin" | "udp" => Ok(Self::Udp(rest.to_string())),
+            "tcp" | "tcpout" => Ok(Self::Tcp(rest.to_string())),
+            "serial" => match path_baud(rest)? {
+                (p, Some(b)) => Ok(Self::Serial(p, b)),
+                (_, None) => Err(format!("{s}: give the baud rate, serial:PATH:BAUD")),
+            },
+            "lines" => path_baud(rest).map(|(p, b)| Self::Lines(p, b)),
+            _ => Err(format!(
+                "{s}: unknown source kind {kind:?}: udpin, tcp, serial or lines (or - for lines on standard input)"
+            )),
+        }
+    }
+}
+
+impl Source {
+    /// Whether the source carries MAVLink (a telemetry log) rather than lines (a CSV log).
+    pub fn is_mavlink(&self) -> bool {
+        !matches!(self, Self::Lines(..))
+    }
+}
+
+/// What arrived, and what became of it.
+#[derive(Debug, Default, Clone)]
+pub struct Counts {
+    /// Bytes received.
+    pub bytes: u64,
+    /// MAVLink frames whose checksum held, frames whose checksum failed, frames of messages the
+    /// dialect does not know, bytes outside any frame.
+    pub frames: u64,
+    pub bad_crc: u64,
+    pub unknown: u64,
+    pub between: u64,
+    /// Lines taken as readings, lines that were not a reading, lines too long or with a
+    /// `Raw:` that does not hold nine integers.
+    pub lines: u64,
+    pub other_lines: u64,
+    pub malformed_lines: u64,
+    /// When the last bytes arrived.
+    pub last: Option<Instant>,
+}
+
+/// The state the reader and the fit share.
+#[derive(Debug)]
+pub struct State {
+    pub ring: Ring,
+    pub counts: Counts,
+    /// Written before the records of a snapshot: a CSV header (empty for MAVLink).
+    pub head: Vec<u8>,
+    /// Set when the source ended: `Ok` at its end, `Err` with why it failed.
+    pub ended: Option<Result<(), String>>,
+    /// The readings' units where the lines fix them (MotionCal's `Raw:` lines: uT).
+    pub units: Option<Units>,
+}
+
+/// The shared state and the signal of new records.
+#[derive(Debug)]
+pub struct Shared {
+    state: Mutex<State>,
+    pub changed: Condvar,
+    /// Set by the command when it ends (Ctrl-C, usable with `--until-usable`).
+    pub stop: AtomicBool,
+}
+
+impl Shared {
+    pub fn new(capacity: usize) -> Arc<Self> {
+        Arc::new(Self {
+            state: Mutex::new(State {
+                ring: Ring::new(capacity),
+                counts: Counts::default(),
+                head: Vec::new(),
+                ended: None,
+                units: None,
+            }),
+            changed: Condvar::new(),
+            stop: AtomicBool::new(false),
+        })
+    }
+
+    /// The state, locked (a reader that panicked leaves it as it was).
+    pub fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn stopping(&self) -> bool {
+        self.stop.load(Ordering::Relaxed)
+    }
+
+    fn end(&self, how: Result<(), String>) {
+        self.lock().ended.get_or_insert(how);
+        self.changed.notify_all();
+    }
+}
+
+/// Opens `source` (binding, connecting or opening it: its errors come back here) and starts its
+/// reader, which writes every record it keeps to `record` as well. Returns the reader and what it
+/// reads in words (a UDP source with the port it was bound to).
+///
+/// # Errors
+/// An address that does not resolve or cannot be bound or reached, a device or file that cannot
+/// be opened or set to its baud rate.
+pub fn start(
+    source: &Source,
+    shared: &Arc<Shared>,
+    record: Option<File>,
+) -> Result<(std::thread::JoinHandle<()>, String)> {
+    let recorder = record.map(BufWriter::new);
+    let shared2 = Arc::clone(shared);
+    let mut shown = shown(source);
+    let input: Box<dyn Input> = match source {
+        Source::Udp(addr) => {
+            let addr = resolve(addr)?;
+            let socket = UdpSocket::bind(addr).with_context(|| format!("{shown}: binding {addr}"))?;
+            socket.set_read_timeout(Some(POLL))?;
+            shown = format!("udpin:{}", socket.local_addr()?);
+            Box::new(socket)
+        }
+        Source::Tcp(addr) => {
+            let addr = resolve(addr)?;
+            let stream = TcpStream::connect_timeout(&addr, Duration::from_secs(10))
+                .with_context(|| format!("{shown}: connecting to {addr}"))?;
+            stream.set_read_timeout(Some(POLL))?;
+            Box::new(stream)
+        }
+        Source::Serial(path, baud) => Box::new(open_device(path, Some(*baud), &shown)?),
+        Source::Lines(path, baud) if path.as_os_str() == "-" && baud.is_none() => Box::new(std::io::stdin()),
+        Source::Lines(path, baud) => Box::new(open_device(path, *baud, &shown)?),
+    };
+    let mavlink = source.is_mavlink();
+    let reading = shown.clone();
+    let reader = std::thread::Builder::new()
+        .name("magcal-live-reader".into())
+        .spawn(move || {
+            let how = if mavlink {
+                read_mavlink(input, &shared2, recorder)
+            } else {
+                read_lines(input, &shared2, recorder)
+            };
+            shared2.end(how.map_err(|e| format!("{shown}: {e:#}")));
+        })
+        .context("starting the reader")?;
+    Ok((reader, reading))
+}
+
+/// The source as the messages name it.
+pub fn shown(source: &Source) -> String {
+    match source {
+        Source::Udp(a) => format!("udpin:{a}"),
+        Source::Tcp(a) => format!("tcp:{a}"),
+        Source::Serial(p, b) => format!("serial:{}:{b}", p.display()),
+        Source::Lines(p, _) if p.as_os_str() == "-" => "standard input".to_string(),
+        Source::Lines(p, Some(b)) => format!("lines:{}:{b}", p.display()),
+        Source::Lines(p, None) => format!("lines:{}", p.display()),
+    }
+}
+
+fn resolve(addr: &str) -> Result<SocketAddr> {
+    addr.to_socket_addrs()
+        .with_context(|| format!("{addr}: not an address HOST:PORT"))?
+        .next()
+        .with_context(|| format!("{addr}: resolves to no address"))
+}
+
+/// A device or file, set raw at `baud` where one is given.
+fn open_device(path: &std::path::Path, baud: Option<u32>, shown: &str) -> Result<File> {
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .open(path)
+        .with_context(|| format!("{shown}: opening {}", path.display()))?;
+    if let Some(baud) = baud {
+        set_baud(&file, baud).with_context(|| format!("{shown}: setting {} to {baud} baud", path.display()))?;
+    }
+    Ok(file)
+}
+
+#[cfg(unix)]
+fn set_baud(file: &File, baud: u32) -> Result<()> {
+    use rustix::termios::{OptionalActions, tcgetattr, tcsetattr};
+    let mut t = tcgetattr(file).context("not a terminal device")?;
+    t.make_raw();
+    t.set_speed(baud)?;
+    tcsetattr(file, OptionalActions::Now, &t)?;
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn set_baud(_file: &File, _baud: u32) -> Result<()> {
+    bail!("a baud rate is set on Unix only: open the port at its rate with another tool and give lines:PATH")
+}
+
+/// Bytes from a source: `Ok(None)` when nothing arrived within [`POLL`], `Ok(Some(0))` at its
+/// end.
+trait Input: Send {
+    fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>>;
+}
+
+fn timed_out(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+    )
+}
+
+impl Input for UdpSocket {
+    fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
+        match self.recv_from(buf) {
+            // An empty datagram is not the end of a UDP source, which has none.
+            Ok((n, _)) => Ok((n > 0).then_some(n)),
+            Err(e) if timed_out(&e) => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+impl Input for TcpStream {
+    fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
+        match self.read(buf) {
+            Ok(n) => Ok(Some(n)),
+            Err(e) if timed_out(&e) => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+impl Input for File {
+    fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
+        match self.read(buf) {
+            Ok(n) => Ok(Some(n)),
+            Err(e) if e.kind() == ErrorKind::Interrupted => Ok(None),
+            // A pseudo-terminal whose other end closed reads EIO: its end.
+            Err(e) if e.raw_os_error() == Some(5) => Ok(Some(0)),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+impl Input for std::io::Stdin {
+    fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
+        match self.read(buf) {
+            Ok(n) => Ok(Some(n)),
+            Err(e) if e.kind() == ErrorKind::Interrupted => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+/// Microseconds since 1970 now, a telemetry log's reception stamp.
+fn now_us() -> u64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
+}
+
+/// Reads MAVLink until the source ends or the command stops: each valid frame a telemetry
+/// log's record, `PARAM_VALUE` pinned by its name.
+fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option<BufWriter<File>>) -> Result<()> {
+    let mut framer = Framer::default();
+    let mut buf = vec![0u8; 1 << 16];
+    while !shared.stopping() {
+        let Some(n) = input.next(&mut buf)? else { continue };
+        if n == 0 {
+            return Ok(());
+        }
+        let stamp = now_us();
+        let mut records = Vec::new();
+        framer.push(&buf[..n], |frame, id| {
+            let pin = (id == PARAM_VALUE).then(|| param_name(frame));
+            records.push((record(stamp, frame), pin));
+        });
+        if let Some(w) = recorder.as_mut() {
+            for (r, _) in &records {
+                w.write_all(r).context("--record")?;
+            }
+            w.flush().context("--record")?;
+        }
+        let mut state = shared.lock();
+        let c = &mut state.counts;
+        c.bytes += n as u64;
+        c.last = Some(Instant::now());
+        (c.frames, c.bad_crc, c.unknown, c.between) = (framer.valid, framer.bad_crc, framer.unknown, framer.between);
+        for (r, pin) in records {
+            state.ring.push(r, pin);
+        }
+        drop(state);
+        shared.changed.notify_all();
+    }
+    Ok(())
+}
+
+/// The name of the parameter of a `PARAM_VALUE` frame (its key among the pinned records).
+fn param_name(frame: &[u8]) -> Vec<u8> {
+    let header = if frame.first() == Some(&0xFD) { 10 } else { 6 };
+    // param_value (4 bytes), param_count, param_index (2 each), then the 16-byte name; a v2
+    // frame may end its payload early (trailing zeros dropped).
+    let start = (header + 8).min(frame.len());
+    let end = (header + 24).min(frame.len().saturating_sub(2)).max(start);
+    let name = &frame[start..end];
+    let cut = name.iter().position(|&b| b == 0).unwrap_or(name.len());
+    name[..cut].to_vec()
+}
+
+/// How the lines of a source are read: decided by its first line that is not empty.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum LineKind {
+    /// MotionCal's `Raw:ax,ay,az,gx,gy,gz,mx,my,mz` (integers; the magnetometer in 0.1 uT),
+    /// written as CSV rows `mx,my,mz` in uT.
+    Raw,
+    /// CSV rows as they come; a first row with a cell that is not a number is the header.
+    Csv,
+}
+
+/// Reads lines until the source ends or the command stops.
+fn read_lines(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option<BufWriter<File>>) -> Result<()> {
+    let mut buf = vec![0u8; 1 << 14];
+    let mut line: Vec<u8> = Vec::new();
+    let mut too_long = false;
+    let mut kind = None;
+    while !shared.stopping() {
+        let Some(n) = input.next(&mut buf)? else { continue };
+        if n == 0 {
+            break;
+        }
+        let mut taken: Vec<(Vec<u8>, Option<Vec<u8>>)> = Vec::new();
+        let mut counts = (0u64, 0u64, 0u64);
+        let mut head = None;
+        for &b in &buf[..n] {
+            if b != b'\n' {
+                if line.len() < MAX_LINE {
+                    line.push(b);
+                } else {
+                    too_long = true;
+                }
+                continue;
+            }
+            if too_long {
+                counts.2 += 1;
+            } else {
+                take_line(&line, &mut kind, &mut taken, &mut counts, &mut head);
+            }
+            line.clear();
+            too_long = false;
+        }
+        if let Some(w) = recorder.as_mut() {
+            if let Some(h) = &head {
+                w.write_all(h).context("--record")?;
+            }
+            for (r, _) in &taken {
+                w.write_all(r).context("--record")?;
+            }
+            w.flush().context("--record")?;
+        }
+        let mut state = shared.lock();
+        if let Some(h) = head {
+            state.head = h;
+            if kind == Some(LineKind::Raw) {
+                state.units = Some(Units::MicroTesla);
+            }
+        }
+        let c = &mut state.counts;
+        c.bytes += n as u64;
+        c.last = Some(Instant::now());
+        c.lines += counts.0;
+        c.other_lines += counts.1;
+        c.malformed_lines += counts.2;
+        for (r, pin) in taken {
+            state.ring.push(r, pin);
+        }
+        drop(state);
+        shared.changed.notify_all();
+    }
+    // A last line without its end is counted, not taken: it may be cut.
+    if !line.is_empty() || too_long {
+        shared.lock().counts.malformed_lines += 1;
+    }
+    Ok(())
+}
+
+/// One line: a reading (`taken`), the CSV header (`head`), or counted as another line or a
+/// malformed one (`counts`: readings, other, malformed).
+fn take_line(
+    line: &[u8],
+    kind: &mut Option<LineKind>,
+    taken: &mut Vec<(Vec<u8>, Option<Vec<u8>>)>,
+    counts: &mut (u64, u64, u64),
+    head: &mut Option<Vec<u8>>,
+) {
+    let text = String::from_utf8_lossy(line);
+    let text = text.trim();
+    if text.is_empty() {
+        return;
+    }
+    // A line of the sketch's other kinds (`Uni:`, `Cal1:`) decides nothing.
+    let tag = text.split_once(':').map(|(t, _)| t).filter(|t| {
+        t.chars().next().is_some_and(|c| c.is_ascii_alphabetic()) && t.chars().all(|c| c.is_ascii_alphanumeric())
+    });
+    if kind.is_none() && tag.is_some_and(|t| t != "Raw") {
+        counts.1 += 1;
+        return;
+    }
+    let first = kind.is_none();
+    let k = *kind.get_or_insert_with(|| {
+        if tag == Some("Raw") {
+            *head = Some(b"mx,my,mz\n".to_vec());
+            LineKind::Raw
+        } else {
+            LineKind::Csv
+        }
+    });
+    match k {
+        LineKind::Raw => match text.strip_prefix("Raw:") {
+            Some(rest) => match raw_uT(rest) {
+                Some(m) => {
+                    taken.push((format!("{},{},{}\n", m[0], m[1], m[2]).into_bytes(), None));
+                    counts.0 += 1;
+                }
+                None => counts.2 += 1,
+            },
+            None => counts.1 += 1,
+        },
+        LineKind::Csv if tag.is_some() => counts.1 += 1,
+        LineKind::Csv => {
+            let mut row = text.as_bytes().to_vec();
+            row.push(b'\n');
+            if first && text.split(',').any(|c| c.trim().parse::<f64>().is_err()) {
+                *head = Some(row);
+            } else {
+                taken.push((row, None));
+                counts.0 += 1;
+            }
+        }
+    }
+}
+
+/// The magnetometer of a MotionCal `Raw:` line (after `Raw:`), in uT: nine integers, the last
+/// three in 0.1 uT.
+#[allow(non_snake_case)]
+fn raw_uT(rest: &str) -> Option<[f64; 3]> {
+    let cells: Vec<i64> = rest
+        .split(',')
+        .map(|c| c.trim().parse::<i64>())
+        .collect::<Result<_, _>>()
+        .ok()?;
+    if cells.len() != 9 {
+        return None;
+    }
+    Some([cells[6], cells[7], cells[8]].map(|v| v as f64 / 10.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sources_are_parsed_and_bad_ones_named() {
+        assert_eq!(
+            "udpin:127.0.0.1:14550".parse(),
+            Ok(Source::Udp("127.0.0.1:14550".into()))
+        );
+        assert_eq!("tcp:localhost:5760".parse(), Ok(Source::Tcp("localhost:5760".into())));
+        assert_eq!(
+            "serial:/dev/ttyUSB0:57600".parse(),
+            Ok(Source::Serial(PathBuf::from("/dev/ttyUSB0"), 57600))
+        );
+        assert_eq!(
+            "lines:/dev/ttyACM0:115200".parse(),
+            Ok(Source::Lines(PathBuf::from("/dev/ttyACM0"), Some(115_200)))
+        );
+        assert_eq!(
+            "lines:log.csv".parse(),
+            Ok(Source::Lines(PathBuf::from("log.csv"), None))
+        );
+        assert_eq!("-".parse(), Ok(Source::Lines(PathBuf::from("-"), None)));
+        for bad in [
+            "udpin:",
+            "serial:/dev/ttyUSB0",
+            "serial:/dev/x:12",
+            "mavlink",
+            "ftp:host:21",
+        ] {
+            let e = bad.parse::<Source>().unwrap_err();
+            assert!(e.starts_with(bad), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn raw_lines_become_rows_in_microtesla_and_the_rest_is_counted() {
+        let (mut kind, mut taken, mut counts, mut head) = (None, Vec::new(), (0, 0, 0), None);
+        for l in [
+            "Uni:0,0",
+            "Raw:1,2,3,4,5,6,123,-45,6",
+            "Cal1:0,0",
+            "Raw:1,2,3",
+            "Raw:1,2,3,4,5,6,7,8,x",
+            "",
+        ] {
+            take_line(l.as_bytes(), &mut kind, &mut taken, &mut counts, &mut head);
+        }
+        assert_eq!(kind, Some(LineKind::Raw));
+        assert_eq!(head.as_deref(), Some(&b"mx,my,mz\n"[..]));
+        assert_eq!(taken, vec![(b"12.3,-4.5,0.6\n".to_vec(), None)]);
+        assert_eq!(counts, (1, 2, 2));
+    }
+
+    #[test]
+    fn a_csv_stream_keeps_its_header() {
+        let (mut kind, mut taken, mut counts, mut head) = (None, Vec::new(), (0, 0, 0), None);
+        for l in ["t,mx,my,mz", "0.1,1,2,3", "Raw:1,2,3,4,5,6,7,8,9", "0.2,4,5,6"] {
+            take_line(l.as_bytes(), &mut kind, &mut taken, &mut counts, &mut head);
+        }
+        assert_eq!(head.as_deref(), Some(&b"t,mx,my,mz\n"[..]));
+        assert_eq!(taken.len(), 2);
+        assert_eq!(counts, (2, 1, 0));
+    }
+
+    #[test]
+    fn a_param_value_frame_is_pinned_by_its_name() {
+        // A MAVLink 1 PARAM_VALUE: header, value, count, index, name "COMPASS_OFS_X", type, CRC.
+        let mut frame = vec![0xFE, 25, 0, 1, 1, 22];
+        frame.extend_from_slice(&[0; 8]);
+        frame.extend_from_slice(b"COMPASS_OFS_X\0\0\0");
+        frame.extend_from_slice(&[9, 0, 0]);
+        assert_eq!(param_name(&frame), b"COMPASS_OFS_X");
+    }
+}

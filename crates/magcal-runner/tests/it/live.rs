@@ -1,0 +1,404 @@
+//! `magcal live`: a test vehicle streams MAVLink over loopback UDP from a known sensor while it
+//! turns through a scenario's attitudes, and a MotionCal sketch writes `Raw:` lines into a
+//! pseudo-terminal. What `live` fits must be what `calibrate` and `next` say of the same
+//! readings saved by `--record`.
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::UdpSocket;
+use std::path::Path;
+use std::process::{Child, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use mavlink::dialects::ardupilotmega::{
+    ATTITUDE_DATA, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavParamType, MavType, PARAM_VALUE_DATA, RAW_IMU_DATA,
+};
+use mavlink::{MavHeader, MavlinkVersion, write_versioned_msg};
+use serde_json::Value;
+use tempfile::TempDir;
+
+use crate::common::{magcal, magcal_process};
+
+/// The offsets in force on the test vehicle, mGauss: the raw readings are sent with them added.
+const OFS: [f32; 3] = [-30.0, 12.5, 44.0];
+
+/// One MAVLink 2 frame from the vehicle (system 1, component 1).
+fn frame(msg: &MavMessage) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    let header = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    write_versioned_msg(&mut bytes, MavlinkVersion::V2, header, msg).unwrap();
+    bytes
+}
+
+/// The rows of a simulated log: roll, pitch, true heading (degrees) and the reading (nT) in the
+/// paper's body frame (nose, up, right).
+fn simulated(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6]> {
+    let csv = dir.join("sim.csv");
+    magcal()
+        .args([
+            "simulate",
+            scenario,
+            "--design",
+            design,
+            "--seed",
+            &seed.to_string(),
+            "--out",
+        ])
+        .arg(&csv)
+        .assert()
+        .success();
+    let mut reader = csv::Reader::from_path(&csv).unwrap();
+    let names: Vec<String> = reader.headers().unwrap().iter().map(str::to_string).collect();
+    let at = |n: &str| names.iter().position(|h| h == n).unwrap();
+    let cols = ["roll_deg", "pitch_deg", "true_heading_deg", "mx", "my", "mz"].map(at);
+    reader
+        .records()
+        .map(|r| {
+            let r = r.unwrap();
+            cols.map(|c| r[c].parse::<f64>().unwrap())
+        })
+        .collect()
+}
+
+/// The vehicle's frames: its heartbeat and compass parameters, then per row an `ATTITUDE` and a
+/// `RAW_IMU` with the reading turned into forward, right, down (mGauss, offsets added).
+fn vehicle_frames(rows: &[[f64; 6]]) -> Vec<Vec<u8>> {
+    let mut out = vec![frame(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        mavtype: MavType::MAV_TYPE_SURFACE_BOAT,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        ..HEARTBEAT_DATA::default()
+    }))];
+    for (c, a) in ["X", "Y", "Z"].iter().enumerate() {
+        out.push(frame(&MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+            param_value: OFS[c],
+            param_count: 0,
+            param_index: 0,
+            param_id: format!("COMPASS_OFS_{a}").as_str().into(),
+            param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+        })));
+    }
+    for (i, r) in rows.iter().enumerate() {
+        let t_ms = 1000 + 20 * i as u32;
+        out.push(frame(&MavMessage::ATTITUDE(ATTITUDE_DATA {
+            time_boot_ms: t_ms,
+            roll: r[0].to_radians() as f32,
+            pitch: r[1].to_radians() as f32,
+            yaw: r[2].to_radians() as f32,
+            ..ATTITUDE_DATA::default()
+        })));
+        let frd = [r[3], r[5], -r[4]];
+        let mag = |a: usize| (frd[a] / 100.0 + f64::from(OFS[a])).round() as i16;
+        out.push(frame(&MavMessage::RAW_IMU(RAW_IMU_DATA {
+            time_usec: u64::from(t_ms) * 1000,
+            xmag: mag(0),
+            ymag: mag(1),
+            zmag: mag(2),
+            ..RAW_IMU_DATA::default()
+        })));
+    }
+    out
+}
+
+/// `magcal live` started with `args`, its standard error read by a thread: the first line (what
+/// it reads) comes back at once, the rest when it ends.
+fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<String>>) {
+    let mut child = magcal_process()
+        .arg("live")
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (first_tx, first_rx) = mpsc::channel();
+    let (all_tx, all_rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = Vec::new();
+        for line in BufReader::new(stderr).lines() {
+            let line = line.unwrap();
+            if lines.is_empty() {
+                let _ = first_tx.send(line.clone());
+            }
+            lines.push(line);
+        }
+        let _ = all_tx.send(lines);
+    });
+    let first = first_rx
+        .recv_timeout(Duration::from_secs(30))
+        .expect("live said nothing");
+    (child, first, all_rx)
+}
+
+/// The JSON `live --json` printed, its standard error, and its exit code.
+fn finish_live(mut child: Child, stderr: &mpsc::Receiver<Vec<String>>) -> (Value, Vec<String>, i32) {
+    let mut out = String::new();
+    std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut out).unwrap();
+    let status = child.wait().unwrap();
+    let lines = stderr.recv_timeout(Duration::from_secs(30)).unwrap();
+    let json = serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {out:?} {lines:#?}"));
+    (json, lines, status.code().unwrap())
+}
+
+fn json_of(path: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
+}
+
+/// The numbers of a calibration that must agree to the last bit between two fits of the same
+/// readings.
+const SAME: [&str; 7] = [
+    "bias",
+    "psi_deg",
+    "scale",
+    "magnitude",
+    "samples",
+    "usable",
+    "log_sha256",
+];
+
+#[test]
+fn a_vehicle_streaming_mavlink_over_udp_is_calibrated_as_its_recorded_tlog_is() {
+    let tmp = TempDir::new().unwrap();
+    let scenario = "../../scenarios/usv.toml";
+    let rows = simulated(tmp.path(), scenario, "plan300", 7);
+    let frames = vehicle_frames(&rows);
+    let (out, record) = (tmp.path().join("out"), tmp.path().join("stream.tlog"));
+    let (child, first, stderr) = start_live(&[
+        "udpin:127.0.0.1:0",
+        "--out",
+        out.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--scenario",
+        scenario,
+        "--idle",
+        "2",
+        "--every",
+        "0.2",
+        "--json",
+    ]);
+    let addr = first
+        .strip_prefix("live: reading udpin:")
+        .and_then(|s| s.split(';').next())
+        .unwrap_or_else(|| panic!("{first}"));
+    let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
+    // Some frames a datagram, as a radio bridge sends them, with a damaged one among them.
+    for (k, chunk) in frames.chunks(5).enumerate() {
+        let mut datagram: Vec<u8> = chunk.concat();
+        if k == 3 {
+            let mut bad = frames[frames.len() - 1].clone();
+            bad[12] ^= 0x55;
+            datagram.extend(bad);
+        }
+        vehicle.send_to(&datagram, addr).unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let (live, lines, code) = finish_live(child, &stderr);
+    assert_eq!(code, 0, "{lines:#?}");
+    assert_eq!(live["frames"], frames.len() as u64, "{live}");
+    assert!(live["bad_crc"].as_u64().unwrap() >= 1, "{live}");
+    assert_eq!(live["dropped_records"], 0);
+    assert_eq!(live["readings"], rows.len() as u64);
+    assert_eq!(live["usable"], true, "{live}");
+    assert!(live["fits"].as_u64().unwrap() >= 1);
+    // The set live wrote is calibrate's of the recorded telemetry log, to the last bit.
+    let written = json_of(&out.join("calibration.json"));
+    let again = tmp.path().join("again");
+    magcal()
+        .args(["calibrate", record.to_str().unwrap(), "--scenario", scenario, "--out"])
+        .arg(&again)
+        .assert()
+        .success();
+    let calibrated = json_of(&again.join("calibration.json"));
+    for key in SAME {
+        assert_eq!(written[key], calibrated[key], "{key}");
+    }
+    // The sensor is the vehicle's: the offsets in force undone, the bias is the simulated
+    // sensor's (none) within four standard errors.
+    for a in 0..3 {
+        let (b, se) = (
+            written["bias"][a].as_f64().unwrap(),
+            written["std_error"]["bias"][a].as_f64().unwrap(),
+        );
+        assert!(b.abs() < 4.0 * se, "bias {a}: {b} +- {se}");
+    }
+    // The attitude it asks for next is next's for the same readings.
+    let next = magcal()
+        .args(["next"])
+        .arg(out.join("calibration.json"))
+        .arg(&record)
+        .args(["--scenario", scenario, "--count", "1", "--json"])
+        .output()
+        .unwrap();
+    assert!(next.status.success(), "{}", String::from_utf8_lossy(&next.stderr));
+    let next: Value = serde_json::from_slice(&next.stdout).unwrap();
+    assert_eq!(live["next"], next["attitudes"][0], "{live}");
+}
+
+#[test]
+fn motioncal_raw_lines_through_a_pseudo_terminal_calibrate_as_their_recorded_csv() {
+    let tmp = TempDir::new().unwrap();
+    let rows = simulated(tmp.path(), "../../scenarios/glider.toml", "plan300", 3);
+    let (mut master, slave) = pty();
+    let (out, record) = (tmp.path().join("out"), tmp.path().join("stream.csv"));
+    let source = format!("lines:{slave}:115200");
+    let (child, first, stderr) = start_live(&[
+        &source,
+        "--out",
+        out.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(first.starts_with(&format!("live: reading {source}")), "{first}");
+    // The sketch's lines: accelerometer and gyroscope, then the magnetometer in 0.1 uT; a line
+    // of another kind and a cut one among them.
+    let mut text = String::from("Cal1:0,0,0\n");
+    for r in &rows {
+        let m = [r[3], r[4], r[5]].map(|v| (v / 100.0).round() as i64);
+        text += &format!("Raw:0,0,8192,0,0,0,{},{},{}\n", m[0], m[1], m[2]);
+    }
+    text += "Raw:1,2,3\n";
+    master.write_all(text.as_bytes()).unwrap();
+    master.flush().unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    drop(master);
+    let (live, lines, code) = finish_live(child, &stderr);
+    assert_eq!(code, 0, "{lines:#?} {live}");
+    assert_eq!(live["lines"], rows.len() as u64);
+    assert_eq!(live["malformed_lines"], 1);
+    assert_eq!(live["other_lines"], 1);
+    assert_eq!(live["usable"], true, "{live}");
+    let written = json_of(&out.join("calibration.json"));
+    assert_eq!(written["units"], "uT");
+    let again = tmp.path().join("again");
+    magcal()
+        .args(["calibrate", record.to_str().unwrap(), "--units", "uT", "--out"])
+        .arg(&again)
+        .assert()
+        .success();
+    let calibrated = json_of(&again.join("calibration.json"));
+    for key in SAME {
+        assert_eq!(written[key], calibrated[key], "{key}");
+    }
+}
+
+/// A pseudo-terminal: its master end, and its slave's path.
+fn pty() -> (std::fs::File, String) {
+    use std::os::fd::FromRawFd;
+    let (mut master, mut slave) = (0, 0);
+    // SAFETY: openpty writes two descriptors; null name, termios and window size are allowed.
+    let rc = unsafe {
+        libc::openpty(
+            &mut master,
+            &mut slave,
+            std::ptr::null_mut(),
+            std::ptr::null(),
+            std::ptr::null(),
+        )
+    };
+    assert_eq!(rc, 0, "openpty: {}", std::io::Error::last_os_error());
+    // Neither end may pass to the processes the tests start, or the master never hangs up.
+    for fd in [master, slave] {
+        // SAFETY: fcntl on a descriptor just opened.
+        assert_eq!(unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) }, 0);
+    }
+    let path = std::fs::read_link(format!("/proc/self/fd/{slave}")).unwrap();
+    // SAFETY: both descriptors were just opened and are owned here; the slave stays open until
+    // live has opened it, so that the master does not read EIO first.
+    let master = unsafe { std::fs::File::from_raw_fd(master) };
+    std::mem::forget(unsafe { std::fs::File::from_raw_fd(slave) });
+    (master, path.display().to_string())
+}
+
+#[test]
+fn sources_and_options_that_cannot_work_are_refused_before_anything_is_written() {
+    let tmp = TempDir::new().unwrap();
+    let out = tmp.path().join("out");
+    let exists = tmp.path().join("exists.tlog");
+    std::fs::write(&exists, b"x").unwrap();
+    for (args, says) in [
+        (vec!["ftp:host:21"], "unknown source kind"),
+        (vec!["serial:/dev/null"], "give the baud rate"),
+        (vec!["udpin:256.0.0.1:14550"], "not an address"),
+        (vec!["lines:/no/such/device"], "opening /no/such/device"),
+        (vec!["lines:/dev/null:9600"], "not a terminal device"),
+        (
+            vec!["udpin:127.0.0.1:0", "--record", exists.to_str().unwrap()],
+            "must not exist",
+        ),
+        (vec!["udpin:127.0.0.1:0", "--every", "0"], "--every 0"),
+        (vec!["udpin:127.0.0.1:0", "--format", "csv"], "--format"),
+    ] {
+        let o = magcal()
+            .arg("live")
+            .args(&args)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?}");
+    }
+    assert_eq!(std::fs::read(&exists).unwrap(), b"x");
+}
+
+#[test]
+fn a_stream_that_ends_without_a_usable_fit_writes_the_last_and_exits_3() {
+    let tmp = TempDir::new().unwrap();
+    let out = tmp.path().join("out");
+    // Twenty readings at one attitude: nothing is determined.
+    let text: String = (0..20)
+        .map(|i| format!("Raw:0,0,0,0,0,0,{},{},{}\n", 200 + i % 2, -100, 400))
+        .collect();
+    let o = magcal()
+        .args(["live", "-", "--json", "--out"])
+        .arg(&out)
+        .write_stdin(text)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(3), "{}", String::from_utf8_lossy(&o.stderr));
+    let live: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(live["usable"], false);
+    assert_eq!(live["written_usable"], false);
+    assert_eq!(live["readings"], 20);
+    // No model fits twenty readings at one attitude: nothing to write.
+    assert_eq!(live["written_fit"], Value::Null);
+    assert!(!out.exists());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("no fit was usable") && err.contains("nothing written"),
+        "{err}"
+    );
+    // Forty at attitudes that determine a fit the verdict refuses: its set is written, and says so.
+    let rows = simulated(tmp.path(), "../../scenarios/usv.toml", "optimum12", 1);
+    let text: String = rows
+        .iter()
+        .take(12)
+        .map(|r| {
+            format!(
+                "Raw:0,0,0,0,0,0,{},{},{}\n",
+                (r[3] / 100.0).round(),
+                (r[4] / 100.0).round(),
+                (r[5] / 100.0).round()
+            )
+        })
+        .collect();
+    let o = magcal()
+        .args(["live", "-", "--json", "--out"])
+        .arg(&out)
+        .write_stdin(text)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    let live: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(live["written_usable"], false, "{live}");
+    assert_eq!(json_of(&out.join("calibration.json"))["usable"], false);
+    assert!(err.contains("its set is in"), "{err}");
+}
