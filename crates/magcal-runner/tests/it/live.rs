@@ -106,6 +106,12 @@ fn vehicle_frames(rows: &[[f64; 6]]) -> Vec<Vec<u8>> {
 /// `magcal live` started with `args`, its standard error read by a thread: the first line (what
 /// it reads) comes back at once, the rest when it ends.
 fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<String>>) {
+    let (child, mut first, all) = start_live_lines(args, 1);
+    (child, first.remove(0), all)
+}
+
+/// As [`start_live`], with its first `n` lines.
+fn start_live_lines(args: &[&str], n: usize) -> (Child, Vec<String>, mpsc::Receiver<Vec<String>>) {
     let mut child = magcal_process()
         .arg("live")
         .args(args)
@@ -120,16 +126,20 @@ fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<String>>) {
         let mut lines = Vec::new();
         for line in BufReader::new(stderr).lines() {
             let line = line.unwrap();
-            if lines.is_empty() {
+            if lines.len() < n {
                 let _ = first_tx.send(line.clone());
             }
             lines.push(line);
         }
         let _ = all_tx.send(lines);
     });
-    let first = first_rx
-        .recv_timeout(Duration::from_secs(30))
-        .expect("live said nothing");
+    let first = (0..n)
+        .map(|_| {
+            first_rx
+                .recv_timeout(Duration::from_secs(30))
+                .expect("live said too little")
+        })
+        .collect();
     (child, first, all_rx)
 }
 
@@ -401,4 +411,284 @@ fn a_stream_that_ends_without_a_usable_fit_writes_the_last_and_exits_3() {
     assert_eq!(live["written_usable"], false, "{live}");
     assert_eq!(json_of(&out.join("calibration.json"))["usable"], false);
     assert!(err.contains("its set is in"), "{err}");
+}
+
+/// One HTTP/1.1 request to the page's server: the status code and the body.
+fn http(addr: &str, method: &str, path: &str, host: &str) -> (u16, Vec<u8>) {
+    use std::io::Read;
+    let mut stream = std::net::TcpStream::connect(addr).unwrap();
+    write!(
+        stream,
+        "{method} {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut reply = Vec::new();
+    stream.read_to_end(&mut reply).unwrap();
+    let end = reply.windows(4).position(|w| w == b"\r\n\r\n").expect("a header");
+    let code = String::from_utf8_lossy(&reply[9..12]).parse().unwrap();
+    (code, reply[end + 4..].to_vec())
+}
+
+/// The page's status once `done` holds of it (at most 60 s).
+fn status_when(addr: &str, done: impl Fn(&Value) -> bool) -> Value {
+    let started = std::time::Instant::now();
+    loop {
+        let (code, body) = http(addr, "GET", "/status.json", addr);
+        assert_eq!(code, 200);
+        let status: Value = serde_json::from_slice(&body).unwrap();
+        if done(&status) {
+            return status;
+        }
+        assert!(started.elapsed() < Duration::from_secs(60), "{status}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The drawing of a canvas of the page, as PNG bytes.
+fn canvas(tab: &crate::browser::Tab, id: &str) -> Vec<u8> {
+    use base64::Engine;
+    let url = tab
+        .evaluate(&format!("document.getElementById('{id}').toDataURL('image/png')"))
+        .unwrap();
+    let data = url.as_str().unwrap().strip_prefix("data:image/png;base64,").unwrap();
+    base64::engine::general_purpose::STANDARD.decode(data).unwrap()
+}
+
+/// The page's text of `id` once the page shows the fit `fit` (at most 30 s).
+fn page_text_at(tab: &crate::browser::Tab, fit: u64, id: &str) -> String {
+    let started = std::time::Instant::now();
+    loop {
+        let verdict = tab.evaluate("document.getElementById('verdict').textContent").unwrap();
+        if verdict.as_str().is_some_and(|v| v.contains(&format!("fit {fit},"))) {
+            return tab
+                .evaluate(&format!("document.getElementById('{id}').textContent"))
+                .unwrap()
+                .as_str()
+                .unwrap()
+                .to_string();
+        }
+        assert!(started.elapsed() < Duration::from_secs(30), "{verdict}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_server() {
+    let Some(browser) = crate::browser::chromium() else {
+        return;
+    };
+    let tmp = TempDir::new().unwrap();
+    let scenario = "../../scenarios/usv.toml";
+    let rows = simulated(tmp.path(), scenario, "plan300", 11);
+    let frames = vehicle_frames(&rows);
+    let out = tmp.path().join("out");
+    let (child, first, stderr) = start_live_lines(
+        &[
+            "udpin:127.0.0.1:0",
+            "--out",
+            out.to_str().unwrap(),
+            "--scenario",
+            scenario,
+            "--page",
+            "0",
+            "--every",
+            "0.2",
+            "--idle",
+            "3",
+            "--json",
+        ],
+        2,
+    );
+    let udp = first[0]
+        .strip_prefix("live: reading udpin:")
+        .and_then(|s| s.split(';').next())
+        .unwrap()
+        .to_string();
+    let addr = first[1]
+        .strip_prefix("live: page at http://")
+        .and_then(|s| s.strip_suffix('/'))
+        .unwrap_or_else(|| panic!("{first:?}"))
+        .to_string();
+    assert!(addr.starts_with("127.0.0.1:"), "{addr}");
+    // Another host's name for the same address, and a method that is not GET, are refused.
+    assert_eq!(http(&addr, "GET", "/status.json", "attacker.example:80").0, 403);
+    assert_eq!(http(&addr, "POST", "/status.json", &addr).0, 405);
+    assert_eq!(http(&addr, "GET", "/../calibration.json", &addr).0, 404);
+    let tab = browser.new_tab().unwrap();
+    for domain in ["Runtime", "Network", "Page", "Log"] {
+        tab.call(&format!("{domain}.enable"), serde_json::json!({})).unwrap();
+    }
+    tab.call("Page.bringToFront", serde_json::json!({})).unwrap();
+    let url = format!("http://{addr}/");
+    tab.call("Page.navigate", serde_json::json!({ "url": url })).unwrap();
+    tab.wait_for("Page.loadEventFired", Duration::from_secs(60)).unwrap();
+    let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let send = |frames: &[Vec<u8>]| {
+        for chunk in frames.chunks(5) {
+            vehicle.send_to(&chunk.concat(), &udp).unwrap();
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    };
+    // The heartbeat, the parameters and the first third of the turns, then the rest.
+    let third = 4 + 2 * (rows.len() / 3);
+    send(&frames[..third]);
+    let early = status_when(&addr, |s| s["readings"] == rows.len() / 3);
+    let fit = early["fit"].as_u64().unwrap();
+    let early_next = page_text_at(&tab, fit, "next");
+    let early_shots = [canvas(&tab, "sphere"), canvas(&tab, "box"), canvas(&tab, "headings")];
+    send(&frames[third..]);
+    let late = status_when(&addr, |s| s["readings"] == rows.len());
+    let late_fit = late["fit"].as_u64().unwrap();
+    let late_next = page_text_at(&tab, late_fit, "next");
+    let late_shots = [canvas(&tab, "sphere"), canvas(&tab, "box"), canvas(&tab, "headings")];
+    // The coverage grew where the vehicle turned: every figure was drawn again, differently.
+    for (k, (a, b)) in early_shots.iter().zip(&late_shots).enumerate() {
+        assert_ne!(a, b, "figure {k} unchanged");
+    }
+    assert!(late["attitudes"].as_array().unwrap().len() > early["attitudes"].as_array().unwrap().len());
+    // The page says the attitude of each status, as the status gives it.
+    for (text, status) in [(&early_next, &early), (&late_next, &late)] {
+        // Rounded as the page rounds: -0.3 is "0".
+        let roll = status["next"]["roll_deg"].as_f64().unwrap().round() + 0.0;
+        assert!(text.starts_with(&format!("roll {roll:.0}, pitch ")), "{text} {status}");
+    }
+    assert_ne!(early["next"], late["next"], "the next attitude did not change");
+    let (live, lines, code) = finish_live(child, &stderr);
+    assert_eq!(code, 0, "{lines:#?}");
+    assert_eq!(live["usable"], true);
+    // Nothing but the page's own server was asked for anything, and nothing failed.
+    let mut asked = Vec::new();
+    for event in tab.events() {
+        match event["method"].as_str() {
+            Some("Network.requestWillBeSent") => {
+                asked.push(event["params"]["request"]["url"].as_str().unwrap().to_string());
+            }
+            Some("Runtime.exceptionThrown") => panic!("{event}"),
+            Some("Runtime.consoleAPICalled") if event["params"]["type"] == "error" => panic!("{event}"),
+            _ => {}
+        }
+    }
+    assert!(asked.iter().any(|u| u.ends_with("/status.json")), "{asked:?}");
+    let own = format!("http://{addr}/");
+    assert!(asked.iter().all(|u| u.starts_with(&own)), "{asked:?}");
+    let _ = tab.close();
+}
+
+/// The test vehicle's autopilot: answers each `PARAM_SET` that reaches `socket` with the
+/// `PARAM_VALUE` of the value it then holds (`hold` of the name and the value sent), until `stop`.
+/// Returns the parameters it was sent.
+fn autopilot(
+    socket: UdpSocket,
+    hold: fn(&str, f32) -> f32,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> std::thread::JoinHandle<Vec<(String, f32)>> {
+    std::thread::spawn(move || {
+        socket.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+        let mut framer = magcal_runner::log::tlog::Framer::default();
+        let mut got = Vec::new();
+        let mut buf = [0u8; 2048];
+        while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+            let Ok((n, from)) = socket.recv_from(&mut buf) else {
+                continue;
+            };
+            let mut sets = Vec::new();
+            framer.push(&buf[..n], |frame, id| {
+                if id == 23 {
+                    let header = if frame[0] == 0xFD { 10 } else { 6 };
+                    let mut p = frame[header..header + usize::from(frame[1])].to_vec();
+                    p.resize(23, 0);
+                    let value = f32::from_le_bytes([p[0], p[1], p[2], p[3]]);
+                    let end = p[6..22].iter().position(|&b| b == 0).unwrap_or(16);
+                    sets.push((String::from_utf8_lossy(&p[6..6 + end]).into_owned(), value));
+                }
+            });
+            for (name, value) in sets {
+                let reply = frame(&MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+                    param_value: hold(&name, value),
+                    param_count: 0,
+                    param_index: 0,
+                    param_id: name.as_str().into(),
+                    param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+                }));
+                socket.send_to(&reply, from).unwrap();
+                got.push((name, value));
+            }
+        }
+        got
+    })
+}
+
+/// `live --send` against the test vehicle whose autopilot holds `hold` of each value sent.
+fn send_to_vehicle(hold: fn(&str, f32) -> f32) -> (Value, Vec<String>, i32, Vec<(String, f32)>, TempDir) {
+    let tmp = TempDir::new().unwrap();
+    let scenario = "../../scenarios/usv.toml";
+    let frames = vehicle_frames(&simulated(tmp.path(), scenario, "plan300", 5));
+    let out = tmp.path().join("out");
+    let (child, first, stderr) = start_live(&["udpin:127.0.0.1:0", "--out", out.to_str().unwrap(), "--send", "--json"]);
+    let addr = first
+        .strip_prefix("live: reading udpin:")
+        .and_then(|s| s.split(';').next())
+        .unwrap()
+        .to_string();
+    let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let pilot = autopilot(vehicle.try_clone().unwrap(), hold, std::sync::Arc::clone(&stop));
+    for chunk in frames.chunks(5) {
+        vehicle.send_to(&chunk.concat(), &addr).unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let (live, lines, code) = finish_live(child, &stderr);
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    (live, lines, code, pilot.join().unwrap(), tmp)
+}
+
+#[test]
+fn a_usable_calibration_sent_to_the_vehicle_is_read_back_and_a_value_it_does_not_hold_is_named() {
+    let (live, lines, code, got, tmp) = send_to_vehicle(|_, v| v);
+    assert_eq!(code, 0, "{lines:#?}");
+    assert_eq!(live["usable"], true);
+    // The vehicle was sent every parameter of the ArduPilot export, with its value.
+    let export = magcal()
+        .args(["export"])
+        .arg(tmp.path().join("out/calibration.json"))
+        .args(["--to", "ardupilot"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8(export.stdout).unwrap();
+    let exported: Vec<(String, f32)> = text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+        .map(|l| {
+            let (n, v) = l.split_once(',').unwrap();
+            (n.to_string(), v.parse::<f64>().unwrap() as f32)
+        })
+        .collect();
+    assert!(exported.len() >= 10, "{text}");
+    let mut sent = got.clone();
+    sent.sort_by(|a, b| a.0.cmp(&b.0));
+    sent.dedup_by(|a, b| a.0 == b.0);
+    let mut wanted = exported.clone();
+    wanted.sort_by(|a, b| a.0.cmp(&b.0));
+    assert_eq!(sent, wanted);
+    assert_eq!(
+        live["sent"]["equal"].as_array().unwrap().len(),
+        exported.len(),
+        "{live}"
+    );
+    assert_eq!(live["sent"]["system"], 1);
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.contains(&format!("{} read back equal", exported.len()))),
+        "{lines:#?}"
+    );
+    // An autopilot that rounds the offsets to whole mGauss does not hold what was sent: named.
+    let (live, lines, code, _, _) = send_to_vehicle(|n, v| if n == "COMPASS_OFS_X" { v.round() + 0.5 } else { v });
+    assert_eq!(code, 3, "{lines:#?}");
+    assert_eq!(live["sent"]["differ"][0][0], "COMPASS_OFS_X", "{live}");
+    let last = lines.last().unwrap();
+    assert!(
+        last.contains("does not hold") && last.contains("COMPASS_OFS_X reads back"),
+        "{last}"
+    );
 }

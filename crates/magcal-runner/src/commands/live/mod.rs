@@ -15,12 +15,14 @@
 //! the fit under way, with what it has written whole.
 
 pub mod buffer;
+pub mod page;
+pub mod send;
 pub mod source;
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -67,9 +69,19 @@ pub struct LiveArgs {
     /// Seconds between the starts of two fits, at least.
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0, value_parser = crate::limits::finite)]
     pub every: f64,
+    /// Serve a page that follows the fits on http://127.0.0.1:PORT/ (0: a free port, printed):
+    /// the verdict, the attitude to visit next, the field directions and attitudes covered, the
+    /// export. Bound to this machine only.
+    #[arg(long, value_name = "PORT")]
+    pub page: Option<u16>,
     /// End at the first usable fit.
     #[arg(long)]
     pub until_usable: bool,
+    /// Send the first usable calibration to the vehicle (MAVLink sources) and end: `PARAM_SET`
+    /// of each parameter `export --to ardupilot` writes, over the link it streams on, each read
+    /// back from the autopilot's `PARAM_VALUE` and compared (exit 3 unless every one holds).
+    #[arg(long)]
+    pub send: bool,
     /// End when nothing arrived for this many seconds (default: a network or serial source runs
     /// until Ctrl-C; a file or standard input ends at its end).
     #[arg(long, value_name = "SECONDS", value_parser = crate::limits::finite)]
@@ -168,11 +180,21 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
         .collect();
     drop(ResultSet::begin(&args.out, Target::Calibration, &inputs)?);
     let shared = Shared::new(usize::try_from(args.memory_mib << 20).unwrap_or(usize::MAX));
-    let (_reader, reading) = source::start(&args.source, &shared, record)?;
+    let started = source::start(&args.source, &shared, record)?;
+    let (reading, mut link) = (started.reading, started.link);
     to_stderr!(
         "live: reading {reading}; fits at most every {} s; Ctrl-C ends it",
         args.every
     );
+    let status = Arc::new(Mutex::new(page::Status {
+        source: reading.clone(),
+        out: args.out.display().to_string(),
+        ..page::Status::default()
+    }));
+    if let Some(port) = args.page {
+        let addr = page::serve(port, &shared, &status)?;
+        to_stderr!("live: page at http://{addr}/");
+    }
     let stop = Arc::clone(&shared);
     // A second handler cannot be set in one process (the library bindings run commands in theirs).
     let _ = ctrlc::set_handler(move || {
@@ -180,13 +202,23 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
         stop.changed.notify_all();
     });
     let snapshot = Snapshot::new(args.source.is_mavlink());
-    let result = fit_loop(args, &shared, &snapshot, &inputs);
+    let view = View {
+        status,
+        bounds: box_of(args),
+    };
+    let result = fit_loop(args, &shared, &snapshot, &inputs, &view, &mut link);
     shared.stop.store(true, Ordering::Relaxed);
     result
 }
 
 /// Options that do not depend on the stream.
 fn check(args: &LiveArgs) -> Result<()> {
+    if args.send && !args.source.is_mavlink() {
+        bail!(
+            "--send: {} carries lines, not MAVLink: there is no vehicle to send parameters to",
+            source::shown(&args.source)
+        );
+    }
     if args.every <= 0.0 {
         bail!("--every {}: give a positive number of seconds", args.every);
     }
@@ -270,6 +302,8 @@ struct LiveJson {
     written_fit: Option<u64>,
     written_usable: bool,
     out: String,
+    /// With `--send`: the parameters sent and what the vehicle read back.
+    sent: Option<send::SentJson>,
 }
 
 /// What the fit loop knows between fits.
@@ -280,10 +314,91 @@ struct Progress {
     fits: u64,
     /// The fit whose set `--out` holds, and whether it was usable.
     written: Option<(u64, bool)>,
+    /// What `--send` sent and read back, or why it could not.
+    sent: Option<Result<send::SentJson, String>>,
     last: Option<Fitted>,
 }
 
-fn fit_loop(args: &LiveArgs, shared: &Arc<Shared>, snapshot: &Snapshot, inputs: &[&Path]) -> Result<(), Failure> {
+/// What the page shows besides the fits: its status, and the box's roll and pitch ranges
+/// (degrees).
+struct View {
+    status: Arc<Mutex<page::Status>>,
+    bounds: Option<[[f64; 2]; 2]>,
+}
+
+/// The roll and pitch ranges of the box of `--scenario` or the flags, degrees.
+fn box_of(args: &LiveArgs) -> Option<[[f64; 2]; 2]> {
+    let place = args.site.zip(args.date).map(|(site, date)| crate::log::gps::Place {
+        site,
+        date,
+        model: args.wmm,
+    });
+    let vehicle = crate::log::vehicle::Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())
+        .ok()
+        .flatten()?;
+    let deg = |r: &magcal_core::AngleRange| [r.min().to_degrees(), r.max().to_degrees()];
+    Some([deg(&vehicle.bounds.roll), deg(&vehicle.bounds.pitch)])
+}
+
+/// Puts the fit `f` into the page's status.
+fn publish(view: &View, progress: &Progress, f: &Fitted, export: Option<String>) {
+    let mut s = view.status.lock().unwrap_or_else(PoisonError::into_inner);
+    s.fit = progress.fits;
+    s.readings = f.readings;
+    s.fit_seconds = f.seconds;
+    s.reasons.clone_from(&f.why);
+    s.next = f.next.clone().ok().flatten();
+    s.next_error = f.next.clone().err();
+    s.written_fit = progress.written.map(|w| w.0);
+    s.written_usable = progress.written.is_some_and(|w| w.1);
+    if export.is_some() {
+        s.export = export;
+    }
+    [s.roll_box, s.pitch_box] = view.bounds.map_or([None, None], |[r, p]| [Some(r), Some(p)]);
+    let json = f.json.as_ref();
+    s.usable = json.is_some_and(|j| j.usable);
+    s.model = json.map(|j| j.fit.clone());
+    s.units = json.and_then(|j| j.units.clone());
+    s.magnitude = json.map(|j| j.magnitude);
+    s.bias = json.map(|j| j.bias);
+    s.scale = json.map(|j| j.scale);
+    s.psi_deg = json.map(|j| j.psi_deg);
+    s.bias_se = json.and_then(|j| j.std_error.bias);
+    s.scale_se = json.and_then(|j| j.std_error.scale);
+    s.psi_se_deg = json.and_then(|j| j.std_error.psi_deg);
+    s.gap_percent = json.map(|j| j.coverage.motioncal_gap_percent);
+    let (Some(j), Some(log)) = (json, f.log.as_ref()) else {
+        s.directions.clear();
+        s.regions.clear();
+        s.attitudes.clear();
+        return;
+    };
+    let body: Vec<magcal_core::Vec3> = log.readings.iter().map(|r| j.apply_body(*r)).collect();
+    s.regions = magcal_core::log_fit::motioncal_region_counts(&body).to_vec();
+    s.directions = page::thinned(body.len(), page::MAX_POINTS)
+        .map(|i| {
+            let b = body[i];
+            let n = magcal_core::small::norm(b);
+            [
+                b[1].atan2(b[0]).to_degrees(),
+                (b[2] / n).clamp(-1.0, 1.0).asin().to_degrees(),
+            ]
+        })
+        .collect();
+    let flown: Vec<&magcal_core::small::Mat3> = log.attitudes.iter().flatten().flatten().collect();
+    s.attitudes = page::thinned(flown.len(), page::MAX_POINTS)
+        .map(|i| magcal_core::aviation::roll_pitch_heading_deg(flown[i]))
+        .collect();
+}
+
+fn fit_loop(
+    args: &LiveArgs,
+    shared: &Arc<Shared>,
+    snapshot: &Snapshot,
+    inputs: &[&Path],
+    view: &View,
+    link: &mut Option<source::Link>,
+) -> Result<(), Failure> {
     let mut progress = Progress::default();
     let mut seen = 0u64;
     let mut last_start: Option<Instant> = None;
@@ -336,18 +451,30 @@ fn fit_loop(args: &LiveArgs, shared: &Arc<Shared>, snapshot: &Snapshot, inputs: 
             progress.dropped = dropped;
             let fitted = fit(args, &snapshot.path, units);
             status(args, &progress, &fitted, &counts, dropped, held, tty);
-            if fitted.json.as_ref().is_some_and(|j| j.usable) {
+            let mut export = None;
+            if let Some(json) = fitted.json.as_ref().filter(|j| j.usable) {
                 write_set(args, &fitted, inputs)?;
+                let text = export_text(args, json);
                 if progress.written.is_none_or(|(_, usable)| !usable) && !args.json {
-                    announce(args, fitted.json.as_ref().unwrap_or_else(|| unreachable!()))?;
+                    announce(args, json, &text)?;
                 }
                 progress.written = Some((progress.fits, true));
-                if args.until_usable {
-                    progress.last = Some(fitted);
-                    break;
+                if args.send {
+                    let sent = send_export(&text, link, shared);
+                    match &sent {
+                        Ok(j) => to_stderr!("live: {}", j.words()),
+                        Err(e) => to_stderr!("live: nothing sent: {e}"),
+                    }
+                    progress.sent = Some(sent);
                 }
+                export = Some(text);
             }
+            publish(view, &progress, &fitted, export);
+            let done = (args.until_usable || args.send) && progress.written.is_some_and(|w| w.1);
             progress.last = Some(fitted);
+            if done {
+                break;
+            }
         }
         if ended.is_some() {
             break;
@@ -399,6 +526,13 @@ fn fit(args: &LiveArgs, path: &Path, units: Option<Units>) -> Fitted {
     fitted.log = Some(log);
     fitted.seconds = started.elapsed().as_secs_f64();
     fitted
+}
+
+/// The ArduPilot parameters of `export` sent over `link`, read back and compared.
+fn send_export(export: &str, link: &mut Option<source::Link>, shared: &Shared) -> Result<send::SentJson, String> {
+    let link = link.as_mut().ok_or("the source has no sending end")?;
+    let parameters = send::parameters(export).map_err(|e| format!("{e:#}"))?;
+    send::send(link, shared, &parameters).map_err(|e| format!("{e:#}"))
 }
 
 /// A failure in words.
@@ -477,6 +611,11 @@ fn next_attitude(
         .map_err(|e| first_words(&format!("{e:#}"), path))
 }
 
+/// `x` rounded to a whole number, without the sign of a negative zero (-0.3 is "0", not "-0").
+fn whole(x: f64) -> f64 {
+    x.round() + 0.0
+}
+
 /// One line on stderr: what arrived, what was kept and dropped, the fit and the next attitude;
 /// on a terminal it replaces the line before.
 fn status(args: &LiveArgs, progress: &Progress, f: &Fitted, c: &Counts, dropped: u64, held: usize, tty: bool) {
@@ -506,10 +645,14 @@ fn status(args: &LiveArgs, progress: &Progress, f: &Fitted, c: &Counts, dropped:
     }
     match &f.next {
         Ok(Some(a)) => {
-            line += &format!(" | next: roll {:.0}, pitch {:.0}, ", a.roll_deg, a.pitch_deg);
+            line += &format!(
+                " | next: roll {:.0}, pitch {:.0}, ",
+                whole(a.roll_deg),
+                whole(a.pitch_deg)
+            );
             line += &match a.magnetic_heading_deg {
-                Some(m) => format!("magnetic heading {m:.0} deg"),
-                None => format!("true heading {:.0} deg", a.true_heading_deg),
+                Some(m) => format!("magnetic heading {:.0} deg", whole(m)),
+                None => format!("true heading {:.0} deg", whole(a.true_heading_deg)),
             };
         }
         Ok(None) => {}
@@ -539,18 +682,25 @@ fn write_set(args: &LiveArgs, fitted: &Fitted, inputs: &[&Path]) -> Result<()> {
 }
 
 /// The first usable fit: said on stdout, with the export for the source's autopilot.
-fn announce(args: &LiveArgs, json: &CalibrationJson) -> Result<()> {
+fn announce(args: &LiveArgs, json: &CalibrationJson, export: &str) -> Result<()> {
     let to = if args.source.is_mavlink() {
         "ardupilot"
     } else {
         "motioncal"
     };
-    let mut text = format!(
-        "usable at {} readings: {} written; its export (magcal export {} --to {to}):\n",
+    let text = format!(
+        "usable at {} readings: {} written; its export (magcal export {} --to {to}):\n{export}",
         json.samples,
         args.out.join("calibration.json").display(),
         args.out.join("calibration.json").display()
     );
+    crate::output::file::to_stdout(|w| Ok(w.write_all(text.as_bytes())?))?;
+    Ok(())
+}
+
+/// The export of a usable fit for the source's autopilot (ArduPilot for MAVLink, MotionCal for
+/// lines), or why there is none.
+fn export_text(args: &LiveArgs, json: &CalibrationJson) -> String {
     let export = super::export::ExportArgs {
         calibration: args.out.join("calibration.json"),
         to: if args.source.is_mavlink() {
@@ -566,11 +716,9 @@ fn announce(args: &LiveArgs, json: &CalibrationJson) -> Result<()> {
         out: None,
     };
     match super::export::made(&export, json, "the live fit", "") {
-        Ok(made) => text += &String::from_utf8_lossy(&made.text),
-        Err(e) => text += &format!("(no export: {})\n", words(&e)),
+        Ok(made) => String::from_utf8_lossy(&made.text).into_owned(),
+        Err(e) => format!("(no export: {})\n", words(&e)),
     }
-    crate::output::file::to_stdout(|w| Ok(w.write_all(text.as_bytes())?))?;
-    Ok(())
 }
 
 /// The end: where no fit was usable, the last fit's set is written (as `calibrate` writes an
@@ -605,12 +753,28 @@ fn finish(args: &LiveArgs, mut progress: Progress, inputs: &[&Path]) -> Result<(
             written_fit: progress.written.map(|w| w.0),
             written_usable: progress.written.is_some_and(|w| w.1),
             out: args.out.display().to_string(),
+            sent: progress.sent.clone().and_then(Result::ok),
         };
         crate::output::file::to_stdout(|w| {
             serde_json::to_writer_pretty(&mut *w, &json)?;
             writeln!(w)?;
             Ok(())
         })?;
+    }
+    match &progress.sent {
+        Some(Err(why)) => {
+            return Err(Failure::Unusable(format!(
+                "the calibration in {} is usable, but nothing was sent: {why}",
+                args.out.display()
+            )));
+        }
+        Some(Ok(sent)) if !sent.confirmed() => {
+            return Err(Failure::Unusable(format!(
+                "the vehicle does not hold the calibration sent: {}",
+                sent.words()
+            )));
+        }
+        _ => {}
     }
     if let Some(last) = progress.last.as_ref().filter(|l| l.bad_option) {
         return Err(Failure::Input(anyhow::anyhow!("{}", last.why)));

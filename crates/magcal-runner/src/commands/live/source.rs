@@ -22,6 +22,8 @@ use crate::scenario::site::Units;
 /// `PARAM_VALUE`'s message id: a vehicle's parameters are sent once, when a ground station asks,
 /// and must outlive the ring.
 const PARAM_VALUE: u32 = 22;
+/// `HEARTBEAT`'s message id: the autopilot's says which system to send parameters to.
+const HEARTBEAT: u32 = 0;
 /// The longest text line taken, bytes; a longer one is counted as malformed.
 const MAX_LINE: usize = 4096;
 /// How often a waiting reader looks whether the command is ending.
@@ -119,6 +121,11 @@ pub struct State {
     pub ended: Option<Result<(), String>>,
     /// The readings' units where the lines fix them (MotionCal's `Raw:` lines: uT).
     pub units: Option<Units>,
+    /// MAVLink: the autopilot's system and component (from its `HEARTBEAT`), the address its
+    /// datagrams come from (UDP), and each parameter's last value with its arrival.
+    pub vehicle: Option<(u8, u8)>,
+    pub peer: Option<SocketAddr>,
+    pub params: std::collections::BTreeMap<String, (f32, Instant)>,
 }
 
 /// The shared state and the signal of new records.
@@ -139,6 +146,9 @@ impl Shared {
                 head: Vec::new(),
                 ended: None,
                 units: None,
+                vehicle: None,
+                peer: None,
+                params: std::collections::BTreeMap::new(),
             }),
             changed: Condvar::new(),
             stop: AtomicBool::new(false),
@@ -160,39 +170,76 @@ impl Shared {
     }
 }
 
+/// The sending end of a MAVLink source.
+pub enum Link {
+    /// The UDP socket: parameters go to the address the vehicle's frames came from.
+    Udp(UdpSocket),
+    Tcp(TcpStream),
+    /// A serial device opened for writing.
+    Serial(std::fs::File),
+}
+
+impl Link {
+    /// Writes `bytes` to the vehicle (over UDP, to `peer`).
+    ///
+    /// # Errors
+    /// No peer yet (UDP), or the write fails.
+    pub fn send(&mut self, bytes: &[u8], peer: Option<SocketAddr>) -> Result<()> {
+        match self {
+            Self::Udp(s) => {
+                let peer = peer.context("no frame came from the vehicle's address yet")?;
+                s.send_to(bytes, peer)?;
+            }
+            Self::Tcp(s) => s.write_all(bytes)?,
+            Self::Serial(f) => f.write_all(bytes)?,
+        }
+        Ok(())
+    }
+}
+
+/// The reader started, what it reads in words (a UDP source with the port it was bound to), and
+/// the sending end of a MAVLink source.
+pub struct Started {
+    pub reader: std::thread::JoinHandle<()>,
+    pub reading: String,
+    pub link: Option<Link>,
+}
+
 /// Opens `source` (binding, connecting or opening it: its errors come back here) and starts its
-/// reader, which writes every record it keeps to `record` as well. Returns the reader and what it
-/// reads in words (a UDP source with the port it was bound to).
+/// reader, which writes every record it keeps to `record` as well.
 ///
 /// # Errors
 /// An address that does not resolve or cannot be bound or reached, a device or file that cannot
 /// be opened or set to its baud rate.
-pub fn start(
-    source: &Source,
-    shared: &Arc<Shared>,
-    record: Option<File>,
-) -> Result<(std::thread::JoinHandle<()>, String)> {
+pub fn start(source: &Source, shared: &Arc<Shared>, record: Option<File>) -> Result<Started> {
     let recorder = record.map(BufWriter::new);
     let shared2 = Arc::clone(shared);
     let mut shown = shown(source);
+    let mut link = None;
     let input: Box<dyn Input> = match source {
         Source::Udp(addr) => {
             let addr = resolve(addr)?;
             let socket = UdpSocket::bind(addr).with_context(|| format!("{shown}: binding {addr}"))?;
             socket.set_read_timeout(Some(POLL))?;
             shown = format!("udpin:{}", socket.local_addr()?);
-            Box::new(socket)
+            link = Some(Link::Udp(socket.try_clone()?));
+            Box::new(Udp { socket, peer: None })
         }
         Source::Tcp(addr) => {
             let addr = resolve(addr)?;
             let stream = TcpStream::connect_timeout(&addr, Duration::from_secs(10))
                 .with_context(|| format!("{shown}: connecting to {addr}"))?;
             stream.set_read_timeout(Some(POLL))?;
+            link = Some(Link::Tcp(stream.try_clone()?));
             Box::new(stream)
         }
-        Source::Serial(path, baud) => Box::new(open_device(path, Some(*baud), &shown)?),
+        Source::Serial(path, baud) => {
+            let device = open_device(path, Some(*baud), &shown, true)?;
+            link = Some(Link::Serial(device.try_clone()?));
+            Box::new(device)
+        }
         Source::Lines(path, baud) if path.as_os_str() == "-" && baud.is_none() => Box::new(std::io::stdin()),
-        Source::Lines(path, baud) => Box::new(open_device(path, *baud, &shown)?),
+        Source::Lines(path, baud) => Box::new(open_device(path, *baud, &shown, false)?),
     };
     let mavlink = source.is_mavlink();
     let reading = shown.clone();
@@ -207,7 +254,7 @@ pub fn start(
             shared2.end(how.map_err(|e| format!("{shown}: {e:#}")));
         })
         .context("starting the reader")?;
-    Ok((reader, reading))
+    Ok(Started { reader, reading, link })
 }
 
 /// The source as the messages name it.
@@ -229,10 +276,11 @@ fn resolve(addr: &str) -> Result<SocketAddr> {
         .with_context(|| format!("{addr}: resolves to no address"))
 }
 
-/// A device or file, set raw at `baud` where one is given.
-fn open_device(path: &std::path::Path, baud: Option<u32>, shown: &str) -> Result<File> {
+/// A device or file (for writing too with `write`), set raw at `baud` where one is given.
+fn open_device(path: &std::path::Path, baud: Option<u32>, shown: &str, write: bool) -> Result<File> {
     let file = std::fs::OpenOptions::new()
         .read(true)
+        .write(write)
         .open(path)
         .with_context(|| format!("{shown}: opening {}", path.display()))?;
     if let Some(baud) = baud {
@@ -260,6 +308,17 @@ fn set_baud(_file: &File, _baud: u32) -> Result<()> {
 /// end.
 trait Input: Send {
     fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>>;
+
+    /// Where the last bytes came from (a UDP source).
+    fn peer(&self) -> Option<SocketAddr> {
+        None
+    }
+}
+
+/// A UDP source and the address of its last datagram.
+struct Udp {
+    socket: UdpSocket,
+    peer: Option<SocketAddr>,
 }
 
 fn timed_out(e: &std::io::Error) -> bool {
@@ -269,14 +328,21 @@ fn timed_out(e: &std::io::Error) -> bool {
     )
 }
 
-impl Input for UdpSocket {
+impl Input for Udp {
     fn next(&mut self, buf: &mut [u8]) -> std::io::Result<Option<usize>> {
-        match self.recv_from(buf) {
+        match self.socket.recv_from(buf) {
             // An empty datagram is not the end of a UDP source, which has none.
-            Ok((n, _)) => Ok((n > 0).then_some(n)),
+            Ok((n, from)) => {
+                self.peer = Some(from);
+                Ok((n > 0).then_some(n))
+            }
             Err(e) if timed_out(&e) => Ok(None),
             Err(e) => Err(e),
         }
+    }
+
+    fn peer(&self) -> Option<SocketAddr> {
+        self.peer
     }
 }
 
@@ -331,8 +397,16 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
         }
         let stamp = now_us();
         let mut records = Vec::new();
+        let mut vehicle = None;
+        let mut params = Vec::new();
         framer.push(&buf[..n], |frame, id| {
             let pin = (id == PARAM_VALUE).then(|| param_name(frame));
+            if let Some(name) = &pin {
+                params.push((String::from_utf8_lossy(name).into_owned(), param_value(frame)));
+            }
+            if id == HEARTBEAT && vehicle.is_none() {
+                vehicle = autopilot(frame);
+            }
             records.push((record(stamp, frame), pin));
         });
         if let Some(w) = recorder.as_mut() {
@@ -342,9 +416,17 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
             w.flush().context("--record")?;
         }
         let mut state = shared.lock();
+        let now = Instant::now();
+        state.peer = input.peer();
+        if state.vehicle.is_none() {
+            state.vehicle = vehicle;
+        }
+        for (name, value) in params {
+            state.params.insert(name, (value, now));
+        }
         let c = &mut state.counts;
         c.bytes += n as u64;
-        c.last = Some(Instant::now());
+        c.last = Some(now);
         (c.frames, c.bad_crc, c.unknown, c.between) = (framer.valid, framer.bad_crc, framer.unknown, framer.between);
         for (r, pin) in records {
             state.ring.push(r, pin);
@@ -353,6 +435,35 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
         shared.changed.notify_all();
     }
     Ok(())
+}
+
+/// The payload of a frame, with the zeros a MAVLink 2 frame may have cut from its end put back
+/// up to `len` bytes.
+fn payload(frame: &[u8], len: usize) -> Vec<u8> {
+    let header = if frame.first() == Some(&0xFD) { 10 } else { 6 };
+    let n = usize::from(frame.get(1).copied().unwrap_or(0));
+    let mut p = frame.get(header..header + n).unwrap_or_default().to_vec();
+    p.resize(p.len().max(len), 0);
+    p
+}
+
+/// The value of a `PARAM_VALUE` frame.
+fn param_value(frame: &[u8]) -> f32 {
+    let p = payload(frame, 4);
+    f32::from_le_bytes([p[0], p[1], p[2], p[3]])
+}
+
+/// The system and component of a `HEARTBEAT` frame sent by an autopilot (not a ground station,
+/// whose `autopilot` is `MAV_AUTOPILOT_INVALID`).
+fn autopilot(frame: &[u8]) -> Option<(u8, u8)> {
+    const INVALID: u8 = 8;
+    let p = payload(frame, 9);
+    let (system, component) = if frame.first() == Some(&0xFD) {
+        (frame[5], frame[6])
+    } else {
+        (frame[3], frame[4])
+    };
+    (p[5] != INVALID).then_some((system, component))
 }
 
 /// The name of the parameter of a `PARAM_VALUE` frame (its key among the pinned records).
