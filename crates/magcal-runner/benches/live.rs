@@ -122,7 +122,13 @@ fn run(rate: f64, seconds: f64, every: f64) {
         .unwrap()
         .trim_end_matches('/')
         .to_string();
-    std::thread::spawn(move || for _ in lines {});
+    std::thread::spawn(move || {
+        for line in lines.map_while(Result::ok) {
+            if std::env::var_os("MAGCAL_LIVE_VERBOSE").is_some() {
+                eprintln!("{line}");
+            }
+        }
+    });
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
     let start = Instant::now();
     let watcher = {
