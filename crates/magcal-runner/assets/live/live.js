@@ -13,22 +13,26 @@ function text(id, s) {
   $(id).textContent = s;
 }
 
-// Calibrated directions: azimuth (x) against elevation (y), a grid every 30 and 15 degrees.
+// Calibrated directions on MotionCal's 100 equal-area regions: longitude (x, 0 to 360 degrees
+// from the sensor's x axis towards its y axis) against the sine of the latitude (y, towards z),
+// a projection in which every region is a rectangle of the same area. A region holding three
+// readings or more is green, one or two pale; an empty one white.
 function drawSphere(s) {
   const c = $("sphere"), g = c.getContext("2d"), w = c.width, h = c.height;
+  const X = (lon) => (lon / 360) * w, Y = (sinLat) => ((1 - sinLat) / 2) * h;
   g.clearRect(0, 0, w, h);
-  g.strokeStyle = "#ddd";
-  for (let a = -180; a <= 180; a += 30) {
-    const x = ((a + 180) / 360) * w;
-    g.beginPath(); g.moveTo(x, 0); g.lineTo(x, h); g.stroke();
-  }
-  for (let e = -90; e <= 90; e += 15) {
-    const y = ((90 - e) / 180) * h;
-    g.beginPath(); g.moveTo(0, y); g.lineTo(w, y); g.stroke();
-  }
-  g.fillStyle = "#1f77b4";
-  for (const [az, el] of s.directions) {
-    g.fillRect(((az + 180) / 360) * w - 1.5, ((90 - el) / 180) * h - 1.5, 3, 3);
+  s.region_bounds.forEach((r, k) => {
+    const n = s.regions[k] || 0;
+    g.fillStyle = n >= 3 ? "#9fd69f" : n > 0 ? "#e3f2e3" : "#ffffff";
+    const x0 = X(360 * r.turn[0]), x1 = X(360 * r.turn[1]);
+    const y0 = Y(r.sin_latitude[1]), y1 = Y(r.sin_latitude[0]);
+    g.fillRect(x0, y0, x1 - x0, y1 - y0);
+    g.strokeStyle = "#bbb";
+    g.strokeRect(x0, y0, x1 - x0, y1 - y0);
+  });
+  g.fillStyle = "#1f4e9c";
+  for (const [lon, lat] of s.directions) {
+    g.fillRect(X(lon) - 1.5, Y(Math.sin((lat * Math.PI) / 180)) - 1.5, 3, 3);
   }
   const gap = s.gap_percent === null || s.gap_percent === undefined ? "-" : fmt(s.gap_percent, 1) + " %";
   text("gap", `MotionCal's gap error ${gap}; ${s.regions.filter((n) => n >= 3).length} of 100 regions hold three readings or more`);

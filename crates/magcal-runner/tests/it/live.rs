@@ -770,3 +770,135 @@ fn a_flood_beyond_the_memory_bound_keeps_the_newest_readings_and_counts_what_it_
     let held = lines.iter().rev().find(|l| l.contains(" of 1 MiB held")).unwrap();
     assert!(held.contains(&format!("{dropped} records dropped")), "{held}");
 }
+
+/// The calibration numbers of two sets that must agree to the bit.
+fn assert_same_calibration(a: &Path, b: &Path) {
+    let (a, b) = (
+        json_of(&a.join("calibration.json")),
+        json_of(&b.join("calibration.json")),
+    );
+    for key in SAME {
+        assert_eq!(a[key], b[key], "{key}");
+    }
+}
+
+#[test]
+fn mavlink_from_a_tcp_server_and_through_a_serial_line_calibrate_as_their_recordings() {
+    let tmp = TempDir::new().unwrap();
+    let scenario = "../../scenarios/usv.toml";
+    let frames = vehicle_frames(&simulated(tmp.path(), scenario, "plan300", 13));
+    // A TCP server (as SITL's 5760) that streams the vehicle's frames, then closes: the end.
+    let server = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = server.local_addr().unwrap().port();
+    let bytes = frames.concat();
+    let serving = std::thread::spawn(move || {
+        let (mut client, _) = server.accept().unwrap();
+        for chunk in bytes.chunks(700) {
+            client.write_all(chunk).unwrap();
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    });
+    let (out, record) = (tmp.path().join("tcp"), tmp.path().join("tcp.tlog"));
+    let source = format!("tcp:127.0.0.1:{port}");
+    let (child, _, stderr) = start_live(&[
+        &source,
+        "--out",
+        out.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--json",
+    ]);
+    serving.join().unwrap();
+    let (live, lines, code) = finish_live(child, &stderr);
+    assert_eq!(code, 0, "{lines:#?}");
+    assert_eq!(live["frames"], frames.len() as u64);
+    let again = tmp.path().join("tcp-again");
+    magcal()
+        .args(["calibrate", record.to_str().unwrap(), "--out"])
+        .arg(&again)
+        .assert()
+        .success();
+    assert_same_calibration(&out, &again);
+    // The same frames through a serial line (a pseudo-terminal at 57600 baud), which then hangs up.
+    let (mut master, slave) = pty();
+    let (out, record) = (tmp.path().join("serial"), tmp.path().join("serial.tlog"));
+    let source = format!("serial:{slave}:57600");
+    let (child, first, stderr) = start_live(&[
+        &source,
+        "--out",
+        out.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(first.starts_with(&format!("live: reading {source}")), "{first}");
+    for chunk in frames.concat().chunks(512) {
+        master.write_all(chunk).unwrap();
+    }
+    master.flush().unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    drop(master);
+    let (live, lines, code) = finish_live(child, &stderr);
+    assert_eq!(code, 0, "{lines:#?}");
+    assert_eq!(live["frames"], frames.len() as u64, "{live}");
+    let again = tmp.path().join("serial-again");
+    magcal()
+        .args(["calibrate", record.to_str().unwrap(), "--out"])
+        .arg(&again)
+        .assert()
+        .success();
+    assert_same_calibration(&out, &again);
+}
+
+#[test]
+fn ctrl_c_ends_live_with_its_set_and_its_recording_whole() {
+    let tmp = TempDir::new().unwrap();
+    let scenario = "../../scenarios/usv.toml";
+    let frames = vehicle_frames(&simulated(tmp.path(), scenario, "plan300", 17));
+    let (out, record) = (tmp.path().join("out"), tmp.path().join("stream.tlog"));
+    let (child, first, stderr) = start_live(&[
+        "udpin:127.0.0.1:0",
+        "--out",
+        out.to_str().unwrap(),
+        "--record",
+        record.to_str().unwrap(),
+        "--every",
+        "0.2",
+        "--json",
+    ]);
+    let addr = first
+        .strip_prefix("live: reading udpin:")
+        .and_then(|s| s.split(';').next())
+        .unwrap()
+        .to_string();
+    let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
+    for chunk in frames.chunks(5) {
+        vehicle.send_to(&chunk.concat(), &addr).unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // A network source has no end: the operator's Ctrl-C ends it, once the set is usable.
+    let started = std::time::Instant::now();
+    while !out.join("calibration.json").exists() {
+        assert!(started.elapsed() < Duration::from_secs(60), "no set written");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    // SAFETY: kill(2) with the pid of a child of this process.
+    assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) }, 0);
+    let (live, lines, code) = finish_live(child, &stderr);
+    assert_eq!(code, 0, "{lines:#?}");
+    assert_eq!(live["usable"], true);
+    // The recording holds every frame whole, and the set is the one calibrate makes of it.
+    assert_eq!(
+        std::fs::read(&record).unwrap().len(),
+        frames.iter().map(|f| 8 + f.len()).sum::<usize>()
+    );
+    assert_eq!(live["readings"], 300, "{live}");
+    let again = tmp.path().join("again");
+    magcal()
+        .args(["calibrate", record.to_str().unwrap(), "--out"])
+        .arg(&again)
+        .assert()
+        .success();
+    assert_same_calibration(&out, &again);
+}

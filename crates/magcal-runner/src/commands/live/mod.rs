@@ -375,12 +375,15 @@ fn publish(view: &View, progress: &Progress, f: &Fitted, export: Option<String>)
     };
     let body: Vec<magcal_core::Vec3> = log.readings.iter().map(|r| j.apply_body(*r)).collect();
     s.regions = magcal_core::log_fit::motioncal_region_counts(&body).to_vec();
+    if s.region_bounds.is_empty() {
+        s.region_bounds = (0..100).map(magcal_core::log_fit::motioncal_region).collect();
+    }
     s.directions = page::thinned(body.len(), page::MAX_POINTS)
         .map(|i| {
             let b = body[i];
             let n = magcal_core::small::norm(b);
             [
-                b[1].atan2(b[0]).to_degrees(),
+                b[1].atan2(b[0]).to_degrees().rem_euclid(360.0),
                 (b[2] / n).clamp(-1.0, 1.0).asin().to_degrees(),
             ]
         })

@@ -49,7 +49,10 @@ pub struct Status {
     /// its 100 regions.
     pub gap_percent: Option<f64>,
     pub regions: Vec<usize>,
-    /// Calibrated field directions: azimuth and elevation in the sensor frame, degrees.
+    /// The bounds of MotionCal's 100 equal-area regions, numbered as `regions` counts them.
+    pub region_bounds: Vec<magcal_core::log_fit::MotionCalRegion>,
+    /// Calibrated field directions in the sensor frame: longitude from the x axis towards the y
+    /// axis in [0, 360) and latitude towards z, degrees.
     pub directions: Vec<[f64; 2]>,
     /// Attitudes flown: roll, pitch, heading, degrees (NED).
     pub attitudes: Vec<[f64; 3]>,
