@@ -345,7 +345,7 @@ fn sources_and_options_that_cannot_work_are_refused_before_anything_is_written()
         (vec!["lines:/dev/null:9600"], "not a terminal device"),
         (
             vec!["udpin:127.0.0.1:0", "--record", exists.to_str().unwrap()],
-            "must not exist",
+            "it exists",
         ),
         (vec!["udpin:127.0.0.1:0", "--every", "0"], "--every 0"),
         (vec!["udpin:127.0.0.1:0", "--format", "csv"], "--format"),
@@ -363,6 +363,17 @@ fn sources_and_options_that_cannot_work_are_refused_before_anything_is_written()
         assert!(!out.exists(), "{args:?}");
     }
     assert_eq!(std::fs::read(&exists).unwrap(), b"x");
+    // A source that cannot be opened leaves no recording behind.
+    let record = tmp.path().join("new.tlog");
+    let o = magcal()
+        .args(["live", "udpin:256.0.0.1:14550", "--record"])
+        .arg(&record)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!record.exists() && !out.exists());
 }
 
 #[test]

@@ -162,6 +162,29 @@ struct Fitted {
 /// the last fit's set is written).
 pub fn run(args: &LiveArgs) -> Result<(), Failure> {
     check(args)?;
+    let inputs: Vec<&Path> = args
+        .record
+        .iter()
+        .map(PathBuf::as_path)
+        .chain(args.scenario.as_deref())
+        .collect();
+    // Everything that can be refused is, before the one file live creates at its start.
+    drop(ResultSet::begin(&args.out, Target::Calibration, &inputs)?);
+    if let Some(p) = &args.record
+        && std::fs::symlink_metadata(p).is_ok()
+    {
+        return Err(Failure::Input(anyhow::anyhow!(
+            "--record {}: it exists (live writes a new file, never over one)",
+            p.display()
+        )));
+    }
+    let shared = Shared::new(usize::try_from(args.memory_mib << 20).unwrap_or(usize::MAX));
+    let status = Arc::new(Mutex::new(page::Status {
+        source: source::shown(&args.source),
+        out: args.out.display().to_string(),
+        ..page::Status::default()
+    }));
+    let page = args.page.map(|port| page::serve(port, &shared, &status)).transpose()?;
     let record = match &args.record {
         Some(p) => Some(
             std::fs::OpenOptions::new()
@@ -172,27 +195,23 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
         ),
         None => None,
     };
-    let inputs: Vec<&Path> = args
-        .record
-        .iter()
-        .map(PathBuf::as_path)
-        .chain(args.scenario.as_deref())
-        .collect();
-    drop(ResultSet::begin(&args.out, Target::Calibration, &inputs)?);
-    let shared = Shared::new(usize::try_from(args.memory_mib << 20).unwrap_or(usize::MAX));
-    let started = source::start(&args.source, &shared, record)?;
+    let started = match source::start(&args.source, &shared, record) {
+        Ok(started) => started,
+        Err(e) => {
+            // The source could not be opened: the recording it would have had is not left behind.
+            if let Some(p) = &args.record {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(e.into());
+        }
+    };
     let (reading, mut link) = (started.reading, started.link);
     to_stderr!(
         "live: reading {reading}; fits at most every {} s; Ctrl-C ends it",
         args.every
     );
-    let status = Arc::new(Mutex::new(page::Status {
-        source: reading.clone(),
-        out: args.out.display().to_string(),
-        ..page::Status::default()
-    }));
-    if let Some(port) = args.page {
-        let addr = page::serve(port, &shared, &status)?;
+    status.lock().unwrap_or_else(PoisonError::into_inner).source = reading;
+    if let Some(addr) = page {
         to_stderr!("live: page at http://{addr}/");
     }
     let stop = Arc::clone(&shared);
