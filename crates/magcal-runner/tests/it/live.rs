@@ -110,6 +110,23 @@ fn turns(rows: &[[f64; 6]], first_ms: u32) -> Vec<Vec<u8>> {
     out
 }
 
+/// The address a `udpin:` source was bound to, from `live`'s first line.
+fn udp_address(first: &str) -> String {
+    first
+        .strip_prefix("live: reading udpin:")
+        .and_then(|s| s.split(';').next())
+        .unwrap_or_else(|| panic!("{first}"))
+        .to_string()
+}
+
+/// The vehicle's frames sent to `addr`, five to a datagram as a radio bridge sends them.
+fn fly(vehicle: &UdpSocket, frames: &[Vec<u8>], addr: &str) {
+    for chunk in frames.chunks(5) {
+        vehicle.send_to(&chunk.concat(), addr).unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
 /// `magcal live` started with `args`, its standard error read by a thread: the first line (what
 /// it reads) comes back at once, the rest when it ends.
 fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<String>>) {
@@ -197,10 +214,7 @@ fn a_vehicle_streaming_mavlink_over_udp_is_calibrated_as_its_recorded_tlog_is() 
         "0.2",
         "--json",
     ]);
-    let addr = first
-        .strip_prefix("live: reading udpin:")
-        .and_then(|s| s.split(';').next())
-        .unwrap_or_else(|| panic!("{first}"));
+    let addr = udp_address(&first);
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
     // Some frames a datagram, as a radio bridge sends them, with a damaged one among them.
     for (k, chunk) in frames.chunks(5).enumerate() {
@@ -210,7 +224,7 @@ fn a_vehicle_streaming_mavlink_over_udp_is_calibrated_as_its_recorded_tlog_is() 
             bad[12] ^= 0x55;
             datagram.extend(bad);
         }
-        vehicle.send_to(&datagram, addr).unwrap();
+        vehicle.send_to(&datagram, &addr).unwrap();
         std::thread::sleep(Duration::from_millis(2));
     }
     let (live, lines, code) = finish_live(child, &stderr);
@@ -517,11 +531,7 @@ fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_ser
         ],
         2,
     );
-    let udp = first[0]
-        .strip_prefix("live: reading udpin:")
-        .and_then(|s| s.split(';').next())
-        .unwrap()
-        .to_string();
+    let udp = udp_address(&first[0]);
     let addr = first[1]
         .strip_prefix("live: page at http://")
         .and_then(|s| s.strip_suffix('/'))
@@ -541,12 +551,7 @@ fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_ser
     tab.call("Page.navigate", serde_json::json!({ "url": url })).unwrap();
     tab.wait_for("Page.loadEventFired", Duration::from_secs(60)).unwrap();
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let send = |frames: &[Vec<u8>]| {
-        for chunk in frames.chunks(5) {
-            vehicle.send_to(&chunk.concat(), &udp).unwrap();
-            std::thread::sleep(Duration::from_millis(2));
-        }
-    };
+    let send = |frames: &[Vec<u8>]| fly(&vehicle, frames, &udp);
     // The heartbeat, the parameters and the first third of the turns, then the rest.
     let third = 4 + 2 * (rows.len() / 3);
     send(&frames[..third]);
@@ -643,18 +648,11 @@ fn send_to_vehicle(hold: fn(&str, f32) -> f32) -> (Value, Vec<String>, i32, Vec<
     let frames = vehicle_frames(&simulated(tmp.path(), scenario, "plan300", 5));
     let out = tmp.path().join("out");
     let (child, first, stderr) = start_live(&["udpin:127.0.0.1:0", "--out", out.to_str().unwrap(), "--send", "--json"]);
-    let addr = first
-        .strip_prefix("live: reading udpin:")
-        .and_then(|s| s.split(';').next())
-        .unwrap()
-        .to_string();
+    let addr = udp_address(&first);
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let pilot = autopilot(vehicle.try_clone().unwrap(), hold, std::sync::Arc::clone(&stop));
-    for chunk in frames.chunks(5) {
-        vehicle.send_to(&chunk.concat(), &addr).unwrap();
-        std::thread::sleep(Duration::from_millis(2));
-    }
+    fly(&vehicle, &frames, &addr);
     let (live, lines, code) = finish_live(child, &stderr);
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     (live, lines, code, pilot.join().unwrap(), tmp)
@@ -734,11 +732,7 @@ fn a_flood_beyond_the_memory_bound_keeps_the_newest_readings_and_counts_what_it_
         "2",
         "--json",
     ]);
-    let addr = first
-        .strip_prefix("live: reading udpin:")
-        .and_then(|s| s.split(';').next())
-        .unwrap()
-        .to_string();
+    let addr = udp_address(&first);
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
     for chunk in flood.chunks(40) {
         vehicle.send_to(&chunk.concat(), &addr).unwrap();
@@ -877,16 +871,9 @@ fn ctrl_c_ends_live_with_its_set_and_its_recording_whole() {
         "0.2",
         "--json",
     ]);
-    let addr = first
-        .strip_prefix("live: reading udpin:")
-        .and_then(|s| s.split(';').next())
-        .unwrap()
-        .to_string();
+    let addr = udp_address(&first);
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
-    for chunk in frames.chunks(5) {
-        vehicle.send_to(&chunk.concat(), &addr).unwrap();
-        std::thread::sleep(Duration::from_millis(2));
-    }
+    fly(&vehicle, &frames, &addr);
     // A network source has no end: the operator's Ctrl-C ends it, once the set is usable.
     let started = std::time::Instant::now();
     while !out.join("calibration.json").exists() {

@@ -179,9 +179,13 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
         )));
     }
     let shared = Shared::new(usize::try_from(args.memory_mib << 20).unwrap_or(usize::MAX));
+    let [roll_box, pitch_box] = box_of(args).map_or([None, None], |[r, p]| [Some(r), Some(p)]);
     let status = Arc::new(Mutex::new(page::Status {
         source: source::shown(&args.source),
         out: args.out.display().to_string(),
+        roll_box,
+        pitch_box,
+        region_bounds: (0..100).map(magcal_core::log_fit::motioncal_region).collect(),
         ..page::Status::default()
     }));
     let page = args.page.map(|port| page::serve(port, &shared, &status)).transpose()?;
@@ -221,10 +225,7 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
         stop.changed.notify_all();
     });
     let snapshot = Snapshot::new(args.source.is_mavlink());
-    let view = View {
-        status,
-        bounds: box_of(args),
-    };
+    let view = View { status };
     let result = fit_loop(args, &shared, &snapshot, &inputs, &view, &mut link);
     shared.stop.store(true, Ordering::Relaxed);
     result
@@ -338,11 +339,9 @@ struct Progress {
     last: Option<Fitted>,
 }
 
-/// What the page shows besides the fits: its status, and the box's roll and pitch ranges
-/// (degrees).
+/// What the page shows: the status of the last fit.
 struct View {
     status: Arc<Mutex<page::Status>>,
-    bounds: Option<[[f64; 2]; 2]>,
 }
 
 /// The roll and pitch ranges of the box of `--scenario` or the flags, degrees.
@@ -373,7 +372,6 @@ fn publish(view: &View, progress: &Progress, f: &Fitted, export: Option<String>)
     if export.is_some() {
         s.export = export;
     }
-    [s.roll_box, s.pitch_box] = view.bounds.map_or([None, None], |[r, p]| [Some(r), Some(p)]);
     let json = f.json.as_ref();
     s.usable = json.is_some_and(|j| j.usable);
     s.model = json.map(|j| j.fit.clone());
@@ -394,9 +392,6 @@ fn publish(view: &View, progress: &Progress, f: &Fitted, export: Option<String>)
     };
     let body: Vec<magcal_core::Vec3> = log.readings.iter().map(|r| j.apply_body(*r)).collect();
     s.regions = magcal_core::log_fit::motioncal_region_counts(&body).to_vec();
-    if s.region_bounds.is_empty() {
-        s.region_bounds = (0..100).map(magcal_core::log_fit::motioncal_region).collect();
-    }
     s.directions = page::thinned(body.len(), page::MAX_POINTS)
         .map(|i| {
             let b = body[i];
