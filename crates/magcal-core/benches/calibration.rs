@@ -158,6 +158,7 @@ fn log_fit(c: &mut Criterion) {
     let part = &readings[..magcal_core::log_fit::JUDGED_READINGS];
     let trial = magcal_core::log_fit::FitSettings {
         trials: 0,
+        held_out: false,
         profile: false,
         ..Default::default()
     };

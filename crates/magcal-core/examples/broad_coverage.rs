@@ -6,7 +6,7 @@
 //!
 //! ```text
 //! cargo run --release -p magcal-core --example broad_coverage -- ../shared/data/broad
-//!     [--windows 5,10,20,40] [--trials 200] [--rules white,shipped,andrews1,fixed0.5,frac5,...]
+//!     [--windows 5,10,20,40] [--starts 1] [--trials 200] [--rules white,shipped,andrews1,fixed0.5,frac5,...]
 //! ```
 //!
 //! For each clean trial with rotations (02, 05): the readings in nT (uT x 1000) carry \[P1\]'s
@@ -418,10 +418,15 @@ fn scored(dir: &Path, name: &'static str) -> Result<Scored, String> {
 }
 
 impl Scored {
-    /// The windows of `seconds`: index ranges into `movement`.
-    fn windows(&self, seconds: f64) -> Vec<std::ops::Range<usize>> {
+    /// The windows of `seconds`, one starting every `1 / starts` of a window: index ranges into
+    /// `movement`.
+    fn windows(&self, seconds: f64, starts: usize) -> Vec<std::ops::Range<usize>> {
         let n = (seconds * self.rate).round() as usize;
-        (0..self.movement.len() / n).map(|k| k * n..(k + 1) * n).collect()
+        let step = (n / starts).max(1);
+        (0..)
+            .map(|k| k * step..k * step + n)
+            .take_while(|w| w.end <= self.movement.len())
+            .collect()
     }
 
     /// The movement rows' truth without the window `w` (movement indices).
@@ -526,6 +531,9 @@ fn run() -> Result<(), String> {
     let mut dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/broad");
     let mut windows = vec![5.0, 10.0, 20.0, 40.0];
     let mut trials = log_fit::CHECK_TRIALS;
+    // Windows start every window (1) or every 1 / starts of one: overlapping windows measure the
+    // same coverage with more of them (not independent).
+    let mut starts = 1usize;
     let mut rules: Vec<Rule> = [
         "white", "shipped", "andrews1", "andrews2", "andrews4", "fixed0.5", "fixed1", "fixed2", "fixed5", "frac5",
         "frac20",
@@ -543,6 +551,7 @@ fn run() -> Result<(), String> {
                     .map(|s| s.parse().map_err(|_| format!("--windows: {s}")))
                     .collect::<Result<_, _>>()?
             }
+            "--starts" => starts = value("--starts")?.parse().map_err(|_| "--starts: not a number")?,
             "--trials" => trials = value("--trials")?.parse().map_err(|_| "--trials: not a number")?,
             "--rules" => {
                 rules = value("--rules")?
@@ -706,7 +715,7 @@ fn run() -> Result<(), String> {
         let mut batches: BTreeMap<String, Vec<f64>> = BTreeMap::new();
         let (mut rhos, mut inflated, mut wrong, mut m) = (Vec::new(), 0usize, 0usize, 0usize);
         for s in &trials_data {
-            let ranges = s.windows(w);
+            let ranges = s.windows(w, starts);
             count.push(format!("{} from {}", ranges.len(), &s.name[..2]));
             for range in ranges {
                 let readings: Vec<Vec3> = s.movement[range.clone()].iter().map(|&i| impose(s.rows[i].b)).collect();

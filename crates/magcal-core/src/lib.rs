@@ -66,6 +66,7 @@
 
 pub mod attitude;
 pub mod aviation;
+pub mod budget;
 pub mod calibration;
 pub mod chunked;
 pub mod design;

@@ -178,7 +178,7 @@ impl TrialCheck {
 
 /// The check of `fit`, the fit of the readings `u` under `settings` (both in the fit's frame);
 /// `None` where the noise is unknown or the fit has no sensor to simulate (a singular `P`).
-pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<TrialCheck> {
+pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<(TrialCheck, Vec<[Vec3; 3]>)> {
     let sigma = fit.noise.value().filter(|s| s.is_finite() && *s > 0.0)?;
     let k = upper_triangular_inverse(&fit.p)?;
     // Each reading's field direction under the fit, the reading of it on the fitted ellipsoid,
@@ -212,6 +212,7 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<Tr
     let trial_settings = FitSettings {
         noise: settings.noise.filter(|_| given),
         truncation: None,
+        held_out: false,
         order: match fit.serial {
             Some(s) => Order::Batch(s.batch),
             None => Order::Unknown,
@@ -255,7 +256,7 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<Tr
             std::array::from_fn(|i| (errors.iter().map(|e| e[g][i] * e[g][i]).sum::<f64>() / n).sqrt())
         })
     });
-    Some(TrialCheck {
+    let check = TrialCheck {
         planned: settings.trials,
         trials: outcomes.len(),
         ok: count(Outcome::Ok([[0.0; 3]; 3])),
@@ -267,7 +268,8 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<Tr
         every: 1,
         readings: u.len(),
         of: u.len(),
-    })
+    };
+    Some((check, errors))
 }
 
 /// Trials run at once between two looks at the count.

@@ -57,6 +57,7 @@
 mod check;
 mod coverage;
 mod field_change;
+mod held_out;
 mod lack_of_fit;
 pub mod motor;
 mod passes;
@@ -72,6 +73,9 @@ pub use coverage::{
 pub use field_change::{
     Candidate, FIELD_CHANGE_STEP, FIELD_CHANGE_Z, FieldChange, FieldChangeError, FieldChangeSettings, Segment,
     best_sphere, field_segments,
+};
+pub use held_out::{
+    COARSE_FOLDS, FoldKind, HELD_OUT_FOLDS, HELD_OUT_RATIO, HELD_OUT_RATIO_SHUFFLED, HeldOut, MIN_DETERMINED, Scale,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit, show_p};
 pub use passes::{
@@ -188,6 +192,9 @@ pub struct FitSettings {
     /// quadratic their standard errors assume ([`Profile`]), and widen the standard errors by
     /// it. Default `true`.
     pub profile: bool,
+    /// Whether the fit is also made without each fold of the log and its standard errors set
+    /// against the spread of those fits ([`HeldOut`]). Default `true`.
+    pub held_out: bool,
 }
 
 impl Default for FitSettings {
@@ -200,6 +207,7 @@ impl Default for FitSettings {
             trials: CHECK_TRIALS,
             seed: CHECK_SEED,
             profile: true,
+            held_out: true,
         }
     }
 }
@@ -269,6 +277,35 @@ pub struct EllipsoidTest {
     pub words: String,
 }
 
+/// What a standard error of a log fit is: the one a user reads is the largest of those that apply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StdSource {
+    /// The parameter is held by the model (0).
+    Fixed,
+    /// The information at the residuals' scatter or the given noise, as white noise gives it.
+    White,
+    /// The residuals' long-run covariance (readings in time order; [`serial`]).
+    LongRun,
+    /// The rms error of the check's trials ([`TrialCheck`]).
+    Trials,
+    /// The spread of the fits made without each fold ([`HeldOut`]).
+    HeldOut,
+}
+
+impl StdSource {
+    /// In words: "white noise", "long-run", "trials", "held out", "fixed".
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Self::Fixed => "fixed",
+            Self::White => "white noise",
+            Self::LongRun => "long-run covariance",
+            Self::Trials => "trials",
+            Self::HeldOut => "held out",
+        }
+    }
+}
+
 /// A calibration of a log.
 // Serialize only: it names its parts with `&'static str`, which a reader cannot borrow for ever.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -336,6 +373,16 @@ pub struct LogFit {
     pub ellipsoid: EllipsoidTest,
     /// The noisy trials at the log's own readings ([`TrialCheck`]); `None` where not run.
     pub check: Option<TrialCheck>,
+    /// The `ok` trials' errors against the sensor they were drawn from, `psi` (degrees), `S`,
+    /// `O` (the log's units), scaled as [`TrialCheck::rms_error`] is: the calibrations the check
+    /// allows, for the heading budget ([`crate::budget`]).
+    #[serde(skip)]
+    pub trial_errors: Vec<[Vec3; 3]>,
+    /// The fit made without each fold of the log ([`HeldOut`]); `None` where not made (the
+    /// settings, a fit that is not identifiable or not on an ellipsoid, a log too small).
+    pub held_out: Option<HeldOut>,
+    /// What each standard error of `psi`, `S`, `O` is ([`StdSource`]).
+    pub std_source: [[StdSource; 3]; 3],
     /// Identifiable, its model not rejected by the log, the ellipsoid test passed, the standard
     /// errors known, and its check by trials passed (where run): a calibration to use.
     pub usable: bool,
@@ -409,7 +456,29 @@ impl LogFit {
             white_std: self.white_std.map(|[p, s, o]| [p, s.map(|v| v / f), o]),
             serial_std: self.serial_std.map(|[p, s, o]| [p, s.map(|v| v / f), o]),
             check: self.check.map(|c| c.at_magnitude(f)),
+            trial_errors: self
+                .trial_errors
+                .iter()
+                .map(|[p, s, o]| [*p, s.map(|v| v / f), *o])
+                .collect(),
+            held_out: self.held_out.clone().map(|h| h.at_magnitude(f)),
             ..self.clone()
+        })
+    }
+
+    /// What each standard error rests on before the check and the held-out fits widen it: fixed,
+    /// white noise, or the long-run covariance where it is the larger.
+    fn sources_of_model(&self) -> [[StdSource; 3]; 3] {
+        std::array::from_fn(|g| {
+            std::array::from_fn(|i| {
+                if g == 0 && self.model != FitModel::Full {
+                    return StdSource::Fixed;
+                }
+                match (self.serial_std, self.white_std) {
+                    (Some(s), Some(w)) if s[g][i] > w[g][i] => StdSource::LongRun,
+                    _ => StdSource::White,
+                }
+            })
         })
     }
 
@@ -434,6 +503,9 @@ impl LogFit {
         }
         if let Some(c) = self.check.as_ref().filter(|c| !c.passed()) {
             reasons.push(format!("fails its check by trials: {}", c.words()));
+        }
+        if let Some(h) = self.held_out.as_ref().filter(|h| !h.evidence()) {
+            reasons.push(format!("no held-out evidence: {}", h.words()));
         }
         self.usable = reasons.is_empty();
         self.reasons = reasons;
@@ -499,6 +571,12 @@ impl LogFit {
             noise: self.noise.scaled(L),
             given_noise: self.given_noise.map(|v| v * L),
             check: self.check.map(|c| c.scaled(L)),
+            trial_errors: self
+                .trial_errors
+                .iter()
+                .map(|[p, s, o]| [*p, s.map(|v| v * L), o.map(|v| v * L)])
+                .collect(),
+            held_out: self.held_out.clone().map(|h| h.scaled(L)),
             white_std: self.white_std.map(|[p, s, o]| [p, s.map(|v| v * L), o.map(|v| v * L)]),
             serial_std: self.serial_std.map(|[p, s, o]| [p, s.map(|v| v * L), o.map(|v| v * L)]),
             std_scale: self.std_scale.map(|s| s.map(|v| v * L)),
@@ -542,35 +620,67 @@ pub fn fit_with(
     checked(fit_unit(&u, model, &unit)?, &u, &unit).out_of_frame(&frame, magnitude)
 }
 
-/// `f` (a fit of `u` under `settings`, in its frame) with its check by trials where the settings
-/// ask for one ([`TrialCheck`]), and the verdict redone.
+/// `f` (a fit of `u` under `settings`, in its frame) with its check by trials and its held-out
+/// fits where the settings ask for them ([`TrialCheck`], [`HeldOut`]), its standard errors widened
+/// by what they show, and the verdict redone.
 fn checked(mut f: LogFit, u: &[Vec3], settings: &FitSettings) -> LogFit {
     // The fit's own statistics are a first screen: a fit that does not settle, is not
     // identifiable or leaves the ellipsoid is not usable whatever trials would say, and is not
     // simulated (a runaway estimate is no sensor to draw readings from).
-    if settings.trials > 0 && f.identifiable && f.ellipsoid.passed {
-        f.check = judged_check(&f, u, settings);
+    if !(f.identifiable && f.ellipsoid.passed && (settings.trials > 0 || settings.held_out)) {
+        return f;
+    }
+    if settings.trials > 0
+        && let Some((check, errors)) = judged_check(&f, u, settings)
+    {
+        f.check = Some(check);
+        f.trial_errors = errors;
         // The trials' own errors are what the estimate's error is at this log's noise, curvature
         // and correlation included: a standard error is never below their rms.
-        if let Some([p, s, o]) = f.check.and_then(|c| c.rms_error) {
-            let widen = |std: &mut Option<Vec3>, rms: Vec3| {
-                if let Some(v) = std.as_mut() {
-                    *v = std::array::from_fn(|i| v[i].max(rms[i]));
+        if let Some(rms) = check.rms_error {
+            f.raise(rms, StdSource::Trials);
+        }
+    }
+    if settings.held_out {
+        f.held_out = Some(held_out::run(u, &f, settings).unwrap_or_else(HeldOut::too_few));
+        if let Some(h) = f.held_out.clone() {
+            let raised = held_out::widen(&mut f, &h);
+            for g in 0..3 {
+                for i in 0..3 {
+                    if raised[g][i] {
+                        f.std_source[g][i] = StdSource::HeldOut;
+                    }
                 }
-            };
-            if f.model == FitModel::Full {
-                widen(&mut f.std_psi_deg, p);
-            }
-            widen(&mut f.std_scale, s);
-            widen(&mut f.std_bias, o);
-            if let Some(words) = beyond_scales(&f) {
-                f.identifiable = false;
-                f.verdict = format!("not determined: the trials' errors at this log's noise exceed {words}");
             }
         }
-        f.assess();
     }
+    if let Some(words) = beyond_scales(&f) {
+        f.identifiable = false;
+        f.verdict = format!("not determined: the trials' and held-out fits' errors at this log's noise exceed {words}");
+    }
+    f.assess();
     f
+}
+
+impl LogFit {
+    /// Each standard error at least `floor` (`psi`, `S`, `O`), named `source` where raised.
+    fn raise(&mut self, floor: [Vec3; 3], source: StdSource) {
+        let full = self.model == FitModel::Full;
+        let stds = [&mut self.std_psi_deg, &mut self.std_scale, &mut self.std_bias];
+        for (g, std) in stds.into_iter().enumerate() {
+            if g == 0 && !full {
+                continue;
+            }
+            if let Some(v) = std.as_mut() {
+                for i in 0..3 {
+                    if floor[g][i] > v[i] {
+                        v[i] = floor[g][i];
+                        self.std_source[g][i] = source;
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// The readings of the first part a long log is judged on by its check and its [`Profile`]:
@@ -603,7 +713,7 @@ fn every(u: &[Vec3], k: usize) -> Vec<Vec3> {
 /// check, its errors scaled to the whole log by the ratio of the log's standard errors to the
 /// part's own fit's; where none passes, the whole log's trials do. A part whose own fit is not
 /// identifiable, or not the whole log's sensor ([`same_sensor`]), is not judged.
-fn judged_check(f: &LogFit, u: &[Vec3], settings: &FitSettings) -> Option<TrialCheck> {
+fn judged_check(f: &LogFit, u: &[Vec3], settings: &FitSettings) -> Option<(TrialCheck, Vec<[Vec3; 3]>)> {
     for k in strides(u.len()) {
         if k == 1 {
             return check::run(u, f, settings);
@@ -618,31 +728,43 @@ fn judged_check(f: &LogFit, u: &[Vec3], settings: &FitSettings) -> Option<TrialC
         if !same_sensor(&g, &f.p, f.bias) {
             continue;
         }
-        let Some(c) = check::run(&part, &g, settings).filter(|c| c.passed()) else {
+        let Some((c, errors)) = check::run(&part, &g, settings).filter(|c| c.0.passed()) else {
             continue;
         };
-        let ratio = |whole: Option<Vec3>, part: Option<Vec3>, rms: Vec3| -> Option<Vec3> {
+        // Per parameter, the ratio of the log's standard errors to the part's.
+        let ratio = |whole: Option<Vec3>, part: Option<Vec3>| -> Option<Vec3> {
             let (whole, part) = (whole?, part?);
-            Some(std::array::from_fn(|i| rms[i] * whole[i] / part[i]).map(|v: f64| if v.is_finite() { v } else { 0.0 }))
+            Some(std::array::from_fn(|i| whole[i] / part[i]).map(|v: f64| if v.is_finite() { v } else { 0.0 }))
         };
-        let rms_error = c.rms_error.and_then(|[p, sc, o]| {
+        let Some(by) = (|| {
             let p = if f.model == FitModel::Full {
-                ratio(f.std_psi_deg, g.std_psi_deg, p)?
+                ratio(f.std_psi_deg, g.std_psi_deg)?
             } else {
-                p
+                [1.0; 3]
             };
-            Some([
-                p,
-                ratio(f.std_scale, g.std_scale, sc)?,
-                ratio(f.std_bias, g.std_bias, o)?,
-            ])
-        });
-        return Some(TrialCheck {
-            rms_error,
-            every: k,
-            of: u.len(),
-            ..c
-        });
+            Some([p, ratio(f.std_scale, g.std_scale)?, ratio(f.std_bias, g.std_bias)?])
+        })() else {
+            return Some((
+                TrialCheck {
+                    rms_error: None,
+                    every: k,
+                    of: u.len(),
+                    ..c
+                },
+                Vec::new(),
+            ));
+        };
+        let scale =
+            |e: &[Vec3; 3]| -> [Vec3; 3] { std::array::from_fn(|g| std::array::from_fn(|i| e[g][i] * by[g][i])) };
+        return Some((
+            TrialCheck {
+                rms_error: c.rms_error.map(|e| scale(&e)),
+                every: k,
+                of: u.len(),
+                ..c
+            },
+            errors.iter().map(scale).collect(),
+        ));
     }
     None
 }
@@ -828,9 +950,17 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
         profile: straight,
         ellipsoid,
         check: None,
+        trial_errors: Vec::new(),
+        held_out: None,
+        std_source: [[if serial.is_some() {
+            StdSource::LongRun
+        } else {
+            StdSource::White
+        }; 3]; 3],
         usable: false,
         reasons: Vec::new(),
     };
+    f.std_source = f.sources_of_model();
     f.assess();
     Ok(f)
 }
@@ -1567,6 +1697,7 @@ mod tests {
             let (frame, u) = prepare(&readings, field, FitModel::Full, &settings).unwrap();
             let unit = FitSettings {
                 trials: 0,
+                held_out: false,
                 ..unit_settings(&frame, &settings)
             };
             let f = fit_unit(&u, FitModel::Full, &unit).unwrap();
@@ -1621,8 +1752,8 @@ mod tests {
             let (frame, u) = prepare(&readings, field, FitModel::Full, &settings).unwrap();
             let unit = unit_settings(&frame, &settings);
             let f = fit_unit(&u, FitModel::Full, &unit).unwrap();
-            let part = judged_check(&f, &u, &unit).unwrap();
-            let whole = check::run(&u, &f, &unit).unwrap();
+            let part = judged_check(&f, &u, &unit).unwrap().0;
+            let whole = check::run(&u, &f, &unit).unwrap().0;
             assert!(
                 part.every > 1 && part.readings <= JUDGED_READINGS && part.of == n,
                 "{part:?}"
@@ -1692,6 +1823,7 @@ mod tests {
         // The p-value does not depend on the check by trials, which is left out.
         let settings = FitSettings {
             trials: 0,
+            held_out: false,
             ..FitSettings::default()
         };
         (0..400)

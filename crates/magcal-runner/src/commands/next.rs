@@ -118,6 +118,7 @@ fn planning_sensor(cal: &CalibrationJson, readings: &[Vec3]) -> (CalibrationJson
     }
     let sphere = log_fit::FitSettings {
         trials: 0,
+        held_out: false,
         profile: false,
         ..log_fit::FitSettings::default()
     };

@@ -465,6 +465,8 @@ fn fit_settings(args: &CalibrateArgs, log: &Log) -> FitSettings {
         },
         seed: args.seed,
         profile: true,
+        // As the trials: the vector fit makes its own held-out fits.
+        held_out: args.fit.vector_model().is_none(),
     }
 }
 

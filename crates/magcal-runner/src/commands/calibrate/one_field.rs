@@ -198,7 +198,11 @@ fn shift_without(
         .filter(|(_, k)| **k)
         .map(|(r, _)| *r)
         .collect();
-    let refit_settings = FitSettings { trials: 0, ..*settings };
+    let refit_settings = FitSettings {
+        trials: 0,
+        held_out: false,
+        ..*settings
+    };
     log_fit::fit_with(&kept, fit.magnitude, fit.model, &refit_settings)
         .map_err(|e| format!("the log without them does not fit: {e}"))
         .and_then(|r| largest_shift(fit, &r))
@@ -331,6 +335,7 @@ fn field_change(
     let settings = FitSettings {
         truncation: None,
         trials: 0,
+        held_out: false,
         ..*settings
     };
     // Fitted to a unit field and taken to its mean radius, as the fit of a whole log: the

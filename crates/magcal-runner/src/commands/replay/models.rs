@@ -111,6 +111,7 @@ pub fn calibrate(
                 noise: Some(noise),
                 residual: two_step.residual,
                 trials: 0,
+                held_out: false,
                 profile: false,
                 ..FitSettings::default()
             };

@@ -224,6 +224,7 @@ fn whole_log_settings(scenario: &Scenario) -> FitSettings {
     FitSettings {
         residual: scenario.calibration.residual,
         trials: 0,
+        held_out: false,
         profile: false,
         ..FitSettings::default()
     }
