@@ -20,6 +20,7 @@
 //! percentile is at most the budget ([`DEFAULT_BUDGET_DEG`]).
 
 use crate::attitude::Attitude;
+use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, dot, mat_mul, mat_t_vec, mat_vec, sub};
 
 /// The heading error a calibration may leave unless the user says otherwise, degrees (95th
@@ -208,6 +209,170 @@ pub const IDENTITY: Mat3 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 /// `frame^T v`: a vector of the readings' axes in \[P1\]'s body axes.
 pub fn to_paper(frame: &Mat3, v: Vec3) -> Vec3 {
     mat_t_vec(frame, v)
+}
+
+/// Draws from a fit's standard errors where it has no trials.
+pub const DRAWS: usize = 200;
+
+/// What a fit says of the heading a vehicle will steer by (see the module documentation).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
+pub struct HeadingVerdict {
+    /// The budget, degrees.
+    pub budget_deg: f64,
+    /// The tilts flown.
+    pub tilts: Tilts,
+    /// The field's inclination, degrees.
+    pub inclination_deg: f64,
+    /// Attitudes judged.
+    pub attitudes: usize,
+    /// The 95th percentile of `|e|` over the attitudes and the calibrations of the check's `ok`
+    /// trials, degrees; `None` without trials.
+    pub by_trials_deg: Option<f64>,
+    /// Trials it rests on.
+    pub trials: usize,
+    /// The same over calibrations drawn with the standard errors the fit reports, which the
+    /// held-out fits widened where they spread further (the trials' errors rescaled to them, or
+    /// without trials independent normal draws); degrees.
+    pub with_std_deg: f64,
+    /// Calibrations drawn for it.
+    pub draws: usize,
+    /// Whether those draws are the trials' errors rescaled (else normal draws).
+    pub rescaled_trials: bool,
+    /// Whether the fit's standard errors were widened by its held-out fits.
+    pub held_out_widened: bool,
+    /// Both figures within the budget.
+    pub met: bool,
+}
+
+impl HeadingVerdict {
+    /// The larger of the two figures: what the calibration is predicted to leave.
+    pub fn predicted_deg(&self) -> f64 {
+        self.by_trials_deg
+            .map_or(self.with_std_deg, |t| t.max(self.with_std_deg))
+    }
+
+    /// Why a calibration whose budget is not met is not usable; `None` where it is met.
+    pub fn reason(&self) -> Option<String> {
+        (!self.met).then(|| {
+            format!(
+                "heading budget not met: {} ({} times the budget)",
+                self.words(),
+                significant_deg(self.predicted_deg() / self.budget_deg)
+            )
+        })
+    }
+
+    /// "heading within 2 deg (95th percentile over roll -5 to 5, pitch -20 to 20 deg, every
+    /// heading, inclination 43.0 deg): 0.42 deg by 200 trials, 0.47 with the held-out standard
+    /// errors".
+    pub fn words(&self) -> String {
+        let trials = self.by_trials_deg.map_or(String::new(), |t| {
+            format!("{} deg by {} trials, ", significant_deg(t), self.trials)
+        });
+        format!(
+            "heading within {} deg (95th percentile over {}, every heading, inclination {:.1} deg): {trials}{} deg with {}",
+            significant_deg(self.budget_deg),
+            self.tilts.words(),
+            self.inclination_deg,
+            significant_deg(self.with_std_deg),
+            match (self.held_out_widened, self.by_trials_deg.is_some()) {
+                (true, _) => "the standard errors the held-out fits widened",
+                (false, true) => "the standard errors (the held-out fits spread no further)",
+                (false, false) => "the standard errors",
+            }
+        )
+    }
+}
+
+fn significant_deg(x: f64) -> String {
+    if x >= 10.0 {
+        format!("{x:.0}")
+    } else if x >= 1.0 {
+        format!("{x:.1}")
+    } else {
+        format!("{x:.2}")
+    }
+}
+
+/// The heading `fit` leaves over `grid` against `budget_deg`, its calibrations drawn by its
+/// check's trials and by its standard errors (draws on stream `[0xFFF6]` of `seed` where it has
+/// no trials); `None` where the fit has no standard errors.
+pub fn judge(fit: &crate::log_fit::LogFit, grid: &BudgetGrid, budget_deg: f64, seed: u64) -> Option<HeadingVerdict> {
+    use rand_distr::{Distribution, StandardNormal};
+    let std = [fit.std_psi_deg?, fit.std_scale?, fit.std_bias?];
+    let centre = [fit.errors.psi_deg(), fit.errors.scale(), fit.bias];
+    let k = crate::small::upper_triangular_inverse(&fit.p)?;
+    let sensor = (&k, fit.bias);
+    let full = fit.model == crate::log_fit::FitModel::Full;
+    // The |e| of every attitude under the calibration `centre + d`; a draw that is no sensor
+    // (a scale factor at or below zero) turns every heading by 180 degrees.
+    let score = |draws: &[[Vec3; 3]]| -> f64 {
+        let mut e = Vec::with_capacity(draws.len() * grid.len());
+        for d in draws {
+            let at = |g: usize| -> Vec3 { std::array::from_fn(|i| centre[g][i] + d[g][i]) };
+            match ErrorModel::new(at(0), at(1), at(2)).ok().and_then(|m| {
+                let p = crate::small::upper_triangular_inverse(&m.K())?;
+                Some((p, at(2)))
+            }) {
+                Some((p, bias)) => grid.errors_into(sensor, fit.magnitude, (&p, bias), &mut e),
+                None => e.extend(std::iter::repeat_n(180.0, grid.len())),
+            }
+        }
+        quantile(&mut e, BUDGET_QUANTILE)
+    };
+    let trials = &fit.trial_errors;
+    let by_trials_deg = (trials.len() >= 2).then(|| score(trials));
+    let rms: [Vec3; 3] = std::array::from_fn(|g| {
+        std::array::from_fn(|i| {
+            (trials.iter().map(|e| e[g][i] * e[g][i]).sum::<f64>() / trials.len().max(1) as f64).sqrt()
+        })
+    });
+    let rescaled_trials = trials.len() >= 2 && (0..3).all(|g| (0..3).all(|i| (g == 0 && !full) || rms[g][i] > 0.0));
+    let draws: Vec<[Vec3; 3]> = if rescaled_trials {
+        trials
+            .iter()
+            .map(|e| {
+                std::array::from_fn(|g| {
+                    std::array::from_fn(|i| {
+                        if g == 0 && !full {
+                            0.0
+                        } else {
+                            e[g][i] * std[g][i] / rms[g][i]
+                        }
+                    })
+                })
+            })
+            .collect()
+    } else {
+        let mut rng = crate::rng::stream_rng(seed, crate::rng::stream_id(&[0xFFF6]));
+        (0..DRAWS)
+            .map(|_| {
+                std::array::from_fn(|g| {
+                    std::array::from_fn(|i| {
+                        let z: f64 = StandardNormal.sample(&mut rng);
+                        if g == 0 && !full { 0.0 } else { z * std[g][i] }
+                    })
+                })
+            })
+            .collect()
+    };
+    let with_std_deg = score(&draws);
+    let mut v = HeadingVerdict {
+        budget_deg,
+        tilts: grid.tilts(),
+        inclination_deg: grid.inclination_deg(),
+        attitudes: grid.len(),
+        by_trials_deg,
+        trials: if by_trials_deg.is_some() { trials.len() } else { 0 },
+        with_std_deg,
+        draws: draws.len(),
+        rescaled_trials,
+        held_out_widened: fit.held_out.as_ref().is_some_and(|h| h.widened),
+        met: false,
+    };
+    v.met = v.predicted_deg() <= budget_deg;
+    Some(v)
 }
 
 #[cfg(test)]

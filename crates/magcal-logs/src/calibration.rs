@@ -178,6 +178,53 @@ pub struct CalibrationJson {
     /// a log"); `null` where none was run (the noise unknown).
     #[serde(default)]
     pub check: Option<CheckJson>,
+    /// What each standard error is: `white noise`, `long-run covariance`, `trials`, `held out`,
+    /// `fixed` (the largest of those that apply is the one reported).
+    #[serde(default)]
+    pub std_error_source: Option<StdSourceJson>,
+    /// The fits made without each fold of the log (docs/conventions.md "Held out"); `null` where
+    /// none were made (a fit that is not identifiable, a vector fit's scalar start).
+    #[serde(default)]
+    pub held_out: Option<HeldOutJson>,
+    /// The heading the calibration leaves against the user's budget (docs/conventions.md "Heading
+    /// budget"); `null` where it could not be judged (no standard errors).
+    #[serde(default)]
+    pub heading_budget: Option<HeadingBudgetJson>,
+}
+
+/// What each standard error of `calibration.json` rests on.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StdSourceJson {
+    pub psi_deg: [String; 3],
+    pub scale: [String; 3],
+    pub bias: [String; 3],
+}
+
+/// The held-out fits of a log: the core's [`magcal_core::log_fit::HeldOut`] and its words.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct HeldOutJson {
+    #[serde(flatten)]
+    pub held_out: magcal_core::log_fit::HeldOut,
+    /// Whether the fits without a fold give evidence at all (three folds or more determine the
+    /// calibration).
+    pub evidence: bool,
+    pub words: String,
+}
+
+/// The heading budget's verdict: the core's [`magcal_core::budget::HeadingVerdict`], where its
+/// field and axes come from, and its words.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct HeadingBudgetJson {
+    #[serde(flatten)]
+    pub verdict: magcal_core::budget::HeadingVerdict,
+    /// The larger of the trials' and the standard errors' 95th percentiles, degrees.
+    pub predicted_deg: f64,
+    /// Where the inclination comes from, in words (the WMM at a site, the log's attitudes, or
+    /// assumed).
+    pub field: String,
+    /// Which of the readings' axes is up at level, in words.
+    pub axes: String,
+    pub words: String,
 }
 
 /// The residuals' correlation in time and what it does to the standard errors.

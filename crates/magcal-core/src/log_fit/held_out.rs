@@ -95,6 +95,7 @@ pub struct Scale {
     pub jackknife_quantile95: Option<f64>,
     /// Sum of squares of `|b| - R` of the readings held out under the fits without them, and
     /// their count.
+    #[serde(skip)]
     held: (f64, usize),
 }
 
@@ -173,22 +174,26 @@ impl HeldOut {
         }
     }
 
-    fn map_std(mut self, f: impl Fn([Vec3; 3]) -> [Vec3; 3], rms: impl Fn(f64) -> f64) -> Self {
+    /// Scaled into the log's units: the jackknife's standard errors of `S` and `O` by `by`; the
+    /// magnitudes `|b| - R` are the field's, which the frame does not change.
+    pub(super) fn scaled(mut self, by: f64) -> Self {
         for s in &mut self.scales {
-            s.jackknife_std = s.jackknife_std.map(&f);
-            // A sum of squares: scaled twice.
-            s.held.0 = rms(rms(s.held.0));
+            s.jackknife_std = s
+                .jackknife_std
+                .map(|[p, s, o]| [p, s.map(|v| v * by), o.map(|v| v * by)]);
         }
-        self.magnitude_rms = self.magnitude_rms.map(|m| m.map(&rms));
         self
     }
 
-    pub(super) fn scaled(self, by: f64) -> Self {
-        self.map_std(|[p, s, o]| [p, s.map(|v| v * by), o.map(|v| v * by)], |v| v * by)
-    }
-
-    pub(super) fn at_magnitude(self, f: f64) -> Self {
-        self.map_std(|[p, s, o]| [p, s.map(|v| v / f), o], |v| v * f)
+    /// At a field magnitude `f` times the old: the scale factors' standard errors by `1 / f`, the
+    /// magnitudes `|b| - R` by `f`.
+    pub(super) fn at_magnitude(mut self, f: f64) -> Self {
+        for s in &mut self.scales {
+            s.jackknife_std = s.jackknife_std.map(|[p, s, o]| [p, s.map(|v| v / f), o]);
+            s.held.0 *= f * f;
+        }
+        self.magnitude_rms = self.magnitude_rms.map(|m| m.map(|v| v * f));
+        self
     }
 }
 
@@ -206,7 +211,7 @@ fn three(v: [f64; 9]) -> [Vec3; 3] {
     std::array::from_fn(|g| std::array::from_fn(|i| v[3 * g + i]))
 }
 
-/// `k` folds of `m` readings in the order `order`: each a sorted list of indices.
+/// `k` folds of the readings in the order `order`: each a sorted list of indices.
 fn folds(order: &[usize], k: usize) -> Vec<Vec<usize>> {
     let m = order.len();
     (0..k)
@@ -218,87 +223,123 @@ fn folds(order: &[usize], k: usize) -> Vec<Vec<usize>> {
         .collect()
 }
 
-/// The held-out evidence of `f`, the fit of `u` (in the fit's frame) under `settings`; `None`
-/// where the log is too small to hold a fold out (each kept set needs twice the parameters).
-pub(super) fn run(u: &[Vec3], f: &LogFit, settings: &FitSettings) -> Option<HeldOut> {
-    let m = u.len();
-    if m - m.div_ceil(HELD_OUT_FOLDS) < 2 * f.model.parameters() {
-        return None;
-    }
-    let (kind, order, cuts) = match settings.order {
-        Order::Time | Order::Batch(_) => (
-            FoldKind::Blocks,
-            (0..m).collect::<Vec<_>>(),
-            vec![HELD_OUT_FOLDS, COARSE_FOLDS],
-        ),
+/// The cuts of `m` readings for held-out fits (see the module documentation): for a log in time
+/// order consecutive blocks, fifths and thirds; without times a fifth of the readings each,
+/// drawn on stream `[0xFFF7]` of `seed`. Each cut is a list of folds, each fold the sorted
+/// indices of the readings it holds out.
+pub fn cut(m: usize, order: Order, seed: u64) -> (FoldKind, Vec<Vec<Vec<usize>>>) {
+    match order {
+        Order::Time | Order::Batch(_) => {
+            let order: Vec<usize> = (0..m).collect();
+            (
+                FoldKind::Blocks,
+                vec![folds(&order, HELD_OUT_FOLDS), folds(&order, COARSE_FOLDS)],
+            )
+        }
         Order::Unknown => {
             let mut order: Vec<usize> = (0..m).collect();
-            order.shuffle(&mut stream_rng(settings.seed, stream_id(&[0xFFF7])));
-            (FoldKind::Shuffled, order, vec![HELD_OUT_FOLDS])
+            order.shuffle(&mut stream_rng(seed, stream_id(&[0xFFF7])));
+            (FoldKind::Shuffled, vec![folds(&order, HELD_OUT_FOLDS)])
         }
-    };
-    // The standard errors as they stand (the check's floor included) are what the held-out
-    // spread is set against.
-    let (_, std) = parameters(f)?;
+    }
+}
+
+/// What a fit without one fold gave: its nine parameters `psi` (degrees), `S`, `O`, and the sum
+/// of squares of `|b| - R` of the readings it held out (the field's units).
+pub type FoldFit = ([f64; 9], f64);
+
+/// The held-out evidence of a fit whose standard errors are `std` (nine, `psi`, `S`, `O`; `psi`
+/// fixed by the model where `fixed_psi`), from the fits without each fold of `cuts` (`fits[c][k]`
+/// for fold `k` of cut `c`, `None` where the fit without it did not determine the calibration),
+/// and the rms of `|b| - R` of every reading under the whole fit.
+pub fn assemble(
+    kind: FoldKind,
+    cuts: &[Vec<Vec<usize>>],
+    fits: &[Vec<Option<FoldFit>>],
+    std: &[f64; 9],
+    fixed_psi: bool,
+    whole_rms: f64,
+) -> HeldOut {
     let scales: Vec<Scale> = cuts
-        .into_iter()
-        .map(|k| scale(u, f, settings, &folds(&order, k), &std))
+        .iter()
+        .zip(fits)
+        .map(|(folds, fits)| scale(folds, fits, std, fixed_psi))
         .collect();
-    let finest = scales.iter().find(|s| s.ratios.is_some());
-    let whole_rms = (u.iter().map(|&s| (norm(f.apply(s)) - f.magnitude).powi(2)).sum::<f64>() / m as f64).sqrt();
-    let magnitude_rms = finest.map(|s| [(s.held.0 / s.held.1 as f64).sqrt(), whole_rms]);
+    let magnitude_rms = scales
+        .iter()
+        .find(|s| s.ratios.is_some())
+        .map(|s| [(s.held.0 / s.held.1 as f64).sqrt(), whole_rms]);
     let gate = match kind {
         FoldKind::Blocks => HELD_OUT_RATIO,
         FoldKind::Shuffled => HELD_OUT_RATIO_SHUFFLED,
     };
     let widened = scales.iter().filter_map(|s| s.ratio).any(|r| r > gate);
-    Some(HeldOut {
+    HeldOut {
         kind,
         scales,
         widened,
         magnitude_rms,
-    })
+    }
 }
 
-/// The fits of `u` without each of `folds`, and what their spread says against `std`.
-fn scale(u: &[Vec3], f: &LogFit, settings: &FitSettings, folds: &[Vec<usize>], std: &[f64; 9]) -> Scale {
+/// The held-out evidence of `f`, the fit of `u` (in the fit's frame) under `settings`; `None`
+/// where the log is too small to hold a fold out (each kept set needs twice the parameters).
+pub(super) fn run(u: &[Vec3], f: &LogFit, settings: &FitSettings) -> Option<HeldOut> {
     use rayon::prelude::*;
     let m = u.len();
+    if m - m.div_ceil(HELD_OUT_FOLDS) < 2 * f.model.parameters() {
+        return None;
+    }
+    // The standard errors as they stand (the check's floor included) are what the held-out
+    // spread is set against.
+    let (_, std) = parameters(f)?;
     let quick = FitSettings {
         trials: 0,
         profile: false,
         held_out: false,
         ..*settings
     };
-    let fixed = |i: usize| i < 3 && f.model != FitModel::Full;
-    let fits: Vec<Option<([f64; 9], f64)>> = folds
-        .par_iter()
-        .map(|fold| {
-            let mut keep = vec![true; m];
-            fold.iter().for_each(|&i| keep[i] = false);
-            let kept: Vec<Vec3> = (0..m).filter(|&i| keep[i]).map(|i| u[i]).collect();
-            let g = fit_unit(&kept, f.model, &quick).ok()?;
-            if !g.identifiable || g.status != crate::calibration::CalibrationStatus::Ok {
-                return None;
-            }
-            let (e, _) = parameters(&g)?;
-            // The held-out readings' distances from the field under the fit without them.
-            let held: f64 = fold.iter().map(|&i| (norm(g.apply(u[i])) - g.magnitude).powi(2)).sum();
-            Some((e, held))
+    let (kind, cuts) = cut(m, settings.order, settings.seed);
+    let fits: Vec<Vec<Option<FoldFit>>> = cuts
+        .iter()
+        .map(|folds| {
+            folds
+                .par_iter()
+                .map(|fold| {
+                    let mut keep = vec![true; m];
+                    fold.iter().for_each(|&i| keep[i] = false);
+                    let kept: Vec<Vec3> = (0..m).filter(|&i| keep[i]).map(|i| u[i]).collect();
+                    let g = fit_unit(&kept, f.model, &quick).ok()?;
+                    if !g.identifiable || g.status != crate::calibration::CalibrationStatus::Ok {
+                        return None;
+                    }
+                    let (e, _) = parameters(&g)?;
+                    // The held-out readings' distances from the field under the fit without them.
+                    let held: f64 = fold.iter().map(|&i| (norm(g.apply(u[i])) - g.magnitude).powi(2)).sum();
+                    Some((e, held))
+                })
+                .collect()
         })
         .collect();
+    let whole_rms = (u.iter().map(|&s| (norm(f.apply(s)) - f.magnitude).powi(2)).sum::<f64>() / m as f64).sqrt();
+    Some(assemble(kind, &cuts, &fits, &std, f.model != FitModel::Full, whole_rms))
+}
+
+/// The spread of the fits without each of `folds` (`fits`), against `std`.
+fn scale(folds: &[Vec<usize>], fits: &[Option<FoldFit>], std: &[f64; 9], fixed_psi: bool) -> Scale {
+    let fixed = |i: usize| i < 3 && fixed_psi;
     let not_determined = folds
         .iter()
-        .zip(&fits)
+        .zip(fits)
         .filter(|(_, g)| g.is_none())
         .map(|(fold, _)| [fold[0], fold[fold.len() - 1]])
         .collect();
-    let good: Vec<&([f64; 9], f64)> = fits.iter().flatten().collect();
+    let good: Vec<&FoldFit> = fits.iter().flatten().collect();
     let held = (
         good.iter().map(|g| g.1).sum(),
         folds
             .iter()
-            .zip(&fits)
+            .zip(fits)
             .filter(|(_, g)| g.is_some())
             .map(|(f, _)| f.len())
             .sum(),
@@ -341,41 +382,51 @@ fn scale(u: &[Vec3], f: &LogFit, settings: &FitSettings, folds: &[Vec<usize>], s
     out
 }
 
-/// Widens the standard errors of `f` to the jackknife's of every cut that gives evidence, where
-/// the held-out fits say so (see the module documentation); returns which were raised.
-pub(super) fn widen(f: &mut LogFit, h: &HeldOut) -> [[bool; 3]; 3] {
+/// Widens the standard errors `std` (`psi`, `S`, `O`; `psi` left where `fixed_psi`), whose 95 %
+/// intervals are `quantile95` of them, to the jackknife's of every cut of `h` that gives
+/// evidence, where `h` says so (see the module documentation); returns which were raised.
+pub fn widen_std(std: [&mut Option<Vec3>; 3], quantile95: Option<f64>, fixed_psi: bool, h: &HeldOut) -> [[bool; 3]; 3] {
     let mut raised = [[false; 3]; 3];
-    let Some(q) = f.quantile95.filter(|_| h.widened) else {
+    let Some(q) = quantile95.filter(|_| h.widened) else {
         return raised;
     };
-    // Every cut is set against the standard errors as they stood before any was applied.
-    let before = [f.std_psi_deg, f.std_scale, f.std_bias];
-    let full = f.model == FitModel::Full;
-    for s in &h.scales {
-        let (Some(jk), Some(tq), Some(ratio)) = (s.jackknife_std, s.jackknife_quantile95, s.ratio) else {
+    for (g, v) in std.into_iter().enumerate() {
+        if g == 0 && fixed_psi {
+            continue;
+        }
+        let Some(v) = v.as_mut() else {
             continue;
         };
-        // The cut's median ratio rests on every parameter's spread at once: a parameter whose own
-        // spread came out small by chance is widened by it too.
-        let pooled = ratio.max(1.0).sqrt();
-        let stds = [&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias];
-        for (g, std) in stds.into_iter().enumerate() {
-            if g == 0 && !full {
+        // Every cut is set against the standard errors as they stood before any was applied.
+        let own = *v;
+        for s in &h.scales {
+            let (Some(jk), Some(tq), Some(ratio)) = (s.jackknife_std, s.jackknife_quantile95, s.ratio) else {
                 continue;
-            }
-            if let Some(v) = std.as_mut() {
-                for i in 0..3 {
-                    // The jackknife's interval is t_(K-1) of its standard errors; as a standard
-                    // error of the fit's own quantile, that is jk t / q.
-                    let own = before[g].map_or(v[i], |b| b[i]);
-                    let wider = (jk[g][i] * tq / q).max(own * pooled);
-                    if wider.is_finite() && wider > v[i] {
-                        v[i] = wider;
-                        raised[g][i] = true;
-                    }
+            };
+            // The cut's median ratio rests on every parameter's spread at once: a parameter
+            // whose own spread came out small by chance is widened by it too.
+            let pooled = ratio.max(1.0).sqrt();
+            for i in 0..3 {
+                // The jackknife's interval is t_(K-1) of its standard errors; as a standard
+                // error of the fit's own quantile, that is jk t / q.
+                let wider = (jk[g][i] * tq / q).max(own[i] * pooled);
+                if wider.is_finite() && wider > v[i] {
+                    v[i] = wider;
+                    raised[g][i] = true;
                 }
             }
         }
     }
     raised
+}
+
+/// [`widen_std`] of a log fit.
+pub(super) fn widen(f: &mut LogFit, h: &HeldOut) -> [[bool; 3]; 3] {
+    let fixed = f.model != FitModel::Full;
+    widen_std(
+        [&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias],
+        f.quantile95,
+        fixed,
+        h,
+    )
 }

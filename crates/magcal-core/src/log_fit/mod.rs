@@ -61,6 +61,7 @@ mod held_out;
 mod lack_of_fit;
 pub mod motor;
 mod passes;
+mod plausible;
 mod reject;
 pub mod serial;
 mod statistics;
@@ -75,12 +76,14 @@ pub use field_change::{
     best_sphere, field_segments,
 };
 pub use held_out::{
-    COARSE_FOLDS, FoldKind, HELD_OUT_FOLDS, HELD_OUT_RATIO, HELD_OUT_RATIO_SHUFFLED, HeldOut, MIN_DETERMINED, Scale,
+    COARSE_FOLDS, FoldFit, FoldKind, HELD_OUT_FOLDS, HELD_OUT_RATIO, HELD_OUT_RATIO_SHUFFLED, HeldOut, MIN_DETERMINED,
+    Scale, assemble as assemble_held_out, cut as cut_folds, widen_std,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit, show_p};
 pub use passes::{
     PASS_EDGE_SIGMAS, PASS_FALSE_ALARM, PASS_SHARE, PASS_SHIFT, Pass, Passes, pass_sigmas, passes, passes_in_magnitudes,
 };
+pub use plausible::{PLAUSIBLE_PSI_DEG, PLAUSIBLE_SCALE, PLAUSIBLE_SCALE_RATIO, implausible};
 pub use reject::{REJECT_MAX_SHARE, REJECT_MIN_K, RejectError, Rejection, reject_outliers, truncated_variance_factor};
 pub use serial::Serial;
 pub use versus_raw::{HeadingVersusRaw, MIN_BLOCKS, WORSE_SIGMAS, heading_versus_raw, time_blocks};
@@ -383,6 +386,9 @@ pub struct LogFit {
     pub held_out: Option<HeldOut>,
     /// What each standard error of `psi`, `S`, `O` is ([`StdSource`]).
     pub std_source: [[StdSource; 3]; 3],
+    /// The heading the calibration leaves against the user's budget ([`Self::judge_heading`]);
+    /// `None` until judged.
+    pub heading: Option<crate::budget::HeadingVerdict>,
     /// Identifiable, its model not rejected by the log, the ellipsoid test passed, the standard
     /// errors known, and its check by trials passed (where run): a calibration to use.
     pub usable: bool,
@@ -466,6 +472,15 @@ impl LogFit {
         })
     }
 
+    /// Judges the heading the calibration leaves over `grid` against `budget_deg` (degrees), its
+    /// calibrations drawn by its trials and its standard errors ([`crate::budget::judge`]; draws
+    /// on streams of `seed` where it has no trials), and redoes the verdict: a budget not met
+    /// makes the fit unusable. A fit without standard errors is left as it is (unusable already).
+    pub fn judge_heading(&mut self, grid: &crate::budget::BudgetGrid, budget_deg: f64, seed: u64) {
+        self.heading = crate::budget::judge(self, grid, budget_deg, seed);
+        self.assess();
+    }
+
     /// What each standard error rests on before the check and the held-out fits widen it: fixed,
     /// white noise, or the long-run covariance where it is the larger.
     fn sources_of_model(&self) -> [[StdSource; 3]; 3] {
@@ -495,6 +510,11 @@ impl LogFit {
         } else if !self.identifiable {
             reasons.push(format!("not identifiable: {}", self.verdict));
         }
+        // The trials are drawn from the fitted sensor: one that does not exist would confirm
+        // itself. The magnitude here is relative; a known one is checked where it is known.
+        if let Some(why) = implausible(&self.errors, false) {
+            reasons.push(why);
+        }
         if let Some(t) = self.lack_of_fit.as_ref().filter(|t| t.rejected) {
             reasons.push(format!("model rejected: {}", t.words()));
         }
@@ -506,6 +526,9 @@ impl LogFit {
         }
         if let Some(h) = self.held_out.as_ref().filter(|h| !h.evidence()) {
             reasons.push(format!("no held-out evidence: {}", h.words()));
+        }
+        if let Some(why) = self.heading.as_ref().and_then(|h| h.reason()) {
+            reasons.push(why);
         }
         self.usable = reasons.is_empty();
         self.reasons = reasons;
@@ -627,7 +650,11 @@ fn checked(mut f: LogFit, u: &[Vec3], settings: &FitSettings) -> LogFit {
     // The fit's own statistics are a first screen: a fit that does not settle, is not
     // identifiable or leaves the ellipsoid is not usable whatever trials would say, and is not
     // simulated (a runaway estimate is no sensor to draw readings from).
-    if !(f.identifiable && f.ellipsoid.passed && (settings.trials > 0 || settings.held_out)) {
+    if !(f.identifiable
+        && f.ellipsoid.passed
+        && implausible(&f.errors, false).is_none()
+        && (settings.trials > 0 || settings.held_out))
+    {
         return f;
     }
     if settings.trials > 0
@@ -952,11 +979,9 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
         check: None,
         trial_errors: Vec::new(),
         held_out: None,
-        std_source: [[if serial.is_some() {
-            StdSource::LongRun
-        } else {
-            StdSource::White
-        }; 3]; 3],
+        // Set from the standard errors below.
+        std_source: [[StdSource::White; 3]; 3],
+        heading: None,
         usable: false,
         reasons: Vec::new(),
     };

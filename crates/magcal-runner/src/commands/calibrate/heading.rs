@@ -48,7 +48,14 @@ const BLOCKS_WITHOUT_TIMES: usize = 20;
 /// attitudes (`Q` and `F` fitted for each), and the calibrated heading against the raw one;
 /// `None` for a log without attitudes.
 pub fn check(log: &Log, fit: &LogFit) -> Option<HeadingCheckJson> {
-    let attitudes = log.attitudes.as_ref()?;
+    check_aligned(log, fit).0
+}
+
+/// [`check`], and the calibrated readings' alignment with the attitudes where it was made.
+pub fn check_aligned(log: &Log, fit: &LogFit) -> (Option<HeadingCheckJson>, Option<Alignment>) {
+    let Some(attitudes) = log.attitudes.as_ref() else {
+        return (None, None);
+    };
     let (index, (raw, c)): (Vec<usize>, (Vec<Vec3>, Vec<_>)) = log
         .readings
         .iter()
@@ -65,14 +72,15 @@ pub fn check(log: &Log, fit: &LogFit) -> Option<HeadingCheckJson> {
         (Ok(a), Ok(b)) => versus_raw(log, &index, a, b),
         _ => None,
     };
-    Some(HeadingCheckJson {
+    let json = HeadingCheckJson {
         readings: raw.len(),
         against: against.to_string(),
         calibrated: after.as_ref().ok().map(figures),
         uncalibrated: before.as_ref().ok().map(figures),
         error,
         versus_raw,
-    })
+    };
+    (Some(json), after.ok())
 }
 
 fn figures(a: &Alignment) -> HeadingFiguresJson {

@@ -1,5 +1,6 @@
 //! `magcal calibrate LOG`: fit a log (docs/conventions.md "Real data" and its calibration forms).
 
+mod budget;
 mod glitch;
 pub mod heading;
 mod motor;
@@ -20,8 +21,8 @@ use magcal_logs::text::significant;
 use super::Failure;
 use crate::digest::{Hashing, sha256_hex};
 use crate::log::calibration::{
-    CalibrationJson, CheckJson, CorrelationJson, Coverage, EllipsoidJson, IntervalJson, LackOfFitJson, NoiseJson,
-    StdError,
+    CalibrationJson, CheckJson, CorrelationJson, Coverage, EllipsoidJson, HeldOutJson, IntervalJson, LackOfFitJson,
+    NoiseJson, StdError, StdSourceJson,
 };
 use crate::log::flight::InForce;
 use crate::log::flown::{Bounds, flown};
@@ -180,6 +181,12 @@ pub struct CalibrateArgs {
     /// The seed of the trials' random streams.
     #[arg(long, default_value_t = log_fit::CHECK_SEED)]
     pub seed: u64,
+    /// The heading error the calibration may leave, degrees: usable needs the 95th percentile
+    /// over the vehicle's attitudes (its box with --scenario or --roll and --pitch, else level,
+    /// at every heading) within it, by the check's trials and by the standard errors its
+    /// held-out fits allow. IMO asks a ship's heading device for 1.0 degree static.
+    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, value_parser = crate::limits::finite)]
+    pub heading_budget: f64,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -323,13 +330,26 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
         }
         None => None,
     };
+    let absolute = source != FITTED_RADIUS && vector.is_none();
     let mut json = to_json(&args.log, log, &fit, &why, source, args.seed);
     vector.iter().for_each(|v| v.record(&mut json));
     advice.iter().for_each(|a| a.record(&mut json));
     if let Some(joint) = &joint {
         motor::record(&mut json, joint);
     }
-    json.heading_vs_log = heading::check(log, &fit);
+    // A magnitude that is the field's (a site, or given) makes the scale factors absolute.
+    if absolute
+        && json.usable
+        && let Some(why) = log_fit::implausible(&fit.errors, true)
+    {
+        json.usable = false;
+        json.reasons.push(why);
+    }
+    let (heading_vs_log, alignment) = heading::check_aligned(log, &fit);
+    json.heading_vs_log = heading_vs_log;
+    let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
+    let judged = budget::grid(log, vehicle.as_ref(), place.as_ref(), alignment.as_ref());
+    budget::record(&mut json, &fit, judged, args.heading_budget, args.seed);
     // `fit` is the plain fit of the log's readings unless a vector fit or the motor's replaced it.
     one_field::judge(&mut json, log, &fit, &settings, vector.is_none() && joint.is_none());
     json.rejected = rejected;
@@ -351,7 +371,7 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
         json.reasons
             .push(format!("the calibration fails the checks of apply and next: {why}"));
     }
-    coverage_in_box(&mut json, args, log, place.as_ref())?;
+    coverage_in_box(&mut json, args, log, vehicle.as_ref())?;
     Ok(Calibrated::Fit {
         json: Box::new(json),
         why,
@@ -435,6 +455,12 @@ fn rejected(
 
 /// `--magnitude` and `--noise`, when given, are positive and finite.
 fn positive_options(args: &CalibrateArgs) -> anyhow::Result<()> {
+    if !(args.heading_budget > 0.0 && args.heading_budget < 180.0) {
+        anyhow::bail!(
+            "--heading-budget {}: must be between 0 and 180 degrees",
+            crate::limits::show(args.heading_budget)
+        );
+    }
     for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
         if let Some(v) = value
             && !(v.is_finite() && v > 0.0)
@@ -472,15 +498,19 @@ fn fit_settings(args: &CalibrateArgs, log: &Log) -> FitSettings {
 
 /// The coverage against the vehicle's box (`--scenario` or the box flags): the certified
 /// D-efficiency per reading, and the share of the log's attitudes inside the box.
-fn coverage_in_box(json: &mut CalibrationJson, args: &CalibrateArgs, log: &Log, place: Option<&Place>) -> Result<()> {
-    let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place)?;
-    if let Some(vehicle) = &vehicle {
+fn coverage_in_box(
+    json: &mut CalibrationJson,
+    args: &CalibrateArgs,
+    log: &Log,
+    vehicle: Option<&Vehicle>,
+) -> Result<()> {
+    if let Some(vehicle) = vehicle {
         json.coverage.d_efficiency_per_reading = log_efficiency(json, vehicle, &log.readings)
             .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
         json.coverage.box_from = Some(vehicle.label.clone());
     }
     if let Some(attitudes) = &log.attitudes {
-        let bounds = vehicle.as_ref().map(|v| Bounds {
+        let bounds = vehicle.map(|v| Bounds {
             bounds: &v.bounds,
             yaw_offset_deg: v.field.yaw_offset_deg(),
         });
@@ -620,6 +650,17 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         given_noise: fit.given_noise,
         correlation: correlation_json(fit, log),
         check: fit.check.map(|c| check_json(&c, seed)),
+        std_error_source: Some(StdSourceJson {
+            psi_deg: fit.std_source[0].map(|s| s.as_str().to_string()),
+            scale: fit.std_source[1].map(|s| s.as_str().to_string()),
+            bias: fit.std_source[2].map(|s| s.as_str().to_string()),
+        }),
+        held_out: fit.held_out.as_ref().map(|h| HeldOutJson {
+            evidence: h.evidence(),
+            words: h.words(),
+            held_out: h.clone(),
+        }),
+        heading_budget: None,
     }
 }
 
@@ -774,6 +815,9 @@ fn magnitude_of(args: &CalibrateArgs, units: Option<Units>, place: Option<&Place
     Ok(args.magnitude.map(|r| (r, "given".to_string())).or(wmm))
 }
 
+/// Where the magnitude comes from when the fit takes its own mean radius.
+const FITTED_RADIUS: &str = "fitted mean radius (scale factors are relative to it, product 1)";
+
 /// A log's fit, the reasons of `--fit auto`, and where the magnitude comes from.
 type Fitted = (LogFit, Vec<AutoReason>, String);
 
@@ -819,10 +863,7 @@ fn fit_at_magnitude(
                 Err(e) => return Ok(Err(e)),
             };
             let (radius, source) = if unit.identifiable {
-                (
-                    Some(unit.mean_radius()),
-                    "fitted mean radius (scale factors are relative to it, product 1)",
-                )
+                (Some(unit.mean_radius()), FITTED_RADIUS)
             } else {
                 (
                     log_fit::sphere_radius(&log.readings),

@@ -80,6 +80,15 @@ fn print_estimates(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()
         writeln!(w, "{:<22}{}", "std error bias", std(j.std_error.bias))?;
         writeln!(w, "{:<22}{}", "std error psi_deg", std(j.std_error.psi_deg))?;
         writeln!(w, "{:<22}{}", "std error scale", std(j.std_error.scale))?;
+        if let Some(s) = &j.std_error_source {
+            writeln!(
+                w,
+                "  standard errors from: bias {}; psi {}; scale {}",
+                s.bias.join(", "),
+                s.psi_deg.join(", "),
+                s.scale.join(", ")
+            )?;
+        }
         if let Some(c) = &j.correlation {
             let e = &c.white_std_error;
             writeln!(w, "{:<22}{}", "white-noise std bias", std(e.bias))?;
@@ -213,11 +222,47 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
     if let Some(c) = &j.check {
         writeln!(w, "{}: {}", if c.passed { "check" } else { "CHECK FAILED" }, c.words)?;
     }
-    print_flight_advice(w, j)?;
-    if j.usable {
+    if let Some(h) = &j.held_out {
         writeln!(
             w,
-            "USABLE: {}; identifiable, not rejected by the log, on an ellipsoid, standard errors known{}",
+            "{}: {}",
+            if h.evidence { "held out" } else { "NO HELD-OUT EVIDENCE" },
+            h.words
+        )?;
+    }
+    if let Some(b) = &j.heading_budget {
+        writeln!(
+            w,
+            "{}: {}; inclination from {}; level is {}",
+            if b.verdict.met {
+                "heading budget"
+            } else {
+                "HEADING BUDGET NOT MET"
+            },
+            b.words,
+            b.field,
+            b.axes
+        )?;
+    }
+    print_flight_advice(w, j)?;
+    if j.usable {
+        let budget = j.heading_budget.as_ref().map_or(String::new(), |b| {
+            let v = &b.verdict;
+            format!(
+                " for heading within {} deg: 95th percentile {}{} deg with {} standard errors",
+                significant(v.budget_deg, 3),
+                v.by_trials_deg.map_or(String::new(), |t| format!(
+                    "{} deg by {} trials, ",
+                    significant(t, 2),
+                    v.trials
+                )),
+                significant(v.with_std_deg, 2),
+                if v.held_out_widened { "the held-out" } else { "the" }
+            )
+        });
+        writeln!(
+            w,
+            "USABLE{budget}: {}; identifiable, not rejected by the log, on an ellipsoid, standard errors known{}",
             j.check.as_ref().map_or("no check by trials".to_string(), |c| format!(
                 "{} of {} trials ok at this log's noise",
                 c.ok, c.trials

@@ -6,7 +6,10 @@ use std::io::Write;
 
 use anyhow::{Context, Result, bail};
 use magcal_core::aviation::z_up_of_ned;
-use magcal_core::log_fit::{ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, LogFit, Noise};
+use magcal_core::log_fit::{
+    ELLIPSOID_LIMIT_PERCENT, EllipsoidTest, FoldFit, HeldOut, LogFit, Noise, Order, StdSource, assemble_held_out,
+    cut_folds, widen_std,
+};
 use magcal_core::reference::percentile;
 use magcal_core::small::{Mat3, Vec3, mat_vec, norm};
 use magcal_core::vector::{
@@ -163,6 +166,9 @@ pub struct Vector {
     /// A fit against a field given per reading ([`fit_track`]): how well it points the compass,
     /// and the manoeuvres that would improve it.
     track: Option<TrackVerdict>,
+    /// The fit made again without each fold of the readings (docs/conventions.md "Held out");
+    /// `None` for a log too small to hold a fold out.
+    held_out: Option<HeldOut>,
 }
 
 /// The largest heading standard error a usable calibration of an ordinary flight may leave,
@@ -452,7 +458,29 @@ pub fn fit(
     if let Some((fields, field_source)) = given {
         let fit = fit_track(&readings, &attitudes, &fields, inputs.as_deref(), model, order).with_context(what)?;
         let track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model, order);
+        let held_out = held_out(
+            &fit,
+            &readings,
+            |i| norm(fields[i]),
+            order,
+            args.seed,
+            |keep| {
+                let pick = |v: &[Vec3]| keep.iter().map(|&i| v[i]).collect::<Vec<_>>();
+                let inputs: Option<Vec<f64>> = inputs.as_ref().map(|u| keep.iter().map(|&i| u[i]).collect());
+                let attitudes: Vec<Mat3> = keep.iter().map(|&i| attitudes[i]).collect();
+                fit_track(
+                    &pick(&readings),
+                    &attitudes,
+                    &pick(&fields),
+                    inputs.as_deref(),
+                    model,
+                    order,
+                )
+                .ok()
+            },
+        );
         return Ok(Vector {
+            held_out,
             fit,
             readings,
             attitudes,
@@ -478,8 +506,22 @@ pub fn fit(
             ),
         ),
     };
-    let fit = fit_vector_in(&readings, &attitudes, field, order).with_context(what)?;
+    let fit = fit_vector_in(&readings, &attitudes, field.clone(), order).with_context(what)?;
+    let magnitude = norm(fit.field);
+    let held_out = held_out(
+        &fit,
+        &readings,
+        |_| magnitude,
+        order,
+        args.seed,
+        |keep| {
+            let readings: Vec<Vec3> = keep.iter().map(|&i| readings[i]).collect();
+            let attitudes: Vec<Mat3> = keep.iter().map(|&i| attitudes[i]).collect();
+            fit_vector_in(&readings, &attitudes, field.clone(), order).ok()
+        },
+    );
     Ok(Vector {
+        held_out,
         fit,
         readings,
         attitudes,
@@ -489,6 +531,62 @@ pub fn fit(
         motor: None,
         track: None,
     })
+}
+
+/// The held-out evidence of the vector fit `fit` of `readings` (docs/conventions.md "Held out"):
+/// `refit` fits the readings of the indices it is given; `magnitude(i)` is the field's at reading
+/// `i`. `None` for a log too small to hold a fold out or a fit without standard errors.
+fn held_out(
+    fit: &VectorFit,
+    readings: &[Vec3],
+    magnitude: impl Fn(usize) -> f64 + Sync,
+    order: Order,
+    seed: u64,
+    refit: impl Fn(&[usize]) -> Option<VectorFit> + Sync,
+) -> Option<HeldOut> {
+    use rayon::prelude::*;
+    let m = readings.len();
+    // K and the bias: twelve unknowns, and at least twice as many readings kept.
+    if m - m.div_ceil(magcal_core::log_fit::HELD_OUT_FOLDS) < 24 {
+        return None;
+    }
+    let nine = |p: Vec3, s: Vec3, o: Vec3| [p[0], p[1], p[2], s[0], s[1], s[2], o[0], o[1], o[2]];
+    let std = fit.std_error.as_ref()?;
+    let std = nine(std.psi_deg, std.scale, std.bias);
+    let (kind, cuts) = cut_folds(m, order, seed);
+    let fits: Vec<Vec<Option<FoldFit>>> = cuts
+        .iter()
+        .map(|folds| {
+            folds
+                .par_iter()
+                .map(|fold| {
+                    let mut keep = vec![true; m];
+                    fold.iter().for_each(|&i| keep[i] = false);
+                    let kept: Vec<usize> = (0..m).filter(|&i| keep[i]).collect();
+                    let g = refit(&kept).filter(|g| g.identifiable && g.std_error.is_some())?;
+                    let e = g.error_model();
+                    let held = fold
+                        .iter()
+                        .map(|&i| (norm(g.apply(readings[i])) - magnitude(i)).powi(2))
+                        .sum();
+                    Some((nine(e.psi_deg(), e.scale(), e.bias_nt()), held))
+                })
+                .collect()
+        })
+        .collect();
+    let whole_rms = ((0..m)
+        .map(|i| (norm(fit.apply(readings[i])) - magnitude(i)).powi(2))
+        .sum::<f64>()
+        / m as f64)
+        .sqrt();
+    Some(assemble_held_out(
+        kind,
+        &cuts,
+        &fits,
+        &std,
+        fit.model != VectorModel::Full,
+        whole_rms,
+    ))
 }
 
 impl Vector {
@@ -570,8 +668,41 @@ impl Vector {
             ..scalar.clone()
         };
         f.reasons.clear();
+        f.held_out = self.held_out.clone();
+        f.std_source = [[if v.serial.is_some() {
+            StdSource::LongRun
+        } else {
+            StdSource::White
+        }; 3]; 3];
+        if v.model != VectorModel::Full {
+            f.std_source[0] = [StdSource::Fixed; 3];
+        }
+        if let Some(h) = &self.held_out {
+            let fixed = v.model != VectorModel::Full;
+            let raised = widen_std(
+                [&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias],
+                f.quantile95,
+                fixed,
+                h,
+            );
+            for (g, row) in raised.iter().enumerate() {
+                for (i, r) in row.iter().enumerate() {
+                    if *r {
+                        f.std_source[g][i] = StdSource::HeldOut;
+                    }
+                }
+            }
+        }
         if !v.identifiable {
             f.reasons.push(format!("not identifiable: {}", v.verdict));
+        }
+        match &self.held_out {
+            Some(h) if !h.evidence() => f.reasons.push(format!("no held-out evidence: {}", h.words())),
+            None => f.reasons.push(
+                "no held-out evidence: too few readings with an attitude to hold a fold out (each fit without one needs twice the twelve unknowns)"
+                    .to_string(),
+            ),
+            Some(_) => {}
         }
         f.reasons.extend(self.track_reasons());
         // The magnitude that K shares with a fitted F comes from the scalar fit: only a scalar

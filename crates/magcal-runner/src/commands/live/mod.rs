@@ -121,6 +121,10 @@ pub struct LiveArgs {
     /// The seed of the trials' random streams.
     #[arg(long, default_value_t = magcal_core::log_fit::CHECK_SEED)]
     pub seed: u64,
+    /// The heading error the calibration may leave, degrees (as `calibrate`'s): the finish line.
+    /// Nothing is exported, sent or called usable before a fit meets it.
+    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, value_parser = crate::limits::finite)]
+    pub heading_budget: f64,
     /// Attitudes to suggest at each fit (the first is the one to visit next).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=100))]
     pub count: u64,
@@ -595,6 +599,7 @@ fn calibrate_args(args: &LiveArgs, path: &Path, units: Option<Units>) -> (Calibr
         scenario: args.scenario.clone(),
         attitude: args.attitude.clone(),
         motor: None,
+        heading_budget: args.heading_budget,
     };
     (cal, input)
 }
