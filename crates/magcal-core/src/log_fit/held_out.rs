@@ -30,12 +30,8 @@ use super::{FitModel, FitSettings, LogFit, Order, fit_unit, significant};
 use crate::rng::{stream_id, stream_rng};
 use crate::small::{Vec3, norm};
 
-/// Folds of a log's held-out fits; a log in time order is also cut into [`COARSE_FOLDS`].
+/// Folds of a log's held-out fits.
 pub const HELD_OUT_FOLDS: usize = 5;
-
-/// The coarser cut of a log in time order: thirds, so that a drift over a third of the log moves
-/// the fits without it.
-pub const COARSE_FOLDS: usize = 3;
 
 /// The median over the parameters of `(jackknife std / std)^2` above which the standard errors of
 /// a log in time order are widened: any excess. Their long-run covariance rests on a dozen
@@ -83,9 +79,9 @@ pub struct Scale {
     /// The readings (first and last index) of each fold without which the fit did not determine
     /// the calibration.
     pub not_determined: Vec<[usize; 2]>,
-    /// Per parameter `psi`, `S`, `O`: `(jackknife std / std)^2` (`NaN` for a parameter the model
+    /// Per parameter `psi`, `S`, `O`: `(jackknife std / std)^2` (`None` for a parameter the model
     /// fixes); `None` with fewer than [`MIN_DETERMINED`] folds determined.
-    pub ratios: Option<[Vec3; 3]>,
+    pub ratios: Option<[[Option<f64>; 3]; 3]>,
     /// Their median over the model's parameters.
     pub ratio: Option<f64>,
     /// The block jackknife's standard errors of `psi` (degrees), `S`, `O` (the log's units),
@@ -105,7 +101,7 @@ pub struct Scale {
 pub struct HeldOut {
     /// How the folds were cut.
     pub kind: FoldKind,
-    /// The cuts: [`HELD_OUT_FOLDS`], and for a log in time order [`COARSE_FOLDS`] too; none for a
+    /// The cuts ([`HELD_OUT_FOLDS`] folds); none for a
     /// log too small to hold a fold out.
     pub scales: Vec<Scale>,
     /// Whether the standard errors were widened: the median ratio of a cut that gives evidence
@@ -121,6 +117,15 @@ impl HeldOut {
     /// folds that determine the calibration.
     pub fn evidence(&self) -> bool {
         self.scales.first().is_some_and(|s| s.ratios.is_some())
+    }
+
+    /// The multiple of a standard error the held-out fits raised that makes its 95 % interval:
+    /// Student's `t` of the jackknife's degrees of freedom (the largest over the cuts).
+    pub fn quantile95(&self) -> Option<f64> {
+        self.scales
+            .iter()
+            .filter_map(|s| s.jackknife_quantile95)
+            .reduce(f64::max)
     }
 
     /// The largest median ratio of the cuts that give evidence.
@@ -224,17 +229,14 @@ fn folds(order: &[usize], k: usize) -> Vec<Vec<usize>> {
 }
 
 /// The cuts of `m` readings for held-out fits (see the module documentation): for a log in time
-/// order consecutive blocks, fifths and thirds; without times a fifth of the readings each,
+/// order consecutive blocks, fifths of it; without times a fifth of the readings each,
 /// drawn on stream `[0xFFF7]` of `seed`. Each cut is a list of folds, each fold the sorted
 /// indices of the readings it holds out.
 pub fn cut(m: usize, order: Order, seed: u64) -> (FoldKind, Vec<Vec<Vec<usize>>>) {
     match order {
         Order::Time | Order::Batch(_) => {
             let order: Vec<usize> = (0..m).collect();
-            (
-                FoldKind::Blocks,
-                vec![folds(&order, HELD_OUT_FOLDS), folds(&order, COARSE_FOLDS)],
-            )
+            (FoldKind::Blocks, vec![folds(&order, HELD_OUT_FOLDS)])
         }
         Order::Unknown => {
             let mut order: Vec<usize> = (0..m).collect();
@@ -375,21 +377,24 @@ fn scale(folds: &[Vec<usize>], fits: &[Option<FoldFit>], std: &[f64; 9], fixed_p
     });
     let mut finite: Vec<f64> = ratios.iter().copied().filter(|r| r.is_finite()).collect();
     let ratio = crate::budget::quantile(&mut finite, 0.5);
-    out.ratios = Some(three(ratios));
+    out.ratios = Some(std::array::from_fn(|g| {
+        std::array::from_fn(|i| Some(ratios[3 * g + i]).filter(|r| r.is_finite()))
+    }));
     out.ratio = ratio.is_finite().then_some(ratio);
     out.jackknife_std = Some(three(jackknife));
     out.jackknife_quantile95 = Some(super::student_quantile(0.975, good.len() - 1));
     out
 }
 
-/// Widens the standard errors `std` (`psi`, `S`, `O`; `psi` left where `fixed_psi`), whose 95 %
-/// intervals are `quantile95` of them, to the jackknife's of every cut of `h` that gives
-/// evidence, where `h` says so (see the module documentation); returns which were raised.
-pub fn widen_std(std: [&mut Option<Vec3>; 3], quantile95: Option<f64>, fixed_psi: bool, h: &HeldOut) -> [[bool; 3]; 3] {
+/// Widens the standard errors `std` (`psi`, `S`, `O`; `psi` left where `fixed_psi`) to the
+/// jackknife's of every cut of `h` that gives evidence, and each to its own times the square
+/// root of the cut's median ratio, where `h` says so (see the module documentation); returns
+/// which were raised. Their intervals take [`HeldOut::quantile95`].
+pub fn widen_std(std: [&mut Option<Vec3>; 3], fixed_psi: bool, h: &HeldOut) -> [[bool; 3]; 3] {
     let mut raised = [[false; 3]; 3];
-    let Some(q) = quantile95.filter(|_| h.widened) else {
+    if !h.widened {
         return raised;
-    };
+    }
     for (g, v) in std.into_iter().enumerate() {
         if g == 0 && fixed_psi {
             continue;
@@ -400,16 +405,14 @@ pub fn widen_std(std: [&mut Option<Vec3>; 3], quantile95: Option<f64>, fixed_psi
         // Every cut is set against the standard errors as they stood before any was applied.
         let own = *v;
         for s in &h.scales {
-            let (Some(jk), Some(tq), Some(ratio)) = (s.jackknife_std, s.jackknife_quantile95, s.ratio) else {
+            let (Some(jk), Some(ratio)) = (s.jackknife_std, s.ratio) else {
                 continue;
             };
             // The cut's median ratio rests on every parameter's spread at once: a parameter
             // whose own spread came out small by chance is widened by it too.
             let pooled = ratio.max(1.0).sqrt();
             for i in 0..3 {
-                // The jackknife's interval is t_(K-1) of its standard errors; as a standard
-                // error of the fit's own quantile, that is jk t / q.
-                let wider = (jk[g][i] * tq / q).max(own[i] * pooled);
+                let wider = jk[g][i].max(own[i] * pooled);
                 if wider.is_finite() && wider > v[i] {
                     v[i] = wider;
                     raised[g][i] = true;
@@ -423,10 +426,5 @@ pub fn widen_std(std: [&mut Option<Vec3>; 3], quantile95: Option<f64>, fixed_psi
 /// [`widen_std`] of a log fit.
 pub(super) fn widen(f: &mut LogFit, h: &HeldOut) -> [[bool; 3]; 3] {
     let fixed = f.model != FitModel::Full;
-    widen_std(
-        [&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias],
-        f.quantile95,
-        fixed,
-        h,
-    )
+    widen_std([&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias], fixed, h)
 }

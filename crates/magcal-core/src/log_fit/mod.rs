@@ -76,8 +76,8 @@ pub use field_change::{
     best_sphere, field_segments,
 };
 pub use held_out::{
-    COARSE_FOLDS, FoldFit, FoldKind, HELD_OUT_FOLDS, HELD_OUT_RATIO, HELD_OUT_RATIO_SHUFFLED, HeldOut, MIN_DETERMINED,
-    Scale, assemble as assemble_held_out, cut as cut_folds, widen_std,
+    FoldFit, FoldKind, HELD_OUT_FOLDS, HELD_OUT_RATIO, HELD_OUT_RATIO_SHUFFLED, HeldOut, MIN_DETERMINED, Scale,
+    assemble as assemble_held_out, cut as cut_folds, widen_std,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit, show_p};
 pub use passes::{
@@ -422,11 +422,28 @@ impl LogFit {
     }
 
     /// The half-widths of the 95 % confidence intervals of `psi` (degrees), `S` and `O`:
-    /// [`Self::quantile95`] standard errors; `None` where either is unknown.
+    /// [`Self::quantile95`] standard errors, and Student's `t` of the held-out jackknife's degrees
+    /// of freedom ([`HeldOut::quantile95`]) for those the held-out fits set; `None` where either
+    /// is unknown.
     pub fn interval95(&self) -> Option<(Vec3, Vec3, Vec3)> {
-        let t = self.quantile95?;
-        let half = |s: Option<Vec3>| s.map(|v| v.map(|x| t * x));
-        Some((half(self.std_psi_deg)?, half(self.std_scale)?, half(self.std_bias)?))
+        let q = self.quantile95?;
+        // A standard error the held-out fits set takes the jackknife's Student t.
+        let held = self.held_out.as_ref().and_then(HeldOut::quantile95).unwrap_or(q).max(q);
+        let half = |g: usize, s: Option<Vec3>| -> Option<Vec3> {
+            let v = s?;
+            Some(std::array::from_fn(|i| {
+                v[i] * if self.std_source[g][i] == StdSource::HeldOut {
+                    held
+                } else {
+                    q
+                }
+            }))
+        };
+        Some((
+            half(0, self.std_psi_deg)?,
+            half(1, self.std_scale)?,
+            half(2, self.std_bias)?,
+        ))
     }
 
     /// The magnitude that makes the scale factors relative, with product 1: `R (S1 S2 S3)^(1/3)`

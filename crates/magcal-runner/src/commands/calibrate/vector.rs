@@ -679,12 +679,7 @@ impl Vector {
         }
         if let Some(h) = &self.held_out {
             let fixed = v.model != VectorModel::Full;
-            let raised = widen_std(
-                [&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias],
-                f.quantile95,
-                fixed,
-                h,
-            );
+            let raised = widen_std([&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias], fixed, h);
             for (g, row) in raised.iter().enumerate() {
                 for (i, r) in row.iter().enumerate() {
                     if *r {
