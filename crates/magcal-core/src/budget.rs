@@ -328,22 +328,20 @@ pub fn judge(fit: &crate::log_fit::LogFit, grid: &BudgetGrid, budget_deg: f64, s
             (trials.iter().map(|e| e[g][i] * e[g][i]).sum::<f64>() / trials.len().max(1) as f64).sqrt()
         })
     });
-    let rescaled_trials = trials.len() >= 2 && (0..3).all(|g| (0..3).all(|i| (g == 0 && !full) || rms[g][i] > 0.0));
+    // The trials' errors at the standard errors the fit reports: one factor for every parameter
+    // (the rms over the parameters of each one's standard error over its trials' rms), so that
+    // the trials' joint spread, whose correlations make the heading (a bias and a scale that
+    // cancel), is kept; a factor per parameter breaks what a few trials estimate of them.
+    let factors: Vec<f64> = (0..3)
+        .flat_map(|g| (0..3).map(move |i| (g, i)))
+        .filter(|&(g, _)| g > 0 || full)
+        .filter(|&(g, i)| rms[g][i] > 0.0)
+        .map(|(g, i)| std[g][i] / rms[g][i])
+        .collect();
+    let rescaled_trials = trials.len() >= 2 && !factors.is_empty();
     let draws: Vec<[Vec3; 3]> = if rescaled_trials {
-        trials
-            .iter()
-            .map(|e| {
-                std::array::from_fn(|g| {
-                    std::array::from_fn(|i| {
-                        if g == 0 && !full {
-                            0.0
-                        } else {
-                            e[g][i] * std[g][i] / rms[g][i]
-                        }
-                    })
-                })
-            })
-            .collect()
+        let c = (factors.iter().map(|f| f * f).sum::<f64>() / factors.len() as f64).sqrt();
+        trials.iter().map(|e| e.map(|v| v.map(|x| c * x))).collect()
     } else {
         let mut rng = crate::rng::stream_rng(seed, crate::rng::stream_id(&[0xFFF6]));
         (0..DRAWS)

@@ -179,6 +179,13 @@ pub struct DesignMetricsRow {
     pub check_heading_p95_deg: Option<Real>,
     /// The design `design` recommends flying.
     pub recommended: bool,
+    /// The heading budget, degrees, and the 95th percentile of the heading error the check's
+    /// `ok` trials leave over the box at every heading (docs/conventions.md "Heading budget");
+    /// `works` needs it within the budget. Empty in a set written before they existed.
+    #[serde(default)]
+    pub heading_budget_deg: Option<Real>,
+    #[serde(default)]
+    pub check_budget_p95_deg: Option<Real>,
 }
 
 /// `approximate.csv`: the approximate D-optimal design of the box, support points by decreasing
@@ -397,6 +404,11 @@ pub struct AdviceRow {
     pub works: bool,
     pub check_heading_median_deg: Option<Real>,
     pub check_heading_p95_deg: Option<Real>,
+    /// As in `designs.csv`.
+    #[serde(default)]
+    pub heading_budget_deg: Option<Real>,
+    #[serde(default)]
+    pub check_budget_p95_deg: Option<Real>,
 }
 
 /// The kind of a design source, as `design_metrics.csv` names it.

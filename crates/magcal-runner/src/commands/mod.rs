@@ -47,6 +47,11 @@ pub struct Common {
     /// Run even when the PSO work is estimated above one day (the estimate is printed first).
     #[arg(long)]
     pub allow_long: bool,
+    /// The heading error a design's calibration may leave, degrees (default: the scenario's
+    /// `[verdict] heading_budget_deg`, else 2): a design works where the 95th percentile of its
+    /// check's trials over the box at every heading is within it.
+    #[arg(long, value_name = "DEG", value_parser = crate::limits::finite)]
+    pub heading_budget: Option<f64>,
 }
 
 /// A failure with its exit code.
@@ -105,6 +110,10 @@ pub fn setup_with(
     }
     if let Some(t) = trials {
         scenario.trials = t;
+    }
+    if let Some(b) = common.heading_budget {
+        scenario.heading_budget_deg = crate::scenario::validate::heading_budget(Some(b))
+            .map_err(|e| anyhow::anyhow!("--heading-budget: {e:#}"))?;
     }
     let threads = match common.threads {
         Some(n) => n as usize,

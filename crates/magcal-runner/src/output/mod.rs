@@ -226,6 +226,8 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             check_heading_median_deg: d.check.heading_median_deg.map(Real),
             check_heading_p95_deg: d.check.heading_p95_deg.map(Real),
             recommended: recommended == Some(i),
+            heading_budget_deg: Some(Real(d.check.budget_deg)),
+            check_budget_p95_deg: d.check.budget_p95_deg.map(Real),
         }
     })
 }
@@ -261,6 +263,8 @@ pub fn advice_rows<'a>(
         works: c.works(),
         check_heading_median_deg: c.heading_median_deg.map(Real),
         check_heading_p95_deg: c.heading_p95_deg.map(Real),
+        heading_budget_deg: Some(Real(c.budget_deg)),
+        check_budget_p95_deg: c.budget_p95_deg.map(Real),
     };
     let (r, p) = (box_of(&roll), box_of(&pitch));
     let (k, m) = (base.attitudes.len(), base.m());

@@ -92,25 +92,27 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
             writeln!(
                 w,
                 "fly {}: {} readings at {} attitudes (its flight plan is in designs.csv). At {} nT it \
-                 calibrated in {} of {} trials; heading error (rms over level headings) median {} deg, \
-                 95th percentile {} deg{}.",
+                 calibrated in {} of {} trials; heading error 95th percentile {} deg over the box at every \
+                 heading, within the budget of {} deg{}.",
                 d.name,
                 d.m(),
                 d.attitudes.len(),
                 c.sigma_nt,
                 c.outcomes.ok,
                 c.trials,
-                c.heading_median_deg.map_or("-".into(), |v| format!("{v:.3}")),
-                c.heading_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                significant(c.budget_deg, 3),
                 out.d_efficiency_bound(i)
                     .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
             )
         }
         None => {
+            let budget = out.designs.first().map_or(0.0, |d| d.check.budget_deg);
             writeln!(
                 w,
-                "no design here calibrates the full model in {:.0} % of trials at this noise.",
-                100.0 * Check::OK_SHARE
+                "no design here calibrates the full model in {:.0} % of trials at this noise with the heading within the budget of {} deg.",
+                100.0 * Check::OK_SHARE,
+                significant(budget, 3)
             )?;
             let Some(a) = advice else { return Ok(()) };
             let base = &out.designs[a.base];
@@ -122,12 +124,12 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
             )?;
             let heading = |c: &Check| {
                 format!(
-                    "{} of {} trials ok at {} nT, heading error median {} deg, 95th percentile {} deg",
+                    "{} of {} trials ok at {} nT, heading error 95th percentile {} deg over the box (budget {} deg)",
                     c.outcomes.ok,
                     c.trials,
                     significant(c.sigma_nt, 3),
-                    c.heading_median_deg.map_or("-".into(), |v| format!("{v:.3}")),
-                    c.heading_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                    c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+                    significant(c.budget_deg, 3),
                 )
             };
             for (model, c) in &a.reduced {
@@ -201,10 +203,18 @@ pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Resul
     for (i, d) in out.designs.iter().enumerate() {
         let c = &d.check;
         let share = format!("{} of {} trials ok at {} nT", c.outcomes.ok, c.trials, c.sigma_nt);
-        let verdict = match (c.works(), d.verdict.identifiable) {
-            (true, _) => format!("works: {share}"),
-            (false, true) => format!("FAILS: only {share} ({})", outcome_words(&c.outcomes)),
-            (false, false) => format!("NOT IDENTIFIABLE: {}; {share}", d.verdict.weakest),
+        let heading = c.budget_p95_deg.map_or(String::new(), |p| {
+            format!(
+                ", heading {} deg at the 95th percentile (budget {})",
+                significant(p, 3),
+                significant(c.budget_deg, 3)
+            )
+        });
+        let verdict = match (c.works(), c.calibrates(), d.verdict.identifiable) {
+            (true, _, _) => format!("works: {share}{heading}"),
+            (false, true, _) => format!("FAILS THE HEADING BUDGET: {share}{heading}"),
+            (false, false, true) => format!("FAILS: only {share} ({})", outcome_words(&c.outcomes)),
+            (false, false, false) => format!("NOT IDENTIFIABLE: {}; {share}", d.verdict.weakest),
         };
         writeln!(
             w,

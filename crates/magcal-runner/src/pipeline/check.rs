@@ -32,15 +32,33 @@ pub struct Check {
     pub heading_median_deg: Option<f64>,
     /// Its 95th percentile, degrees.
     pub heading_p95_deg: Option<f64>,
+    /// The heading budget, degrees ([`Scenario::heading_budget_deg`]).
+    pub budget_deg: f64,
+    /// The 95th percentile of the heading error over the box at every heading and the `ok`
+    /// trials' calibrations, against the truth (docs/conventions.md "Heading budget"), degrees;
+    /// `None` without an `ok` trial.
+    pub budget_p95_deg: Option<f64>,
 }
 
 impl Check {
     /// The share of trials a design must calibrate (`ok`) to work.
     pub const OK_SHARE: f64 = 0.95;
 
-    /// Whether the design calibrates in at least [`Self::OK_SHARE`] of the trials.
+    /// Whether the design calibrates in at least [`Self::OK_SHARE`] of the trials and its
+    /// calibrations keep the heading within the budget ([`Self::meets_budget`]).
     pub fn works(&self) -> bool {
+        self.calibrates() && self.meets_budget()
+    }
+
+    /// Whether the design calibrates in at least [`Self::OK_SHARE`] of the trials.
+    pub fn calibrates(&self) -> bool {
         self.trials > 0 && self.outcomes.ok as f64 >= Self::OK_SHARE * self.trials as f64
+    }
+
+    /// Whether the 95th percentile of the heading error its trials' calibrations leave over
+    /// the box is within the budget.
+    pub fn meets_budget(&self) -> bool {
+        self.budget_p95_deg.is_some_and(|p| p <= self.budget_deg)
     }
 
     /// Runs the check: [`Scenario::check_trials`] trials of `body` (the design's body fields) at
@@ -107,6 +125,34 @@ impl Check {
             outcomes: Outcomes::of(&trials),
             heading_median_deg: summary.map(|s| s.median),
             heading_p95_deg: summary.map(|s| s.p95),
+            budget_deg: scenario.heading_budget_deg,
+            budget_p95_deg: budget_p95(scenario, &trials),
         })
     }
+}
+
+/// The grid of a scenario's heading budget: its box's roll and pitch at every heading, in its
+/// field, in [P1]'s body axes.
+pub fn budget_grid(scenario: &Scenario) -> magcal_core::budget::BudgetGrid {
+    let [roll, _, pitch] = scenario.bounds.ranges();
+    let tilts = magcal_core::budget::Tilts {
+        roll_deg: [roll.min().to_degrees(), roll.max().to_degrees()],
+        pitch_deg: [pitch.min().to_degrees(), pitch.max().to_degrees()],
+    };
+    // A field without a horizontal part has no heading: the grid is judged at 89 degrees.
+    let inclination = scenario.field.inclination_deg().clamp(-89.0, 89.0);
+    magcal_core::budget::BudgetGrid::new(inclination, tilts, &magcal_core::budget::IDENTITY)
+}
+
+/// The 95th percentile of the heading error the `ok` trials' calibrations leave over the
+/// scenario's budget grid, against its true sensor; `None` without an `ok` trial.
+fn budget_p95(scenario: &Scenario, trials: &[TrialOutcome]) -> Option<f64> {
+    let grid = budget_grid(scenario);
+    let truth = (&scenario.truth.K(), scenario.truth.bias_nt());
+    let mut e = Vec::new();
+    for t in trials.iter().filter(|t| t.status == CalibrationStatus::Ok) {
+        let Some(m) = &t.estimate else { continue };
+        grid.errors_into(truth, scenario.field.magnitude(), (&m.P(), m.bias_nt()), &mut e);
+    }
+    (!e.is_empty()).then(|| magcal_core::budget::quantile(&mut e, magcal_core::budget::BUDGET_QUANTILE))
 }

@@ -155,15 +155,16 @@ impl RunOutput {
         d.verdict.identifiable && d.ln_det_per_reading().to_bits() == self.best_ln_det_per_reading().to_bits()
     }
 
-    /// The design to fly: among those that work ([`Check::works`]), the smallest median heading
-    /// error of its check, then the fewest readings, then scenario order. `None` when none works.
+    /// The design to fly: among those that work ([`Check::works`]: they calibrate and keep the
+    /// heading within the budget), the smallest 95th percentile of the heading error over the
+    /// box, then the fewest readings, then scenario order. `None` when none works.
     pub fn recommended(&self) -> Option<usize> {
         (0..self.designs.len())
             .filter(|&i| self.designs[i].check.works())
             .min_by(|&a, &b| {
                 let key = |i: usize| {
                     let d = &self.designs[i];
-                    (d.check.heading_median_deg.unwrap_or(f64::INFINITY), d.m())
+                    (d.check.budget_p95_deg.unwrap_or(f64::INFINITY), d.m())
                 };
                 let (ha, ma) = key(a);
                 let (hb, mb) = key(b);

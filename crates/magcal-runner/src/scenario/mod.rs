@@ -7,7 +7,7 @@ mod design;
 mod raw;
 pub use magcal_logs::site;
 pub use magcal_report::rows::DesignKind;
-mod validate;
+pub(crate) mod validate;
 mod values;
 
 use std::path::{Path, PathBuf};
@@ -170,6 +170,10 @@ pub struct Scenario {
     /// Trials of the short Monte Carlo behind each design's verdict
     /// ([`crate::pipeline::Check`]).
     pub check_trials: usize,
+    /// The heading error a design's calibration may leave, degrees (`[verdict]
+    /// heading_budget_deg`, default [`magcal_core::budget::DEFAULT_BUDGET_DEG`]): a design works
+    /// where the 95th percentile over its box at every heading is within it.
+    pub heading_budget_deg: f64,
     /// Designs, in file order.
     pub designs: Vec<DesignSpec>,
     /// Repeated PSO runs, if asked.

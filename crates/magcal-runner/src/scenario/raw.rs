@@ -77,6 +77,7 @@ pub struct Scenario {
 #[serde(deny_unknown_fields)]
 pub struct Verdict {
     pub trials: Option<usize>,
+    pub heading_budget_deg: Option<f64>,
 }
 
 #[derive(Debug, Default, Deserialize)]

@@ -27,6 +27,7 @@ pub(super) fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<
     let truth = sensor(&raw.sensor)?;
     let bounds = attitude_box(&raw.attitude_box)?;
     let (calibration, check_trials) = calibration(&raw.calibration, &raw.verdict)?;
+    let heading_budget_deg = heading_budget(raw.verdict.heading_budget_deg)?;
     let designs = designs(raw.design, &raw.attitude_box)?;
     let pso_runs = pso_runs(raw.pso_runs, &designs)?;
     let certificate = certificate(&raw.certificate)?;
@@ -38,6 +39,7 @@ pub(super) fn validate(raw: raw::Scenario, path: &Path, hash: String) -> Result<
         seed: raw.seed,
         trials: raw.trials,
         check_trials,
+        heading_budget_deg,
         sigmas_nt,
         attitude_sigmas_deg,
         field,
@@ -149,6 +151,18 @@ fn calibration(c: &raw::Calibration, verdict: &raw::Verdict) -> Result<(TwoStep,
         ),
     };
     Ok((calibration, check_trials))
+}
+
+/// `[verdict] heading_budget_deg`: above 0 and below 180 degrees.
+pub fn heading_budget(value: Option<f64>) -> Result<f64> {
+    match value {
+        None => Ok(magcal_core::budget::DEFAULT_BUDGET_DEG),
+        Some(v) if v > 0.0 && v < 180.0 => Ok(v),
+        Some(v) => bail!(
+            "verdict.heading_budget_deg = {}: a heading error above 0 and below 180 degrees",
+            limits::show(v)
+        ),
+    }
 }
 
 /// `[[design]]`: at least one, each with its own name.

@@ -330,7 +330,9 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
         }
         None => None,
     };
-    let absolute = source != FITTED_RADIUS && vector.is_none();
+    // A magnitude from the field's model in the log's units makes the scale factors absolute;
+    // one given by --magnitude may be in other units on purpose (counts in, microtesla out).
+    let absolute = args.magnitude.is_none() && source != FITTED_RADIUS && vector.is_none();
     let mut json = to_json(&args.log, log, &fit, &why, source, args.seed);
     vector.iter().for_each(|v| v.record(&mut json));
     advice.iter().for_each(|a| a.record(&mut json));
