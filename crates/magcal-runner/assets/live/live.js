@@ -91,9 +91,10 @@ function show(s) {
   if (s.fit === 0) {
     v.className = "waiting"; v.textContent = "waiting for the first fit";
   } else if (s.usable) {
-    v.className = "usable"; v.textContent = `USABLE (fit ${s.fit}, ${s.readings} readings, ${s.model})`;
+    v.className = "usable"; v.textContent = `USABLE for heading within ${fmt(s.heading_budget_deg, 1)} deg: ${fmt(s.heading_predicted_deg, 2)} deg predicted (fit ${s.fit}, ${s.readings} readings, ${s.model})`;
   } else {
-    v.className = "unusable"; v.textContent = `not usable yet (fit ${s.fit}, ${s.readings} readings): ${s.reasons}`;
+    const heading = s.heading_predicted_deg === null ? "" : `heading ${fmt(s.heading_predicted_deg, 2)} of ${fmt(s.heading_budget_deg, 1)} deg; `;
+    v.className = "unusable"; v.textContent = `not usable yet (fit ${s.fit}, ${s.readings} readings): ${heading}${s.reasons}`;
   }
   const kept = s.frames > 0 || s.lines === 0 ? `${s.frames} frames, ${s.bad_frames} bad` : `${s.lines} lines, ${s.malformed_lines} malformed, ${s.other_lines} other`;
   const quiet = s.quiet_s === null ? "nothing yet" : s.ended ? "ended" : `last bytes ${fmt(s.quiet_s, 1)} s ago`;

@@ -152,6 +152,16 @@ fn a_calibration_file_without_the_new_fields_is_still_read() {
 /// `calibrate` of a BROAD trial with its times, `None` where the public log is absent. The
 /// subject is the field and the heading, not the check by trials: the fewest trials (the
 /// trials' verdicts are those of the default's 200 on these logs: `exit_codes.rs`).
+/// Whether any reason comes from one of the checks of one field (a change, passes, a heading
+/// worse than the raw readings').
+fn one_field_reason(c: &CalibrationJson) -> Option<&String> {
+    c.reasons.iter().find(|r| {
+        r.starts_with("the field changes")
+            || r.contains("passes through another field")
+            || r.starts_with("its heading against the log's attitudes is worse")
+    })
+}
+
 fn broad(trial: &str, extra: &[&str]) -> Option<(CalibrationJson, String)> {
     let log = data(&format!("broad/{trial}.csv"))?;
     let args = [&BROAD_ARGS[..], &["--time", "t_s", "--trials", "20"], extra].concat();
@@ -206,16 +216,19 @@ fn broad_33_a_magnet_attached_for_part_of_the_trial_is_refused_with_its_windows(
 
 #[test]
 fn broad_33_the_part_suggested_calibrates_alone() {
-    // The part after the magnet, 99 to 169 s (38 s of motion, then rest), is usable on its own,
-    // and the capture says its heading is better than the raw readings': 3.838 degrees rms
-    // against 3.959.
+    // The part after the magnet, 99 to 169 s (38 s of motion, then rest), is one field on its
+    // own, and the capture says its heading is better than the raw readings': 3.838 degrees rms
+    // against 3.959. 38 s of motion leave a heading 95th percentile of 2.2 degrees (1.3 by the
+    // trials): usable for a budget of 3 degrees, not for the default 2.
     let Some((c, _)) = broad(
         "33_disturbed_attached_magnet_2cm",
-        &["--from", "99.000", "--to", "168.973"],
+        &["--from", "99.000", "--to", "168.973", "--heading-budget", "3"],
     ) else {
         return;
     };
     assert!(c.usable, "{:?}", c.reasons);
+    let b = c.heading_budget.as_ref().unwrap();
+    assert!(b.predicted_deg > 2.0 && b.predicted_deg < 3.0, "{}", b.words);
     let h = c.heading_vs_log.as_ref().unwrap();
     let (cal, raw) = (h.calibrated.unwrap(), h.uncalibrated.unwrap());
     assert!(
@@ -239,7 +252,7 @@ fn broad_clean_trials_pass_both_rules() {
         let Some((c, _)) = broad(trial, &[]) else {
             return;
         };
-        assert!(c.usable, "{trial}: {:?}", c.reasons);
+        assert_eq!(one_field_reason(&c), None, "{trial}: {:?}", c.reasons);
         let f = c.field_change.clone().unwrap();
         assert!(f.tested && !f.changed, "{trial}: {}", f.words);
         assert!(
@@ -283,12 +296,13 @@ fn broad_30_a_magnet_fixed_in_the_room_is_passed_nine_times() {
     // The sensor turns in one field but for nine passes close to the magnet, of a tenth of a
     // second each, where the magnitude drops by 10 to 60 %: too short for the search of changes
     // (blocks of 1 s, parts of 5 s), found as passes. With times the standard errors count the
-    // residuals' correlation, and the log without its passes lies within 0.85 of them: usable,
-    // with the passes named.
+    // residuals' correlation, and the log without its passes lies within 0.85 of them: no
+    // reason of one field, the passes named. (Usable at the default heading budget, just: its
+    // 95th percentile is 1.98 degrees; exit_codes.rs has the movement rows, 3.4.)
     let Some((c, _)) = broad("30_disturbed_stationary_magnet_C", &[]) else {
         return;
     };
-    assert!(c.usable, "{:?}", c.reasons);
+    assert_eq!(one_field_reason(&c), None, "{:?}", c.reasons);
     let f = c.field_change.clone().unwrap();
     // Searched without the passes' readings (with them, the largest z is 8.8).
     assert!(

@@ -1342,15 +1342,25 @@ fn a_bad_row_met_by_apply_is_the_logs_fault_not_the_outputs() {
 #[test]
 fn apply_gives_the_length_of_calibrated_readings_near_the_largest_number() {
     use magcal_runner::commands::apply::{self, ApplyArgs};
-    // Readings at 1e308 on each axis fitted by the offset model calibrate to about 5e307 on each
-    // axis: finite, but the sum of their squares is not, and apply refused the log its usable
-    // calibration was made from.
+    // Readings on a sphere of radius 8e307 fitted by the offset model calibrate to components
+    // near 4.6e307 each in some directions: finite, but the sum of their squares is not, and
+    // apply refused the log its usable calibration was made from. Sixty readings, so that the
+    // calibration has held-out evidence and is usable; noise-free, the noise given.
     let tmp = tempfile::TempDir::new().unwrap();
-    let small = "4.888663185627568e-1,-1e-1,-8.699999999999999e-1";
-    let log = format!(
-        "x,y,z\n4.888663185627568e-1,1e308,-8.699999999999999e-1\n4.888663185627568e-1,-1e-1,1e308\n1e308,-1e-1,-8.699999999999999e-1\n{small}\n{small}\n"
-    );
-    let (result, json) = calibrate_in(tmp.path(), &log, &["--fit=offset"]);
+    let mut log = String::from("x,y,z\n");
+    for i in 0..60 {
+        let z = -1.0 + (2 * i + 1) as f64 / 60.0;
+        let a = i as f64 * 2.399_963;
+        let r = (1.0 - z * z).sqrt();
+        let c = [1e306, -1e306, 2e306];
+        log.push_str(&format!(
+            "{:e},{:e},{:e}\n",
+            c[0] + 8e307 * r * a.cos(),
+            c[1] + 8e307 * r * a.sin(),
+            c[2] + 8e307 * z
+        ));
+    }
+    let (result, json) = calibrate_in(tmp.path(), &log, &["--fit=offset", "--noise=1e297"]);
     assert!(result.is_ok(), "{:?}", result.err().map(|e| format!("{e:?}")));
     let magnitude = json.unwrap()["magnitude"].as_f64().unwrap();
     let out = tmp.path().join("calibrated.csv");

@@ -402,8 +402,13 @@ fn a_planar_log_is_never_usable() {
                 "--trials".as_ref(),
                 "20".as_ref(),
             ]);
+            // Not identifiable, or a fit to a sensor no magnetometer is (an ellipsoid flattened to
+            // a disc): both say the readings do not determine the model.
             assert_eq!(code, Some(3), "seed {seed} {fit}: {stderr}");
-            assert!(stderr.contains("not identifiable"), "seed {seed} {fit}: {stderr}");
+            assert!(
+                stderr.contains("not identifiable") || stderr.contains("not a plausible sensor"),
+                "seed {seed} {fit}: {stderr}"
+            );
         }
     }
 }

@@ -55,12 +55,31 @@ fn simulated(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6
     let names: Vec<String> = reader.headers().unwrap().iter().map(str::to_string).collect();
     let at = |n: &str| names.iter().position(|h| h == n).unwrap();
     let cols = ["roll_deg", "pitch_deg", "true_heading_deg", "mx", "my", "mz"].map(at);
-    reader
+    let rows: Vec<[f64; 6]> = reader
         .records()
         .map(|r| {
             let r = r.unwrap();
             cols.map(|c| r[c].parse::<f64>().unwrap())
         })
+        .collect();
+    round_and_round(&rows)
+}
+
+/// The rows of a plan flown attitude by attitude, reordered as a vehicle turned round and round
+/// through its attitudes flies them: the first reading of each attitude, then the second of
+/// each, and so on. Every stretch of the stream then visits every attitude, as a person turning a
+/// vehicle does, and the fits without a fifth of it have the plan's attitudes still.
+fn round_and_round(rows: &[[f64; 6]]) -> Vec<[f64; 6]> {
+    let mut groups: Vec<Vec<[f64; 6]>> = Vec::new();
+    for r in rows {
+        match groups.last_mut() {
+            Some(g) if g[0][..3] == r[..3] => g.push(*r),
+            _ => groups.push(vec![*r]),
+        }
+    }
+    let longest = groups.iter().map(Vec::len).max().unwrap_or(0);
+    (0..longest)
+        .flat_map(|i| groups.iter().filter_map(move |g| g.get(i).copied()))
         .collect()
 }
 

@@ -20,6 +20,8 @@ pub mod send;
 pub mod source;
 
 use std::io::{IsTerminal, Write};
+
+use magcal_logs::text::significant;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -378,6 +380,9 @@ fn publish(view: &View, progress: &Progress, f: &Fitted, export: Option<String>)
     }
     let json = f.json.as_ref();
     s.usable = json.is_some_and(|j| j.usable);
+    let budget = json.and_then(|j| j.heading_budget.as_ref());
+    s.heading_budget_deg = budget.map(|b| b.verdict.budget_deg);
+    s.heading_predicted_deg = budget.map(|b| b.predicted_deg);
     s.model = json.map(|j| j.fit.clone());
     s.units = json.and_then(|j| j.units.clone());
     s.magnitude = json.map(|j| j.magnitude);
@@ -656,6 +661,14 @@ fn status(args: &LiveArgs, progress: &Progress, f: &Fitted, c: &Counts, dropped:
         args.memory_mib
     );
     line += &format!(" | fit {} in {:.2} s: ", progress.fits, f.seconds);
+    // The finish line: the heading the fit is predicted to leave against the budget.
+    if let Some(b) = f.json.as_ref().and_then(|j| j.heading_budget.as_ref()) {
+        line += &format!(
+            "heading {} of {} deg (95th percentile), ",
+            significant(b.predicted_deg, 2),
+            significant(b.verdict.budget_deg, 3)
+        );
+    }
     match &f.json {
         Some(j) if j.usable => {
             line += "USABLE";

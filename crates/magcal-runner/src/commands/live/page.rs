@@ -36,6 +36,10 @@ pub struct Status {
     pub fit_seconds: f64,
     pub usable: bool,
     pub reasons: String,
+    /// The heading budget and the heading the fit is predicted to leave (95th percentile over
+    /// the box at every heading), degrees: the finish line.
+    pub heading_budget_deg: Option<f64>,
+    pub heading_predicted_deg: Option<f64>,
     pub model: Option<String>,
     pub units: Option<String>,
     pub magnitude: Option<f64>,
