@@ -284,12 +284,20 @@ pub fn assemble(
     }
 }
 
+/// The fewest readings a log needs for held-out evidence under `model`: with a fifth held out,
+/// twice the model's parameters kept (23 for the full model).
+pub fn min_readings(model: FitModel) -> usize {
+    (1..)
+        .find(|&m: &usize| m - m.div_ceil(HELD_OUT_FOLDS) >= 2 * model.parameters())
+        .unwrap_or(usize::MAX)
+}
+
 /// The held-out evidence of `f`, the fit of `u` (in the fit's frame) under `settings`; `None`
 /// where the log is too small to hold a fold out (each kept set needs twice the parameters).
 pub(super) fn run(u: &[Vec3], f: &LogFit, settings: &FitSettings) -> Option<HeldOut> {
     use rayon::prelude::*;
     let m = u.len();
-    if m - m.div_ceil(HELD_OUT_FOLDS) < 2 * f.model.parameters() {
+    if m < min_readings(f.model) {
         return None;
     }
     // The standard errors as they stand (the check's floor included) are what the held-out

@@ -77,7 +77,7 @@ pub use field_change::{
 };
 pub use held_out::{
     FoldFit, FoldKind, HELD_OUT_FOLDS, HELD_OUT_RATIO, HELD_OUT_RATIO_SHUFFLED, HeldOut, MIN_DETERMINED, Scale,
-    assemble as assemble_held_out, cut as cut_folds, widen_std,
+    assemble as assemble_held_out, cut as cut_folds, min_readings as min_held_out_readings, widen_std,
 };
 pub use lack_of_fit::{LACK_OF_FIT_LEVEL, LackOfFit, show_p};
 pub use passes::{

@@ -65,6 +65,12 @@ pub struct NextJson {
     /// why.
     pub usable_after: bool,
     pub usable_after_why_not: Option<String>,
+    /// The heading the full fit of the log with the readings added is predicted to leave (95th
+    /// percentile over the box at every heading, degrees), and the budget it is held to.
+    #[serde(default)]
+    pub heading_after_deg: Option<f64>,
+    #[serde(default)]
+    pub heading_budget_deg: Option<f64>,
 }
 
 /// The most passes over the table `next` tries before it says that more readings at these

@@ -46,6 +46,10 @@ pub struct NextArgs {
     /// The model (default: the newest whose window holds the date).
     #[arg(long, requires = "site", value_parser = parse_model, value_name = "MODEL")]
     pub wmm: Option<magcal_core::wmm::Model>,
+    /// The heading error the calibration may leave, degrees (as `calibrate`'s): the passes over
+    /// the attitudes to add go on until the log with them meets it.
+    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, value_parser = crate::limits::finite)]
+    pub heading_budget: f64,
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub count: u64,
@@ -390,6 +394,13 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize;
         passes_to_usable: a.passes.filter(|_| a.after_fit.as_ref().is_ok_and(|f| f.usable)),
         readings_added: a.body.len() - a.m,
         usable_after: a.after_fit.as_ref().is_ok_and(|f| f.usable),
+        heading_after_deg: a
+            .after_fit
+            .as_ref()
+            .ok()
+            .and_then(|f| f.heading.as_ref())
+            .map(magcal_core::budget::HeadingVerdict::predicted_deg),
+        heading_budget_deg: Some(args.heading_budget),
         usable_after_why_not: match &a.after_fit {
             Ok(f) if !f.usable => Some(f.reasons.join("; ")),
             Ok(_) => None,
@@ -447,6 +458,16 @@ fn augment(
             &mut crate::pipeline::simulated_log_rng(vehicle.seed ^ 1),
         )?
     };
+    if !(args.heading_budget > 0.0 && args.heading_budget < 180.0) {
+        anyhow::bail!(
+            "--heading-budget {}: must be between 0 and 180 degrees",
+            crate::limits::show(args.heading_budget)
+        );
+    }
+    let budget = (
+        crate::pipeline::check::grid_of_box(&field, &vehicle.bounds),
+        args.heading_budget,
+    );
     let (passes, after_fit, added) = passes_to_usable(
         &mut base,
         &model,
@@ -454,6 +475,7 @@ fn augment(
         noise * factor,
         r,
         vehicle.seed,
+        &budget,
     )
     .with_context(|| format!("{shown}: noise {noise}"))?;
     drop(base);
@@ -505,6 +527,7 @@ fn passes_to_usable(
     sigma: f64,
     r: f64,
     seed: u64,
+    budget: &(magcal_core::budget::BudgetGrid, f64),
 ) -> Result<(Option<usize>, FitResult, Vec<Vec3>)> {
     let m = readings.len();
     let mut passes = 1;
@@ -513,7 +536,11 @@ fn passes_to_usable(
         let simulated = model.noisy_readings(&added, sigma, &mut crate::pipeline::simulated_log_rng(seed))?;
         readings.truncate(m);
         readings.extend(simulated);
-        let fit = log_fit::fit(readings, r, log_fit::FitModel::Full);
+        // Judged as calibrate judges it: the heading over the vehicle's box against the budget.
+        let fit = log_fit::fit(readings, r, log_fit::FitModel::Full).map(|mut f| {
+            f.judge_heading(&budget.0, budget.1, log_fit::CHECK_SEED);
+            f
+        });
         if fit.as_ref().is_ok_and(|f| f.usable) {
             return Ok((Some(passes), fit, added));
         }
@@ -560,10 +587,17 @@ fn write_text(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
     writeln!(w, "planned under {}", j.planned_under)?;
     writeln!(
         w,
-        "usable (full model): before {} ({}); after {} ({} readings at these attitudes, {}; the full fit of the log with them simulated at the log's noise, checked as calibrate checks a log{})",
+        "usable (full model): before {} ({}); after {}{} ({} readings at these attitudes, {}; the full fit of the log with them simulated at the log's noise, checked as calibrate checks a log{})",
         j.usable_before,
         j.usable_before_source,
         j.usable_after,
+        j.heading_after_deg
+            .zip(j.heading_budget_deg)
+            .map_or(String::new(), |(h, b)| format!(
+                ", heading {} deg predicted at the 95th percentile over the box (budget {})",
+                magcal_logs::text::significant(h, 3),
+                magcal_logs::text::significant(b, 3)
+            )),
         j.readings_added,
         match j.passes_to_usable {
             Some(1) => "the table as it stands".to_string(),

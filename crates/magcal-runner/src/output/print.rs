@@ -106,6 +106,24 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                     .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
             )
         }
+        None if out.designs.iter().any(|d| d.check.works()) => {
+            let fewest = magcal_core::log_fit::min_held_out_readings(magcal_core::log_fit::FitModel::Full);
+            let small: Vec<&str> = out
+                .designs
+                .iter()
+                .filter(|d| d.check.works())
+                .map(|d| d.name.as_str())
+                .collect();
+            let (names, verb) = match small.split_last() {
+                Some((last, [])) => (last.to_string(), "works"),
+                Some((last, rest)) => (format!("{} and {last}", rest.join(", ")), "work"),
+                None => (String::new(), "works"),
+            };
+            writeln!(
+                w,
+                "no design here gives a log calibrate can call usable: {names} {verb}, but a log of fewer than {fewest} readings holds no fifth out to vouch for its calibration; fly its attitudes as a plan (kind = \"plan\", readings = 100 or more)."
+            )
+        }
         None => {
             let budget = out.designs.first().map_or(0.0, |d| d.check.budget_deg);
             writeln!(
@@ -336,6 +354,11 @@ roll_deg = [-5.0, 5.0]
 yaw_deg = [-180.0, 180.0]
 pitch_deg = [-20.0, 20.0]
 
+# The Uniformity design leaves 2.9 degrees of heading over this box (95th percentile): it works
+# at a budget of 5.
+[verdict]
+heading_budget_deg = 5.0
+
 [[design]]
 name = "uniform"
 kind = "explicit"
@@ -451,7 +474,12 @@ attitudes = [
                 "uniform" => {
                     assert!(c.works() && d.verdict.identifiable);
                     assert_eq!(c.outcomes.ok, c.trials);
-                    assert_eq!(row[52..], format!("works: {share}"));
+                    let heading = format!(
+                        ", heading {} deg at the 95th percentile (budget 5.00)",
+                        significant(c.budget_p95_deg.unwrap(), 3)
+                    );
+                    assert!(c.budget_p95_deg.unwrap() > 2.0 && c.budget_p95_deg.unwrap() < 5.0);
+                    assert_eq!(row[52..], format!("works: {share}{heading}"));
                 }
                 _ => {
                     assert!(!c.works() && !d.verdict.identifiable);
@@ -577,22 +605,30 @@ attitudes = [
     #[test]
     fn the_recommendation_names_the_design_to_fly_or_what_works_instead() {
         let (mut out, _, _) = run();
-        // The Uniformity design is the one that works (see the design table's test).
+        // The Uniformity design is the one that works (see the design table's test), but nine
+        // readings hold no fifth out: nothing to fly, and the line says why.
+        assert_eq!(out.recommended(), None);
+        assert_eq!(
+            text(|w| recommendation(w, &out, None)),
+            "no design here gives a log calibrate can call usable: uniform works, but a log of fewer than 23 readings holds no fifth out to vouch for its calibration; fly its attitudes as a plan (kind = \"plan\", readings = 100 or more).\n"
+        );
+        // Flown three times at each attitude (27 readings), it is the one to fly.
+        out.designs[0].readings = vec![3; 9];
         let i = out.recommended().expect("a design works");
         assert_eq!(i, 0);
         let d = &out.designs[i];
         let printed = text(|w| recommendation(w, &out, None));
         let line = printed.strip_suffix(".\n").unwrap();
         let head = format!(
-            "fly {}: 9 readings at 9 attitudes (its flight plan is in designs.csv). At 30 nT it calibrated in {} of {} \
-             trials; heading error (rms over level headings) median ",
+            "fly {}: 27 readings at 9 attitudes (its flight plan is in designs.csv). At 30 nT it calibrated in {} of {} \
+             trials; heading error 95th percentile ",
             d.name, d.check.trials, d.check.trials
         );
         let rest = line.strip_prefix(&head).unwrap_or_else(|| panic!("{line}"));
-        let (median, rest) = rest.split_once(" deg, 95th percentile ").unwrap();
-        rounded(median, d.check.heading_median_deg.unwrap(), 3);
-        let (p95, rest) = rest.split_once(" deg; certified D-efficiency >= ").unwrap();
-        rounded(p95, d.check.heading_p95_deg.unwrap(), 3);
+        let (p95, rest) = rest
+            .split_once(" deg over the box at every heading, within the budget of 5.00 deg; certified D-efficiency >= ")
+            .unwrap_or_else(|| panic!("{line}"));
+        rounded(p95, d.check.budget_p95_deg.unwrap(), 3);
         rounded(rest, out.d_efficiency_bound(i).unwrap(), 4);
 
         // None works: one line, and with advice a line per alternative.
@@ -601,7 +637,7 @@ attitudes = [
             d.check.outcomes.ok = 0;
         }
         assert_eq!(out.recommended(), None);
-        let none = "no design here calibrates the full model in 95 % of trials at this noise.";
+        let none = "no design here calibrates the full model in 95 % of trials at this noise with the heading within the budget of 5.00 deg.";
         assert_eq!(text(|w| recommendation(w, &out, None)), format!("{none}\n"));
         let failing = out.designs[0].check.clone();
         let quieter = Check {
@@ -629,18 +665,17 @@ attitudes = [
         let lines: Vec<&str> = printed.lines().collect();
         let heading = |c: &Check| {
             format!(
-                "{} of {} trials ok at {} nT, heading error median {:.3} deg, 95th percentile {:.3} deg",
+                "{} of {} trials ok at {} nT, heading error 95th percentile {:.3} deg over the box (budget 5.00 deg)",
                 c.outcomes.ok,
                 c.trials,
                 significant(c.sigma_nt, 3),
-                c.heading_median_deg.unwrap(),
-                c.heading_p95_deg.unwrap()
+                c.budget_p95_deg.unwrap()
             )
         };
         assert_eq!(lines[0], none);
         assert_eq!(
             lines[1],
-            "What works instead, by the same check, from uniform (9 readings):"
+            "What works instead, by the same check, from uniform (27 readings):"
         );
         assert_eq!(
             lines[2],

@@ -134,13 +134,22 @@ impl Check {
 /// The grid of a scenario's heading budget: its box's roll and pitch at every heading, in its
 /// field, in [P1]'s body axes.
 pub fn budget_grid(scenario: &Scenario) -> magcal_core::budget::BudgetGrid {
-    let [roll, _, pitch] = scenario.bounds.ranges();
+    grid_of_box(&scenario.field, &scenario.bounds)
+}
+
+/// The grid of a heading budget over `bounds`' roll and pitch at every heading, in `field`, in
+/// [P1]'s body axes.
+pub fn grid_of_box(
+    field: &magcal_core::ReferenceField,
+    bounds: &magcal_core::AttitudeBox,
+) -> magcal_core::budget::BudgetGrid {
+    let [roll, _, pitch] = bounds.ranges();
     let tilts = magcal_core::budget::Tilts {
         roll_deg: [roll.min().to_degrees(), roll.max().to_degrees()],
         pitch_deg: [pitch.min().to_degrees(), pitch.max().to_degrees()],
     };
     // A field without a horizontal part has no heading: the grid is judged at 89 degrees.
-    let inclination = scenario.field.inclination_deg().clamp(-89.0, 89.0);
+    let inclination = field.inclination_deg().clamp(-89.0, 89.0);
     magcal_core::budget::BudgetGrid::new(inclination, tilts, &magcal_core::budget::IDENTITY)
 }
 

@@ -156,11 +156,14 @@ impl RunOutput {
     }
 
     /// The design to fly: among those that work ([`Check::works`]: they calibrate and keep the
-    /// heading within the budget), the smallest 95th percentile of the heading error over the
-    /// box, then the fewest readings, then scenario order. `None` when none works.
+    /// heading within the budget) and whose log can hold a fifth out
+    /// ([`magcal_core::log_fit::min_held_out_readings`], else `calibrate` can never call it
+    /// usable), the smallest 95th percentile of the heading error over the box, then the fewest
+    /// readings, then scenario order. `None` when none does.
     pub fn recommended(&self) -> Option<usize> {
+        let fewest = magcal_core::log_fit::min_held_out_readings(magcal_core::log_fit::FitModel::Full);
         (0..self.designs.len())
-            .filter(|&i| self.designs[i].check.works())
+            .filter(|&i| self.designs[i].check.works() && self.designs[i].m() >= fewest)
             .min_by(|&a, &b| {
                 let key = |i: usize| {
                     let d = &self.designs[i];

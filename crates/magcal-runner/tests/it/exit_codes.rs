@@ -357,8 +357,6 @@ fn broad_at(log: &Path, extra: &[&str], tmp: &Path, name: &str) -> (i32, serde_j
 
 /// The fewest trials, for the usable trials: at the default 200 they calibrate in 200 of 200 (the
 /// table above), so 20 give the same code at a tenth of the time.
-const FEWEST: &[&str] = &["--trials", "20"];
-
 /// The movement rows with the fewest trials: the rest phases at the start and end sit in one
 /// place, whose field the fits without them show differs (trial 02 with them: the held-out fits
 /// spread 1.4 times as far as the standard errors say, and the heading's 95th percentile is 3.7

@@ -365,7 +365,7 @@ proptest! {
         let scenario = tmp.path().join("fuzz.toml");
         std::fs::write(&scenario, x.toml()).unwrap();
         let out = tmp.path().join("out");
-        let common = || Common { scenario: scenario.clone(), seed: None, threads: Some(2), quiet: true, allow_long: false };
+        let common = || Common { scenario: scenario.clone(), seed: None, threads: Some(2), quiet: true, allow_long: false, heading_budget: None };
         let run = RunArgs { common: common(), out: Some(out.clone()), trials: None };
         match quietly(|| commands::run::run(&run)) {
             Ok(()) => {}

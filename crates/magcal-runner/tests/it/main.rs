@@ -9,6 +9,7 @@ mod apply_next;
 mod attitudes;
 mod bad_input;
 mod bad_logs;
+mod budget;
 mod calibrate;
 mod calibrate_one_field;
 mod cli;

@@ -632,6 +632,7 @@ fn next_attitude(
         json: true,
         report: None,
         input: input.clone(),
+        heading_budget: args.heading_budget,
     };
     super::next::suggestion(&next, cal)
         .map(|j| j.attitudes.into_iter().next())
