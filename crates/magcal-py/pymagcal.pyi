@@ -66,6 +66,15 @@ class Calibration:
     @property
     def verdict(self) -> Optional[str]: ...
     @property
+    def heading_budget_deg(self) -> Optional[float]:
+        """The heading budget it was judged against, degrees."""
+    @property
+    def heading_deg(self) -> Optional[float]:
+        """The heading error it is predicted to leave (95th percentile over the vehicle's
+        attitudes at every heading), degrees."""
+    @property
+    def heading_words(self) -> Optional[str]: ...
+    @property
     def magnitude(self) -> float: ...
     @property
     def bias(self) -> npt.NDArray[np.float64]: ...
@@ -127,8 +136,10 @@ def calibrate(
     trials: Optional[int] = None,
     seed: Optional[int] = None,
     scenario: Optional[Union[str, PathLike[str]]] = None,
+    heading_budget: Optional[float] = None,
 ) -> Calibration:
-    """Calibrates a log (a Log, a path read with the defaults, or an (n, 3) array of readings)."""
+    """Calibrates a log (a Log, a path read with the defaults, or an (n, 3) array of readings);
+    usable only where the heading it leaves is within `heading_budget` degrees (default 2)."""
 
 def read_calibration(path: Union[str, PathLike[str]]) -> Calibration:
     """Reads a calibration.json written by `magcal calibrate --out` or `--json`."""
@@ -185,6 +196,9 @@ class Design:
         """Calibrated in at least 95 % of the scenario's check trials."""
     @property
     def heading_median_deg(self) -> Optional[float]: ...
+    @property
+    def heading_p95_deg(self) -> Optional[float]:
+        """The 95th percentile of the heading error its check's calibrations leave over the box."""
     @property
     def metrics(self) -> dict[str, Any]:
         """Its row of design_metrics.csv (a copy)."""

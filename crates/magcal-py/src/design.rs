@@ -214,7 +214,8 @@ impl Design {
         self.metric(py, "identifiable")
     }
 
-    /// The verdict: whether it calibrates in at least 95 % of the scenario's check trials.
+    /// The verdict: whether it calibrates in at least 95 % of the scenario's check trials and
+    /// keeps the heading within the budget.
     #[getter]
     fn works(&self, py: Python<'_>) -> PyResult<bool> {
         self.metric(py, "works")
@@ -224,6 +225,13 @@ impl Design {
     #[getter]
     fn heading_median_deg(&self, py: Python<'_>) -> PyResult<Option<f64>> {
         self.metric(py, "check_heading_median_deg")
+    }
+
+    /// The 95th percentile of the heading error its check's calibrations leave over the box at
+    /// every heading, degrees (`works` needs it within the budget; `None`: none calibrated).
+    #[getter]
+    fn heading_p95_deg(&self, py: Python<'_>) -> PyResult<Option<f64>> {
+        self.metric(py, "check_budget_p95_deg")
     }
 
     /// Its row of `design_metrics.csv`, every column (a copy).

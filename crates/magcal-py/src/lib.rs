@@ -341,6 +341,10 @@ fn matrix<'py>(py: Python<'py>, m: [[f64; 3]; 3]) -> Bound<'py, PyArray2<f64>> {
 }
 
 impl Calibration {
+    fn heading(&self) -> Option<&magcal_runner::log::calibration::HeadingBudgetJson> {
+        self.cal.as_ref().and_then(|c| c.heading_budget.as_ref())
+    }
+
     fn estimates(&self) -> PyResult<&CalibrationJson> {
         self.cal
             .as_ref()
@@ -378,6 +382,26 @@ impl Calibration {
     #[getter]
     fn verdict(&self) -> Option<String> {
         self.cal.as_ref().map(|c| c.verdict.clone())
+    }
+
+    /// The heading budget the calibration was judged against, degrees (`None`: not judged).
+    #[getter]
+    fn heading_budget_deg(&self) -> Option<f64> {
+        self.heading().map(|b| b.verdict.budget_deg)
+    }
+
+    /// The heading error it is predicted to leave: the 95th percentile over the vehicle's
+    /// attitudes at every heading, the larger of the trials' and the standard errors', degrees.
+    #[getter]
+    fn heading_deg(&self) -> Option<f64> {
+        self.heading().map(|b| b.predicted_deg)
+    }
+
+    /// The heading budget's verdict in words: both figures, the field and the axes.
+    #[getter]
+    fn heading_words(&self) -> Option<String> {
+        self.heading()
+            .map(|b| format!("{}; inclination from {}; level is {}", b.words, b.field, b.axes))
     }
 
     /// The field magnitude the readings are calibrated to, in the log's units.
@@ -460,7 +484,7 @@ impl Calibration {
 #[pyfunction]
 #[pyo3(signature = (
     log, *, fit=None, magnitude=None, units=None, site=None, date=None, wmm=None, noise=None,
-    reject=None, residual=None, trials=None, seed=None, scenario=None
+    reject=None, residual=None, trials=None, seed=None, scenario=None, heading_budget=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn calibrate(
@@ -478,6 +502,7 @@ fn calibrate(
     trials: Option<u64>,
     seed: Option<u64>,
     scenario: Option<PathBuf>,
+    heading_budget: Option<f64>,
 ) -> PyResult<Calibration> {
     let (mut readings, shown) = if let Ok(l) = log.extract::<PyRef<'_, Log>>() {
         (l.log.clone(), l.path.clone())
@@ -505,7 +530,8 @@ fn calibrate(
         .value("residual", residual)
         .value("trials", trials)
         .value("seed", seed)
-        .value("scenario", scenario.map(|p| p.display().to_string()));
+        .value("scenario", scenario.map(|p| p.display().to_string()))
+        .number("heading-budget", heading_budget);
     let command: CalibrateCommand = parsed("calibrate", &shown, &flags)?;
     let calibrated = quietly(py, || calibrate_command::calibrate(&command.args, &mut readings))?.map_err(raised)?;
     let (usable, reasons) = (calibrated.usable(), calibrated.reasons().to_vec());

@@ -130,6 +130,26 @@ def test_an_array_of_a_known_sensor_gives_its_bias_and_matrix():
     assert j["log"] == "<array>" and j["samples"] == n
 
 
+def test_the_heading_budget_is_a_keyword_and_its_verdict_is_read_back():
+    # 600 readings of a known sensor with noise 0.05 uT in a 48 uT field: the heading it leaves
+    # at level is a few hundredths of a degree; a budget below that refuses it, naming both
+    # figures, as the command line does with --heading-budget.
+    rng = np.random.default_rng(7)
+    n = 600
+    z = 1 - (2 * np.arange(n) + 1) / n
+    a = np.arange(n) * 2.399963229728653
+    field = 48.0 * np.column_stack([np.sqrt(1 - z * z) * np.cos(a), np.sqrt(1 - z * z) * np.sin(a), z])
+    raw = field * np.array([1.05, 0.97, 1.02]) + np.array([3.0, -1.5, 0.5]) + rng.normal(0, 0.05, (n, 3))
+    cal = pymagcal.calibrate(raw)
+    assert cal.usable and cal.heading_budget_deg == 2.0
+    assert 0 < cal.heading_deg < 0.2, cal.heading_words
+    assert "inclination from assumed" in cal.heading_words
+    strict = pymagcal.calibrate(raw, heading_budget=cal.heading_deg / 2)
+    assert not strict.usable and strict.heading_budget_deg == cal.heading_deg / 2
+    assert strict.reasons[0].startswith("heading budget not met"), strict.reasons
+    assert json.loads(strict.json)["heading_budget"]["met"] is False
+
+
 def test_errors_are_the_command_lines_one_line_messages():
     need(CK)
     log = pymagcal.read_log(CK, columns="mx,my,mz")

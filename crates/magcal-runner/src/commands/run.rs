@@ -138,10 +138,12 @@ pub fn planned(setup: &super::Setup, designs_only: bool) -> Result<(RunOutput, O
         .pool
         .install(|| -> Result<_> {
             let run = pipeline::run(scenario, options)?;
-            // Only when no design works: what does instead.
-            let advice = match run.recommended() {
-                Some(_) => None,
-                None => advice::advise(scenario, &run.designs)?,
+            // Only when no design works: what does instead. (Where one works but none is
+            // recommended, its log is too small: the words say to fly it as a plan.)
+            let advice = if run.designs.iter().any(|d| d.check.works()) {
+                None
+            } else {
+                advice::advise(scenario, &run.designs)?
             };
             Ok((run, advice))
         })

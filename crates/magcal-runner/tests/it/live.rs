@@ -41,6 +41,12 @@ fn frame(msg: &MavMessage) -> Vec<u8> {
 /// The rows of a simulated log: roll, pitch, true heading (degrees) and the reading (nT) in the
 /// paper's body frame (nose, up, right).
 fn simulated(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6]> {
+    round_and_round(&in_plan_order(dir, scenario, design, seed))
+}
+
+/// The rows of a simulated log as `simulate` writes them: attitude by attitude, in the plan's
+/// order.
+fn in_plan_order(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6]> {
     let csv = dir.join("sim.csv");
     magcal()
         .args([
@@ -59,14 +65,13 @@ fn simulated(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6
     let names: Vec<String> = reader.headers().unwrap().iter().map(str::to_string).collect();
     let at = |n: &str| names.iter().position(|h| h == n).unwrap();
     let cols = ["roll_deg", "pitch_deg", "true_heading_deg", "mx", "my", "mz"].map(at);
-    let rows: Vec<[f64; 6]> = reader
+    reader
         .records()
         .map(|r| {
             let r = r.unwrap();
             cols.map(|c| r[c].parse::<f64>().unwrap())
         })
-        .collect();
-    round_and_round(&rows)
+        .collect()
 }
 
 /// The rows of a plan flown attitude by attitude, reordered as a vehicle turned round and round
@@ -411,6 +416,76 @@ fn sources_and_options_that_cannot_work_are_refused_before_anything_is_written()
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
     assert!(!record.exists() && !out.exists());
+}
+
+/// MotionCal's `Raw:` lines of `rows` (nT in [P1]'s axes; the sketch's units are 0.1 uT).
+fn raw_lines(rows: &[[f64; 6]]) -> String {
+    rows.iter()
+        .map(|r| {
+            format!(
+                "Raw:0,0,0,0,0,0,{},{},{}\n",
+                (r[3] / 100.0).round(),
+                (r[4] / 100.0).round(),
+                (r[5] / 100.0).round()
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_stream_is_not_usable_before_it_meets_the_heading_budget_and_nothing_is_exported() {
+    // A vehicle that turned once, attitude by attitude, through 241 readings of the glider's plan
+    // (the first 9 of its 12 attitudes): a fit its own trials would confirm, but the fits without
+    // each fifth of the stream, each fifth holding attitudes no other has, and the heading it
+    // leaves at every heading say otherwise. No export is printed, nothing is called usable.
+    let tmp = TempDir::new().unwrap();
+    let out = tmp.path().join("out");
+    let rows = in_plan_order(tmp.path(), "../../scenarios/glider.toml", "plan300", 21);
+    let o = magcal()
+        .args(["live", "-", "--json", "--out"])
+        .arg(&out)
+        .write_stdin(raw_lines(&rows[..241]))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(3), "{err}");
+    let live: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (&live["usable"], &live["written_usable"]),
+        (&false.into(), &false.into()),
+        "{live}"
+    );
+    assert!(!err.contains("usable at") && !err.contains("its export"), "{err}");
+    let reasons = live["reasons"].as_str().unwrap_or_default();
+    assert!(
+        reasons.contains("heading budget not met") || reasons.contains("no held-out evidence"),
+        "{reasons}"
+    );
+    // Every status line with a fit says where it stands against the budget.
+    let fits: Vec<&str> = err.lines().filter(|l| l.contains("| fit ")).collect();
+    assert!(!fits.is_empty(), "{err}");
+    assert!(
+        fits.iter().all(|l| !l.contains("USABLE")) && fits.iter().any(|l| l.contains(" of 2.00 deg (95th percentile)")),
+        "{fits:#?}"
+    );
+    // The whole plan, turned round and round: usable, and only now the export.
+    let all = round_and_round(&rows);
+    let out2 = tmp.path().join("out2");
+    let o = magcal()
+        .args(["live", "-", "--json", "--out"])
+        .arg(&out2)
+        .write_stdin(raw_lines(&all))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(err.contains("usable at") && err.contains("its export"), "{err}");
+    let cal = json_of(&out2.join("calibration.json"));
+    assert!(
+        cal["heading_budget"]["met"] == true && cal["heading_budget"]["predicted_deg"].as_f64().unwrap() < 2.0,
+        "{}",
+        cal["heading_budget"]
+    );
 }
 
 #[test]
