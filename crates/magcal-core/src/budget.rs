@@ -66,9 +66,14 @@ impl Tilts {
         if self.is_level() {
             "level".to_string()
         } else {
+            // Degrees to the hundredth: a box converted from radians and back keeps rounding.
+            let d = |v: f64| format!("{}", (v * 100.0).round() / 100.0);
             format!(
                 "roll {} to {}, pitch {} to {} deg",
-                self.roll_deg[0], self.roll_deg[1], self.pitch_deg[0], self.pitch_deg[1]
+                d(self.roll_deg[0]),
+                d(self.roll_deg[1]),
+                d(self.pitch_deg[0]),
+                d(self.pitch_deg[1])
             )
         }
     }

@@ -225,6 +225,10 @@ pub struct HeadingBudgetJson {
     /// Which of the readings' axes is up at level, in words.
     pub axes: String,
     pub words: String,
+    /// Where the budget is not met and the box is known: what `next` says to fly, and the
+    /// heading the log with it is predicted to leave.
+    #[serde(default)]
+    pub next: Option<String>,
 }
 
 /// The residuals' correlation in time and what it does to the standard errors.

@@ -552,13 +552,18 @@ fn next_says_usable_before_as_calibrate_said_it() {
         );
         let line = stdout.lines().find(|l| l.starts_with("usable (full model):")).unwrap();
         // After: the full fit of the log (read again by the sphere's sensor) with ten readings
-        // simulated at the suggested attitudes is usable, its check by trials included.
+        // simulated at the suggested attitudes is usable, its check by trials and the heading
+        // budget over the drone's box included.
         let source = if fit == "full" {
-            "before false (calibrate's verdict of this log); after true (10 readings at these attitudes, the table as it stands"
+            "before false (calibrate's verdict of this log); after true, heading "
         } else {
-            "before false (the full fit of this log, as calibrate fits and checks it); after true (10 readings"
+            "before false (the full fit of this log, as calibrate fits and checks it); after true, heading "
         };
         assert!(line.contains(source), "{line}");
+        assert!(
+            line.contains("deg predicted at the 95th percentile over the box (budget 2.00) (10 readings"),
+            "{line}"
+        );
     }
 }
 

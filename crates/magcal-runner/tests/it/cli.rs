@@ -464,20 +464,25 @@ fn completions_for_every_shell_and_a_man_page_with_every_command() {
 #[test]
 fn design_prints_its_recommendation_first_then_the_table_and_the_recommended_plan() {
     let tmp = TempDir::new().unwrap();
+    // The vessel's: a plan of 300 readings (the smoke scenario's 9-reading designs work but
+    // hold no fifth out, and none is recommended).
     let out = magcal()
         .args(["design", "--out"])
         .arg(tmp.path().join("set"))
-        .arg(smoke())
+        .arg(crate::common::scenarios().join("usv.toml"))
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(0));
     let stdout = String::from_utf8(out.stdout).unwrap();
     let first = stdout.lines().next().unwrap();
-    assert!(first.starts_with("fly optimum: 9 readings at 9 attitudes"), "{stdout}");
+    assert!(
+        first.starts_with("fly plan300: 300 readings at 11 attitudes"),
+        "{stdout}"
+    );
     let plans: Vec<&str> = stdout.lines().filter(|l| l.starts_with("flight plan ")).collect();
     assert_eq!(plans.len(), 1, "{stdout}");
     assert!(
-        plans[0].starts_with("flight plan optimum (9 attitudes, 9 readings"),
+        plans[0].starts_with("flight plan plan300 (11 attitudes, 300 readings"),
         "{stdout}"
     );
     let table = stdout.lines().position(|l| l.starts_with("design ")).unwrap();

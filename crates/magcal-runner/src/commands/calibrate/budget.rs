@@ -7,6 +7,7 @@ use magcal_core::log_fit::LogFit;
 use magcal_core::reference::Alignment;
 use magcal_core::small::{Mat3, mat_mul, transpose};
 
+use super::CalibrateArgs;
 use crate::log::calibration::{CalibrationJson, HeadingBudgetJson};
 use crate::log::flight::Format;
 use crate::log::source::Log;
@@ -118,5 +119,65 @@ fn to_json(v: HeadingVerdict, field: String, axes: String) -> HeadingBudgetJson 
         verdict: v,
         field,
         axes,
+        next: None,
+    }
+}
+
+/// Where the budget is not met and the vehicle's box is known: the attitudes `next` would add
+/// (its D-optimal augmentation of the log in the box) and the heading the log with them is
+/// predicted to leave, in words, added to the reason; `None` where `next` does not apply (no box,
+/// a vector fit, a log from standard input) or finds nothing.
+pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
+    let unmet = json.heading_budget.as_ref().is_some_and(|b| !b.verdict.met);
+    let boxed = args.scenario.is_some() || args.attitude.any();
+    if !unmet || !boxed || args.fit.vector_model().is_some() || args.log.as_os_str() == "-" {
+        return;
+    }
+    let next = crate::commands::next::NextArgs {
+        calibration: std::path::PathBuf::from("this calibration"),
+        log: args.log.clone(),
+        scenario: args.scenario.clone(),
+        attitude: args.attitude.clone(),
+        site: args.site.filter(|_| args.scenario.is_none()),
+        date: args.date.filter(|_| args.scenario.is_none()),
+        wmm: args.wmm.filter(|_| args.scenario.is_none()),
+        count: 10,
+        json: true,
+        report: None,
+        input: args.input.clone(),
+        heading_budget: args.heading_budget,
+    };
+    // Quietly: what next would warn of a log it reads again is calibrate's to say.
+    let Ok(n) = crate::output::capture::capturing(|| crate::commands::next::suggestion(&next, json)).0 else {
+        return;
+    };
+    let Some(first) = n.attitudes.first() else { return };
+    let heading = match (n.heading_after_deg, n.usable_after) {
+        (Some(h), true) => format!("leave {} deg, within the budget", magcal_logs::text::significant(h, 2)),
+        (Some(h), false) => format!("still leave {} deg", magcal_logs::text::significant(h, 2)),
+        (None, _) => "not determine the calibration".to_string(),
+    };
+    let words = format!(
+        "fly the {} attitudes `magcal next` gives in the box (the first: roll {:.0}, pitch {:.0}, {} heading {:.0} deg), {} readings more: the log with them is predicted to {heading}",
+        n.attitudes.len(),
+        first.roll_deg,
+        first.pitch_deg,
+        if first.magnetic_heading_deg.is_some() {
+            "magnetic"
+        } else {
+            "true"
+        },
+        first.magnetic_heading_deg.unwrap_or(first.true_heading_deg),
+        n.readings_added
+    );
+    if let Some(b) = json.heading_budget.as_mut() {
+        b.next = Some(words.clone());
+    }
+    if let Some(r) = json
+        .reasons
+        .iter_mut()
+        .find(|r| r.starts_with("heading budget not met"))
+    {
+        r.push_str(&format!("; {words}"));
     }
 }

@@ -374,6 +374,7 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
             .push(format!("the calibration fails the checks of apply and next: {why}"));
     }
     coverage_in_box(&mut json, args, log, vehicle.as_ref())?;
+    budget::what_to_fly(args, &mut json);
     Ok(Calibrated::Fit {
         json: Box::new(json),
         why,
