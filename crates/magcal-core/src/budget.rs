@@ -111,7 +111,8 @@ impl BudgetGrid {
         // B^n in (N, U, E) with no declination: the heading is measured from magnetic north.
         let field_n: Vec3 = [i.cos(), -i.sin(), 0.0];
         let steps = |r: [f64; 2]| -> Vec<f64> {
-            if r[0] == r[1] {
+            // A range of one value (level) is that value alone, to the bit.
+            if r[0].to_bits() == r[1].to_bits() {
                 vec![r[0]]
             } else {
                 (0..TILT_STEPS)
@@ -463,12 +464,14 @@ mod tests {
 
     #[test]
     fn quantiles_interpolate_as_numpy() {
+        // Within a few roundings of the values (numpy: 3.0, 4.8, 5.0, 1.0).
+        let near = |a: f64, b: f64| (a - b).abs() <= 4.0 * f64::EPSILON * b.abs();
         let mut v = vec![4.0, 1.0, 3.0, 2.0, 5.0];
-        assert_eq!(quantile(&mut v, 0.5), 3.0);
-        assert_eq!(quantile(&mut v, 0.95), 4.8);
-        assert_eq!(quantile(&mut v, 1.0), 5.0);
-        assert_eq!(quantile(&mut v, 0.0), 1.0);
+        assert!(near(quantile(&mut v, 0.5), 3.0));
+        assert!(near(quantile(&mut v, 0.95), 4.8));
+        assert!(near(quantile(&mut v, 1.0), 5.0));
+        assert!(near(quantile(&mut v, 0.0), 1.0));
         assert!(quantile(&mut [], 0.5).is_nan());
-        assert_eq!(quantile(&mut [7.0], 0.95), 7.0);
+        assert!(near(quantile(&mut [7.0], 0.95), 7.0));
     }
 }

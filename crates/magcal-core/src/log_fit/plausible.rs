@@ -30,7 +30,9 @@ pub const PLAUSIBLE_SCALE: [f64; 2] = [0.5, 2.0];
 pub fn implausible(e: &ErrorModel, absolute: bool) -> Option<String> {
     let (psi, s) = (e.psi_deg(), e.scale());
     let mut why = Vec::new();
-    if let Some(p) = psi.iter().find(|p| !(p.abs() <= PLAUSIBLE_PSI_DEG)) {
+    // Not within the limit, NaN included.
+    let within = |v: f64, limit: f64| v.partial_cmp(&limit).is_some_and(|o| o.is_le());
+    if let Some(p) = psi.iter().find(|p| !within(p.abs(), PLAUSIBLE_PSI_DEG)) {
         why.push(format!(
             "a non-orthogonality of {p:.2} deg (at most {PLAUSIBLE_PSI_DEG})"
         ));
@@ -40,7 +42,7 @@ pub fn implausible(e: &ErrorModel, absolute: bool) -> Option<String> {
         s.iter().copied().fold(0.0, f64::max),
     );
     let ratio = hi / lo;
-    if !(ratio <= PLAUSIBLE_SCALE_RATIO) {
+    if !within(ratio, PLAUSIBLE_SCALE_RATIO) {
         why.push(format!(
             "axes whose scale factors differ {} to 1 (at most {PLAUSIBLE_SCALE_RATIO}; an ellipsoid flattened towards a disc or a needle: the readings do not determine the model)",
             super::significant(ratio, 3)

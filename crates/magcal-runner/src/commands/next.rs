@@ -267,14 +267,14 @@ fn write_flight(w: &mut dyn Write, j: &FlightNextJson) -> std::io::Result<()> {
             w,
             "heading: the bias's largest standard error leaves {} degrees (at most {} for a usable compass)",
             magcal_logs::text::significant(h, 3),
-            super::calibrate::vector::MAX_HEADING_STD_DEG
+            crate::log::flown::MAX_HEADING_STD_DEG
         )?;
     }
     if !j.headings_never_flown.is_empty() {
         writeln!(
             w,
             "never flown: headings {} (30-degree sectors with under 1 % of the readings)",
-            super::calibrate::vector::never_flown_words(&j.headings_never_flown)
+            crate::log::flown::never_flown_words(&j.headings_never_flown)
         )?;
     }
     for m in &j.next_manoeuvres {

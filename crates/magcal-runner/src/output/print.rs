@@ -81,9 +81,30 @@ fn outcome_words(o: &crate::pipeline::Outcomes) -> String {
     )
 }
 
-/// What to fly: the design that works (calibrates in at least 95 % of its check's trials) with
-/// the smallest median heading error, the fewer readings on a tie; or, when none works, that none
-/// does and why.
+/// Where designs work but none gives a log of the readings held-out fits need: which, and to fly
+/// them as a plan.
+fn too_few_readings(w: &mut dyn Write, out: &RunOutput) -> std::io::Result<()> {
+    let fewest = magcal_core::log_fit::min_held_out_readings(magcal_core::log_fit::FitModel::Full);
+    let small: Vec<&str> = out
+        .designs
+        .iter()
+        .filter(|d| d.check.works())
+        .map(|d| d.name.as_str())
+        .collect();
+    let (names, verb) = match small.split_last() {
+        Some((last, [])) => (last.to_string(), "works"),
+        Some((last, rest)) => (format!("{} and {last}", rest.join(", ")), "work"),
+        None => (String::new(), "works"),
+    };
+    writeln!(
+        w,
+        "no design here gives a log calibrate can call usable: {names} {verb}, but a log of fewer than {fewest} readings holds no fifth out to vouch for its calibration; fly its attitudes as a plan (kind = \"plan\", readings = 100 or more)."
+    )
+}
+
+/// What to fly: the design that works (calibrates in at least 95 % of its check's trials and keeps
+/// the heading within the budget) and gives a log held-out fits can vouch for, with the smallest
+/// heading error, the fewer readings on a tie; or, when none does, that none does and why.
 pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice>) -> std::io::Result<()> {
     match out.recommended() {
         Some(i) => {
@@ -106,24 +127,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                     .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
             )
         }
-        None if out.designs.iter().any(|d| d.check.works()) => {
-            let fewest = magcal_core::log_fit::min_held_out_readings(magcal_core::log_fit::FitModel::Full);
-            let small: Vec<&str> = out
-                .designs
-                .iter()
-                .filter(|d| d.check.works())
-                .map(|d| d.name.as_str())
-                .collect();
-            let (names, verb) = match small.split_last() {
-                Some((last, [])) => (last.to_string(), "works"),
-                Some((last, rest)) => (format!("{} and {last}", rest.join(", ")), "work"),
-                None => (String::new(), "works"),
-            };
-            writeln!(
-                w,
-                "no design here gives a log calibrate can call usable: {names} {verb}, but a log of fewer than {fewest} readings holds no fifth out to vouch for its calibration; fly its attitudes as a plan (kind = \"plan\", readings = 100 or more)."
-            )
-        }
+        None if out.designs.iter().any(|d| d.check.works()) => too_few_readings(w, out),
         None => {
             let budget = out.designs.first().map_or(0.0, |d| d.check.budget_deg);
             writeln!(

@@ -132,13 +132,13 @@ impl Check {
 }
 
 /// The grid of a scenario's heading budget: its box's roll and pitch at every heading, in its
-/// field, in [P1]'s body axes.
+/// field, in \[P1\]'s body axes.
 pub fn budget_grid(scenario: &Scenario) -> magcal_core::budget::BudgetGrid {
     grid_of_box(&scenario.field, &scenario.bounds)
 }
 
 /// The grid of a heading budget over `bounds`' roll and pitch at every heading, in `field`, in
-/// [P1]'s body axes.
+/// \[P1\]'s body axes.
 pub fn grid_of_box(
     field: &magcal_core::ReferenceField,
     bounds: &magcal_core::AttitudeBox,

@@ -653,17 +653,28 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
         given_noise: fit.given_noise,
         correlation: correlation_json(fit, log),
         check: fit.check.map(|c| check_json(&c, seed)),
-        std_error_source: Some(StdSourceJson {
-            psi_deg: fit.std_source[0].map(|s| s.as_str().to_string()),
-            scale: fit.std_source[1].map(|s| s.as_str().to_string()),
-            bias: fit.std_source[2].map(|s| s.as_str().to_string()),
-        }),
-        held_out: fit.held_out.as_ref().map(|h| HeldOutJson {
-            evidence: h.evidence(),
-            words: h.words(),
-            held_out: h.clone(),
-        }),
+        std_error_source: Some(std_source_json(fit)),
+        held_out: fit.held_out.as_ref().map(held_out_json),
         heading_budget: None,
+    }
+}
+
+/// What each standard error of `fit` rests on, as `calibration.json` gives it.
+fn std_source_json(fit: &LogFit) -> StdSourceJson {
+    let names = |g: usize| fit.std_source[g].map(|s| s.as_str().to_string());
+    StdSourceJson {
+        psi_deg: names(0),
+        scale: names(1),
+        bias: names(2),
+    }
+}
+
+/// The held-out fits as `calibration.json` gives them.
+fn held_out_json(h: &log_fit::HeldOut) -> HeldOutJson {
+    HeldOutJson {
+        evidence: h.evidence(),
+        words: h.words(),
+        held_out: h.clone(),
     }
 }
 

@@ -191,37 +191,9 @@ fn print_flight_advice(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Resul
     }
     Ok(())
 }
-/// The verdicts (identifiable, lack of fit, ellipsoid, usable) and the coverage of the log.
-fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
-    writeln!(
-        w,
-        "{}: {}",
-        if j.identifiable {
-            "IDENTIFIABLE"
-        } else {
-            "NOT IDENTIFIABLE"
-        },
-        j.verdict
-    )?;
-    if let Some(t) = &j.lack_of_fit {
-        let head = if t.rejected {
-            "MODEL REJECTED BY THE LOG"
-        } else {
-            "lack of fit"
-        };
-        writeln!(w, "{head}: {}", t.words)?;
-    }
-    if let Some(e) = &j.ellipsoid {
-        writeln!(
-            w,
-            "{}: {}",
-            if e.passed { "ellipsoid" } else { "NOT AN ELLIPSOID" },
-            e.words
-        )?;
-    }
-    if let Some(c) = &j.check {
-        writeln!(w, "{}: {}", if c.passed { "check" } else { "CHECK FAILED" }, c.words)?;
-    }
+/// The held-out fits, the heading budget, and the verdict: USABLE with both heading figures, or
+/// NOT USABLE with every reason.
+fn print_usable(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
     if let Some(h) = &j.held_out {
         writeln!(
             w,
@@ -275,6 +247,41 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
     } else {
         writeln!(w, "NOT USABLE: {}", j.reasons.join("; "))?;
     }
+    Ok(())
+}
+
+/// The verdicts (identifiable, lack of fit, ellipsoid, usable) and the coverage of the log.
+fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "{}: {}",
+        if j.identifiable {
+            "IDENTIFIABLE"
+        } else {
+            "NOT IDENTIFIABLE"
+        },
+        j.verdict
+    )?;
+    if let Some(t) = &j.lack_of_fit {
+        let head = if t.rejected {
+            "MODEL REJECTED BY THE LOG"
+        } else {
+            "lack of fit"
+        };
+        writeln!(w, "{head}: {}", t.words)?;
+    }
+    if let Some(e) = &j.ellipsoid {
+        writeln!(
+            w,
+            "{}: {}",
+            if e.passed { "ellipsoid" } else { "NOT AN ELLIPSOID" },
+            e.words
+        )?;
+    }
+    if let Some(c) = &j.check {
+        writeln!(w, "{}: {}", if c.passed { "check" } else { "CHECK FAILED" }, c.words)?;
+    }
+    print_usable(w, j)?;
     writeln!(
         w,
         "coverage: MotionCal gaps {:.1} %, MicroStrain spatial coverage {:.1} %{}",

@@ -171,11 +171,7 @@ pub struct Vector {
     held_out: Option<HeldOut>,
 }
 
-/// The largest heading standard error a usable calibration of an ordinary flight may leave,
-/// degrees: the bias's largest standard error against the horizontal field. A compass's heading
-/// is what a flight needs it for; an autopilot's own checks (ArduPilot's compass consistency)
-/// work in degrees of that order.
-pub const MAX_HEADING_STD_DEG: f64 = 1.0;
+pub use crate::log::flown::{MAX_HEADING_STD_DEG, never_flown_words};
 
 /// How well a track fit points the compass, and what to fly next.
 pub struct TrackVerdict {
@@ -283,14 +279,6 @@ impl Advice {
             .collect();
         json.headings_never_flown.clone_from(&self.never_flown);
     }
-}
-
-/// The headings never flown in words: `120 to 300, 330 to 90, 30 to 360`.
-pub fn never_flown_words(runs: &[[f64; 2]]) -> String {
-    runs.iter()
-        .map(|[a, b]| format!("{a:.0} to {:.0}", if *b > 360.0 { b - 360.0 } else { *b }))
-        .collect::<Vec<_>>()
-        .join(", ")
 }
 
 /// With `--fit vector`, the vector fit of `log` ([`fit`]) and `scalar` replaced by it
@@ -458,27 +446,8 @@ pub fn fit(
     if let Some((fields, field_source)) = given {
         let fit = fit_track(&readings, &attitudes, &fields, inputs.as_deref(), model, order).with_context(what)?;
         let track = track_verdict(&fit, &readings, &attitudes, &fields, inputs.as_deref(), model, order);
-        let held_out = held_out(
-            &fit,
-            &readings,
-            |i| norm(fields[i]),
-            order,
-            args.seed,
-            |keep| {
-                let pick = |v: &[Vec3]| keep.iter().map(|&i| v[i]).collect::<Vec<_>>();
-                let inputs: Option<Vec<f64>> = inputs.as_ref().map(|u| keep.iter().map(|&i| u[i]).collect());
-                let attitudes: Vec<Mat3> = keep.iter().map(|&i| attitudes[i]).collect();
-                fit_track(
-                    &pick(&readings),
-                    &attitudes,
-                    &pick(&fields),
-                    inputs.as_deref(),
-                    model,
-                    order,
-                )
-                .ok()
-            },
-        );
+        let track_data = (&readings[..], &attitudes[..], &fields[..], inputs.as_deref());
+        let held_out = held_out_of_track(&fit, track_data, model, order, args.seed);
         return Ok(Vector {
             held_out,
             fit,
@@ -506,20 +475,8 @@ pub fn fit(
             ),
         ),
     };
-    let fit = fit_vector_in(&readings, &attitudes, field.clone(), order).with_context(what)?;
-    let magnitude = norm(fit.field);
-    let held_out = held_out(
-        &fit,
-        &readings,
-        |_| magnitude,
-        order,
-        args.seed,
-        |keep| {
-            let readings: Vec<Vec3> = keep.iter().map(|&i| readings[i]).collect();
-            let attitudes: Vec<Mat3> = keep.iter().map(|&i| attitudes[i]).collect();
-            fit_vector_in(&readings, &attitudes, field.clone(), order).ok()
-        },
-    );
+    let fit = fit_vector_in(&readings, &attitudes, field, order).with_context(what)?;
+    let held_out = held_out_of_field(&fit, &readings, &attitudes, field, order, args.seed);
     Ok(Vector {
         held_out,
         fit,
@@ -531,6 +488,62 @@ pub fn fit(
         motor: None,
         track: None,
     })
+}
+
+/// The held-out evidence of a fit against the field given per reading ([`fit_track`]): the
+/// readings, attitudes, fields and motor inputs it was made of.
+fn held_out_of_track(
+    fit: &VectorFit,
+    (readings, attitudes, fields, inputs): (&[Vec3], &[Mat3], &[Vec3], Option<&[f64]>),
+    model: VectorModel,
+    order: Order,
+    seed: u64,
+) -> Option<HeldOut> {
+    held_out(
+        fit,
+        readings,
+        |i| norm(fields[i]),
+        order,
+        seed,
+        |keep| {
+            let pick = |v: &[Vec3]| keep.iter().map(|&i| v[i]).collect::<Vec<_>>();
+            let inputs: Option<Vec<f64>> = inputs.map(|u| keep.iter().map(|&i| u[i]).collect());
+            let attitudes: Vec<Mat3> = keep.iter().map(|&i| attitudes[i]).collect();
+            fit_track(
+                &pick(readings),
+                &attitudes,
+                &pick(fields),
+                inputs.as_deref(),
+                model,
+                order,
+            )
+            .ok()
+        },
+    )
+}
+
+/// The held-out evidence of a fit against one field, given or fitted ([`fit_vector_in`]).
+fn held_out_of_field(
+    fit: &VectorFit,
+    readings: &[Vec3],
+    attitudes: &[Mat3],
+    field: ReferenceField,
+    order: Order,
+    seed: u64,
+) -> Option<HeldOut> {
+    let magnitude = norm(fit.field);
+    held_out(
+        fit,
+        readings,
+        |_| magnitude,
+        order,
+        seed,
+        |keep| {
+            let readings: Vec<Vec3> = keep.iter().map(|&i| readings[i]).collect();
+            let attitudes: Vec<Mat3> = keep.iter().map(|&i| attitudes[i]).collect();
+            fit_vector_in(&readings, &attitudes, field, order).ok()
+        },
+    )
 }
 
 /// The held-out evidence of the vector fit `fit` of `readings` (docs/conventions.md "Held out"):
@@ -590,6 +603,32 @@ fn held_out(
 }
 
 impl Vector {
+    /// `f`'s standard errors widened by the held-out fits where they spread further, each named
+    /// by what it rests on.
+    fn widen_by_held_out(&self, f: &mut LogFit) {
+        let v = &self.fit;
+        f.held_out = self.held_out.clone();
+        let own = if v.serial.is_some() {
+            StdSource::LongRun
+        } else {
+            StdSource::White
+        };
+        f.std_source = [[own; 3]; 3];
+        let fixed = v.model != VectorModel::Full;
+        if fixed {
+            f.std_source[0] = [StdSource::Fixed; 3];
+        }
+        let Some(h) = &self.held_out else { return };
+        let raised = widen_std([&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias], fixed, h);
+        for (g, row) in raised.iter().enumerate() {
+            for (i, r) in row.iter().enumerate() {
+                if *r {
+                    f.std_source[g][i] = StdSource::HeldOut;
+                }
+            }
+        }
+    }
+
     /// Why a track fit is not usable beyond what a vector fit's verdict says: a reduced model the
     /// log rejects against the full matrix, a bias that leaves more than
     /// [`MAX_HEADING_STD_DEG`] of heading.
@@ -668,26 +707,7 @@ impl Vector {
             ..scalar.clone()
         };
         f.reasons.clear();
-        f.held_out = self.held_out.clone();
-        f.std_source = [[if v.serial.is_some() {
-            StdSource::LongRun
-        } else {
-            StdSource::White
-        }; 3]; 3];
-        if v.model != VectorModel::Full {
-            f.std_source[0] = [StdSource::Fixed; 3];
-        }
-        if let Some(h) = &self.held_out {
-            let fixed = v.model != VectorModel::Full;
-            let raised = widen_std([&mut f.std_psi_deg, &mut f.std_scale, &mut f.std_bias], fixed, h);
-            for (g, row) in raised.iter().enumerate() {
-                for (i, r) in row.iter().enumerate() {
-                    if *r {
-                        f.std_source[g][i] = StdSource::HeldOut;
-                    }
-                }
-            }
-        }
+        self.widen_by_held_out(&mut f);
         if !v.identifiable {
             f.reasons.push(format!("not identifiable: {}", v.verdict));
         }
