@@ -490,11 +490,14 @@ pub fn fit(
     })
 }
 
-/// The held-out evidence of a fit against the field given per reading ([`fit_track`]): the
-/// readings, attitudes, fields and motor inputs it was made of.
+/// What a track fit is made of: the readings, their attitudes, the field at each, and the motor's
+/// input where fitted.
+type TrackData<'a> = (&'a [Vec3], &'a [Mat3], &'a [Vec3], Option<&'a [f64]>);
+
+/// The held-out evidence of a fit against the field given per reading ([`fit_track`]).
 fn held_out_of_track(
     fit: &VectorFit,
-    (readings, attitudes, fields, inputs): (&[Vec3], &[Mat3], &[Vec3], Option<&[f64]>),
+    (readings, attitudes, fields, inputs): TrackData<'_>,
     model: VectorModel,
     order: Order,
     seed: u64,
