@@ -151,6 +151,20 @@ pub fn flown(attitudes: &[Option<Mat3>], bounds: Option<Bounds>) -> Option<Flown
     })
 }
 
+/// The largest heading standard error a usable calibration of an ordinary flight may leave,
+/// degrees: the bias's largest standard error against the horizontal field. A compass's heading
+/// is what a flight needs it for; an autopilot's own checks (ArduPilot's compass consistency)
+/// work in degrees of that order.
+pub const MAX_HEADING_STD_DEG: f64 = 1.0;
+
+/// The headings never flown in words: `120 to 300, 330 to 90, 30 to 360`.
+pub fn never_flown_words(runs: &[[f64; 2]]) -> String {
+    runs.iter()
+        .map(|[a, b]| format!("{a:.0} to {:.0}", if *b > 360.0 { b - 360.0 } else { *b }))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,18 +241,4 @@ mod tests {
         .degrees();
         assert_eq!(d.heading_deg, [0.0, 360.0]);
     }
-}
-
-/// The largest heading standard error a usable calibration of an ordinary flight may leave,
-/// degrees: the bias's largest standard error against the horizontal field. A compass's heading
-/// is what a flight needs it for; an autopilot's own checks (ArduPilot's compass consistency)
-/// work in degrees of that order.
-pub const MAX_HEADING_STD_DEG: f64 = 1.0;
-
-/// The headings never flown in words: `120 to 300, 330 to 90, 30 to 360`.
-pub fn never_flown_words(runs: &[[f64; 2]]) -> String {
-    runs.iter()
-        .map(|[a, b]| format!("{a:.0} to {:.0}", if *b > 360.0 { b - 360.0 } else { *b }))
-        .collect::<Vec<_>>()
-        .join(", ")
 }
