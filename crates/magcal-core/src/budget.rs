@@ -56,6 +56,16 @@ impl Tilts {
         pitch_deg: [0.0, 0.0],
     };
 
+    /// The tilts of a box's roll and pitch ranges, radians, in degrees to the nanodegree (a box
+    /// given in degrees and kept in radians comes back as 14.999999999999998).
+    pub fn of_box(roll: [f64; 2], pitch: [f64; 2]) -> Self {
+        let d = |r: f64| (r.to_degrees() * 1e9).round() / 1e9;
+        Self {
+            roll_deg: roll.map(d),
+            pitch_deg: pitch.map(d),
+        }
+    }
+
     /// Whether only level is flown.
     pub fn is_level(&self) -> bool {
         self.roll_deg.iter().chain(&self.pitch_deg).all(|v| *v == 0.0)
@@ -247,6 +257,9 @@ pub struct HeadingVerdict {
     pub rescaled_trials: bool,
     /// Whether the fit's standard errors were widened by its held-out fits.
     pub held_out_widened: bool,
+    /// Whether its held-out fits gave evidence at all (enough folds determine the calibration).
+    #[serde(default)]
+    pub held_out_evidence: bool,
     /// Both figures within the budget.
     pub met: bool,
 }
@@ -274,20 +287,34 @@ impl HeadingVerdict {
     /// errors".
     pub fn words(&self) -> String {
         let trials = self.by_trials_deg.map_or(String::new(), |t| {
-            format!("{} deg by {} trials, ", significant_deg(t), self.trials)
+            format!("{} deg by {} trials, ", self.against_budget(t), self.trials)
         });
         format!(
             "heading within {} deg (95th percentile over {}, every heading, inclination {:.1} deg): {trials}{} deg with {}",
-            significant_deg(self.budget_deg),
+            crate::error::show(self.budget_deg),
             self.tilts.words(),
             self.inclination_deg,
-            significant_deg(self.with_std_deg),
-            match (self.held_out_widened, self.by_trials_deg.is_some()) {
+            self.against_budget(self.with_std_deg),
+            match (self.held_out_widened, self.held_out_evidence) {
                 (true, _) => "the standard errors the held-out fits widened",
                 (false, true) => "the standard errors (the held-out fits spread no further)",
                 (false, false) => "the standard errors",
             }
         )
+    }
+
+    /// `x` degrees to a few digits, with as many more as it takes to show on which side of the
+    /// budget it lies (1.004 against a budget of 1 is not "1.0").
+    pub fn against_budget(&self, x: f64) -> String {
+        let shown = significant_deg(x);
+        let within = x <= self.budget_deg;
+        if !x.is_finite() || shown.parse::<f64>().is_ok_and(|s| (s <= self.budget_deg) == within) {
+            return shown;
+        }
+        (3..=9)
+            .map(|d| format!("{x:.d$}"))
+            .find(|s| s.parse::<f64>().is_ok_and(|s| (s <= self.budget_deg) == within))
+            .unwrap_or_else(|| format!("{x}"))
     }
 }
 
@@ -373,6 +400,7 @@ pub fn judge(fit: &crate::log_fit::LogFit, grid: &BudgetGrid, budget_deg: f64, s
         draws: draws.len(),
         rescaled_trials,
         held_out_widened: fit.held_out.as_ref().is_some_and(|h| h.widened),
+        held_out_evidence: fit.held_out.as_ref().is_some_and(|h| h.evidence()),
         met: false,
     };
     v.met = v.predicted_deg() <= budget_deg;

@@ -18,6 +18,9 @@ pub use magcal_core::error::show;
 /// # Errors
 /// Text that is not a number, or a number that is not finite.
 pub fn finite(text: &str) -> std::result::Result<f64, String> {
+    if text.trim().is_empty() {
+        return Err("an empty value is not a number".into());
+    }
     let v: f64 = text
         .trim()
         .parse()
@@ -32,6 +35,22 @@ pub fn finite(text: &str) -> std::result::Result<f64, String> {
         return Err(format!("{} is beyond the largest number (1.8e308)", excerpt(text, 40)));
     }
     Ok(v)
+}
+
+/// `--heading-budget`: a heading error in degrees above 0 and below 180.
+///
+/// # Errors
+/// Text that is not a finite number, or one outside that range.
+pub fn heading_budget(text: &str) -> std::result::Result<f64, String> {
+    let v = finite(text)?;
+    if v > 0.0 && v < 180.0 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{} degrees: a heading budget is above 0 and below 180",
+            show(v)
+        ))
+    }
 }
 
 /// `text` with what a terminal would act on escaped: control characters (an escape sequence in a

@@ -143,7 +143,7 @@ def test_the_heading_budget_is_a_keyword_and_its_verdict_is_read_back():
     cal = pymagcal.calibrate(raw)
     assert cal.usable and cal.heading_budget_deg == 2.0
     assert 0 < cal.heading_deg < 0.2, cal.heading_words
-    assert "inclination from assumed" in cal.heading_words
+    assert "inclination from an assumed 60 deg" in cal.heading_words
     strict = pymagcal.calibrate(raw, heading_budget=cal.heading_deg / 2)
     assert not strict.usable and strict.heading_budget_deg == cal.heading_deg / 2
     assert strict.reasons[0].startswith("heading budget not met"), strict.reasons

@@ -152,7 +152,16 @@ fn verdict(page: &mut Page, metrics: &[DesignMetricsRow]) {
             m.check_trials,
             significant(m.check_sigma_nt.0, 4)
         ),
-        None => "NO DESIGN WORKS: no design of this set passed its check (see the designs table, and advice.csv where the set has one)".to_string(),
+        None if metrics.iter().any(|m| m.works) => {
+            let fewest = magcal_core::log_fit::min_held_out_readings(magcal_core::log_fit::FitModel::Full);
+            let names: Vec<&str> = metrics.iter().filter(|m| m.works).map(|m| m.design.as_str()).collect();
+            format!(
+                "NONE RECOMMENDED AS IT STANDS: {} {} by the check, but a log of fewer than {fewest} readings holds no fifth out to vouch for its calibration; fly its attitudes as a plan (kind = \"plan\", readings = 100 or more)",
+                names.join(", "),
+                if names.len() == 1 { "works" } else { "work" }
+            )
+        }
+        None => "NO DESIGN WORKS: no design of this set passed its check with the heading within its budget (see the designs table, and advice.csv where the set has one)".to_string(),
     };
     page.push(Block::Verdict {
         good: metrics.iter().any(|m| m.recommended),

@@ -50,7 +50,7 @@ pub struct Common {
     /// The heading error a design's calibration may leave, degrees (default: the scenario's
     /// `[verdict] heading_budget_deg`, else 2): a design works where the 95th percentile of its
     /// check's trials over the box at every heading is within it.
-    #[arg(long, value_name = "DEG", value_parser = crate::limits::finite)]
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: Option<f64>,
 }
 

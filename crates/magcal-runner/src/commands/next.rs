@@ -48,7 +48,7 @@ pub struct NextArgs {
     pub wmm: Option<magcal_core::wmm::Model>,
     /// The heading error the calibration may leave, degrees (as `calibrate`'s): the passes over
     /// the attitudes to add go on until the log with them meets it.
-    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, value_parser = crate::limits::finite)]
+    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: f64,
     /// Attitudes to suggest, 1 to 1000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=1000))]
@@ -402,12 +402,25 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize;
             .map(magcal_core::budget::HeadingVerdict::predicted_deg),
         heading_budget_deg: Some(args.heading_budget),
         usable_after_why_not: match &a.after_fit {
-            Ok(f) if !f.usable => Some(f.reasons.join("; ")),
+            Ok(f) if !f.usable => Some(few_attitudes(f.reasons.join("; "), a.chosen.len())),
             Ok(_) => None,
-            Err(e) => Some(e.to_string()),
+            Err(e) => Some(few_attitudes(e.to_string(), a.chosen.len())),
         },
     };
     Ok((json, counts))
+}
+
+/// Why the log with the new attitudes is not usable, and, where there are fewer of them than the
+/// full model has parameters, that the held-out fits which leave the log's own readings out cannot
+/// determine it from them alone.
+fn few_attitudes(why: String, attitudes: usize) -> String {
+    let parameters = log_fit::FitModel::Full.parameters();
+    if attitudes >= parameters {
+        return why;
+    }
+    format!(
+        "{why}; {attitudes} new attitudes are fewer than the full model's {parameters} parameters: a held-out fit without the log's own readings cannot determine it (ask for --count {parameters} or more)"
+    )
 }
 
 /// The D-optimal augmentation of the log's `readings` (its units) under the planning sensor, the
@@ -431,11 +444,17 @@ fn augment(
         *s = s.map(|v| v * factor);
     }
     let before = InformationMatrix::from_readings(&readings, r);
-    let chosen = vehicle
-        .certificate
-        .augment(problem, before.matrix(), args.count as usize)
-        .with_context(|| format!("{}: the log's information is singular", args.log.display()))?;
-    let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
+    // Flown `passes` times, each chosen attitude weighs `passes` readings against the log's: the
+    // augmentation for that many passes is of the log's information divided by them (else a
+    // table chosen to complement a short log, repeated until it dwarfs the log, need not
+    // calibrate on its own).
+    let choose = |passes: usize| -> Result<Vec<(magcal_core::Attitude, f64)>> {
+        let info = before.matrix().map(|row| row.map(|v| v / passes as f64));
+        vehicle
+            .certificate
+            .augment(problem, &info, args.count as usize)
+            .with_context(|| format!("{}: the log's information is singular", args.log.display()))
+    };
     let noise = cal
         .noise
         .ok_or_else(|| anyhow::anyhow!("{shown}: the calibration's noise is unknown (calibrate with --noise)"))?;
@@ -458,20 +477,18 @@ fn augment(
             &mut crate::pipeline::simulated_log_rng(vehicle.seed ^ 1),
         )?
     };
-    if !(args.heading_budget > 0.0 && args.heading_budget < 180.0) {
-        anyhow::bail!(
-            "--heading-budget {}: must be between 0 and 180 degrees",
-            crate::limits::show(args.heading_budget)
-        );
-    }
     let budget = (
         crate::pipeline::check::grid_of_box(&field, &vehicle.bounds),
         args.heading_budget,
     );
-    let (passes, after_fit, added) = passes_to_usable(
+    let body_fields = |chosen: &[(magcal_core::Attitude, f64)]| -> Vec<Vec3> {
+        let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
+        field.body_fields(&attitudes)
+    };
+    let (passes, after_fit, chosen, added) = passes_to_usable(
         &mut base,
         &model,
-        &field.body_fields(&attitudes),
+        |p| choose(p).map(|c| (body_fields(&c), c)),
         noise * factor,
         r,
         vehicle.seed,
@@ -514,24 +531,33 @@ fn augment(
 /// A fit of the log with readings added, or why there is none.
 type FitResult = Result<log_fit::LogFit, magcal_core::CalibrationError>;
 
-/// The fewest passes (1, 2, 4, ... up to [`MAX_PASSES`]) over the body fields `fields` (nT) of
-/// the chosen attitudes whose readings, simulated from `model` with noise `sigma` (as `simulate`
+/// The attitudes chosen for a number of passes: their body fields (nT) and the attitudes with
+/// the variance at each when chosen.
+type Chosen = (Vec<Vec3>, Vec<(magcal_core::Attitude, f64)>);
+
+/// What the passes tried gave: the passes that make the log usable (`None` where none tried
+/// does), the fit, the attitudes and the body fields added at the last tried.
+type Tried = (Option<usize>, FitResult, Vec<(magcal_core::Attitude, f64)>, Vec<Vec3>);
+
+/// The fewest passes (1, 2, 4, ... up to [`MAX_PASSES`]) over the attitudes `choose` gives for
+/// that many passes whose readings, simulated from `model` with noise `sigma` (as `simulate`
 /// draws it) and added to the log's `readings` (nT), make the full calibration of the log usable
-/// (its check by trials included: what `calibrate` would say of the log flown so). Returns the
-/// passes (`None` where even the most do not), the fit at the last tried, and the body fields
-/// added there. `readings` holds the log and the last readings tried.
+/// (its check by trials and heading budget included: what `calibrate` would say of the log flown
+/// so). Returns the passes (`None` where even the most do not), the fit, the attitudes and the
+/// body fields added at the last tried. `readings` holds the log and the last readings tried.
 fn passes_to_usable(
     readings: &mut Vec<Vec3>,
     model: &magcal_core::ErrorModel,
-    fields: &[Vec3],
+    choose: impl Fn(usize) -> Result<Chosen>,
     sigma: f64,
     r: f64,
     seed: u64,
     budget: &(magcal_core::budget::BudgetGrid, f64),
-) -> Result<(Option<usize>, FitResult, Vec<Vec3>)> {
+) -> Result<Tried> {
     let m = readings.len();
     let mut passes = 1;
     loop {
+        let (fields, chosen) = choose(passes)?;
         let added: Vec<Vec3> = (0..passes).flat_map(|_| fields.iter().copied()).collect();
         let simulated = model.noisy_readings(&added, sigma, &mut crate::pipeline::simulated_log_rng(seed))?;
         readings.truncate(m);
@@ -542,10 +568,10 @@ fn passes_to_usable(
             f
         });
         if fit.as_ref().is_ok_and(|f| f.usable) {
-            return Ok((Some(passes), fit, added));
+            return Ok((Some(passes), fit, chosen, added));
         }
         if passes >= MAX_PASSES {
-            return Ok((None, fit, added));
+            return Ok((None, fit, chosen, added));
         }
         passes *= 2;
     }

@@ -122,7 +122,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                 c.outcomes.ok,
                 c.trials,
                 c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
-                significant(c.budget_deg, 3),
+                crate::limits::show(c.budget_deg),
                 out.d_efficiency_bound(i)
                     .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
             )
@@ -134,7 +134,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                 w,
                 "no design here calibrates the full model in {:.0} % of trials at this noise with the heading within the budget of {} deg.",
                 100.0 * Check::OK_SHARE,
-                significant(budget, 3)
+                crate::limits::show(budget)
             )?;
             let Some(a) = advice else { return Ok(()) };
             let base = &out.designs[a.base];
@@ -151,7 +151,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                     c.trials,
                     significant(c.sigma_nt, 3),
                     c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
-                    significant(c.budget_deg, 3),
+                    crate::limits::show(c.budget_deg),
                 )
             };
             for (model, c) in &a.reduced {
@@ -175,7 +175,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                 Some(v) => writeln!(
                     w,
                     "  - the full model in a wider box: tilting {} deg further (roll {} to {}, pitch {} to {} deg), \
-                     {} D-optimal attitudes x {} readings: {}",
+                     {} D-optimal attitudes x {} reading{}: {}",
                     v.extra_deg,
                     v.roll_deg[0],
                     v.roll_deg[1],
@@ -183,6 +183,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                     v.pitch_deg[1],
                     v.attitudes.len(),
                     v.readings_per_attitude,
+                    if v.readings_per_attitude == 1 { "" } else { "s" },
                     heading(&v.check)
                 )?,
                 None => writeln!(
@@ -229,7 +230,7 @@ pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Resul
             format!(
                 ", heading {} deg at the 95th percentile (budget {})",
                 significant(p, 3),
-                significant(c.budget_deg, 3)
+                crate::limits::show(c.budget_deg)
             )
         });
         let verdict = match (c.works(), c.calibrates(), d.verdict.identifiable) {
@@ -479,7 +480,7 @@ attitudes = [
                     assert!(c.works() && d.verdict.identifiable);
                     assert_eq!(c.outcomes.ok, c.trials);
                     let heading = format!(
-                        ", heading {} deg at the 95th percentile (budget 5.00)",
+                        ", heading {} deg at the 95th percentile (budget 5)",
                         significant(c.budget_p95_deg.unwrap(), 3)
                     );
                     assert!(c.budget_p95_deg.unwrap() > 2.0 && c.budget_p95_deg.unwrap() < 5.0);
@@ -630,7 +631,7 @@ attitudes = [
         );
         let rest = line.strip_prefix(&head).unwrap_or_else(|| panic!("{line}"));
         let (p95, rest) = rest
-            .split_once(" deg over the box at every heading, within the budget of 5.00 deg; certified D-efficiency >= ")
+            .split_once(" deg over the box at every heading, within the budget of 5 deg; certified D-efficiency >= ")
             .unwrap_or_else(|| panic!("{line}"));
         rounded(p95, d.check.budget_p95_deg.unwrap(), 3);
         rounded(rest, out.d_efficiency_bound(i).unwrap(), 4);
@@ -641,7 +642,7 @@ attitudes = [
             d.check.outcomes.ok = 0;
         }
         assert_eq!(out.recommended(), None);
-        let none = "no design here calibrates the full model in 95 % of trials at this noise with the heading within the budget of 5.00 deg.";
+        let none = "no design here calibrates the full model in 95 % of trials at this noise with the heading within the budget of 5 deg.";
         assert_eq!(text(|w| recommendation(w, &out, None)), format!("{none}\n"));
         let failing = out.designs[0].check.clone();
         let quieter = Check {
@@ -669,7 +670,7 @@ attitudes = [
         let lines: Vec<&str> = printed.lines().collect();
         let heading = |c: &Check| {
             format!(
-                "{} of {} trials ok at {} nT, heading error 95th percentile {:.3} deg over the box (budget 5.00 deg)",
+                "{} of {} trials ok at {} nT, heading error 95th percentile {:.3} deg over the box (budget 5 deg)",
                 c.outcomes.ok,
                 c.trials,
                 significant(c.sigma_nt, 3),

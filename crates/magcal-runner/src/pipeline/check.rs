@@ -144,10 +144,7 @@ pub fn grid_of_box(
     bounds: &magcal_core::AttitudeBox,
 ) -> magcal_core::budget::BudgetGrid {
     let [roll, _, pitch] = bounds.ranges();
-    let tilts = magcal_core::budget::Tilts {
-        roll_deg: [roll.min().to_degrees(), roll.max().to_degrees()],
-        pitch_deg: [pitch.min().to_degrees(), pitch.max().to_degrees()],
-    };
+    let tilts = magcal_core::budget::Tilts::of_box([roll.min(), roll.max()], [pitch.min(), pitch.max()]);
     // A field without a horizontal part has no heading: the grid is judged at 89 degrees.
     let inclination = field.inclination_deg().clamp(-89.0, 89.0);
     magcal_core::budget::BudgetGrid::new(inclination, tilts, &magcal_core::budget::IDENTITY)

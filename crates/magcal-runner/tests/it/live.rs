@@ -465,7 +465,10 @@ fn a_stream_is_not_usable_before_it_meets_the_heading_budget_and_nothing_is_expo
     let fits: Vec<&str> = err.lines().filter(|l| l.contains("| fit ")).collect();
     assert!(!fits.is_empty(), "{err}");
     assert!(
-        fits.iter().all(|l| !l.contains("USABLE")) && fits.iter().any(|l| l.contains(" of 2.00 deg (95th percentile)")),
+        fits.iter().all(|l| !l.contains("USABLE"))
+            && fits
+                .iter()
+                .any(|l| l.contains(" deg (95th percentile) against a budget of 2 deg")),
         "{fits:#?}"
     );
     // The glider's whole plan, turned round and round: usable, and only now the export.

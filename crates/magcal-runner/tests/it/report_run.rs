@@ -240,14 +240,31 @@ fn report_run_pages_draw_the_flight_plans_and_show_the_sets_files() {
         assert_figures(&page, &html, &set);
         assert!(!html.contains("id=\"sweep\""), "{name}: one noise level, no sweep");
         let metrics = csv(&set.join("design_metrics.csv"));
-        let recommended = column(&metrics, "design")
-            .into_iter()
-            .zip(column(&metrics, "recommended"))
-            .find(|(_, r)| *r == "true")
-            .map(|(d, _)| d)
-            .unwrap();
+        let designs = column(&metrics, "design");
+        let pick = |flag: &str| -> Vec<String> {
+            designs
+                .iter()
+                .zip(column(&metrics, flag))
+                .filter(|(_, v)| *v == "true")
+                .map(|(d, _)| d.to_string())
+                .collect()
+        };
+        let (recommended, works) = (pick("recommended"), pick("works"));
+        if name == "wu2014" {
+            // [P1]'s optimum keeps the heading within the budget, but 9 readings are too few.
+            assert!(
+                recommended.is_empty() && works.contains(&"optimum".to_string()),
+                "{works:?}"
+            );
+        }
         let verdict = page.eval("document.querySelector('#verdict').innerText");
-        let expected = format!("RECOMMENDED: design {recommended} (");
+        // The verdict follows the file: the recommended design; or, with none, the designs that
+        // work but are too short for a log to vouch for itself; or that none works.
+        let expected = match (recommended.first(), works.is_empty()) {
+            (Some(r), _) => format!("RECOMMENDED: design {r} ("),
+            (None, false) => format!("NONE RECOMMENDED AS IT STANDS: {} work", works.join(", ")),
+            (None, true) => "NO DESIGN WORKS: ".to_string(),
+        };
         assert!(verdict.as_str().unwrap().starts_with(&expected), "{verdict}");
         eprintln!("{name} page: {} bytes, drawn in {:.2} s", html.len(), page.seconds);
     }

@@ -22,45 +22,64 @@ pub const ASSUMED_INCLINATION_DEG: f64 = 60.0;
 
 /// What a heading is judged over, with where its parts come from.
 pub struct Judged {
-    pub grid: BudgetGrid,
+    /// The grid for each way up the readings may be: one where the log or scenario fixes the
+    /// body axes, each of the readings' axes up where nothing does (judged by the worst).
+    pub grids: Vec<(&'static str, BudgetGrid)>,
     /// Where the inclination comes from, in words.
     pub field: String,
     /// Which of the readings' axes is up at level, in words.
     pub axes: String,
 }
 
+/// \[P1\]'s body axes (nose, up, right) in readings whose x is forward and z up (y left).
+const Z_UP: Mat3 = [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]];
+
+/// \[P1\]'s body axes in readings whose y is forward and x up (z left).
+const X_UP: Mat3 = [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
+
 /// The grid of a log's heading budget: the vehicle's box (level without one) at every heading,
 /// in the field of the log's site (the scenario's, the attitudes' fitted field, or assumed), with
 /// the body axes the log gives (its attitudes' through the calibration's alignment with them, an
-/// autopilot's forward-right-down, or \[P1\]'s nose-up-right for readings without a frame).
-pub fn grid(log: &Log, vehicle: Option<&Vehicle>, place: Option<&Place>, alignment: Option<&Alignment>) -> Judged {
+/// autopilot's forward-right-down, \[P1\]'s nose-up-right for a scenario's readings, and each of
+/// the readings' axes up in turn for a CSV log that says none).
+pub fn grid(
+    log: &Log,
+    vehicle: Option<&Vehicle>,
+    scenario: bool,
+    place: Option<&Place>,
+    alignment: Option<&Alignment>,
+) -> Judged {
     let (inclination, field) = inclination(vehicle, place, alignment);
     let tilts = vehicle.map_or(Tilts::LEVEL, |v| {
         let [roll, _, pitch] = v.bounds.ranges();
-        Tilts {
-            roll_deg: [roll.min().to_degrees(), roll.max().to_degrees()],
-            pitch_deg: [pitch.min().to_degrees(), pitch.max().to_degrees()],
-        }
+        Tilts::of_box([roll.min(), roll.max()], [pitch.min(), pitch.max()])
     });
-    let (frame, axes): (Mat3, String) = match (alignment, log.origin.format) {
+    let (frames, axes): (Vec<(&'static str, Mat3)>, &str) = match (alignment, log.origin.format) {
+        // Q turns calibrated vectors into the body frame (forward, right, down).
         (Some(a), _) => (
-            // Q turns calibrated vectors into the body frame (forward, right, down).
-            mat_mul(&transpose(&a.rotation), &PAPER_TO_FRD),
-            "the body axes of the log's attitudes (the calibration aligned with them)".to_string(),
+            vec![("", mat_mul(&transpose(&a.rotation), &PAPER_TO_FRD))],
+            "the body axes of the log's attitudes (the calibration aligned with them)",
+        ),
+        (None, Format::Csv) if scenario => (
+            vec![("", IDENTITY)],
+            "the readings' y axis up and x forward ([P1]'s body axes, as the scenario's readings are)",
         ),
         (None, Format::Csv) => (
-            IDENTITY,
-            "the readings' y axis up and x forward ([P1]'s body axes, as next and --scenario take them)".to_string(),
+            vec![("x", X_UP), ("y", IDENTITY), ("z", Z_UP)],
+            "each of the readings' axes up in turn (their frame is not known), judged by the worst",
         ),
         (None, _) => (
-            PAPER_TO_FRD,
-            "the autopilot's body axes (x forward, y right, z down)".to_string(),
+            vec![("", PAPER_TO_FRD)],
+            "the autopilot's body axes (x forward, y right, z down)",
         ),
     };
     Judged {
-        grid: BudgetGrid::new(inclination, tilts, &frame),
+        grids: frames
+            .into_iter()
+            .map(|(up, frame)| (up, BudgetGrid::new(inclination, tilts, &frame)))
+            .collect(),
         field,
-        axes,
+        axes: axes.to_string(),
     }
 }
 
@@ -94,22 +113,45 @@ fn inclination(vehicle: Option<&Vehicle>, place: Option<&Place>, alignment: Opti
     (
         ASSUMED_INCLINATION_DEG,
         format!(
-            "assumed ({ASSUMED_INCLINATION_DEG} deg, a mid-latitude field; give --site and --date for the site's own)"
+            "an assumed {ASSUMED_INCLINATION_DEG} deg (a mid-latitude field; give --site and --date for the site's own)"
         ),
     )
 }
 
-/// Judges `fit`'s heading over `judged` against `budget_deg`, records it in `json` and, where the
-/// budget is not met, makes the calibration unusable with the reason.
+/// Judges `fit`'s heading over `judged` against `budget_deg` (by the worst of its grids),
+/// records it in `json` and, where the budget is not met, makes the calibration unusable with
+/// the reason.
 pub fn record(json: &mut CalibrationJson, fit: &LogFit, judged: Judged, budget_deg: f64, seed: u64) {
-    let Some(v) = magcal_core::budget::judge(fit, &judged.grid, budget_deg, seed) else {
+    let verdicts: Vec<(&str, HeadingVerdict)> = judged
+        .grids
+        .iter()
+        .filter_map(|(up, g)| Some((*up, magcal_core::budget::judge(fit, g, budget_deg, seed)?)))
+        .collect();
+    let Some(worst) = verdicts
+        .iter()
+        .max_by(|a, b| a.1.predicted_deg().total_cmp(&b.1.predicted_deg()))
+    else {
         return;
     };
+    let mut axes = judged.axes;
+    if verdicts.len() > 1 {
+        let each: Vec<String> = verdicts
+            .iter()
+            .map(|(up, v)| format!("{up} up {} deg", v.against_budget(v.predicted_deg())))
+            .collect();
+        axes.push_str(&format!(" ({}; --scenario takes [P1]'s y up)", each.join(", ")));
+        axes = axes.replacen(
+            "judged by the worst",
+            &format!("judged by the worst, {} up", worst.0),
+            1,
+        );
+    }
+    let v = worst.1.clone();
     if let Some(why) = v.reason() {
         json.usable = false;
         json.reasons.push(why);
     }
-    json.heading_budget = Some(to_json(v, judged.field, judged.axes));
+    json.heading_budget = Some(to_json(v, judged.field, axes));
 }
 
 fn to_json(v: HeadingVerdict, field: String, axes: String) -> HeadingBudgetJson {

@@ -185,7 +185,7 @@ pub struct CalibrateArgs {
     /// over the vehicle's attitudes (its box with --scenario or --roll and --pitch, else level,
     /// at every heading) within it, by the check's trials and by the standard errors its
     /// held-out fits allow. IMO asks a ship's heading device for 1.0 degree static.
-    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, value_parser = crate::limits::finite)]
+    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: f64,
     /// Print one JSON object instead of the table.
     #[arg(long)]
@@ -350,7 +350,13 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
     let (heading_vs_log, alignment) = heading::check_aligned(log, &fit);
     json.heading_vs_log = heading_vs_log;
     let vehicle = Vehicle::from_options(args.scenario.as_deref(), &args.attitude, place.as_ref())?;
-    let judged = budget::grid(log, vehicle.as_ref(), place.as_ref(), alignment.as_ref());
+    let judged = budget::grid(
+        log,
+        vehicle.as_ref(),
+        args.scenario.is_some(),
+        place.as_ref(),
+        alignment.as_ref(),
+    );
     budget::record(&mut json, &fit, judged, args.heading_budget, args.seed);
     // `fit` is the plain fit of the log's readings unless a vector fit or the motor's replaced it.
     one_field::judge(&mut json, log, &fit, &settings, vector.is_none() && joint.is_none());
@@ -458,12 +464,6 @@ fn rejected(
 
 /// `--magnitude` and `--noise`, when given, are positive and finite.
 fn positive_options(args: &CalibrateArgs) -> anyhow::Result<()> {
-    if !(args.heading_budget > 0.0 && args.heading_budget < 180.0) {
-        anyhow::bail!(
-            "--heading-budget {}: must be between 0 and 180 degrees",
-            crate::limits::show(args.heading_budget)
-        );
-    }
     for (name, value) in [("--magnitude", args.magnitude), ("--noise", args.noise)] {
         if let Some(v) = value
             && !(v.is_finite() && v > 0.0)

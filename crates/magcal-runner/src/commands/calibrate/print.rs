@@ -222,13 +222,13 @@ fn print_usable(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()> {
             let v = &b.verdict;
             format!(
                 " for heading within {} deg: 95th percentile {}{} deg with {} standard errors",
-                significant(v.budget_deg, 3),
+                magcal_core::error::show(v.budget_deg),
                 v.by_trials_deg.map_or(String::new(), |t| format!(
                     "{} deg by {} trials, ",
-                    significant(t, 2),
+                    v.against_budget(t),
                     v.trials
                 )),
-                significant(v.with_std_deg, 2),
+                v.against_budget(v.with_std_deg),
                 if v.held_out_widened { "the held-out" } else { "the" }
             )
         });

@@ -21,7 +21,6 @@ pub mod source;
 
 use std::io::{IsTerminal, Write};
 
-use magcal_logs::text::significant;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -125,7 +124,7 @@ pub struct LiveArgs {
     pub seed: u64,
     /// The heading error the calibration may leave, degrees (as `calibrate`'s): the finish line.
     /// Nothing is exported, sent or called usable before a fit meets it.
-    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, value_parser = crate::limits::finite)]
+    #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: f64,
     /// Attitudes to suggest at each fit (the first is the one to visit next).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=100))]
@@ -665,9 +664,9 @@ fn status(args: &LiveArgs, progress: &Progress, f: &Fitted, c: &Counts, dropped:
     // The finish line: the heading the fit is predicted to leave against the budget.
     if let Some(b) = f.json.as_ref().and_then(|j| j.heading_budget.as_ref()) {
         line += &format!(
-            "heading {} of {} deg (95th percentile), ",
-            significant(b.predicted_deg, 2),
-            significant(b.verdict.budget_deg, 3)
+            "heading {} deg (95th percentile) against a budget of {} deg, ",
+            b.verdict.against_budget(b.predicted_deg),
+            crate::limits::show(b.verdict.budget_deg)
         );
     }
     match &f.json {
