@@ -622,7 +622,7 @@ fn write_text(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
             .map_or(String::new(), |(h, b)| format!(
                 ", heading {} deg predicted at the 95th percentile over the box (budget {})",
                 magcal_logs::text::significant(h, 3),
-                magcal_logs::text::significant(b, 3)
+                crate::limits::show(b)
             )),
         j.readings_added,
         match j.passes_to_usable {

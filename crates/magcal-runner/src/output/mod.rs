@@ -267,7 +267,7 @@ pub fn advice_rows<'a>(
         check_budget_p95_deg: c.budget_p95_deg.map(Real),
     };
     let (r, p) = (box_of(&roll), box_of(&pitch));
-    let (k, m) = (base.attitudes.len(), base.m());
+    let (k, m) = (base.attitudes.len(), base.m() * advice.passes);
     let reduced = advice
         .reduced
         .iter()

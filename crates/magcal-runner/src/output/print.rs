@@ -138,9 +138,16 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
             )?;
             let Some(a) = advice else { return Ok(()) };
             let base = &out.designs[a.base];
+            let flown = match a.passes {
+                1 => String::new(),
+                n => format!(
+                    ", flown {n} times over: {} readings, enough for a log to hold a fifth out",
+                    n * base.m()
+                ),
+            };
             writeln!(
                 w,
-                "What works instead, by the same check, from {} ({} readings):",
+                "What works instead, by the same check, from {} ({} readings{flown}):",
                 base.name,
                 base.m()
             )?;
@@ -659,6 +666,7 @@ attitudes = [
         };
         let mut advice = Advice {
             base: 0,
+            passes: 1,
             reduced: vec![
                 (Reduced::Diagonal, works.clone()),
                 (Reduced::OffsetsOnly, failing.clone()),
@@ -720,6 +728,15 @@ attitudes = [
             "  (advice.csv has each; to fly the wider box, set its ranges in the scenario and run design again)"
         );
         assert_eq!(lines.len(), 7);
+        // A base design too short for a log to hold a fifth out is checked flown more than once.
+        advice.passes = 2;
+        let printed = text(|w| recommendation(w, &out, Some(&advice)));
+        assert_eq!(
+            printed.lines().nth(1),
+            Some(
+                "What works instead, by the same check, from uniform (27 readings, flown 2 times over: 54 readings, enough for a log to hold a fifth out):"
+            )
+        );
         advice.quieter = None;
         advice.wider = None;
         advice.reduced.clear();

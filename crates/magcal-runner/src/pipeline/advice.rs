@@ -84,7 +84,11 @@ pub struct Advice {
     /// Index of the design the advice starts from: the one most trials calibrated, then the most
     /// information per reading.
     pub base: usize,
-    /// Each reduced model on that design's readings.
+    /// Passes over that design's attitudes the options are checked at: enough readings for a log
+    /// of them to hold a fifth out (what `calibrate` needs for held-out evidence), 1 where the
+    /// design has them already.
+    pub passes: usize,
+    /// Each reduced model on that design's readings, flown `passes` times.
     pub reduced: Vec<(Reduced, Check)>,
     /// The largest noise tried at which the full model works with that design, and its check.
     pub quieter: Option<Check>,
@@ -130,7 +134,10 @@ pub fn advise(scenario: &Scenario, designs: &[BuiltDesign]) -> Result<Option<Adv
         return Ok(None);
     };
     let d = &designs[base];
-    let body = scenario.field.body_fields(&d.expanded());
+    let fewest = magcal_core::log_fit::min_held_out_readings(magcal_core::log_fit::FitModel::Full);
+    let passes = fewest.div_ceil(d.m()).max(1);
+    let flown: Vec<Attitude> = (0..passes).flat_map(|_| d.expanded()).collect();
+    let body = scenario.field.body_fields(&flown);
     let sigma = d.check.sigma_nt;
     // The scale the design determines worst: the largest scale component of the weakest direction.
     let weak_axis = (0..3)
@@ -168,7 +175,7 @@ pub fn advise(scenario: &Scenario, designs: &[BuiltDesign]) -> Result<Option<Adv
 
     let [roll, yaw, pitch] = scenario.bounds.ranges();
     let degrees = |r: &magcal_core::AngleRange| [r.min().to_degrees(), r.max().to_degrees()];
-    let per = d.m().div_ceil(d.attitudes.len().max(9));
+    let per = (d.m() * passes).div_ceil(d.attitudes.len().max(9));
     let k = d.attitudes.len().max(9);
     let mut wider = None;
     for (j, &extra) in WIDENINGS_DEG.iter().enumerate() {
@@ -200,6 +207,7 @@ pub fn advise(scenario: &Scenario, designs: &[BuiltDesign]) -> Result<Option<Adv
     }
     Ok(Some(Advice {
         base,
+        passes,
         reduced,
         quieter,
         wider,

@@ -35,7 +35,7 @@
 //! | broad/10 | calibrate | 3 | not identifiable: not determined: ... the scale of sensor axis y; not a plausible sensor; not an ellipsoid (18.24 %); heading budget not met; heading worse than the raw readings' |
 //! | " | next | 0 | |
 //! | " | export, export --force | 3 | nothing written / written with the warning line |
-//! | broad/30 `--where movement=1` | calibrate | 3 | heading budget not met (3.4 deg; 9 passes by the magnet named) |
+//! | broad/30 `--where movement=1` | calibrate | 3 | heading budget not met (2.7 deg; 9 passes by the magnet named) |
 //! | " `--heading-budget 4` | calibrate, export | 0 | (usable; next as 02's) |
 //! | broad/33 | calibrate | 3 | the field changes within the log ... 42.000-97.997 s ...; not a plausible sensor; not an ellipsoid (11.51 %); heading worse than the raw readings' |
 //! | " | next | 0 | (condition number 1.3e6) |
