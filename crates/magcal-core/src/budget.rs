@@ -14,10 +14,13 @@
 //! The attitudes ([`BudgetGrid`]): every heading (72, 5 degrees apart) at each roll and pitch of
 //! a 5 x 5 grid spanning the vehicle's box (ends included; level when no box is given), in a field
 //! of the site's inclination. A calibration of many possible ones (the trials of a check, draws
-//! from its standard errors) is scored by the 95th percentile of `|e|` pooled over the attitudes
-//! and the calibrations ([`quantile`]): "95 % of the headings the vehicle takes, under 95 % of
-//! the calibrations the evidence allows, are within this". The budget is met where that
-//! percentile is at most the budget ([`DEFAULT_BUDGET_DEG`]).
+//! from its standard errors) is scored by a 95/95 tolerance ([`tolerance`]): the 95th percentile
+//! over the calibrations of each one's 95th percentile of `|e|` over the attitudes ([`quantile`]):
+//! "under 95 % of the calibrations the evidence allows, 95 % of the headings the vehicle takes
+//! are within this". Pooling the attitudes and calibrations into one percentile says less: it is
+//! about a typical calibration's, and a third of the logs of a plan whose pooled figure met the
+//! budget left more than it (`scripts/loop.py`, the vessel's `plan300`: 12 of 41 usable logs).
+//! The budget is met where the tolerance is at most the budget ([`DEFAULT_BUDGET_DEG`]).
 
 use crate::attitude::Attitude;
 use crate::sensor::ErrorModel;
@@ -37,8 +40,25 @@ pub const HEADINGS: usize = 72;
 /// Rolls and pitches of the grid across a box, ends included.
 pub const TILT_STEPS: usize = 5;
 
-/// The quantile of `|e|` a budget is judged by.
+/// The quantile of `|e|` over the attitudes, and of that over the calibrations, a budget is
+/// judged by.
 pub const BUDGET_QUANTILE: f64 = 0.95;
+
+/// The 95/95 tolerance of calibrations scored by `errors` (each appends its `|e|` over the
+/// grid's attitudes to the buffer it is given, and returns nothing): the [`BUDGET_QUANTILE`]
+/// over the calibrations of each one's [`BUDGET_QUANTILE`] over the attitudes; `NaN` for none.
+pub fn tolerance<T>(calibrations: &[T], mut errors: impl FnMut(&T, &mut Vec<f64>)) -> f64 {
+    let mut e = Vec::new();
+    let mut each: Vec<f64> = calibrations
+        .iter()
+        .map(|c| {
+            e.clear();
+            errors(c, &mut e);
+            quantile(&mut e, BUDGET_QUANTILE)
+        })
+        .collect();
+    quantile(&mut each, BUDGET_QUANTILE)
+}
 
 /// The roll and pitch a vehicle flies, degrees (its box; `[0, 0]` each for level).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -242,8 +262,8 @@ pub struct HeadingVerdict {
     pub inclination_deg: f64,
     /// Attitudes judged.
     pub attitudes: usize,
-    /// The 95th percentile of `|e|` over the attitudes and the calibrations of the check's `ok`
-    /// trials, degrees; `None` without trials.
+    /// The 95/95 tolerance ([`tolerance`]) of `|e|` over the attitudes and the calibrations of
+    /// the check's `ok` trials, degrees; `None` without trials.
     pub by_trials_deg: Option<f64>,
     /// Trials it rests on.
     pub trials: usize,
@@ -341,18 +361,16 @@ pub fn judge(fit: &crate::log_fit::LogFit, grid: &BudgetGrid, budget_deg: f64, s
     // The |e| of every attitude under the calibration `centre + d`; a draw that is no sensor
     // (a scale factor at or below zero) turns every heading by 180 degrees.
     let score = |draws: &[[Vec3; 3]]| -> f64 {
-        let mut e = Vec::with_capacity(draws.len() * grid.len());
-        for d in draws {
+        tolerance(draws, |d, e| {
             let at = |g: usize| -> Vec3 { std::array::from_fn(|i| centre[g][i] + d[g][i]) };
             match ErrorModel::new(at(0), at(1), at(2)).ok().and_then(|m| {
                 let p = crate::small::upper_triangular_inverse(&m.K())?;
                 Some((p, at(2)))
             }) {
-                Some((p, bias)) => grid.errors_into(sensor, fit.magnitude, (&p, bias), &mut e),
+                Some((p, bias)) => grid.errors_into(sensor, fit.magnitude, (&p, bias), e),
                 None => e.extend(std::iter::repeat_n(180.0, grid.len())),
             }
-        }
-        quantile(&mut e, BUDGET_QUANTILE)
+        })
     };
     let trials = &fit.trial_errors;
     let by_trials_deg = (trials.len() >= 2).then(|| score(trials));

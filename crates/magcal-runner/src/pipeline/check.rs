@@ -150,15 +150,21 @@ pub fn grid_of_box(
     magcal_core::budget::BudgetGrid::new(inclination, tilts, &magcal_core::budget::IDENTITY)
 }
 
-/// The 95th percentile of the heading error the `ok` trials' calibrations leave over the
-/// scenario's budget grid, against its true sensor; `None` without an `ok` trial.
+/// The 95/95 tolerance (`magcal_core::budget::tolerance`) of the heading error the `ok` trials'
+/// calibrations leave over the scenario's budget grid, against its true sensor: the 95th
+/// percentile over the trials of each one's 95th percentile over the attitudes, what 95 % of the
+/// logs flown so leave; `None` without an `ok` trial.
 fn budget_p95(scenario: &Scenario, trials: &[TrialOutcome]) -> Option<f64> {
     let grid = budget_grid(scenario);
     let truth = (&scenario.truth.K(), scenario.truth.bias_nt());
-    let mut e = Vec::new();
-    for t in trials.iter().filter(|t| t.status == CalibrationStatus::Ok) {
-        let Some(m) = &t.estimate else { continue };
-        grid.errors_into(truth, scenario.field.magnitude(), (&m.P(), m.bias_nt()), &mut e);
-    }
-    (!e.is_empty()).then(|| magcal_core::budget::quantile(&mut e, magcal_core::budget::BUDGET_QUANTILE))
+    let ok: Vec<_> = trials
+        .iter()
+        .filter(|t| t.status == CalibrationStatus::Ok)
+        .filter_map(|t| t.estimate.as_ref())
+        .collect();
+    (!ok.is_empty()).then(|| {
+        magcal_core::budget::tolerance(&ok, |m, e| {
+            grid.errors_into(truth, scenario.field.magnitude(), (&m.P(), m.bias_nt()), e);
+        })
+    })
 }
