@@ -297,7 +297,7 @@ impl HeadingVerdict {
             format!(
                 "heading budget not met: {} ({} times the budget)",
                 self.words(),
-                significant_deg(self.predicted_deg() / self.budget_deg)
+                times(self.predicted_deg() / self.budget_deg)
             )
         })
     }
@@ -335,6 +335,15 @@ impl HeadingVerdict {
             .map(|d| format!("{x:.d$}"))
             .find(|s| s.parse::<f64>().is_ok_and(|s| (s <= self.budget_deg) == within))
             .unwrap_or_else(|| format!("{x}"))
+    }
+}
+
+/// A ratio above 1, with the digits it takes not to read as 1 ("1.03", not "1.0").
+fn times(ratio: f64) -> String {
+    if ratio > 1.0 && ratio < 1.1 {
+        format!("{ratio:.2}")
+    } else {
+        significant_deg(ratio)
     }
 }
 

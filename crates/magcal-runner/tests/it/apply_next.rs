@@ -561,7 +561,7 @@ fn next_says_usable_before_as_calibrate_said_it() {
         };
         assert!(line.contains(source), "{line}");
         assert!(
-            line.contains("deg predicted at the 95th percentile over the box (budget 2.00) (10 readings"),
+            line.contains("deg predicted at the 95th percentile over the box (budget 2) (10 readings"),
             "{line}"
         );
     }

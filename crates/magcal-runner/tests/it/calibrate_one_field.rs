@@ -218,17 +218,18 @@ fn broad_33_a_magnet_attached_for_part_of_the_trial_is_refused_with_its_windows(
 fn broad_33_the_part_suggested_calibrates_alone() {
     // The part after the magnet, 99 to 169 s (38 s of motion, then rest), is one field on its
     // own, and the capture says its heading is better than the raw readings': 3.838 degrees rms
-    // against 3.959. 38 s of motion leave a heading 95th percentile of 2.2 degrees (1.3 by the
-    // trials): usable for a budget of 3 degrees, not for the default 2.
+    // against 3.959. 38 s of motion leave a heading of 3.1 degrees (1.9 by the trials; 95th
+    // percentile over level headings in 95 % of the calibrations): usable for a budget of 4
+    // degrees, not for the default 2.
     let Some((c, _)) = broad(
         "33_disturbed_attached_magnet_2cm",
-        &["--from", "99.000", "--to", "168.973", "--heading-budget", "3"],
+        &["--from", "99.000", "--to", "168.973", "--heading-budget", "4"],
     ) else {
         return;
     };
     assert!(c.usable, "{:?}", c.reasons);
     let b = c.heading_budget.as_ref().unwrap();
-    assert!(b.predicted_deg > 2.0 && b.predicted_deg < 3.0, "{}", b.words);
+    assert!(b.predicted_deg > 2.0 && b.predicted_deg < 4.0, "{}", b.words);
     let h = c.heading_vs_log.as_ref().unwrap();
     let (cal, raw) = (h.calibrated.unwrap(), h.uncalibrated.unwrap());
     assert!(

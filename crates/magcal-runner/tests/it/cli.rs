@@ -464,8 +464,8 @@ fn completions_for_every_shell_and_a_man_page_with_every_command() {
 #[test]
 fn design_prints_its_recommendation_first_then_the_table_and_the_recommended_plan() {
     let tmp = TempDir::new().unwrap();
-    // The vessel's: a plan of 300 readings (the smoke scenario's 9-reading designs work but
-    // hold no fifth out, and none is recommended).
+    // The vessel's: a plan of 1000 readings (the smoke scenario's 9-reading designs work but
+    // hold no fifth out, and none is recommended; the vessel's 300 readings fail the budget).
     let out = magcal()
         .args(["design", "--out"])
         .arg(tmp.path().join("set"))
@@ -476,13 +476,13 @@ fn design_prints_its_recommendation_first_then_the_table_and_the_recommended_pla
     let stdout = String::from_utf8(out.stdout).unwrap();
     let first = stdout.lines().next().unwrap();
     assert!(
-        first.starts_with("fly plan300: 300 readings at 11 attitudes"),
+        first.starts_with("fly plan1000: 1000 readings at 11 attitudes"),
         "{stdout}"
     );
     let plans: Vec<&str> = stdout.lines().filter(|l| l.starts_with("flight plan ")).collect();
     assert_eq!(plans.len(), 1, "{stdout}");
     assert!(
-        plans[0].starts_with("flight plan plan300 (11 attitudes, 300 readings"),
+        plans[0].starts_with("flight plan plan1000 (11 attitudes, 1000 readings"),
         "{stdout}"
     );
     let table = stdout.lines().position(|l| l.starts_with("design ")).unwrap();
