@@ -361,7 +361,7 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize;
     let log = read_log(args, cal)?;
     let (planned, planned_under) = planning_sensor(cal, &log.readings);
     let (problem, factor) = fitted_problem(&planned, &vehicle).with_context(|| shown.clone())?;
-    let a = augment(args, &planned, &vehicle, &problem, factor, log.readings)?;
+    let a = augment(args, &planned, &vehicle, &problem, factor, (log.readings, log.in_time))?;
     let (body_log, body_all) = (&a.body[..a.m], &a.body[..]);
     let counts = [
         log_fit::motioncal_region_counts(body_log),
@@ -431,7 +431,7 @@ fn augment(
     vehicle: &Vehicle,
     problem: &magcal_core::design::DesignProblem,
     factor: f64,
-    log_readings: Vec<Vec3>,
+    (log_readings, in_time): (Vec<Vec3>, bool),
 ) -> Result<Augmented> {
     let shown = args.calibration.display().to_string();
     let m = log_readings.len();
@@ -485,11 +485,16 @@ fn augment(
         let attitudes: Vec<magcal_core::Attitude> = chosen.iter().map(|c| c.0).collect();
         field.body_fields(&attitudes)
     };
+    let order = if in_time {
+        log_fit::Order::Time
+    } else {
+        log_fit::Order::Unknown
+    };
     let (passes, after_fit, chosen, added) = passes_to_usable(
         &mut base,
         &model,
         |p| choose(p).map(|c| (body_fields(&c), c)),
-        noise * factor,
+        (noise * factor, order),
         r,
         vehicle.seed,
         &budget,
@@ -541,7 +546,8 @@ type Tried = (Option<usize>, FitResult, Vec<(magcal_core::Attitude, f64)>, Vec<V
 
 /// The fewest passes (1, 2, 4, ... up to [`MAX_PASSES`]) over the attitudes `choose` gives for
 /// that many passes whose readings, simulated from `model` with noise `sigma` (as `simulate`
-/// draws it) and added to the log's `readings` (nT), make the full calibration of the log usable
+/// draws it) and added after the log's `readings` (nT; in `order`: a log in time order keeps its
+/// blocks, so a drift the log holds is still seen), make the full calibration of the log usable
 /// (its check by trials and heading budget included: what `calibrate` would say of the log flown
 /// so). Returns the passes (`None` where even the most do not), the fit, the attitudes and the
 /// body fields added at the last tried. `readings` holds the log and the last readings tried.
@@ -549,7 +555,7 @@ fn passes_to_usable(
     readings: &mut Vec<Vec3>,
     model: &magcal_core::ErrorModel,
     choose: impl Fn(usize) -> Result<Chosen>,
-    sigma: f64,
+    (sigma, order): (f64, log_fit::Order),
     r: f64,
     seed: u64,
     budget: &(magcal_core::budget::BudgetGrid, f64),
@@ -563,7 +569,11 @@ fn passes_to_usable(
         readings.truncate(m);
         readings.extend(simulated);
         // Judged as calibrate judges it: the heading over the vehicle's box against the budget.
-        let fit = log_fit::fit(readings, r, log_fit::FitModel::Full).map(|mut f| {
+        let settings = log_fit::FitSettings {
+            order,
+            ..log_fit::FitSettings::default()
+        };
+        let fit = log_fit::fit_with(readings, r, log_fit::FitModel::Full, &settings).map(|mut f| {
             f.judge_heading(&budget.0, budget.1, log_fit::CHECK_SEED);
             f
         });
@@ -654,6 +664,7 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
         sha256: sha,
         attitudes,
         origin,
+        times,
         ..
     } = source::open(&args.log, &input, HELD_BYTES_PER_READING)?;
     for (line, reason) in &skipped {
@@ -692,6 +703,7 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
     let before = usable_before(cal, same_readings, &log_readings);
     Ok(LogRead {
         readings: log_readings,
+        in_time: times.is_some(),
         flown,
         before,
     })
@@ -701,6 +713,9 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
 struct LogRead {
     /// The readings, in the log's units.
     readings: Vec<Vec3>,
+    /// Whether they are in time order (the log has times): the log with readings added is then
+    /// fitted as `calibrate` fits it, its held-out folds consecutive blocks that see a drift.
+    in_time: bool,
     /// The attitudes the log flew, where it has them.
     flown: Option<Flown>,
     /// Whether the log's full calibration was usable before, and on what that rests.

@@ -175,6 +175,18 @@ pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
     if !unmet || !boxed || args.fit.vector_model().is_some() || args.log.as_os_str() == "-" {
         return;
     }
+    // Met by the trials and missed only with the standard errors the held-out fits widened: the
+    // log's parts disagree beyond its noise (a field or a sensor that drifts along it). `next`
+    // predicts from the log simulated in white noise, which has no drift: more attitudes would be
+    // predicted to mend what they cannot.
+    if let Some(v) = json.heading_budget.as_ref().map(|b| &b.verdict)
+        && v.held_out_widened
+        && v.by_trials_deg.is_some_and(|t| t <= v.budget_deg)
+    {
+        let words = "by its trials the log meets the budget; its parts disagree beyond its noise (the fits without each fifth spread further than the standard errors say: the field or the sensor drifts along the log), which more attitudes do not mend: fly again in one place, or calibrate the part of the log that is one field (--from, --to)".to_string();
+        add_to_reason(json, words);
+        return;
+    }
     let next = crate::commands::next::NextArgs {
         calibration: std::path::PathBuf::from("this calibration"),
         log: args.log.clone(),
@@ -200,8 +212,12 @@ pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
         (None, _) => "not determine the calibration".to_string(),
     };
     let words = format!(
-        "fly the {} attitudes `magcal next` gives in the box (the first: roll {:.0}, pitch {:.0}, {} heading {:.0} deg), {} readings more: the log with them is predicted to {heading}",
-        n.attitudes.len(),
+        "fly {} `magcal next` gives in the box ({}roll {:.0}, pitch {:.0}, {} heading {:.0} deg), {} readings more: the log with them is predicted to {heading}",
+        match n.attitudes.len() {
+            1 => "the attitude".to_string(),
+            k => format!("the {k} attitudes"),
+        },
+        if n.attitudes.len() == 1 { "" } else { "the first: " },
         first.roll_deg,
         first.pitch_deg,
         if first.magnetic_heading_deg.is_some() {
@@ -212,14 +228,19 @@ pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
         first.magnetic_heading_deg.unwrap_or(first.true_heading_deg),
         n.readings_added
     );
-    if let Some(b) = json.heading_budget.as_mut() {
-        b.next = Some(words.clone());
-    }
+    add_to_reason(json, words);
+}
+
+/// `words` as the budget's `next` and at the end of its reason.
+fn add_to_reason(json: &mut CalibrationJson, words: String) {
     if let Some(r) = json
         .reasons
         .iter_mut()
         .find(|r| r.starts_with("heading budget not met"))
     {
         r.push_str(&format!("; {words}"));
+    }
+    if let Some(b) = json.heading_budget.as_mut() {
+        b.next = Some(words);
     }
 }
