@@ -34,6 +34,10 @@ use crate::small::{Mat3, Vec3, dot, mat_mul, mat_t_vec, mat_vec, sub};
 /// (`--heading-budget 1`).
 pub const DEFAULT_BUDGET_DEG: f64 = 2.0;
 
+/// The smallest budget taken, degrees (36 arc seconds): below it the figure says more of the
+/// grid's arithmetic than of any compass, and a ratio to it runs to hundreds of digits.
+pub const MIN_BUDGET_DEG: f64 = 0.01;
+
 /// Headings of the grid, 5 degrees apart.
 pub const HEADINGS: usize = 72;
 

@@ -43,12 +43,13 @@ pub fn finite(text: &str) -> std::result::Result<f64, String> {
 /// Text that is not a finite number, or one outside that range.
 pub fn heading_budget(text: &str) -> std::result::Result<f64, String> {
     let v = finite(text)?;
-    if v > 0.0 && v < 180.0 {
+    if (magcal_core::budget::MIN_BUDGET_DEG..180.0).contains(&v) {
         Ok(v)
     } else {
         Err(format!(
-            "{} degrees: a heading budget is above 0 and below 180",
-            show(v)
+            "{} degrees: a heading budget is at least {} and below 180",
+            show(v),
+            magcal_core::budget::MIN_BUDGET_DEG
         ))
     }
 }

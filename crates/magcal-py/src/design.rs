@@ -227,8 +227,9 @@ impl Design {
         self.metric(py, "check_heading_median_deg")
     }
 
-    /// The 95th percentile of the heading error its check's calibrations leave over the box at
-    /// every heading, degrees (`works` needs it within the budget; `None`: none calibrated).
+    /// The heading error its check's calibrations leave over the box at every heading, degrees:
+    /// the 95th percentile over them of each one's 95th percentile over the attitudes (`works`
+    /// needs it within the budget; `None`: none calibrated).
     #[getter]
     fn heading_p95_deg(&self, py: Python<'_>) -> PyResult<Option<f64>> {
         self.metric(py, "check_budget_p95_deg")

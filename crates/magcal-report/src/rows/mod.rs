@@ -179,7 +179,7 @@ pub struct DesignMetricsRow {
     pub check_heading_p95_deg: Option<Real>,
     /// The design `design` recommends flying.
     pub recommended: bool,
-    /// The heading budget, degrees, and the 95th percentile of the heading error the check's
+    /// The heading budget, degrees, and the 95/95 tolerance of the heading error the check's
     /// `ok` trials leave over the box at every heading (docs/conventions.md "Heading budget");
     /// `works` needs it within the budget. Empty in a set written before they existed.
     #[serde(default)]

@@ -34,9 +34,10 @@ pub struct Check {
     pub heading_p95_deg: Option<f64>,
     /// The heading budget, degrees ([`Scenario::heading_budget_deg`]).
     pub budget_deg: f64,
-    /// The 95th percentile of the heading error over the box at every heading and the `ok`
-    /// trials' calibrations, against the truth (docs/conventions.md "Heading budget"), degrees;
-    /// `None` without an `ok` trial.
+    /// The 95/95 tolerance of the heading error over the box at every heading of the `ok`
+    /// trials' calibrations, against the truth (the 95th percentile over the trials of each
+    /// one's over the attitudes; docs/conventions.md "Heading budget"), degrees; `None` without
+    /// an `ok` trial.
     pub budget_p95_deg: Option<f64>,
 }
 
@@ -55,8 +56,8 @@ impl Check {
         self.trials > 0 && self.outcomes.ok as f64 >= Self::OK_SHARE * self.trials as f64
     }
 
-    /// Whether the 95th percentile of the heading error its trials' calibrations leave over
-    /// the box is within the budget.
+    /// Whether the heading error its trials' calibrations leave over the box (the 95/95
+    /// tolerance) is within the budget.
     pub fn meets_budget(&self) -> bool {
         self.budget_p95_deg.is_some_and(|p| p <= self.budget_deg)
     }

@@ -157,10 +157,11 @@ fn calibration(c: &raw::Calibration, verdict: &raw::Verdict) -> Result<(TwoStep,
 pub fn heading_budget(value: Option<f64>) -> Result<f64> {
     match value {
         None => Ok(magcal_core::budget::DEFAULT_BUDGET_DEG),
-        Some(v) if v > 0.0 && v < 180.0 => Ok(v),
+        Some(v) if (magcal_core::budget::MIN_BUDGET_DEG..180.0).contains(&v) => Ok(v),
         Some(v) => bail!(
-            "verdict.heading_budget_deg = {}: a heading error above 0 and below 180 degrees",
-            limits::show(v)
+            "verdict.heading_budget_deg = {}: a heading error of at least {} and below 180 degrees",
+            limits::show(v),
+            magcal_core::budget::MIN_BUDGET_DEG
         ),
     }
 }

@@ -219,8 +219,12 @@ fn a_log_that_meets_the_budget_says_both_numbers_and_a_stricter_budget_refuses_i
     // A budget that is no angle is bad input (2), nothing written.
     // A negative value is the flag's value, not another flag.
     for (bad, says) in [
-        ("0", "0 degrees: a heading budget is above 0 and below 180"),
-        ("-1", "-1 degrees: a heading budget is above 0 and below 180"),
+        ("0", "0 degrees: a heading budget is at least 0.01 and below 180"),
+        (
+            "1e-300",
+            "1e-300 degrees: a heading budget is at least 0.01 and below 180",
+        ),
+        ("-1", "-1 degrees: a heading budget is at least 0.01 and below 180"),
         ("180", "180 degrees"),
         ("nan", "NaN is not a number"),
         ("", "an empty value is not a number"),

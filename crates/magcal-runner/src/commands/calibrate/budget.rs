@@ -40,12 +40,13 @@ const X_UP: Mat3 = [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
 /// The grid of a log's heading budget: the vehicle's box (level without one) at every heading,
 /// in the field of the log's site (the scenario's, the attitudes' fitted field, or assumed), with
 /// the body axes the log gives (its attitudes' through the calibration's alignment with them, an
-/// autopilot's forward-right-down, \[P1\]'s nose-up-right for a scenario's readings, and each of
-/// the readings' axes up in turn for a CSV log that says none).
+/// autopilot's forward-right-down, \[P1\]'s nose-up-right for a CSV log given a box (`boxed`: a
+/// scenario, or `--roll` and `--pitch`, whose angles are of those axes), and each of the readings'
+/// axes up in turn for a CSV log that says none).
 pub fn grid(
     log: &Log,
     vehicle: Option<&Vehicle>,
-    scenario: bool,
+    boxed: bool,
     place: Option<&Place>,
     alignment: Option<&Alignment>,
 ) -> Judged {
@@ -60,9 +61,9 @@ pub fn grid(
             vec![("", mat_mul(&transpose(&a.rotation), &PAPER_TO_FRD))],
             "the body axes of the log's attitudes (the calibration aligned with them)",
         ),
-        (None, Format::Csv) if scenario => (
+        (None, Format::Csv) if boxed => (
             vec![("", IDENTITY)],
-            "the readings' y axis up and x forward ([P1]'s body axes, as the scenario's readings are)",
+            "the readings' y axis up and x forward ([P1]'s body axes, in which the box is given)",
         ),
         (None, Format::Csv) => (
             vec![("x", X_UP), ("y", IDENTITY), ("z", Z_UP)],
@@ -91,7 +92,10 @@ fn inclination(vehicle: Option<&Vehicle>, place: Option<&Place>, alignment: Opti
     {
         let i = magcal_core::field::inclination_deg(ned);
         if usable(i) {
-            return (i, format!("the World Magnetic Model's ({model:?}) at the log's site"));
+            return (
+                i,
+                format!("the World Magnetic Model's field ({}) at the log's site", model.name()),
+            );
         }
     }
     if let Some(v) = vehicle {
@@ -139,7 +143,7 @@ pub fn record(json: &mut CalibrationJson, fit: &LogFit, judged: Judged, budget_d
             .iter()
             .map(|(up, v)| format!("{up} up {} deg", v.against_budget(v.predicted_deg())))
             .collect();
-        axes.push_str(&format!(" ({}; --scenario takes [P1]'s y up)", each.join(", ")));
+        axes.push_str(&format!(" ({}; a box takes [P1]'s y up)", each.join(", ")));
         axes = axes.replacen(
             "judged by the worst",
             &format!("judged by the worst, {} up", worst.0),
@@ -208,7 +212,10 @@ pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
     let Some(first) = n.attitudes.first() else { return };
     let heading = match (n.heading_after_deg, n.usable_after) {
         (Some(h), true) => format!("leave {} deg, within the budget", magcal_logs::text::significant(h, 2)),
-        (Some(h), false) => format!("still leave {} deg", magcal_logs::text::significant(h, 2)),
+        (Some(h), false) => format!(
+            "still leave {} deg: in this box more of the attitudes next chooses do not reach the budget; `magcal design` on the vehicle's scenario says what does (a longer plan from the start, a wider box, a quieter sensor, or a reduced model)",
+            magcal_logs::text::significant(h, 2)
+        ),
         (None, _) => "not determine the calibration".to_string(),
     };
     let words = format!(

@@ -353,7 +353,7 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
     let judged = budget::grid(
         log,
         vehicle.as_ref(),
-        args.scenario.is_some(),
+        args.scenario.is_some() || args.attitude.any(),
         place.as_ref(),
         alignment.as_ref(),
     );
