@@ -48,8 +48,8 @@ pub struct Common {
     #[arg(long)]
     pub allow_long: bool,
     /// The heading error a design's calibration may leave, degrees (default: the scenario's
-    /// `[verdict] heading_budget_deg`, else 2): a design works where the 95th percentile of its
-    /// check's trials over the box at every heading is within it.
+    /// `[verdict] heading_budget_deg`, else 2): a design works where 95 % of its check's trials
+    /// leave the heading within it at the 95th percentile over the box at every heading.
     #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: Option<f64>,
 }

@@ -183,8 +183,9 @@ pub struct CalibrateArgs {
     pub seed: u64,
     /// The heading error the calibration may leave, degrees: usable needs the 95th percentile
     /// over the vehicle's attitudes (its box with --scenario or --roll and --pitch, else level,
-    /// at every heading) within it, by the check's trials and by the standard errors its
-    /// held-out fits allow. IMO asks a ship's heading device for 1.0 degree static.
+    /// at every heading) within it under 95 % of the calibrations the check's trials and the
+    /// standard errors its held-out fits allow. The default 2 is a small vehicle's share; IMO
+    /// MSC.116(73) asks a ship's whole heading device for 1.0 degree static: use 1 there.
     #[arg(long, value_name = "DEG", default_value_t = magcal_core::budget::DEFAULT_BUDGET_DEG, allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: f64,
     /// Print one JSON object instead of the table.

@@ -288,10 +288,12 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
         j.coverage.motioncal_gap_percent,
         j.coverage.microstrain_coverage_percent,
         match (&j.coverage.d_efficiency_per_reading, &j.coverage.box_from) {
-            // The certificate bounds designs inside the box: more information per reading than
-            // any of them comes from attitudes outside it, and is no efficiency.
+            // The certificate bounds noise-free designs inside the box: more information per
+            // reading than any of them comes from attitudes outside it, or from the noise of the
+            // readings, which spreads them where the box is narrow (the weak direction's
+            // information is small, and noise adds to it), and is no efficiency.
             (Some(e), Some(b)) if *e > 1.0 => format!(
-                "; certified D-efficiency per reading: none in the box of {b} (the log holds {} times the information per reading of the best design in it: its attitudes lie outside the box)",
+                "; certified D-efficiency per reading: none in the box of {b} (the log holds {} times the information per reading of the best design in it: its attitudes lie outside the box, or its readings' noise spreads them beyond a narrow one)",
                 significant(*e, 4)
             ),
             (Some(e), Some(b)) => format!(
