@@ -113,12 +113,25 @@ fn usable_before(cal: &CalibrationJson, same_readings: bool, readings: &[magcal_
     }
 }
 
-/// The sensor the plan assumes (see [`NextJson::planned_under`]): `cal` where it is usable;
-/// else `cal` with the sensor of the sphere that best fits `readings` (the offset model: no
-/// non-orthogonality, one scale, its centre as the bias), and the words saying so.
+/// Whether `cal` is not usable for the heading budget alone.
+fn budget_only(cal: &CalibrationJson) -> bool {
+    !cal.reasons.is_empty() && cal.reasons.iter().all(|r| r.starts_with("heading budget not met"))
+}
+
+/// The sensor the plan assumes (see [`NextJson::planned_under`]): `cal` where it is usable, or
+/// fails the heading budget alone (its estimate is determined, plausible and checked: only not
+/// accurate enough, which is what the plan is for); else `cal` with the sensor of the sphere that
+/// best fits `readings` (the offset model: no non-orthogonality, one scale, its centre as the
+/// bias), and the words saying so.
 fn planning_sensor(cal: &CalibrationJson, readings: &[Vec3]) -> (CalibrationJson, String) {
     if cal.usable {
         return (cal.clone(), "the calibration's sensor".to_string());
+    }
+    if budget_only(cal) {
+        return (
+            cal.clone(),
+            "the calibration's sensor (not usable for the heading budget alone: its estimate is determined and checked)".to_string(),
+        );
     }
     let sphere = log_fit::FitSettings {
         trials: 0,
@@ -461,7 +474,7 @@ fn augment(
     // Added readings of the planning sensor join the log's own where that sensor is the
     // calibration's; planned under the sphere, the log's readings are read again by the sphere's
     // sensor at their field directions under it, so that one sensor reads them all.
-    let mut base = if cal.usable {
+    let mut base = if cal.usable || budget_only(cal) {
         readings.clone()
     } else {
         let directions: Vec<Vec3> = readings
