@@ -54,8 +54,7 @@ pub struct NextJson {
     /// its check by trials included), and on what that rests.
     pub usable_before: bool,
     pub usable_before_source: String,
-    /// The readings at each attitude of the table (each row's `readings` are for one pass; this
-    /// many passes) that make the full calibration of the log with them usable, where at most
+    /// The passes over the table (each row's `readings` count every pass) that make the full calibration of the log with them usable, where at most
     /// [`MAX_PASSES`] do: the full fit of the log with that many readings simulated from the
     /// planning sensor at the log's noise, judged as calibrate judges a log.
     pub passes_to_usable: Option<usize>,

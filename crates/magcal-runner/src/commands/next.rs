@@ -471,25 +471,7 @@ fn augment(
     let noise = cal
         .noise
         .ok_or_else(|| anyhow::anyhow!("{shown}: the calibration's noise is unknown (calibrate with --noise)"))?;
-    // Added readings of the planning sensor join the log's own where that sensor is the
-    // calibration's; planned under the sphere, the log's readings are read again by the sphere's
-    // sensor at their field directions under it, so that one sensor reads them all.
-    let mut base = if cal.usable || budget_only(cal) {
-        readings.clone()
-    } else {
-        let directions: Vec<Vec3> = readings
-            .iter()
-            .map(|s| {
-                let b = magcal_core::small::mat_vec(&cal.p, magcal_core::small::sub(*s, cal.bias.map(|v| v * factor)));
-                magcal_core::small::scale(r / magcal_core::small::norm(b), b)
-            })
-            .collect();
-        model.noisy_readings(
-            &directions,
-            noise * factor,
-            &mut crate::pipeline::simulated_log_rng(vehicle.seed ^ 1),
-        )?
-    };
+    let mut base = planning_readings(cal, &readings, &model, (noise, factor, r), vehicle.seed)?;
     let budget = (
         crate::pipeline::check::grid_of_box(&field, &vehicle.bounds),
         args.heading_budget,
@@ -544,6 +526,34 @@ fn augment(
         crb,
         after_fit,
     })
+}
+
+/// The log's readings (nT) as the planning sensor reads them. Added readings of the planning
+/// sensor join the log's own where that sensor is the calibration's (usable, or failing only the
+/// heading budget); planned under the sphere, the log's readings are read again by the sphere's
+/// sensor at their field directions under it, so that one sensor reads them all.
+fn planning_readings(
+    cal: &CalibrationJson,
+    readings: &[Vec3],
+    model: &magcal_core::ErrorModel,
+    (noise, factor, r): (f64, f64, f64),
+    seed: u64,
+) -> Result<Vec<Vec3>> {
+    if cal.usable || budget_only(cal) {
+        return Ok(readings.to_vec());
+    }
+    let directions: Vec<Vec3> = readings
+        .iter()
+        .map(|s| {
+            let b = magcal_core::small::mat_vec(&cal.p, magcal_core::small::sub(*s, cal.bias.map(|v| v * factor)));
+            magcal_core::small::scale(r / magcal_core::small::norm(b), b)
+        })
+        .collect();
+    Ok(model.noisy_readings(
+        &directions,
+        noise * factor,
+        &mut crate::pipeline::simulated_log_rng(seed ^ 1),
+    )?)
 }
 
 /// A fit of the log with readings added, or why there is none.
