@@ -54,9 +54,10 @@ pub struct NextJson {
     /// its check by trials included), and on what that rests.
     pub usable_before: bool,
     pub usable_before_source: String,
-    /// The passes over the table (each row's `readings` count every pass) that make the full calibration of the log with them usable, where at most
-    /// [`MAX_PASSES`] do: the full fit of the log with that many readings simulated from the
-    /// planning sensor at the log's noise, judged as calibrate judges a log.
+    /// The passes over the table (each row's `readings` count every pass) that make the full
+    /// calibration of the log with them usable, where at most [`MAX_PASSES`] do: the full fit of
+    /// the log with that many readings simulated from the planning sensor at the log's noise,
+    /// judged as calibrate judges a log.
     pub passes_to_usable: Option<usize>,
     /// The readings added in all at that many passes (or at the most tried).
     pub readings_added: usize,
