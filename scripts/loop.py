@@ -20,7 +20,8 @@ included, 72 headings, [P1] eq. (2) with the tilt taken as known).
 
 Bounds (the same as tests/it/loop_design_log.rs, which runs fewer seeds):
 - the recommended design: the usable share of the logs within 3 standard errors of design's check
-  share, the standard error that of the difference of two binomial shares (check trials and
+  share (of the 20 logs design flew and judged where its heading is above half the budget, else of
+  its check trials), the standard error that of the difference of two binomial shares (check trials and
   logs) at their pooled share, the null "both shares are one p": with 200 of 200 check trials ok
   this asks at least 48 of 50 logs usable (47 gives z = 3.5); where both shares are 0 or 1 the
   difference and its standard error are 0, and the bound holds;
@@ -243,13 +244,15 @@ def summarise(scenario, name, role, metrics, logs):
     ok, trials = int(d["check_ok"]), int(d["check_trials"])
     n = len(logs)
     usable = sum(1 for r in logs if r["usable"] == "true")
-    z = pooled_z(ok, trials, usable, n)
+    # Against the logs design flew where it flew them (a design near the budget), else its check.
+    said = (int(d["check_logs_usable"]), int(d["check_logs"])) if d.get("check_logs_usable") else (ok, trials)
+    z = pooled_z(*said, usable, n)
     if role == "recommended":
-        bound = f">= {min_usable(ok, trials, n)} usable"
+        bound = f">= {min_usable(*said, n)} usable"
         holds = abs(z) <= Z
     else:
         most = min_refused(n)
-        bound = f">= {most} not usable, <= {max_usable(ok, trials, n)} usable"
+        bound = f">= {most} not usable, <= {max_usable(*said, n)} usable"
         holds = n - usable >= most and z <= Z
     judged = [r for r in logs if r["true_deg"] != ""]
     median = lambda v: f"{quantile(v, 0.5):.3f}" if v else ""

@@ -193,12 +193,17 @@ class Design:
     def identifiable(self) -> bool: ...
     @property
     def works(self) -> bool:
-        """Calibrated in at least 95 % of the scenario's check trials."""
+        """Calibrated in at least 95 % of the scenario's check trials, its heading within the budget
+        (and 18 of 20 of its logs usable where design flew them)."""
     @property
     def heading_median_deg(self) -> Optional[float]: ...
     @property
     def heading_p95_deg(self) -> Optional[float]:
         """The 95th percentile of the heading error its check's calibrations leave over the box."""
+    @property
+    def logs_usable(self) -> Optional[int]:
+        """Of 20 logs of it flown and judged as calibrate judges a log (where its heading is above
+        half the budget), how many are usable; works needs 18. None where none were flown."""
     @property
     def metrics(self) -> dict[str, Any]:
         """Its row of design_metrics.csv (a copy)."""

@@ -361,6 +361,29 @@ fn significant_deg(x: f64) -> String {
     }
 }
 
+/// The 95/95 tolerance ([`tolerance`]) over `grid` of the calibrations `centre + d` for each of
+/// `draws` (psi degrees, scale, bias nT, as `centre`), against `sensor` (`K`, bias nT) read in a
+/// field of `magnitude` nT: what a fit at `centre` whose errors are `draws` says it leaves. A
+/// draw that is no sensor (a scale factor at or below zero) turns every heading by 180 degrees.
+pub fn tolerance_around(
+    grid: &BudgetGrid,
+    magnitude: f64,
+    sensor: (&Mat3, Vec3),
+    centre: [Vec3; 3],
+    draws: &[[Vec3; 3]],
+) -> f64 {
+    tolerance(draws, |d, e| {
+        let at = |g: usize| -> Vec3 { std::array::from_fn(|i| centre[g][i] + d[g][i]) };
+        match ErrorModel::new(at(0), at(1), at(2)).ok().and_then(|m| {
+            let p = crate::small::upper_triangular_inverse(&m.K())?;
+            Some((p, at(2)))
+        }) {
+            Some((p, bias)) => grid.errors_into(sensor, magnitude, (&p, bias), e),
+            None => e.extend(std::iter::repeat_n(180.0, grid.len())),
+        }
+    })
+}
+
 /// The heading `fit` leaves over `grid` against `budget_deg`, its calibrations drawn by its
 /// check's trials and by its standard errors (draws on stream `[0xFFF6]` of `seed` where it has
 /// no trials); `None` where the fit has no standard errors.
@@ -369,22 +392,8 @@ pub fn judge(fit: &crate::log_fit::LogFit, grid: &BudgetGrid, budget_deg: f64, s
     let std = [fit.std_psi_deg?, fit.std_scale?, fit.std_bias?];
     let centre = [fit.errors.psi_deg(), fit.errors.scale(), fit.bias];
     let k = crate::small::upper_triangular_inverse(&fit.p)?;
-    let sensor = (&k, fit.bias);
     let full = fit.model == crate::log_fit::FitModel::Full;
-    // The |e| of every attitude under the calibration `centre + d`; a draw that is no sensor
-    // (a scale factor at or below zero) turns every heading by 180 degrees.
-    let score = |draws: &[[Vec3; 3]]| -> f64 {
-        tolerance(draws, |d, e| {
-            let at = |g: usize| -> Vec3 { std::array::from_fn(|i| centre[g][i] + d[g][i]) };
-            match ErrorModel::new(at(0), at(1), at(2)).ok().and_then(|m| {
-                let p = crate::small::upper_triangular_inverse(&m.K())?;
-                Some((p, at(2)))
-            }) {
-                Some((p, bias)) => grid.errors_into(sensor, fit.magnitude, (&p, bias), e),
-                None => e.extend(std::iter::repeat_n(180.0, grid.len())),
-            }
-        })
-    };
+    let score = |draws: &[[Vec3; 3]]| tolerance_around(grid, fit.magnitude, (&k, fit.bias), centre, draws);
     let trials = &fit.trial_errors;
     let by_trials_deg = (trials.len() >= 2).then(|| score(trials));
     let rms: [Vec3; 3] = std::array::from_fn(|g| {

@@ -21,13 +21,15 @@ struct DesignCommand {
 
 /// The columns of the design tables that count (attitudes, readings, trials, rounds): `int`s.
 /// Every other number is a measure, a `float` even where it happens to be whole.
-const COUNTS: [&str; 10] = [
+const COUNTS: [&str; 12] = [
     "visit",
     "point",
     "readings",
     "m",
     "check_trials",
     "check_ok",
+    "check_logs",
+    "check_logs_usable",
     "rounds",
     "candidates",
     "support_points",
@@ -233,6 +235,14 @@ impl Design {
     #[getter]
     fn heading_p95_deg(&self, py: Python<'_>) -> PyResult<Option<f64>> {
         self.metric(py, "check_budget_p95_deg")
+    }
+
+    /// Of the logs of it design flew and judged as `calibrate` judges a log (20, where its
+    /// heading is above half the budget), how many are usable; `works` needs 18. `None` where
+    /// none were flown.
+    #[getter]
+    fn logs_usable(&self, py: Python<'_>) -> PyResult<Option<usize>> {
+        self.metric(py, "check_logs_usable")
     }
 
     /// Its row of `design_metrics.csv`, every column (a copy).

@@ -293,6 +293,17 @@ def test_evaluate_and_next_are_the_command_lines_json(tmp_path):
         pymagcal.evaluate(cal, BROAD_02, report=tmp_path / "page.html", **BROAD_FLAGS)
 
 
+def test_a_plan_near_the_budget_says_how_many_of_its_logs_calibrate_would_take():
+    # The vessel's plan1000 leaves 1.66 degrees in truth against a budget of 2: design flies 20
+    # of its logs and judges them as calibrate does; plan300 misses the budget in truth, and no
+    # log of it is flown.
+    plan = pymagcal.design(ROOT / "scenarios" / "usv.toml")
+    fly = plan["plan1000"]
+    assert fly.works and isinstance(fly.logs_usable, int) and 18 <= fly.logs_usable <= 20
+    assert fly.metrics["check_logs"] == 20 and fly.heading_p95_deg > 1.0
+    assert plan["plan300"].logs_usable is None and not plan["plan300"].works
+
+
 def test_evaluate_without_attitudes_raises_the_command_lines_error(tmp_path):
     need(CK)
     cal = pymagcal.calibrate(pymagcal.read_log(CK, columns="mx,my,mz"))

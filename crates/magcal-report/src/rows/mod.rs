@@ -186,6 +186,13 @@ pub struct DesignMetricsRow {
     pub heading_budget_deg: Option<Real>,
     #[serde(default)]
     pub check_budget_p95_deg: Option<Real>,
+    /// Logs of the design flown (simulated) at the check's noise and judged as `calibrate`
+    /// judges a log, and how many of them are usable; `works` needs 90 % of them. Empty where
+    /// none are flown: the check misses the budget or meets it by more than half of it.
+    #[serde(default)]
+    pub check_logs: Option<usize>,
+    #[serde(default)]
+    pub check_logs_usable: Option<usize>,
 }
 
 /// `approximate.csv`: the approximate D-optimal design of the box, support points by decreasing
@@ -409,6 +416,10 @@ pub struct AdviceRow {
     pub heading_budget_deg: Option<Real>,
     #[serde(default)]
     pub check_budget_p95_deg: Option<Real>,
+    #[serde(default)]
+    pub check_logs: Option<usize>,
+    #[serde(default)]
+    pub check_logs_usable: Option<usize>,
 }
 
 /// The kind of a design source, as `design_metrics.csv` names it.

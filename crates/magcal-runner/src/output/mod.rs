@@ -13,7 +13,7 @@ pub mod stderr;
 
 use magcal_core::design::tour;
 
-use crate::pipeline::RunOutput;
+use crate::pipeline::{Check, RunOutput};
 pub use magcal_report::rows::*;
 pub use magcal_report::rows::{cells, log_rows, replay_rows};
 
@@ -228,6 +228,8 @@ pub fn design_metrics_rows(out: &RunOutput) -> impl Iterator<Item = DesignMetric
             recommended: recommended == Some(i),
             heading_budget_deg: Some(Real(d.check.budget_deg)),
             check_budget_p95_deg: d.check.budget_p95_deg.map(Real),
+            check_logs: d.check.logs_usable.map(|_| Check::LOGS),
+            check_logs_usable: d.check.logs_usable,
         }
     })
 }
@@ -265,6 +267,8 @@ pub fn advice_rows<'a>(
         check_heading_p95_deg: c.heading_p95_deg.map(Real),
         heading_budget_deg: Some(Real(c.budget_deg)),
         check_budget_p95_deg: c.budget_p95_deg.map(Real),
+        check_logs: c.logs_usable.map(|_| Check::LOGS),
+        check_logs_usable: c.logs_usable,
     };
     let (r, p) = (box_of(&roll), box_of(&pitch));
     let (k, m) = (base.attitudes.len(), base.m() * advice.passes);

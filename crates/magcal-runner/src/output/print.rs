@@ -114,7 +114,7 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                 w,
                 "fly {}: {} readings at {} attitudes (its flight plan is in designs.csv). At {} nT it \
                  calibrated in {} of {} trials; heading error 95th percentile {} deg over the box at every \
-                 heading, within the budget of {} deg{}.",
+                 heading, within the budget of {} deg{}{}.",
                 d.name,
                 d.m(),
                 d.attitudes.len(),
@@ -123,87 +123,98 @@ pub fn recommendation(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice
                 c.trials,
                 c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
                 crate::limits::show(c.budget_deg),
+                logs_words(c),
                 out.d_efficiency_bound(i)
                     .map_or(String::new(), |e| format!("; certified D-efficiency >= {e:.4}"))
             )
         }
         None if out.designs.iter().any(|d| d.check.works()) => too_few_readings(w, out),
-        None => {
-            let budget = out.designs.first().map_or(0.0, |d| d.check.budget_deg);
-            writeln!(
-                w,
-                "no design here calibrates the full model in {:.0} % of trials at this noise with the heading within the budget of {} deg.",
-                100.0 * Check::OK_SHARE,
-                crate::limits::show(budget)
-            )?;
-            let Some(a) = advice else { return Ok(()) };
-            let base = &out.designs[a.base];
-            let flown = match a.passes {
-                1 => String::new(),
-                n => format!(
-                    ", flown {n} times over: {} readings, enough for a log to hold a fifth out",
-                    n * base.m()
-                ),
-            };
-            writeln!(
-                w,
-                "What works instead, by the same check, from {} ({} readings{flown}):",
-                base.name,
-                base.m()
-            )?;
-            let heading = |c: &Check| {
-                format!(
-                    "{} of {} trials ok at {} nT, heading error 95th percentile {} deg over the box (budget {} deg)",
-                    c.outcomes.ok,
-                    c.trials,
-                    significant(c.sigma_nt, 3),
-                    c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
-                    crate::limits::show(c.budget_deg),
-                )
-            };
-            for (model, c) in &a.reduced {
-                let works = if c.works() { "works" } else { "does not work" };
-                writeln!(w, "  - {}: {works}: {}", model.words(), heading(c))?;
-            }
-            match &a.quieter {
-                Some(c) => writeln!(
-                    w,
-                    "  - the full model with a quieter sensor: works at {} nT ({}x less noise): {}",
-                    significant(c.sigma_nt, 3),
-                    significant(base.check.sigma_nt / c.sigma_nt, 3),
-                    heading(c)
-                )?,
-                None => writeln!(
-                    w,
-                    "  - the full model with a quieter sensor: not even at 1/1024 of the noise"
-                )?,
-            }
-            match &a.wider {
-                Some(v) => writeln!(
-                    w,
-                    "  - the full model in a wider box: tilting {} deg further (roll {} to {}, pitch {} to {} deg), \
-                     {} D-optimal attitudes x {} reading{}: {}",
-                    v.extra_deg,
-                    v.roll_deg[0],
-                    v.roll_deg[1],
-                    v.pitch_deg[0],
-                    v.pitch_deg[1],
-                    v.attitudes.len(),
-                    v.readings_per_attitude,
-                    if v.readings_per_attitude == 1 { "" } else { "s" },
-                    heading(&v.check)
-                )?,
-                None => writeln!(
-                    w,
-                    "  - the full model in a wider box: not even with 90 degrees more tilt"
-                )?,
-            }
-            writeln!(
-                w,
-                "  (advice.csv has each; to fly the wider box, set its ranges in the scenario and run design again)"
-            )
-        }
+        None => no_design_works(w, out, advice),
     }
+}
+
+/// "; 19 of 20 logs of it flown usable by calibrate" where design flew logs of the design.
+fn logs_words(c: &Check) -> String {
+    c.logs_usable.map_or(String::new(), |k| {
+        format!("; {k} of {} logs of it flown usable by calibrate", Check::LOGS)
+    })
+}
+
+/// Where no design works: that, and the advice (what works instead, by the same check).
+fn no_design_works(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice>) -> std::io::Result<()> {
+    let budget = out.designs.first().map_or(0.0, |d| d.check.budget_deg);
+    writeln!(
+        w,
+        "no design here calibrates the full model in {:.0} % of trials at this noise with the heading within the budget of {} deg.",
+        100.0 * Check::OK_SHARE,
+        crate::limits::show(budget)
+    )?;
+    let Some(a) = advice else { return Ok(()) };
+    let base = &out.designs[a.base];
+    let flown = match a.passes {
+        1 => String::new(),
+        n => format!(
+            ", flown {n} times over: {} readings, enough for a log to hold a fifth out",
+            n * base.m()
+        ),
+    };
+    writeln!(
+        w,
+        "What works instead, by the same check, from {} ({} readings{flown}):",
+        base.name,
+        base.m()
+    )?;
+    let heading = |c: &Check| {
+        format!(
+            "{} of {} trials ok at {} nT, heading error 95th percentile {} deg over the box (budget {} deg)",
+            c.outcomes.ok,
+            c.trials,
+            significant(c.sigma_nt, 3),
+            c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
+            crate::limits::show(c.budget_deg),
+        )
+    };
+    for (model, c) in &a.reduced {
+        let works = if c.works() { "works" } else { "does not work" };
+        writeln!(w, "  - {}: {works}: {}", model.words(), heading(c))?;
+    }
+    match &a.quieter {
+        Some(c) => writeln!(
+            w,
+            "  - the full model with a quieter sensor: works at {} nT ({}x less noise): {}",
+            significant(c.sigma_nt, 3),
+            significant(base.check.sigma_nt / c.sigma_nt, 3),
+            heading(c)
+        )?,
+        None => writeln!(
+            w,
+            "  - the full model with a quieter sensor: not even at 1/1024 of the noise"
+        )?,
+    }
+    match &a.wider {
+        Some(v) => writeln!(
+            w,
+            "  - the full model in a wider box: tilting {} deg further (roll {} to {}, pitch {} to {} deg), \
+             {} D-optimal attitudes x {} reading{}: {}",
+            v.extra_deg,
+            v.roll_deg[0],
+            v.roll_deg[1],
+            v.pitch_deg[0],
+            v.pitch_deg[1],
+            v.attitudes.len(),
+            v.readings_per_attitude,
+            if v.readings_per_attitude == 1 { "" } else { "s" },
+            heading(&v.check)
+        )?,
+        None => writeln!(
+            w,
+            "  - the full model in a wider box: not even with 90 degrees more tilt"
+        )?,
+    }
+    writeln!(
+        w,
+        "  (advice.csv has each; to fly the wider box, set its ranges in the scenario and run design again)"
+    )
 }
 
 /// Designs with `ln det M_F`, D-efficiency per reading and the identifiability verdict; per cell
@@ -234,8 +245,11 @@ pub fn summary(w: &mut dyn Write, out: &RunOutput, dir: &Path) -> std::io::Resul
         let c = &d.check;
         let share = format!("{} of {} trials ok at {} nT", c.outcomes.ok, c.trials, c.sigma_nt);
         let heading = c.budget_p95_deg.map_or(String::new(), |p| {
+            let logs = c.logs_usable.map_or(String::new(), |k| {
+                format!(", {k} of {} of its logs usable by calibrate", Check::LOGS)
+            });
             format!(
-                ", heading {} deg at the 95th percentile (budget {})",
+                ", heading {} deg at the 95th percentile{logs} (budget {})",
                 significant(p, 3),
                 crate::limits::show(c.budget_deg)
             )

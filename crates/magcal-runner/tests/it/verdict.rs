@@ -92,15 +92,18 @@ fn with_the_papers_residual_the_same_plan_fails_and_the_advice_is_checked() {
         .collect();
     assert_eq!(models, ["diagonal", "axis2_held", "offsets_only"]);
     // An option works where 95 % of its trials calibrate and their heading is within the budget
-    // (the diagonal model calibrates 199 of 200 and leaves the heading beyond 2 degrees).
+    // (the diagonal model calibrates 199 of 200 and leaves the heading beyond 2 degrees), and
+    // its logs flown are usable where they were flown.
     for a in &advice {
         let budget = a
             .check_budget_p95_deg
             .zip(a.heading_budget_deg)
             .is_some_and(|(p, b)| p.0 <= b.0);
+        // Where its logs were flown, 18 of 20 must be usable.
+        let logs = a.check_logs_usable.is_none_or(|k| k >= 18);
         assert_eq!(
             a.works,
-            a.check_ok as f64 >= 0.95 * a.check_trials as f64 && budget,
+            a.check_ok as f64 >= 0.95 * a.check_trials as f64 && budget && logs,
             "{a:?}"
         );
     }
