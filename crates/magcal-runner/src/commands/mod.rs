@@ -49,7 +49,9 @@ pub struct Common {
     pub allow_long: bool,
     /// The heading error a design's calibration may leave, degrees (default: the scenario's
     /// `[verdict] heading_budget_deg`, else 2): a design works where 95 % of its check's trials
-    /// leave the heading within it at the 95th percentile over the box at every heading.
+    /// leave the heading within it at the 95th percentile over the box at every heading and,
+    /// where that is above half the budget, 18 of 20 logs of it flown are usable as calibrate
+    /// judges them.
     #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = crate::limits::heading_budget)]
     pub heading_budget: Option<f64>,
 }
