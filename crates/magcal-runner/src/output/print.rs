@@ -143,9 +143,24 @@ fn logs_words(c: &Check) -> String {
 /// Where no design works: that, and the advice (what works instead, by the same check).
 fn no_design_works(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice>) -> std::io::Result<()> {
     let budget = out.designs.first().map_or(0.0, |d| d.check.budget_deg);
+    // A design whose trials meet the budget but whose logs do not: said, lest "no design" read
+    // as no design coming near it.
+    let near = out
+        .designs
+        .iter()
+        .find(|d| d.check.calibrates() && d.check.truth_meets_budget())
+        .and_then(|d| d.check.logs_usable.map(|k| (d, k)))
+        .map_or(String::new(), |(d, k)| {
+            format!(
+                " ({} meets it in its trials, but {k} of {} logs of it flown are usable by calibrate, not the {} needed)",
+                d.name,
+                Check::LOGS,
+                Check::LOGS_USABLE
+            )
+        });
     writeln!(
         w,
-        "no design here calibrates the full model in {:.0} % of trials at this noise with the heading within the budget of {} deg.",
+        "no design here calibrates the full model in {:.0} % of trials at this noise with the heading within the budget of {} deg{near}.",
         100.0 * Check::OK_SHARE,
         crate::limits::show(budget)
     )?;
@@ -166,12 +181,13 @@ fn no_design_works(w: &mut dyn Write, out: &RunOutput, advice: Option<&Advice>) 
     )?;
     let heading = |c: &Check| {
         format!(
-            "{} of {} trials ok at {} nT, heading error 95th percentile {} deg over the box (budget {} deg)",
+            "{} of {} trials ok at {} nT, heading error 95th percentile {} deg over the box (budget {} deg){}",
             c.outcomes.ok,
             c.trials,
             significant(c.sigma_nt, 3),
             c.budget_p95_deg.map_or("-".into(), |v| format!("{v:.3}")),
             crate::limits::show(c.budget_deg),
+            logs_words(c),
         )
     };
     for (model, c) in &a.reduced {
@@ -692,11 +708,12 @@ attitudes = [
         let lines: Vec<&str> = printed.lines().collect();
         let heading = |c: &Check| {
             format!(
-                "{} of {} trials ok at {} nT, heading error 95th percentile {:.3} deg over the box (budget 8 deg)",
+                "{} of {} trials ok at {} nT, heading error 95th percentile {:.3} deg over the box (budget 8 deg){}",
                 c.outcomes.ok,
                 c.trials,
                 significant(c.sigma_nt, 3),
-                c.budget_p95_deg.unwrap()
+                c.budget_p95_deg.unwrap(),
+                logs_words(c)
             )
         };
         assert_eq!(lines[0], none);

@@ -4,6 +4,7 @@
 
 use anyhow::Result;
 use magcal_core::heading::HeadingProbe;
+use magcal_core::log_fit::FitModel;
 use magcal_core::monte_carlo::{self, TrialOutcome};
 use magcal_core::rng::{stream_id, stream_rng};
 use magcal_core::{CalibrationStatus, Summary};
@@ -43,7 +44,8 @@ pub struct Check {
     /// `calibrate` judges usable ([`logs_usable`]); `None` where they are not flown: the trials
     /// miss the budget, or meet it by more than [`Self::LOGS_BELOW`] of it, or calibrate by an
     /// estimator of the caller's (a reduced model of design's advice, which `calibrate` fits
-    /// otherwise).
+    /// otherwise), or the design has too few readings for a log of it to hold a fifth out (no
+    /// such log is ever usable; design says to fly its attitudes as a plan).
     pub logs_usable: Option<usize>,
 }
 
@@ -153,7 +155,10 @@ impl Check {
         let budget_p95_deg = budget_p95(scenario, &trials);
         let budget = scenario.heading_budget_deg;
         let logs_usable = budget_p95_deg
-            .filter(|p| calibrate.is_none() && *p <= budget && *p > Self::LOGS_BELOW * budget)
+            .filter(|p| *p <= budget && *p > Self::LOGS_BELOW * budget)
+            .filter(|_| {
+                calibrate.is_none() && body.len() >= magcal_core::log_fit::min_held_out_readings(FitModel::Full)
+            })
             .map(|_| logs_usable(scenario, stream, body, sigma_nt))
             .transpose()?;
         let heading: Vec<f64> = trials
