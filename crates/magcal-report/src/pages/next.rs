@@ -66,9 +66,17 @@ pub struct NextJson {
     pub usable_after: bool,
     pub usable_after_why_not: Option<String>,
     /// The heading the full fit of the log with the readings added is predicted to leave (95th
-    /// percentile over the box at every heading, degrees), and the budget it is held to.
+    /// percentile over the box at every heading, degrees; the median over its simulated logs),
+    /// and the budget it is held to.
     #[serde(default)]
     pub heading_after_deg: Option<f64>,
+    /// Logs simulated at those passes, each with the readings added drawn afresh (the first
+    /// alone where it is not usable), and how many are usable; `usable_after` needs 4 of 5.
+    /// `heading_after_deg` is the median of their figures.
+    #[serde(default)]
+    pub simulated_logs: usize,
+    #[serde(default)]
+    pub simulated_logs_usable: usize,
     #[serde(default)]
     pub heading_budget_deg: Option<f64>,
 }

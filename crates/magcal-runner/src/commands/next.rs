@@ -346,8 +346,10 @@ struct Augmented {
     crb: [CramerRao; 2],
     /// The certified D-efficiency per reading before and after.
     efficiency: [Option<f64>; 2],
-    /// The full fit of the log with the added readings simulated.
+    /// The full fit of the log with the added readings simulated (the first of its logs).
     after_fit: Result<log_fit::LogFit, magcal_core::CalibrationError>,
+    /// The logs flown at the passes settled on (or the last tried).
+    flown: SimulatedLogs,
 }
 
 /// What `next --json` says of the calibration `cal` and the log `args.log` in the box of
@@ -404,20 +406,21 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize;
         planned_under,
         usable_before,
         usable_before_source,
-        passes_to_usable: a.passes.filter(|_| a.after_fit.as_ref().is_ok_and(|f| f.usable)),
+        passes_to_usable: a.passes,
         readings_added: a.body.len() - a.m,
-        usable_after: a.after_fit.as_ref().is_ok_and(|f| f.usable),
-        heading_after_deg: a
-            .after_fit
-            .as_ref()
-            .ok()
-            .and_then(|f| f.heading.as_ref())
-            .map(magcal_core::budget::HeadingVerdict::predicted_deg),
+        usable_after: a.passes.is_some(),
+        heading_after_deg: a.flown.heading_median_deg,
         heading_budget_deg: Some(args.heading_budget),
-        usable_after_why_not: match &a.after_fit {
-            Ok(f) if !f.usable => Some(few_attitudes(f.reasons.join("; "), a.chosen.len())),
-            Ok(_) => None,
-            Err(e) => Some(few_attitudes(e.to_string(), a.chosen.len())),
+        simulated_logs: a.flown.logs,
+        simulated_logs_usable: a.flown.usable,
+        usable_after_why_not: match (&a.after_fit, a.passes) {
+            (_, Some(_)) => None,
+            (Ok(f), None) if !f.usable => Some(few_attitudes(f.reasons.join("; "), a.chosen.len())),
+            (Ok(_), None) => Some(format!(
+                "{} of {} logs simulated with the readings added drawn afresh are usable ({NEXT_LOGS_USABLE} needed)",
+                a.flown.usable, a.flown.logs
+            )),
+            (Err(e), None) => Some(few_attitudes(e.to_string(), a.chosen.len())),
         },
     };
     Ok((json, counts))
@@ -485,7 +488,7 @@ fn augment(
     } else {
         log_fit::Order::Unknown
     };
-    let (passes, after_fit, chosen, added) = passes_to_usable(
+    let (passes, after_fit, chosen, added, flown) = passes_to_usable(
         &mut base,
         &model,
         |p| choose(p).map(|c| (body_fields(&c), c)),
@@ -525,6 +528,7 @@ fn augment(
         body: readings,
         crb,
         after_fit,
+        flown,
     })
 }
 
@@ -564,16 +568,43 @@ type FitResult = Result<log_fit::LogFit, magcal_core::CalibrationError>;
 type Chosen = (Vec<Vec3>, Vec<(magcal_core::Attitude, f64)>);
 
 /// What the passes tried gave: the passes that make the log usable (`None` where none tried
-/// does), the fit, the attitudes and the body fields added at the last tried.
-type Tried = (Option<usize>, FitResult, Vec<(magcal_core::Attitude, f64)>, Vec<Vec3>);
+/// does), the fit, the attitudes and the body fields added at the last tried, and its simulated
+/// logs.
+type Tried = (
+    Option<usize>,
+    FitResult,
+    Vec<(magcal_core::Attitude, f64)>,
+    Vec<Vec3>,
+    SimulatedLogs,
+);
+
+/// Logs flown (simulated) at the passes `next` settles on, each with the readings added drawn
+/// afresh: one log's figure carries its own noise (a log 5 % above the budget was told that 20
+/// readings reach it, 1.9 degrees predicted, and flown gave 2.05), so the passes must make most
+/// of them usable.
+pub const NEXT_LOGS: usize = 5;
+
+/// Of [`NEXT_LOGS`], the usable ones the passes need.
+pub const NEXT_LOGS_USABLE: usize = 4;
+
+/// The simulated logs of the last passes tried: how many, how many usable, and the median of
+/// their predicted heading figures (degrees; `None` where none has one).
+#[derive(Debug, Clone, Copy)]
+struct SimulatedLogs {
+    logs: usize,
+    usable: usize,
+    heading_median_deg: Option<f64>,
+}
 
 /// The fewest passes (1, 2, 4, ... up to [`MAX_PASSES`]) over the attitudes `choose` gives for
 /// that many passes whose readings, simulated from `model` with noise `sigma` (as `simulate`
 /// draws it) and added after the log's `readings` (nT; in `order`: a log in time order keeps its
 /// blocks, so a drift the log holds is still seen), make the full calibration of the log usable
 /// (its check by trials and heading budget included: what `calibrate` would say of the log flown
-/// so). Returns the passes (`None` where even the most do not), the fit, the attitudes and the
-/// body fields added at the last tried. `readings` holds the log and the last readings tried.
+/// so) in [`NEXT_LOGS_USABLE`] of [`NEXT_LOGS`] logs whose added readings are drawn afresh (the
+/// first drawn; the others only where it is usable). Returns the passes (`None` where even the
+/// most do not), the first log's fit, the attitudes and the body fields added at the last tried,
+/// and its logs. `readings` holds the log and the last readings tried.
 fn passes_to_usable(
     readings: &mut Vec<Vec3>,
     model: &magcal_core::ErrorModel,
@@ -584,27 +615,56 @@ fn passes_to_usable(
     budget: &(magcal_core::budget::BudgetGrid, f64),
 ) -> Result<Tried> {
     let m = readings.len();
+    // Judged as calibrate judges it: the heading over the vehicle's box against the budget.
+    let settings = log_fit::FitSettings {
+        order,
+        ..log_fit::FitSettings::default()
+    };
+    // The log with the readings `added` drawn on stream `k` (0: the seed's own), fitted.
+    let mut fly = |added: &[Vec3], k: u64| -> Result<FitResult> {
+        let mut rng = crate::pipeline::simulated_log_rng(seed ^ (k << 32));
+        let simulated = model.noisy_readings(added, sigma, &mut rng)?;
+        readings.truncate(m);
+        readings.extend(simulated);
+        Ok(
+            log_fit::fit_with(readings, r, log_fit::FitModel::Full, &settings).map(|mut f| {
+                f.judge_heading(&budget.0, budget.1, log_fit::CHECK_SEED);
+                f
+            }),
+        )
+    };
+    let figure = |f: &FitResult| {
+        f.as_ref()
+            .ok()
+            .and_then(|f| f.heading.as_ref())
+            .map(magcal_core::budget::HeadingVerdict::predicted_deg)
+    };
     let mut passes = 1;
     loop {
         let (fields, chosen) = choose(passes)?;
         let added: Vec<Vec3> = (0..passes).flat_map(|_| fields.iter().copied()).collect();
-        let simulated = model.noisy_readings(&added, sigma, &mut crate::pipeline::simulated_log_rng(seed))?;
-        readings.truncate(m);
-        readings.extend(simulated);
-        // Judged as calibrate judges it: the heading over the vehicle's box against the budget.
-        let settings = log_fit::FitSettings {
-            order,
-            ..log_fit::FitSettings::default()
+        let fit = fly(&added, 0)?;
+        let mut figures: Vec<f64> = figure(&fit).into_iter().collect();
+        let mut usable = usize::from(fit.as_ref().is_ok_and(|f| f.usable));
+        let mut logs = 1;
+        if usable == 1 {
+            for k in 1..NEXT_LOGS as u64 {
+                let other = fly(&added, k)?;
+                usable += usize::from(other.as_ref().is_ok_and(|f| f.usable));
+                figures.extend(figure(&other));
+                logs += 1;
+            }
+        }
+        let flown = SimulatedLogs {
+            logs,
+            usable,
+            heading_median_deg: (!figures.is_empty()).then(|| magcal_core::budget::quantile(&mut figures, 0.5)),
         };
-        let fit = log_fit::fit_with(readings, r, log_fit::FitModel::Full, &settings).map(|mut f| {
-            f.judge_heading(&budget.0, budget.1, log_fit::CHECK_SEED);
-            f
-        });
-        if fit.as_ref().is_ok_and(|f| f.usable) {
-            return Ok((Some(passes), fit, chosen, added));
+        if usable >= NEXT_LOGS_USABLE {
+            return Ok((Some(passes), fit, chosen, added, flown));
         }
         if passes >= MAX_PASSES {
-            return Ok((None, fit, chosen, added));
+            return Ok((None, fit, chosen, added, flown));
         }
         passes *= 2;
     }
@@ -653,9 +713,12 @@ fn write_text(w: &mut Vec<u8>, j: &NextJson) -> Result<()> {
         j.heading_after_deg
             .zip(j.heading_budget_deg)
             .map_or(String::new(), |(h, b)| format!(
-                ", heading {} deg predicted at the 95th percentile over the box (budget {})",
+                ", heading {} deg predicted at the 95th percentile over the box (budget {}), the median over {} log{} simulated, {} of them usable",
                 magcal_logs::text::significant(h, 3),
-                crate::limits::show(b)
+                crate::limits::show(b),
+                j.simulated_logs,
+                if j.simulated_logs == 1 { "" } else { "s" },
+                j.simulated_logs_usable
             )),
         j.readings_added,
         match j.passes_to_usable {
