@@ -79,10 +79,10 @@ impl Check {
 
     /// Whether its logs are judged usable by `calibrate` ([`Self::logs_usable`] at least
     /// [`Self::LOGS_USABLE`] of [`Self::LOGS`]), where they are flown. A log states the heading
-    /// its own estimate leaves, and that scatters about the truth's: along a valley of scale and
-    /// bias by a quarter either way (a +-3 degree box, 1000 readings at 30 nT: 0.92 to 1.58
-    /// degrees over 20 logs where the truth's figure is 1.24), so a plan whose truth is near the
-    /// budget gives logs that `calibrate` refuses.
+    /// its own estimate leaves, and that scatters about the truth's along a valley of scale and
+    /// bias (a rover's +-3 degree box, 1000 readings at 30 nT: 0.97 to 1.79 degrees over 20 logs
+    /// where the trials' figure is 1.28; at 500 readings, 1.52 in truth, 9 of 20 logs usable), so
+    /// a plan whose truth is near the budget gives logs that `calibrate` refuses.
     pub fn logs_meet_budget(&self) -> bool {
         self.logs_usable.is_none_or(|k| k >= Self::LOGS_USABLE)
     }

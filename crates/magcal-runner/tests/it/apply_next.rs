@@ -577,7 +577,7 @@ fn next_says_usable_before_as_calibrate_said_it() {
             .unwrap()
             .parse()
             .unwrap();
-        assert!(readings % 10 == 0 && readings <= 320, "{line}");
+        assert!(readings.is_multiple_of(10) && readings <= 320, "{line}");
     }
 }
 

@@ -252,7 +252,7 @@ readings = 1000
 
 #[test]
 fn a_plan_whose_logs_calibrate_would_refuse_is_not_recommended() {
-    // 500 readings in the rover's box leave 1.8 degrees at the 95/95 figure in truth, within the
+    // 500 readings in the rover's box leave 1.5 degrees at the 95/95 figure in truth, within the
     // budget of 2; but a log judges its heading by its own estimate, which runs along the up
     // axis's valley of scale and bias, and calibrate refuses many of them. Design flies 20 logs
     // and says so; the logs flown here agree with its count (pooled binomial shares), and the
