@@ -41,7 +41,7 @@ pub struct Check {
     /// an `ok` trial.
     pub budget_p95_deg: Option<f64>,
     /// Of [`Self::LOGS`] logs of the design flown at the check's noise (simulated), how many
-    /// `calibrate` judges usable ([`logs_usable`]); `None` where they are not flown: the trials
+    /// `calibrate` judges usable; `None` where they are not flown: the trials
     /// miss the budget, or meet it by more than [`Self::LOGS_BELOW`] of it, or calibrate by an
     /// estimator of the caller's (a reduced model of design's advice, which `calibrate` fits
     /// otherwise), or the design has too few readings for a log of it to hold a fifth out (no
