@@ -615,23 +615,19 @@ fn passes_to_usable(
     budget: &(magcal_core::budget::BudgetGrid, f64),
 ) -> Result<Tried> {
     let m = readings.len();
-    // Judged as calibrate judges it: the heading over the vehicle's box against the budget.
-    let settings = log_fit::FitSettings {
-        order,
-        ..log_fit::FitSettings::default()
-    };
-    // The log with the readings `added` drawn on stream `k` (0: the seed's own), fitted.
+    // The log with the readings `added` drawn on stream `k` (0: the seed's own), fitted and
+    // judged as calibrate judges it: the heading over the vehicle's box against the budget.
     let mut fly = |added: &[Vec3], k: u64| -> Result<FitResult> {
         let mut rng = crate::pipeline::simulated_log_rng(seed ^ (k << 32));
         let simulated = model.noisy_readings(added, sigma, &mut rng)?;
         readings.truncate(m);
         readings.extend(simulated);
-        Ok(
-            log_fit::fit_with(readings, r, log_fit::FitModel::Full, &settings).map(|mut f| {
-                f.judge_heading(&budget.0, budget.1, log_fit::CHECK_SEED);
-                f
-            }),
-        )
+        Ok(crate::pipeline::check::judged_as_calibrate(
+            readings,
+            r,
+            order,
+            (&budget.0, budget.1),
+        ))
     };
     let figure = |f: &FitResult| {
         f.as_ref()

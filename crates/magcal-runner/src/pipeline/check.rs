@@ -131,10 +131,7 @@ impl Check {
         let trials: Vec<TrialOutcome> = (0..scenario.check_trials)
             .into_par_iter()
             .map(|t| {
-                let mut ids = [0; CHECK_STREAM_DEPTH + 1];
-                ids[..stream.len()].copy_from_slice(stream);
-                ids[stream.len()] = t as u64;
-                let mut rng = stream_rng(scenario.seed, stream_id(&ids[..=stream.len()]));
+                let mut rng = trial_rng(scenario.seed, stream, t);
                 match calibrate {
                     None => monte_carlo::trial(
                         &scenario.truth,
@@ -232,22 +229,47 @@ fn logs_usable(scenario: &Scenario, stream: &[u64], body: &[magcal_core::Vec3], 
     let usable: Vec<bool> = (0..Check::LOGS)
         .into_par_iter()
         .map(|k| {
-            let mut ids = [0; CHECK_STREAM_DEPTH + 1];
-            ids[..stream.len()].copy_from_slice(stream);
-            ids[stream.len()] = (scenario.check_trials + k) as u64;
-            let mut rng = stream_rng(scenario.seed, stream_id(&ids[..=stream.len()]));
+            let mut rng = trial_rng(scenario.seed, stream, scenario.check_trials + k);
             let readings = scenario.truth.noisy_readings(body, sigma_nt, &mut rng)?;
-            let fit = magcal_core::log_fit::fit_with(
+            let fit = judged_as_calibrate(
                 &readings,
                 magnitude,
-                magcal_core::log_fit::FitModel::Full,
-                &magcal_core::log_fit::FitSettings::default(),
+                magcal_core::log_fit::Order::Unknown,
+                (&grid, scenario.heading_budget_deg),
             );
-            Ok(fit.is_ok_and(|mut f| {
-                f.judge_heading(&grid, scenario.heading_budget_deg, magcal_core::log_fit::CHECK_SEED);
-                f.usable
-            }))
+            Ok(fit.is_ok_and(|f| f.usable))
         })
         .collect::<Result<_>>()?;
     Ok(usable.iter().filter(|u| **u).count())
+}
+
+/// The random stream of trial `t` of a check on the streams `[stream.., t]` (`stream` at most
+/// [`CHECK_STREAM_DEPTH`] long).
+fn trial_rng(seed: u64, stream: &[u64], t: usize) -> magcal_core::rng::MagcalRng {
+    let mut ids = [0; CHECK_STREAM_DEPTH + 1];
+    ids[..stream.len()].copy_from_slice(stream);
+    ids[stream.len()] = t as u64;
+    stream_rng(seed, stream_id(&ids[..=stream.len()]))
+}
+
+/// The full fit of a log's `readings` (in `order`) to the field's `magnitude`, judged as
+/// `calibrate` judges a log: its check by trials, its held-out fits and its heading over `grid`
+/// against `budget_deg` (`usable` says all of it).
+///
+/// # Errors
+/// Where the readings determine no fit.
+pub fn judged_as_calibrate(
+    readings: &[magcal_core::Vec3],
+    magnitude: f64,
+    order: magcal_core::log_fit::Order,
+    (grid, budget_deg): (&magcal_core::budget::BudgetGrid, f64),
+) -> Result<magcal_core::log_fit::LogFit, magcal_core::CalibrationError> {
+    let settings = magcal_core::log_fit::FitSettings {
+        order,
+        ..magcal_core::log_fit::FitSettings::default()
+    };
+    magcal_core::log_fit::fit_with(readings, magnitude, FitModel::Full, &settings).map(|mut f| {
+        f.judge_heading(grid, budget_deg, magcal_core::log_fit::CHECK_SEED);
+        f
+    })
 }
