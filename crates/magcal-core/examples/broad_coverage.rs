@@ -28,12 +28,16 @@
 //! alone (`LogFit::serial_std`), the larger of long-run and white without the floor, and the
 //! trials' rms error alone (a circular block bootstrap of the log's residuals, `log_fit/check.rs`;
 //! normal quantiles). Intervals are `quantile * std` with the fit's quantile (Student's t of its
-//! degrees of freedom) and its 99.5 % counterpart for the 99 % intervals.
+//! degrees of freedom; for a standard error the held-out fits set, the t of their jackknife's,
+//! as `LogFit::interval95` and so `calibrate` state it) and its 99.5 % counterpart for the 99 %
+//! intervals.
 //!
 //! The windows of one trial are not independent, and the truth is an estimate that contains
 //! them: the same tables against the movement rows' calibration (which holds each window more
 //! strongly) and against the movement rows' without the window (which holds none of it) bracket
-//! what that does. `BROAD_DETAIL=1` prints each window under the shipped rule.
+//! what that does. `BROAD_DETAIL=1` prints each window under the shipped rule, per parameter
+//! `z` against the trial's truth / `z` against the movement rows' / the 95 % quantile its
+//! interval takes.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -209,8 +213,10 @@ impl Source {
 struct Record {
     usable: bool,
     estimate: [f64; 9],
-    /// Standard errors by source, with the 95 % and 99 % quantiles that go with them.
-    std: Vec<(Source, [f64; 9], f64, f64)>,
+    /// Standard errors by source, with the 95 % and 99 % quantiles that go with them (per
+    /// parameter: a standard error the held-out fits set takes their jackknife's Student t, as
+    /// `LogFit::interval95` does).
+    std: Vec<(Source, [f64; 9], [f64; 9], [f64; 9])>,
     batch: Option<usize>,
     lag_one: Option<f64>,
     inflation: f64,
@@ -276,21 +282,54 @@ fn fit_window(readings: &[Vec3], magnitude: f64, rule: Rule, rate: f64, trials: 
     let (q95, q99) = (t_quantile(0.975, dof), t_quantile(0.995, dof));
     let mut std = Vec::new();
     if let (Some(p), Some(s), Some(o)) = (f.std_psi_deg, f.std_scale, f.std_bias) {
-        std.push((Source::Reported, nine(p, s, o), q95, q99));
+        // The quantiles the fit's own intervals take (`LogFit::interval95`): the jackknife's
+        // Student t for a standard error the held-out fits set, the fit's elsewhere.
+        // The cut of fewest degrees of freedom (`HeldOut::quantile95`, the largest t).
+        let held = f.held_out.as_ref().and_then(|h| {
+            let dof = h
+                .scales
+                .iter()
+                .filter(|s| s.jackknife_quantile95.is_some())
+                .map(|s| s.determined - 1)
+                .min()?;
+            Some((t_quantile(0.975, dof).max(q95), t_quantile(0.995, dof).max(q99)))
+        });
+        let q = |level: usize| -> [f64; 9] {
+            std::array::from_fn(|i| {
+                let set = f.std_source[i / 3][i % 3] == log_fit::StdSource::HeldOut;
+                match (set, held, level) {
+                    (true, Some((h95, _)), 0) => h95,
+                    (true, Some((_, h99)), _) => h99,
+                    (_, _, 0) => q95,
+                    _ => q99,
+                }
+            })
+        };
+        std.push((Source::Reported, nine(p, s, o), q(0), q(1)));
     }
     if let (Some([hp, hs, ho]), Some([wp, ws, wo])) = (f.serial_std, f.white_std) {
         let (h, w) = (nine(hp, hs, ho), nine(wp, ws, wo));
-        std.push((Source::HacAlone, h, q95, q99));
-        std.push((Source::HacOrWhite, std::array::from_fn(|i| h[i].max(w[i])), q95, q99));
+        std.push((Source::HacAlone, h, [q95; 9], [q99; 9]));
+        std.push((
+            Source::HacOrWhite,
+            std::array::from_fn(|i| h[i].max(w[i])),
+            [q95; 9],
+            [q99; 9],
+        ));
         std.push((
             Source::WhiteAlone,
             w,
-            t_quantile(0.975, m - 9),
-            t_quantile(0.995, m - 9),
+            [t_quantile(0.975, m - 9); 9],
+            [t_quantile(0.995, m - 9); 9],
         ));
     }
     if let Some([p, s, o]) = f.check.and_then(|c| c.rms_error) {
-        std.push((Source::Bootstrap, nine(p, s, o), z_quantile(0.975), z_quantile(0.995)));
+        std.push((
+            Source::Bootstrap,
+            nine(p, s, o),
+            [z_quantile(0.975); 9],
+            [z_quantile(0.995); 9],
+        ));
     }
     Some(Record {
         usable: f.usable,
@@ -307,11 +346,15 @@ fn fit_window(readings: &[Vec3], magnitude: f64, rule: Rule, rate: f64, trials: 
 }
 
 /// The truths a window is scored against: the trial's (rows with an attitude, as replay takes
-/// them), the movement rows', the movement rows' without the window.
-const TRUTHS: [&str; 3] = [
+/// them), the movement rows', the movement rows' without the window, and that last with its own
+/// uncertainty: the fit of the other movement rows is an estimate too, made as `calibrate` makes
+/// one (in time order, with its check and held-out fits), so the window's interval is set
+/// against the difference of two independent estimates, `|a - b| <= q sqrt(se_a^2 + se_b^2)`.
+const TRUTHS: [&str; 4] = [
     "the trial's (rows with an attitude)",
     "the movement rows'",
     "the movement rows' without the window",
+    "the movement rows' without the window, its standard errors added",
 ];
 
 /// A scale factor this far from the truth, relative, is another solution, not an error an
@@ -326,9 +369,9 @@ struct Tally {
     n_usable: usize,
     n_right: usize,
     /// `[truth][95 %, 99 %][parameter]` hits: all windows, usable ones, usable right ones.
-    all: [[[usize; 9]; 2]; 3],
-    usable: [[[usize; 9]; 2]; 3],
-    right: [[[usize; 9]; 2]; 3],
+    all: [[[usize; 9]; 2]; 4],
+    usable: [[[usize; 9]; 2]; 4],
+    right: [[[usize; 9]; 2]; 4],
     /// Usable windows: `|z|` against the trial's truth, every parameter.
     z: Vec<f64>,
     /// Usable windows: the log of the standard error against the white fit's, every parameter.
@@ -340,20 +383,25 @@ struct Scores<'a> {
     usable: bool,
     right: bool,
     estimate: &'a [f64; 9],
-    truths: [&'a [f64; 9]; 3],
+    truths: [&'a [f64; 9]; 4],
+    /// The standard errors of the fourth truth.
+    truth_std: &'a [f64; 9],
     white: Option<&'a [f64; 9]>,
 }
 
 impl Tally {
-    fn add(&mut self, w: &Scores, std: &[f64; 9], q: [f64; 2]) {
-        let hits = |truth: &[f64; 9]| -> [[usize; 9]; 2] {
+    fn add(&mut self, w: &Scores, std: &[f64; 9], q: [[f64; 9]; 2]) {
+        let hits = |truth: &[f64; 9], truth_std: Option<&[f64; 9]>| -> [[usize; 9]; 2] {
             std::array::from_fn(|l| {
-                std::array::from_fn(|i| usize::from((w.estimate[i] - truth[i]).abs() <= q[l] * std[i]))
+                std::array::from_fn(|i| {
+                    let se = truth_std.map_or(std[i], |t| std[i].hypot(t[i]));
+                    usize::from((w.estimate[i] - truth[i]).abs() <= q[l][i] * se)
+                })
             })
         };
-        let add = |to: &mut [[[usize; 9]; 2]; 3]| {
+        let add = |to: &mut [[[usize; 9]; 2]; 4]| {
             for (t, truth) in w.truths.iter().enumerate() {
-                let h = hits(truth);
+                let h = hits(truth, (t == 3).then_some(w.truth_std));
                 for l in 0..2 {
                     for i in 0..9 {
                         to[t][l][i] += h[l][i];
@@ -442,6 +490,34 @@ impl Scored {
             .map_err(|e| format!("{}: {e}", self.name))?;
         composed(&f)
     }
+
+    /// The movement rows without the window `w`, the imposed sensor on them, fitted as
+    /// `calibrate` fits a log in time order (its check by `trials` trials, held-out fits): the
+    /// estimate and its standard errors as reported.
+    fn leave_out_calibrated(&self, w: &std::ops::Range<usize>, trials: usize) -> Result<([f64; 9], [f64; 9]), String> {
+        // The rows before and after the window are two logs joined: their seam is one reading.
+        let kept: Vec<Vec3> = self
+            .movement
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !w.contains(k))
+            .map(|(_, &i)| impose(self.rows[i].b))
+            .collect();
+        let settings = FitSettings {
+            order: Order::Time,
+            trials,
+            ..FitSettings::default()
+        };
+        let f = log_fit::fit_with(&kept, self.magnitude, FitModel::Full, &settings)
+            .map_err(|e| format!("{}: {e}", self.name))?;
+        let (Some(p), Some(s), Some(o)) = (f.std_psi_deg, f.std_scale, f.std_bias) else {
+            return Err(format!(
+                "{}: the fit without a window states no standard errors",
+                self.name
+            ));
+        };
+        Ok((nine(f.errors.psi_deg(), f.errors.scale(), f.bias), nine(p, s, o)))
+    }
 }
 
 fn pct(h: usize, n: usize) -> String {
@@ -490,11 +566,11 @@ fn summary(title: &str, keys: &[(String, Source)], tallies: &BTreeMap<(String, S
         "\n{title}: 95 % / 99 % coverage against each truth, usable windows and those at the right solution; |z| quantiles against the normal's and width against the white fit's, usable windows\n"
     );
     print!("| {:<20} | {:<17} | n usable | n right |", "rule", "std");
-    for t in ["trial", "movement", "leave-out"] {
+    for t in ["trial", "movement", "leave-out", "two-sample"] {
         print!(" {t} usable | {t} right |");
     }
     println!(" median abs z / 0.674 | 90 % abs z / 1.645 | width x white |");
-    println!("|{}|", ["---"; 13].join("|"));
+    println!("|{}|", ["---"; 15].join("|"));
     for key in keys {
         let Some(t) = tallies.get(key) else { continue };
         print!(
@@ -504,7 +580,7 @@ fn summary(title: &str, keys: &[(String, Source)], tallies: &BTreeMap<(String, S
             t.n_usable,
             t.n_right
         );
-        for k in 0..3 {
+        for k in 0..4 {
             print!(
                 " {} / {} | {} / {} |",
                 pooled(&t.usable[k][0], t.n_usable),
@@ -721,7 +797,8 @@ fn run() -> Result<(), String> {
                 let readings: Vec<Vec3> = s.movement[range.clone()].iter().map(|&i| impose(s.rows[i].b)).collect();
                 m = readings.len();
                 let loo = s.leave_out(&range)?;
-                let truths = [&s.variants[0], &s.variants[2], &loo];
+                let (two, two_std) = s.leave_out_calibrated(&range, trials)?;
+                let truths = [&s.variants[0], &s.variants[2], &loo, &two];
                 let mut white: Option<[f64; 9]> = None;
                 let mut records = Vec::new();
                 for &rule in &rules {
@@ -741,7 +818,12 @@ fn run() -> Result<(), String> {
                             let z: Vec<String> = (0..9)
                                 .map(|i| {
                                     rep.map_or("-".into(), |x| {
-                                        format!("{:.1}", (r.estimate[i] - s.variants[0][i]) / x.1[i])
+                                        format!(
+                                            "{:.1}/{:.1}/{:.2}",
+                                            (r.estimate[i] - s.variants[0][i]) / x.1[i],
+                                            (r.estimate[i] - s.variants[2][i]) / x.1[i],
+                                            x.2[i]
+                                        )
                                     })
                                 })
                                 .collect();
@@ -782,6 +864,7 @@ fn run() -> Result<(), String> {
                                 right: *right,
                                 estimate: &r.estimate,
                                 truths,
+                                truth_std: &two_std,
                                 white: white.as_ref(),
                             };
                             map.entry(key.clone()).or_default().add(&scores, std, [*q95, *q99]);
@@ -860,6 +943,13 @@ fn run() -> Result<(), String> {
             &tallies,
             0,
             |t| (&t.usable[2], t.n_usable),
+        );
+        table(
+            &format!("95 % intervals holding {}, usable windows", TRUTHS[3]),
+            &keys,
+            &tallies,
+            0,
+            |t| (&t.usable[3], t.n_usable),
         );
         summary(
             "Summary, all nine parameters pooled, each rule's usable windows",
