@@ -209,6 +209,9 @@ impl Source {
     }
 }
 
+/// Nine values, one per parameter (`psi1..3`, `S1..3`, `O1..3`).
+type Nine = [f64; 9];
+
 /// One window's fit under one rule.
 struct Record {
     usable: bool,
@@ -216,7 +219,7 @@ struct Record {
     /// Standard errors by source, with the 95 % and 99 % quantiles that go with them (per
     /// parameter: a standard error the held-out fits set takes their jackknife's Student t, as
     /// `LogFit::interval95` does).
-    std: Vec<(Source, [f64; 9], [f64; 9], [f64; 9])>,
+    std: Vec<(Source, Nine, Nine, Nine)>,
     batch: Option<usize>,
     lag_one: Option<f64>,
     inflation: f64,
