@@ -483,7 +483,11 @@ fn a_stream_is_not_usable_before_it_meets_the_heading_budget_and_nothing_is_expo
     let (said, err) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert_eq!(o.status.code(), Some(0), "{err}");
     assert!(said.contains("usable at") && said.contains("its export"), "{said}");
+    // The export names the log as the set does: the source, not the temporary snapshot a fit
+    // read (gone when live ends).
+    assert!(said.contains("(log standard input (live), fit "), "{said}");
     let cal = json_of(&out2.join("calibration.json"));
+    assert_eq!(cal["log"], "standard input (live)");
     assert!(
         cal["heading_budget"]["met"] == true && cal["heading_budget"]["predicted_deg"].as_f64().unwrap() < 2.0,
         "{}",
@@ -626,8 +630,10 @@ fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_ser
             "0",
             "--every",
             "0.2",
+            // Counted from the start while nothing arrived: the page loads before the vehicle
+            // sends, and a loaded machine may take seconds to start the browser's tab.
             "--idle",
-            "3",
+            "15",
             "--json",
         ],
         2,
@@ -1005,4 +1011,65 @@ fn ctrl_c_ends_live_with_its_set_and_its_recording_whole() {
         .assert()
         .success();
     assert_same_calibration(&out, &again);
+}
+
+/// `child`'s exit code and standard output, killed (and the test failed) if it runs past
+/// `bound`.
+fn exit_within(mut child: Child, bound: Duration) -> (i32, String) {
+    let started = std::time::Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut out = String::new();
+            std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut out).unwrap();
+            return (status.code().unwrap(), out);
+        }
+        if started.elapsed() > bound {
+            let _ = child.kill();
+            panic!("live still ran after {bound:?}");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_stream_that_sends_nothing_ends_at_idle_and_what_arrived_without_a_fit_is_counted() {
+    let tmp = TempDir::new().unwrap();
+    let out = tmp.path().join("out");
+    // Nobody sends to the port: --idle counts from the start, so live ends after about a second.
+    let started = std::time::Instant::now();
+    let child = magcal_process()
+        .args(["live", "udpin:127.0.0.1:0", "--idle", "1", "--json", "--out"])
+        .arg(&out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let (code, stdout) = exit_within(child, Duration::from_secs(30));
+    let seconds = started.elapsed().as_secs_f64();
+    assert_eq!(code, 3, "{stdout}");
+    assert!(seconds >= 1.0, "ended after {seconds} s, before --idle 1");
+    let live: Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(
+        (live["bytes"].as_u64(), live["fits"].as_u64()),
+        (Some(0), Some(0)),
+        "{live}"
+    );
+    assert_eq!(live["reasons"], "no readings arrived");
+    assert!(!out.exists());
+
+    // 500 lines of a kind that holds no reading (a sketch's `Info:` lines): no fit runs, and the
+    // JSON still counts every line and byte.
+    let junk = "Info: not a reading\n".repeat(500);
+    let o = magcal()
+        .args(["live", "-", "--json", "--out"])
+        .arg(&out)
+        .write_stdin(junk.clone())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(3), "{}", String::from_utf8_lossy(&o.stderr));
+    let live: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(live["fits"], 0, "{live}");
+    assert_eq!(live["bytes"].as_u64(), Some(junk.len() as u64), "{live}");
+    let counted = ["lines", "other_lines", "malformed_lines"].map(|k| live[k].as_u64().unwrap());
+    assert_eq!(counted, [0, 500, 0], "{live}");
 }

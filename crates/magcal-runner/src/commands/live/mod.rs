@@ -83,8 +83,9 @@ pub struct LiveArgs {
     /// back from the autopilot's `PARAM_VALUE` and compared (exit 3 unless every one holds).
     #[arg(long)]
     pub send: bool,
-    /// End when nothing arrived for this many seconds (default: a network or serial source runs
-    /// until Ctrl-C; a file or standard input ends at its end).
+    /// End when nothing arrived for this many seconds, counted from the start while nothing has
+    /// (default: a network or serial source runs until Ctrl-C; a file or standard input ends at
+    /// its end).
     #[arg(long, value_name = "SECONDS", value_parser = crate::limits::finite)]
     pub idle: Option<f64>,
     /// A scenario file: the attitude box the next attitude is chosen in, its site and search,
@@ -427,15 +428,16 @@ fn fit_loop(
     let mut progress = Progress::default();
     let mut seen = 0u64;
     let mut last_start: Option<Instant> = None;
+    // `--idle` counts from the last bytes, or from the start while none have arrived.
+    let started = Instant::now();
+    let quiet_for = |last: Option<Instant>| last.unwrap_or(started).elapsed().as_secs_f64();
     let tty = std::io::stderr().is_terminal();
     loop {
         let (bytes, counts, dropped, held, ended, units) = {
             let mut state = shared.lock();
             loop {
                 let due = last_start.is_none_or(|t| t.elapsed().as_secs_f64() >= args.every);
-                let idle = args
-                    .idle
-                    .is_some_and(|i| state.counts.last.map_or(i <= 0.0, |t| t.elapsed().as_secs_f64() >= i));
+                let idle = args.idle.is_some_and(|i| quiet_for(state.counts.last) >= i);
                 let stopping = shared.stop.load(Ordering::Relaxed);
                 if (state.ring.generation != seen && due) || state.ended.is_some() || idle || stopping {
                     break;
@@ -446,9 +448,7 @@ fn fit_loop(
                     .unwrap_or_else(std::sync::PoisonError::into_inner)
                     .0;
             }
-            let idle = args
-                .idle
-                .is_some_and(|i| state.counts.last.is_some_and(|t| t.elapsed().as_secs_f64() >= i));
+            let idle = args.idle.is_some_and(|i| quiet_for(state.counts.last) >= i);
             let ending = state
                 .ended
                 .clone()
@@ -466,7 +466,14 @@ fn fit_loop(
             )
         };
         if let Some(Err(why)) = &ended {
-            return Err(Failure::Input(anyhow::anyhow!("{why}")));
+            // The source failed; a usable set written before it stays, and is named.
+            return Err(Failure::Input(match progress.written {
+                Some((k, true)) => anyhow::anyhow!(
+                    "{why}; the calibration of fit {k} in {} is usable and stays",
+                    args.out.display()
+                ),
+                _ => anyhow::anyhow!("{why}"),
+            }));
         }
         if let Some(bytes) = bytes {
             last_start = Some(Instant::now());
@@ -507,6 +514,12 @@ fn fit_loop(
     }
     if tty {
         to_stderr!("");
+    }
+    // What arrived after the last fit, or with no fit at all, is counted too.
+    {
+        let state = shared.lock();
+        progress.counts = state.counts.clone();
+        progress.dropped = state.ring.dropped;
     }
     finish(args, progress, inputs)
 }
@@ -707,13 +720,18 @@ fn write_set(args: &LiveArgs, fitted: &Fitted, inputs: &[&Path]) -> Result<()> {
         return Ok(());
     };
     let set = ResultSet::begin(&args.out, Target::Calibration, inputs)?;
-    let shown = args
-        .record
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(format!("{} (live)", source::shown(&args.source))));
+    let shown = log_shown(args);
     let mut json = json.clone();
     json.log = shown.display().to_string();
     super::calibrate::write_out(set, &shown, fitted.rows, &json, log)
+}
+
+/// The log a live calibration is of, as its set and its export name it: the recording, or the
+/// source (the snapshot each fit reads is a temporary file, gone when `live` ends).
+fn log_shown(args: &LiveArgs) -> PathBuf {
+    args.record
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("{} (live)", source::shown(&args.source))))
 }
 
 /// The first usable fit: said on stdout, with the export for the source's autopilot.
@@ -750,7 +768,9 @@ fn export_text(args: &LiveArgs, json: &CalibrationJson) -> String {
         force: false,
         out: None,
     };
-    match super::export::made(&export, json, "the live fit", "") {
+    let mut json = json.clone();
+    json.log = log_shown(args).display().to_string();
+    match super::export::made(&export, &json, "the live fit", "") {
         Ok(made) => String::from_utf8_lossy(&made.text).into_owned(),
         Err(e) => format!("(no export: {})\n", words(&e)),
     }

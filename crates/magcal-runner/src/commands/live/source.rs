@@ -494,6 +494,7 @@ fn read_lines(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option<B
     let mut line: Vec<u8> = Vec::new();
     let mut too_long = false;
     let mut kind = None;
+    let mut pending = None;
     while !shared.stopping() {
         let Some(n) = input.next(&mut buf)? else { continue };
         if n == 0 {
@@ -514,38 +515,25 @@ fn read_lines(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option<B
             if too_long {
                 counts.2 += 1;
             } else {
-                take_line(&line, &mut kind, &mut taken, &mut counts, &mut head);
+                take_line(&line, (&mut kind, &mut pending), &mut taken, &mut counts, &mut head);
             }
             line.clear();
             too_long = false;
         }
-        if let Some(w) = recorder.as_mut() {
-            if let Some(h) = &head {
-                w.write_all(h).context("--record")?;
-            }
-            for (r, _) in &taken {
-                w.write_all(r).context("--record")?;
-            }
-            w.flush().context("--record")?;
-        }
-        let mut state = shared.lock();
-        if let Some(h) = head {
-            state.head = h;
-            if kind == Some(LineKind::Raw) {
-                state.units = Some(Units::MicroTesla);
-            }
-        }
-        let c = &mut state.counts;
-        c.bytes += n as u64;
-        c.last = Some(Instant::now());
-        c.lines += counts.0;
-        c.other_lines += counts.1;
-        c.malformed_lines += counts.2;
-        for (r, pin) in taken {
-            state.ring.push(r, pin);
-        }
-        drop(state);
-        shared.changed.notify_all();
+        deliver(shared, recorder.as_mut(), kind, (head, taken, counts), n)?;
+    }
+    // A stream of one line: it decides alone.
+    if let Some(first) = pending.take() {
+        let (mut taken, mut counts, mut head) = (Vec::new(), (0, 0, 0), None);
+        take_decided(
+            &String::from_utf8_lossy(&first),
+            None,
+            &mut kind,
+            &mut taken,
+            &mut counts,
+            &mut head,
+        );
+        deliver(shared, recorder.as_mut(), kind, (head, taken, counts), 0)?;
     }
     // A last line without its end is counted, not taken: it may be cut.
     if !line.is_empty() || too_long {
@@ -554,11 +542,57 @@ fn read_lines(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option<B
     Ok(())
 }
 
+/// What lines of `bytes` bytes gave (the header, the readings, the counts of readings, other
+/// and malformed lines): recorded, then into the ring and the counts.
+type Lines = (Option<Vec<u8>>, Vec<(Vec<u8>, Option<Vec<u8>>)>, (u64, u64, u64));
+
+fn deliver(
+    shared: &Shared,
+    recorder: Option<&mut BufWriter<File>>,
+    kind: Option<LineKind>,
+    (head, taken, counts): Lines,
+    bytes: usize,
+) -> Result<()> {
+    if let Some(w) = recorder {
+        if let Some(h) = &head {
+            w.write_all(h).context("--record")?;
+        }
+        for (r, _) in &taken {
+            w.write_all(r).context("--record")?;
+        }
+        w.flush().context("--record")?;
+    }
+    let mut state = shared.lock();
+    if let Some(h) = head {
+        state.head = h;
+        if kind == Some(LineKind::Raw) {
+            state.units = Some(Units::MicroTesla);
+        }
+    }
+    let c = &mut state.counts;
+    c.bytes += bytes as u64;
+    if bytes > 0 {
+        c.last = Some(Instant::now());
+    }
+    c.lines += counts.0;
+    c.other_lines += counts.1;
+    c.malformed_lines += counts.2;
+    for (r, pin) in taken {
+        state.ring.push(r, pin);
+    }
+    drop(state);
+    shared.changed.notify_all();
+    Ok(())
+}
+
 /// One line: a reading (`taken`), the CSV header (`head`), or counted as another line or a
-/// malformed one (`counts`: readings, other, malformed).
+/// malformed one (`counts`: readings, other, malformed). The kind of the stream is decided by
+/// its first two lines: a first line without a tag is held (`pending`), since a device opened
+/// in the middle of a line gives the cut end of one; a `Raw:` line after it makes the stream
+/// MotionCal's and the held line a malformed one, anything else makes it CSV.
 fn take_line(
     line: &[u8],
-    kind: &mut Option<LineKind>,
+    (kind, pending): (&mut Option<LineKind>, &mut Option<Vec<u8>>),
     taken: &mut Vec<(Vec<u8>, Option<Vec<u8>>)>,
     counts: &mut (u64, u64, u64),
     head: &mut Option<Vec<u8>>,
@@ -576,6 +610,29 @@ fn take_line(
         counts.1 += 1;
         return;
     }
+    if kind.is_none() {
+        match pending.take() {
+            None if tag.is_none() => {
+                *pending = Some(text.as_bytes().to_vec());
+                return;
+            }
+            Some(_) if tag == Some("Raw") => counts.2 += 1,
+            Some(first) => take_decided(&String::from_utf8_lossy(&first), None, kind, taken, counts, head),
+            None => {}
+        }
+    }
+    take_decided(text, tag, kind, taken, counts, head);
+}
+
+/// [`take_line`] of a line whose tag is known, deciding the stream's kind where it is not yet.
+fn take_decided(
+    text: &str,
+    tag: Option<&str>,
+    kind: &mut Option<LineKind>,
+    taken: &mut Vec<(Vec<u8>, Option<Vec<u8>>)>,
+    counts: &mut (u64, u64, u64),
+    head: &mut Option<Vec<u8>>,
+) {
     let first = kind.is_none();
     let k = *kind.get_or_insert_with(|| {
         if tag == Some("Raw") {
@@ -663,7 +720,7 @@ mod tests {
 
     #[test]
     fn raw_lines_become_rows_in_microtesla_and_the_rest_is_counted() {
-        let (mut kind, mut taken, mut counts, mut head) = (None, Vec::new(), (0, 0, 0), None);
+        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
         for l in [
             "Uni:0,0",
             "Raw:1,2,3,4,5,6,123,-45,6",
@@ -672,7 +729,13 @@ mod tests {
             "Raw:1,2,3,4,5,6,7,8,x",
             "",
         ] {
-            take_line(l.as_bytes(), &mut kind, &mut taken, &mut counts, &mut head);
+            take_line(
+                l.as_bytes(),
+                (&mut kind, &mut pending),
+                &mut taken,
+                &mut counts,
+                &mut head,
+            );
         }
         assert_eq!(kind, Some(LineKind::Raw));
         assert_eq!(head.as_deref(), Some(&b"mx,my,mz\n"[..]));
@@ -682,13 +745,57 @@ mod tests {
 
     #[test]
     fn a_csv_stream_keeps_its_header() {
-        let (mut kind, mut taken, mut counts, mut head) = (None, Vec::new(), (0, 0, 0), None);
+        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
         for l in ["t,mx,my,mz", "0.1,1,2,3", "Raw:1,2,3,4,5,6,7,8,9", "0.2,4,5,6"] {
-            take_line(l.as_bytes(), &mut kind, &mut taken, &mut counts, &mut head);
+            take_line(
+                l.as_bytes(),
+                (&mut kind, &mut pending),
+                &mut taken,
+                &mut counts,
+                &mut head,
+            );
         }
         assert_eq!(head.as_deref(), Some(&b"t,mx,my,mz\n"[..]));
         assert_eq!(taken.len(), 2);
         assert_eq!(counts, (2, 1, 0));
+        // A header-less CSV stream keeps its first row.
+        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
+        for l in ["0.1,1,2,3", "0.2,4,5,6"] {
+            take_line(
+                l.as_bytes(),
+                (&mut kind, &mut pending),
+                &mut taken,
+                &mut counts,
+                &mut head,
+            );
+        }
+        assert_eq!(
+            (kind, head, taken.len(), counts),
+            (Some(LineKind::Csv), None, 2, (2, 0, 0))
+        );
+    }
+
+    #[test]
+    fn a_motioncal_stream_opened_in_the_middle_of_a_line_is_still_motioncal() {
+        // The cut end of a `Raw:` line, all numbers, then whole lines: the cut one is malformed.
+        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
+        for l in [
+            "5,6,123,-45,6",
+            "Raw:1,2,3,4,5,6,123,-45,6",
+            "Raw:1,2,3,4,5,6,124,-44,7",
+        ] {
+            take_line(
+                l.as_bytes(),
+                (&mut kind, &mut pending),
+                &mut taken,
+                &mut counts,
+                &mut head,
+            );
+        }
+        assert_eq!(kind, Some(LineKind::Raw));
+        assert_eq!(head.as_deref(), Some(&b"mx,my,mz\n"[..]));
+        assert_eq!(taken.len(), 2);
+        assert_eq!(counts, (2, 0, 1));
     }
 
     #[test]
