@@ -466,14 +466,7 @@ fn fit_loop(
             )
         };
         if let Some(Err(why)) = &ended {
-            // The source failed; a usable set written before it stays, and is named.
-            return Err(Failure::Input(match progress.written {
-                Some((k, true)) => anyhow::anyhow!(
-                    "{why}; the calibration of fit {k} in {} is usable and stays",
-                    args.out.display()
-                ),
-                _ => anyhow::anyhow!("{why}"),
-            }));
+            return Err(source_failed(args, &progress, why));
         }
         if let Some(bytes) = bytes {
             last_start = Some(Instant::now());
@@ -515,13 +508,26 @@ fn fit_loop(
     if tty {
         to_stderr!("");
     }
-    // What arrived after the last fit, or with no fit at all, is counted too.
-    {
-        let state = shared.lock();
-        progress.counts = state.counts.clone();
-        progress.dropped = state.ring.dropped;
-    }
+    count_the_rest(shared, &mut progress);
     finish(args, progress, inputs)
+}
+
+/// The source failed: why, and the usable set written before it, which stays, named.
+fn source_failed(args: &LiveArgs, progress: &Progress, why: &str) -> Failure {
+    Failure::Input(match progress.written {
+        Some((k, true)) => anyhow::anyhow!(
+            "{why}; the calibration of fit {k} in {} is usable and stays",
+            args.out.display()
+        ),
+        _ => anyhow::anyhow!("{why}"),
+    })
+}
+
+/// What arrived after the last fit, or with no fit at all, counted too.
+fn count_the_rest(shared: &Shared, progress: &mut Progress) {
+    let state = shared.lock();
+    progress.counts = state.counts.clone();
+    progress.dropped = state.ring.dropped;
 }
 
 /// The fit of the snapshot at `path`: `calibrate`'s calibration and verdict, and `next`'s first
