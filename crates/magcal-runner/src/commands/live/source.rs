@@ -718,17 +718,11 @@ mod tests {
         }
     }
 
-    #[test]
-    fn raw_lines_become_rows_in_microtesla_and_the_rest_is_counted() {
+    /// The lines `lines` as a line stream reads them: its kind, and the header, the readings
+    /// taken and the counts (readings, other, malformed).
+    fn read(lines: &[&str]) -> (Option<LineKind>, Lines) {
         let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
-        for l in [
-            "Uni:0,0",
-            "Raw:1,2,3,4,5,6,123,-45,6",
-            "Cal1:0,0",
-            "Raw:1,2,3",
-            "Raw:1,2,3,4,5,6,7,8,x",
-            "",
-        ] {
+        for l in lines {
             take_line(
                 l.as_bytes(),
                 (&mut kind, &mut pending),
@@ -737,6 +731,19 @@ mod tests {
                 &mut head,
             );
         }
+        (kind, (head, taken, counts))
+    }
+
+    #[test]
+    fn raw_lines_become_rows_in_microtesla_and_the_rest_is_counted() {
+        let (kind, (head, taken, counts)) = read(&[
+            "Uni:0,0",
+            "Raw:1,2,3,4,5,6,123,-45,6",
+            "Cal1:0,0",
+            "Raw:1,2,3",
+            "Raw:1,2,3,4,5,6,7,8,x",
+            "",
+        ]);
         assert_eq!(kind, Some(LineKind::Raw));
         assert_eq!(head.as_deref(), Some(&b"mx,my,mz\n"[..]));
         assert_eq!(taken, vec![(b"12.3,-4.5,0.6\n".to_vec(), None)]);
@@ -745,30 +752,12 @@ mod tests {
 
     #[test]
     fn a_csv_stream_keeps_its_header() {
-        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
-        for l in ["t,mx,my,mz", "0.1,1,2,3", "Raw:1,2,3,4,5,6,7,8,9", "0.2,4,5,6"] {
-            take_line(
-                l.as_bytes(),
-                (&mut kind, &mut pending),
-                &mut taken,
-                &mut counts,
-                &mut head,
-            );
-        }
+        let (_, (head, taken, counts)) = read(&["t,mx,my,mz", "0.1,1,2,3", "Raw:1,2,3,4,5,6,7,8,9", "0.2,4,5,6"]);
         assert_eq!(head.as_deref(), Some(&b"t,mx,my,mz\n"[..]));
         assert_eq!(taken.len(), 2);
         assert_eq!(counts, (2, 1, 0));
         // A header-less CSV stream keeps its first row.
-        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
-        for l in ["0.1,1,2,3", "0.2,4,5,6"] {
-            take_line(
-                l.as_bytes(),
-                (&mut kind, &mut pending),
-                &mut taken,
-                &mut counts,
-                &mut head,
-            );
-        }
+        let (kind, (head, taken, counts)) = read(&["0.1,1,2,3", "0.2,4,5,6"]);
         assert_eq!(
             (kind, head, taken.len(), counts),
             (Some(LineKind::Csv), None, 2, (2, 0, 0))
@@ -778,20 +767,11 @@ mod tests {
     #[test]
     fn a_motioncal_stream_opened_in_the_middle_of_a_line_is_still_motioncal() {
         // The cut end of a `Raw:` line, all numbers, then whole lines: the cut one is malformed.
-        let (mut kind, mut pending, mut taken, mut counts, mut head) = (None, None, Vec::new(), (0, 0, 0), None);
-        for l in [
+        let (kind, (head, taken, counts)) = read(&[
             "5,6,123,-45,6",
             "Raw:1,2,3,4,5,6,123,-45,6",
             "Raw:1,2,3,4,5,6,124,-44,7",
-        ] {
-            take_line(
-                l.as_bytes(),
-                (&mut kind, &mut pending),
-                &mut taken,
-                &mut counts,
-                &mut head,
-            );
-        }
+        ]);
         assert_eq!(kind, Some(LineKind::Raw));
         assert_eq!(head.as_deref(), Some(&b"mx,my,mz\n"[..]));
         assert_eq!(taken.len(), 2);
