@@ -480,15 +480,19 @@ impl Scored {
             .collect()
     }
 
-    /// The movement rows' truth without the window `w` (movement indices).
-    fn leave_out(&self, w: &std::ops::Range<usize>) -> Result<[f64; 9], String> {
-        let kept: Vec<Vec3> = self
-            .movement
+    /// The rows (indices into `rows`) of the movement rows outside the window `w` (movement
+    /// indices), in time order.
+    fn outside<'a>(&'a self, w: &'a std::ops::Range<usize>) -> impl Iterator<Item = usize> + 'a {
+        self.movement
             .iter()
             .enumerate()
             .filter(|(k, _)| !w.contains(k))
-            .map(|(_, &i)| self.rows[i].b)
-            .collect();
+            .map(|(_, &i)| i)
+    }
+
+    /// The movement rows' truth without the window `w` (movement indices).
+    fn leave_out(&self, w: &std::ops::Range<usize>) -> Result<[f64; 9], String> {
+        let kept: Vec<Vec3> = self.outside(w).map(|i| self.rows[i].b).collect();
         let f = log_fit::fit_with(&kept, self.magnitude, FitModel::Full, &whole())
             .map_err(|e| format!("{}: {e}", self.name))?;
         composed(&f)
@@ -499,13 +503,7 @@ impl Scored {
     /// estimate and its standard errors as reported.
     fn leave_out_calibrated(&self, w: &std::ops::Range<usize>, trials: usize) -> Result<([f64; 9], [f64; 9]), String> {
         // The rows before and after the window are two logs joined: their seam is one reading.
-        let kept: Vec<Vec3> = self
-            .movement
-            .iter()
-            .enumerate()
-            .filter(|(k, _)| !w.contains(k))
-            .map(|(_, &i)| impose(self.rows[i].b))
-            .collect();
+        let kept: Vec<Vec3> = self.outside(w).map(|i| impose(self.rows[i].b)).collect();
         let settings = FitSettings {
             order: Order::Time,
             trials,
