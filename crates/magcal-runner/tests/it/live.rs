@@ -92,21 +92,25 @@ fn round_and_round(rows: &[[f64; 6]]) -> Vec<[f64; 6]> {
         .collect()
 }
 
-/// The vehicle's frames: its heartbeat and compass parameters, then its [`turns`].
+/// The vehicle's frames: its heartbeat and the compass parameters in force, then its [`turns`].
 fn vehicle_frames(rows: &[[f64; 6]]) -> Vec<Vec<u8>> {
     let mut out = vec![frame(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
         mavtype: MavType::MAV_TYPE_SURFACE_BOAT,
         autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
         ..HEARTBEAT_DATA::default()
     }))];
+    // The calibration in force, whole (live exports nothing while any of it is unknown): the
+    // offsets, no soft iron.
     for (c, a) in ["X", "Y", "Z"].iter().enumerate() {
-        out.push(frame(&MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
-            param_value: OFS[c],
-            param_count: 0,
-            param_index: 0,
-            param_id: format!("COMPASS_OFS_{a}").as_str().into(),
-            param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
-        })));
+        for (name, value) in [("OFS", OFS[c]), ("DIA", 1.0), ("ODI", 0.0)] {
+            out.push(frame(&MavMessage::PARAM_VALUE(PARAM_VALUE_DATA {
+                param_value: value,
+                param_count: 0,
+                param_index: 0,
+                param_id: format!("COMPASS_{name}_{a}").as_str().into(),
+                param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+            })));
+        }
     }
     out.extend(turns(rows, 1000));
     out

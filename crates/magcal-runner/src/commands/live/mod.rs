@@ -14,7 +14,9 @@
 //! writes it) and the export for the source's autopilot is shown; Ctrl-C ends the command after
 //! the fit under way, with what it has written whole.
 
+pub mod ask;
 pub mod buffer;
+pub mod guide;
 pub mod page;
 pub mod send;
 pub mod source;
@@ -83,6 +85,15 @@ pub struct LiveArgs {
     /// back from the autopilot's `PARAM_VALUE` and compared (exit 3 unless every one holds).
     #[arg(long)]
     pub send: bool,
+    /// With `--send`: the vehicle, `SYSTEM[:COMPONENT]`, where several autopilots speak on the
+    /// link (default: the first autopilot whose `HEARTBEAT` comes with compass frames; with a
+    /// second such, nothing is sent until this chooses).
+    #[arg(long, value_name = "SYSTEM[:COMPONENT]", value_parser = parse_vehicle)]
+    pub vehicle: Option<(u8, Option<u8>)>,
+    /// With `--send`: send what `export` warns of (offsets beyond the vehicle's
+    /// `COMPASS_OFFS_MAX`, parts of the calibration its parameters cannot hold).
+    #[arg(long, requires = "send")]
+    pub force: bool,
     /// End when nothing arrived for this many seconds, counted from the start while nothing has
     /// (default: a network or serial source runs until Ctrl-C; a file or standard input ends at
     /// its end).
@@ -143,6 +154,17 @@ fn parse_source(s: &str) -> Result<Source, String> {
     s.parse()
 }
 
+fn parse_vehicle(s: &str) -> Result<(u8, Option<u8>), String> {
+    let id = |p: &str| {
+        p.parse::<u8>()
+            .map_err(|_| format!("{s:?}: give SYSTEM[:COMPONENT], each 0 to 255"))
+    };
+    match s.split_once(':') {
+        Some((sys, comp)) => Ok((id(sys)?, Some(id(comp)?))),
+        None => Ok((id(s)?, None)),
+    }
+}
+
 /// What one fit of the stream gave.
 struct Fitted {
     /// Readings fitted.
@@ -151,6 +173,8 @@ struct Fitted {
     /// Why there is no calibration, or why it is not usable.
     why: String,
     next: Result<Option<magcal_report::pages::next::AttitudeJson>, String>,
+    /// `next`'s attitudes for the plan (the first is `next`'s).
+    fresh: Vec<magcal_report::pages::next::AttitudeJson>,
     seconds: f64,
     /// The log as read, for the calibration set.
     log: Option<crate::log::source::Log>,
@@ -215,7 +239,14 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
             return Err(e.into());
         }
     };
-    let (reading, mut link) = (started.reading, started.link);
+    let reading = started.reading;
+    shared.lock().wanted = args.vehicle;
+    let link = started.link.map(|l| Arc::new(Mutex::new(l)));
+    if let Some(l) = &link {
+        let (required, optional) = ask::in_force_names(args.input.compass.unwrap_or(0));
+        let names = required.into_iter().chain(optional).collect();
+        ask::start(Arc::clone(l), Arc::clone(&shared), names);
+    }
     to_stderr!(
         "live: reading {reading}; fits at most every {} s; Ctrl-C ends it",
         args.every
@@ -231,8 +262,11 @@ pub fn run(args: &LiveArgs) -> Result<(), Failure> {
         stop.changed.notify_all();
     });
     let snapshot = Snapshot::new(args.source.is_mavlink());
-    let view = View { status };
-    let result = fit_loop(args, &shared, &snapshot, &inputs, &view, &mut link);
+    let view = View {
+        status,
+        budget_deg: args.heading_budget,
+    };
+    let result = fit_loop(args, &shared, &snapshot, &inputs, &view, link.as_deref());
     shared.stop.store(true, Ordering::Relaxed);
     result
 }
@@ -242,6 +276,12 @@ fn check(args: &LiveArgs) -> Result<()> {
     if args.send && !args.source.is_mavlink() {
         bail!(
             "--send: {} carries lines, not MAVLink: there is no vehicle to send parameters to",
+            source::shown(&args.source)
+        );
+    }
+    if args.vehicle.is_some() && !args.source.is_mavlink() {
+        bail!(
+            "--vehicle: {} carries lines, not MAVLink: there is no vehicle to choose",
             source::shown(&args.source)
         );
     }
@@ -324,12 +364,23 @@ struct LiveJson {
     reasons: String,
     next: Option<magcal_report::pages::next::AttitudeJson>,
     next_error: Option<String>,
+    /// The plan when it ended (empty when done), targets flown, plans superseded, and the first
+    /// fit that met the budget.
+    plan: Vec<guide::Target>,
+    targets_flown: u64,
+    plans_superseded: u64,
+    done_fit: Option<u64>,
     /// The fit whose calibration set `out` holds, and whether it was usable.
     written_fit: Option<u64>,
     written_usable: bool,
     out: String,
     /// With `--send`: the parameters sent and what the vehicle read back.
     sent: Option<send::SentJson>,
+    /// MAVLink: the vehicle (system, component), UDP datagrams from elsewhere (counted, never
+    /// answered), and the requests for messages and parameters sent to it.
+    vehicle: Option<(u8, u8)>,
+    foreign_datagrams: u64,
+    asked: ask::Asked,
 }
 
 /// What the fit loop knows between fits.
@@ -343,11 +394,27 @@ struct Progress {
     /// What `--send` sent and read back, or why it could not.
     sent: Option<Result<send::SentJson, String>>,
     last: Option<Fitted>,
+    /// The plan a person follows, and the first fit that met the budget.
+    guide: guide::Guide,
+    done_fit: Option<u64>,
+    /// The export of the set `--out` holds when it is usable: printed when live ends.
+    export: Option<Export>,
+    /// MAVLink: the vehicle, and what was asked of it.
+    vehicle: Option<(u8, u8)>,
+    asked: ask::Asked,
+}
+
+/// A usable fit's export, as printed.
+struct Export {
+    samples: usize,
+    text: String,
 }
 
 /// What the page shows: the status of the last fit.
 struct View {
     status: Arc<Mutex<page::Status>>,
+    /// `--heading-budget`, degrees.
+    budget_deg: f64,
 }
 
 /// The roll and pitch ranges of the box of `--scenario` or the flags, degrees.
@@ -380,7 +447,13 @@ fn publish(view: &View, progress: &Progress, f: &Fitted, export: Option<String>)
     }
     let json = f.json.as_ref();
     s.usable = json.is_some_and(|j| j.usable);
+    s.plan.clone_from(&progress.guide.plan);
+    s.targets_flown = progress.guide.flown;
+    s.plans_superseded = progress.guide.superseded;
+    s.done = s.usable;
+    s.done_fit = progress.done_fit;
     let budget = json.and_then(|j| j.heading_budget.as_ref());
+    s.progress = guide::progress(budget.map(|b| b.predicted_deg), view.budget_deg, s.usable);
     s.heading_budget_deg = budget.map(|b| b.verdict.budget_deg);
     s.heading_predicted_deg = budget.map(|b| b.predicted_deg);
     s.model = json.map(|j| j.fit.clone());
@@ -423,7 +496,7 @@ fn fit_loop(
     snapshot: &Snapshot,
     inputs: &[&Path],
     view: &View,
-    link: &mut Option<source::Link>,
+    link: Option<&Mutex<source::Link>>,
 ) -> Result<(), Failure> {
     let mut progress = Progress::default();
     let mut seen = 0u64;
@@ -474,18 +547,20 @@ fn fit_loop(
             progress.fits += 1;
             progress.counts = counts.clone();
             progress.dropped = dropped;
-            let fitted = fit(args, &snapshot.path, units);
+            let fitted = fit(args, &snapshot.path, units, in_force_unknown(args, shared));
+            steer(args, &mut progress, &fitted);
             status(args, &progress, &fitted, &counts, dropped, held, tty);
             let mut export = None;
             if let Some(json) = fitted.json.as_ref().filter(|j| j.usable) {
                 write_set(args, &fitted, inputs)?;
-                let text = export_text(args, json);
-                if progress.written.is_none_or(|(_, usable)| !usable) && !args.json {
-                    announce(args, json, &text)?;
-                }
+                let (text, problems) = export_text(args, json);
+                progress.export = Some(Export {
+                    samples: json.samples,
+                    text: text.clone(),
+                });
                 progress.written = Some((progress.fits, true));
                 if args.send {
-                    let sent = send_export(&text, link, shared);
+                    let sent = send_export(args, (&text, &problems), link, shared);
                     match &sent {
                         Ok(j) => to_stderr!("live: {}", j.words()),
                         Err(e) => to_stderr!("live: nothing sent: {e}"),
@@ -509,7 +584,27 @@ fn fit_loop(
         to_stderr!("");
     }
     count_the_rest(shared, &mut progress);
+    let end = ended_words(args, shared, &progress);
+    view.status.lock().unwrap_or_else(PoisonError::into_inner).stream_end = Some(end);
     finish(args, progress, inputs)
+}
+
+/// Why live ended, in words, for the page.
+fn ended_words(args: &LiveArgs, shared: &Shared, progress: &Progress) -> String {
+    let state = shared.lock();
+    match (&state.ended, state.counts.last) {
+        (Some(Ok(())), _) => "the source ended".to_string(),
+        (Some(Err(why)), _) => format!("the source failed: {why}"),
+        _ if (args.until_usable || args.send) && progress.written.is_some_and(|w| w.1) => {
+            "live ended at the first fit that met the budget".to_string()
+        }
+        (None, last) => match args.idle {
+            Some(i) if last.is_none_or(|t| t.elapsed().as_secs_f64() >= i) => {
+                format!("nothing arrived for {} s (--idle)", crate::limits::show(i))
+            }
+            _ => "stopped (Ctrl-C)".to_string(),
+        },
+    }
 }
 
 /// The source failed: why, and the usable set written before it, which stays, named.
@@ -528,11 +623,13 @@ fn count_the_rest(shared: &Shared, progress: &mut Progress) {
     let state = shared.lock();
     progress.counts = state.counts.clone();
     progress.dropped = state.ring.dropped;
+    progress.vehicle = state.vehicle;
+    progress.asked = state.asked.clone();
 }
 
 /// The fit of the snapshot at `path`: `calibrate`'s calibration and verdict, and `next`'s first
 /// attitude where a box is given.
-fn fit(args: &LiveArgs, path: &Path, units: Option<Units>) -> Fitted {
+fn fit(args: &LiveArgs, path: &Path, units: Option<Units>, unknown: Option<String>) -> Fitted {
     let started = Instant::now();
     let (cal_args, input) = calibrate_args(args, path, units);
     let mut fitted = Fitted {
@@ -540,6 +637,7 @@ fn fit(args: &LiveArgs, path: &Path, units: Option<Units>) -> Fitted {
         json: None,
         why: String::new(),
         next: Ok(None),
+        fresh: Vec::new(),
         seconds: 0.0,
         log: None,
         rows: 0,
@@ -556,9 +654,19 @@ fn fit(args: &LiveArgs, path: &Path, units: Option<Units>) -> Fitted {
     fitted.readings = log.readings.len();
     fitted.rows = log.readings.len() + log.skipped.len();
     match super::calibrate::calibrate(&cal_args, &mut log) {
-        Ok(Calibrated::Fit { json, .. }) => {
+        Ok(Calibrated::Fit { mut json, .. }) => {
+            if let Some(why) = unknown {
+                json.usable = false;
+                json.reasons.insert(0, why);
+            }
             fitted.why = json.reasons.join("; ");
-            fitted.next = next_attitude(args, path, &input, &json);
+            match next_attitudes(args, path, &input, &json) {
+                Ok(all) => {
+                    fitted.next = Ok(all.first().cloned());
+                    fitted.fresh = all;
+                }
+                Err(e) => fitted.next = Err(e),
+            }
             fitted.json = Some(*json);
         }
         Ok(Calibrated::NoFit(j)) => fitted.why = j.reasons.join("; "),
@@ -572,11 +680,46 @@ fn fit(args: &LiveArgs, path: &Path, units: Option<Units>) -> Fitted {
     fitted
 }
 
-/// The ArduPilot parameters of `export` sent over `link`, read back and compared.
-fn send_export(export: &str, link: &mut Option<source::Link>, shared: &Shared) -> Result<send::SentJson, String> {
-    let link = link.as_mut().ok_or("the source has no sending end")?;
+/// The ArduPilot parameters of `export` sent over `link`, read back and compared; nothing sent
+/// where `export` warns (unless `--force`).
+fn send_export(
+    args: &LiveArgs,
+    (export, problems): (&str, &[String]),
+    link: Option<&Mutex<source::Link>>,
+    shared: &Shared,
+) -> Result<send::SentJson, String> {
+    if !problems.is_empty() && !args.force {
+        return Err(format!(
+            "export warns: {}; --force sends it all the same",
+            problems.join("; ")
+        ));
+    }
+    let link = link.ok_or("the source has no sending end")?;
     let parameters = send::parameters(export).map_err(|e| format!("{e:#}"))?;
-    send::send(link, shared, &parameters).map_err(|e| format!("{e:#}"))
+    let mut link = link.lock().unwrap_or_else(PoisonError::into_inner);
+    send::send(&mut link, shared, &parameters).map_err(|e| format!("{e:#}"))
+}
+
+/// Why the calibration in force on the vehicle is unknown (a MAVLink source whose vehicle has
+/// not said every parameter of it): nothing fitted can then be exported or sent, since a fit of
+/// readings corrected by an unknown calibration says nothing of the parameters to set.
+fn in_force_unknown(args: &LiveArgs, shared: &Shared) -> Option<String> {
+    if !args.source.is_mavlink() {
+        return None;
+    }
+    let (required, _) = ask::in_force_names(args.input.compass.unwrap_or(0));
+    let state = shared.lock();
+    let Some(params) = state.params() else {
+        return Some("the vehicle is not known yet (no autopilot's HEARTBEAT with compass frames): its calibration in force is unknown, so nothing is exported or sent".to_string());
+    };
+    let missing: Vec<&String> = required.iter().filter(|n| !params.contains_key(*n)).collect();
+    (!missing.is_empty()).then(|| {
+        format!(
+            "the calibration in force on the vehicle is unknown ({} not received; live asks for them by PARAM_REQUEST_READ every {} s): nothing is exported or sent",
+            missing.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", "),
+            ask::EVERY.as_secs()
+        )
+    })
 }
 
 /// A failure in words.
@@ -627,16 +770,16 @@ fn calibrate_args(args: &LiveArgs, path: &Path, units: Option<Units>) -> (Calibr
     (cal, input)
 }
 
-/// The first attitude `next` gives for the snapshot at `path` and its calibration; `None`
-/// without a box.
-fn next_attitude(
+/// The attitudes `next` gives for the snapshot at `path` and its calibration (at least a plan's
+/// worth, [`guide::PLAN_LEN`]); none without a box.
+fn next_attitudes(
     args: &LiveArgs,
     path: &Path,
     input: &LogArgs,
     cal: &CalibrationJson,
-) -> Result<Option<magcal_report::pages::next::AttitudeJson>, String> {
-    if args.scenario.is_none() && !args.attitude.any() {
-        return Ok(None);
+) -> Result<Vec<magcal_report::pages::next::AttitudeJson>, String> {
+    if !boxed(args) {
+        return Ok(Vec::new());
     }
     let next = NextArgs {
         calibration: PathBuf::from("the live fit"),
@@ -646,20 +789,46 @@ fn next_attitude(
         site: args.site,
         date: args.date,
         wmm: args.wmm,
-        count: args.count,
+        count: args.count.max(guide::PLAN_LEN as u64),
         json: true,
         report: None,
         input: input.clone(),
         heading_budget: args.heading_budget,
     };
     super::next::suggestion(&next, cal)
-        .map(|j| j.attitudes.into_iter().next())
+        .map(|j| j.attitudes)
         .map_err(|e| first_words(&format!("{e:#}"), path))
 }
 
-/// `x` rounded to a whole number, without the sign of a negative zero (-0.3 is "0", not "-0").
-fn whole(x: f64) -> f64 {
-    x.round() + 0.0
+/// Whether the vehicle has an attitude box (`--scenario` or the flags): its plan is of attitudes
+/// in it; without one, of field directions over the whole sphere (a device in the hand).
+fn boxed(args: &LiveArgs) -> bool {
+    args.scenario.is_some() || args.attitude.any()
+}
+
+/// The plan after fit `f`: kept, flown or superseded ([`guide`]); none while the budget is met
+/// (done), resumed if a later fit does not meet it.
+fn steer(args: &LiveArgs, progress: &mut Progress, f: &Fitted) {
+    let (Some(json), Some(log)) = (&f.json, &f.log) else {
+        return;
+    };
+    if json.usable {
+        progress.done_fit.get_or_insert(progress.fits);
+        progress.guide.plan.clear();
+        return;
+    }
+    let sensor = guide::Sensor::of(json);
+    let variance = guide::Variance::new(&log.readings, json.magnitude);
+    let directions: Vec<magcal_core::Vec3> = log.readings.iter().map(|&r| json.apply(r)).collect();
+    let fresh = if boxed(args) {
+        f.fresh.iter().map(guide::Target::attitude).collect()
+    } else {
+        variance
+            .as_ref()
+            .map(|v| guide::sphere_targets(&sensor, v))
+            .unwrap_or_default()
+    };
+    progress.guide.update(&sensor, &directions, variance.as_ref(), fresh);
 }
 
 /// One line on stderr: what arrived, what was kept and dropped, the fit and the next attitude;
@@ -697,20 +866,21 @@ fn status(args: &LiveArgs, progress: &Progress, f: &Fitted, c: &Counts, dropped:
         }
         _ => line += &format!("not usable: {}", crate::limits::excerpt(&f.why, 160)),
     }
-    match &f.next {
-        Ok(Some(a)) => {
-            line += &format!(
-                " | next: roll {:.0}, pitch {:.0}, ",
-                whole(a.roll_deg),
-                whole(a.pitch_deg)
-            );
-            line += &match a.magnetic_heading_deg {
-                Some(m) => format!("magnetic heading {:.0} deg", whole(m)),
-                None => format!("true heading {:.0} deg", whole(a.true_heading_deg)),
-            };
-        }
-        Ok(None) => {}
-        Err(e) => line += &format!(" | next: {}", crate::limits::excerpt(e, 120)),
+    if f.json.as_ref().is_some_and(|j| j.usable) {
+        line += &format!(
+            " | DONE since fit {}: the budget is met{}",
+            progress.done_fit.unwrap_or(progress.fits),
+            if args.until_usable || args.send {
+                ""
+            } else {
+                "; Ctrl-C ends live with this calibration"
+            }
+        );
+    } else if let Some(plan) = progress.guide.words() {
+        line += &format!(" | {plan}");
+    }
+    if let Err(e) = &f.next {
+        line += &format!(" | next: {}", crate::limits::excerpt(e, 120));
     }
     let line = crate::limits::printable(&line);
     if tty {
@@ -740,26 +910,27 @@ fn log_shown(args: &LiveArgs) -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(format!("{} (live)", source::shown(&args.source))))
 }
 
-/// The first usable fit: said on stdout, with the export for the source's autopilot.
-fn announce(args: &LiveArgs, json: &CalibrationJson, export: &str) -> Result<()> {
+/// The set written, of usable fit `k`: said on stdout, with its export for the source's autopilot.
+fn announce(args: &LiveArgs, k: u64, export: &Export) -> Result<()> {
     let to = if args.source.is_mavlink() {
         "ardupilot"
     } else {
         "motioncal"
     };
     let text = format!(
-        "usable at {} readings: {} written; its export (magcal export {} --to {to}):\n{export}",
-        json.samples,
+        "usable at {} readings (fit {k}, the last that met the budget): {} written; its export (magcal export {} --to {to}):\n{}",
+        export.samples,
         args.out.join("calibration.json").display(),
-        args.out.join("calibration.json").display()
+        args.out.join("calibration.json").display(),
+        export.text
     );
     crate::output::file::to_stdout(|w| Ok(w.write_all(text.as_bytes())?))?;
     Ok(())
 }
 
 /// The export of a usable fit for the source's autopilot (ArduPilot for MAVLink, MotionCal for
-/// lines), or why there is none.
-fn export_text(args: &LiveArgs, json: &CalibrationJson) -> String {
+/// lines), or why there is none; and what `export` warns of.
+fn export_text(args: &LiveArgs, json: &CalibrationJson) -> (String, Vec<String>) {
     let export = super::export::ExportArgs {
         calibration: args.out.join("calibration.json"),
         to: if args.source.is_mavlink() {
@@ -777,8 +948,11 @@ fn export_text(args: &LiveArgs, json: &CalibrationJson) -> String {
     let mut json = json.clone();
     json.log = log_shown(args).display().to_string();
     match super::export::made(&export, &json, "the live fit", "") {
-        Ok(made) => String::from_utf8_lossy(&made.text).into_owned(),
-        Err(e) => format!("(no export: {})\n", words(&e)),
+        Ok(made) => (String::from_utf8_lossy(&made.text).into_owned(), made.problems),
+        Err(e) => {
+            let why = words(&e);
+            (format!("(no export: {why})\n"), vec![why])
+        }
     }
 }
 
@@ -791,6 +965,10 @@ fn finish(args: &LiveArgs, mut progress: Progress, inputs: &[&Path]) -> Result<(
     {
         write_set(args, last, inputs)?;
         progress.written = Some((progress.fits, false));
+    }
+    // The export of the set written, the last fit that met the budget: printed once, at the end.
+    if let (Some(e), Some((k, true)), false) = (&progress.export, progress.written, args.json) {
+        announce(args, k, e)?;
     }
     if args.json {
         let c = &progress.counts;
@@ -811,10 +989,17 @@ fn finish(args: &LiveArgs, mut progress: Progress, inputs: &[&Path]) -> Result<(
             reasons: last.map_or_else(|| "no readings arrived".to_string(), |l| l.why.clone()),
             next: last.and_then(|l| l.next.clone().ok().flatten()),
             next_error: last.and_then(|l| l.next.clone().err()),
+            plan: progress.guide.plan.clone(),
+            targets_flown: progress.guide.flown,
+            plans_superseded: progress.guide.superseded,
+            done_fit: progress.done_fit,
             written_fit: progress.written.map(|w| w.0),
             written_usable: progress.written.is_some_and(|w| w.1),
             out: args.out.display().to_string(),
             sent: progress.sent.clone().and_then(Result::ok),
+            vehicle: progress.vehicle,
+            foreign_datagrams: c.foreign,
+            asked: progress.asked.clone(),
         };
         crate::output::file::to_stdout(|w| {
             serde_json::to_writer_pretty(&mut *w, &json)?;

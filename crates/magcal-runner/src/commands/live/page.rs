@@ -65,6 +65,20 @@ pub struct Status {
     pub pitch_box: Option<[f64; 2]>,
     pub next: Option<magcal_report::pages::next::AttitudeJson>,
     pub next_error: Option<String>,
+    /// The plan a person follows ([`super::guide`]): the target to turn to now, then the rest,
+    /// kept until flown or clearly superseded.
+    pub plan: Vec<super::guide::Target>,
+    /// Targets flown, and plans replaced before their first target was flown.
+    pub targets_flown: u64,
+    pub plans_superseded: u64,
+    /// The budget is met by the last fit: the calibration is done.
+    pub done: bool,
+    /// The first fit that met the budget.
+    pub done_fit: Option<u64>,
+    /// The plan's progress in words: "predicted heading error 2.4 deg -> budget 1.0 deg".
+    pub progress: String,
+    /// How the stream ended ("the source ended", "nothing arrived for 5 s"); `None` while it runs.
+    pub stream_end: Option<String>,
     /// The fit whose calibration set `out` holds, and whether it was usable.
     pub written_fit: Option<u64>,
     pub written_usable: bool,

@@ -85,21 +85,32 @@ pub fn parameters(export: &str) -> Result<Vec<(String, f32)>> {
     Ok(out)
 }
 
-/// Whether `back` is the value `sent` as the autopilot holds it (a float; integers exact).
+/// Whether `back` is the value `sent`, bit for bit as a 32-bit float (but for the sign of a
+/// zero: a parameter of integer type comes back as the float of its integer, +0 for -0).
 fn same(sent: f32, back: f32) -> bool {
-    sent.to_bits() == back.to_bits() || (sent - back).abs() <= 1e-6 * sent.abs().max(1.0)
+    sent == back
 }
 
 /// Sends `parameters` to the vehicle over `link` and reads them back.
 ///
 /// # Errors
-/// No vehicle identified yet (no autopilot's `HEARTBEAT`), or the link cannot be written.
+/// No vehicle identified yet (no autopilot's `HEARTBEAT` with compass frames), several
+/// autopilots with compass frames where `--vehicle` did not choose one, or the link cannot be
+/// written.
 pub fn send(link: &mut Link, shared: &Shared, parameters: &[(String, f32)]) -> Result<SentJson> {
-    let (vehicle, peer) = {
+    let (vehicle, peer, contested) = {
         let s = shared.lock();
-        (s.vehicle, s.peer)
+        (s.vehicle, s.peer(), s.contested())
     };
-    let (system, component) = vehicle.context("no autopilot's HEARTBEAT arrived: the vehicle is unknown")?;
+    let (system, component) =
+        vehicle.context("no autopilot's HEARTBEAT came with compass frames: the vehicle is unknown")?;
+    if !contested.is_empty() {
+        let others: Vec<String> = contested.iter().map(|(s, c)| format!("{s}:{c}")).collect();
+        bail!(
+            "autopilots {system}:{component} and {} all send compass frames: choose the vehicle with --vehicle SYSTEM[:COMPONENT]",
+            others.join(", ")
+        );
+    }
     let header = MavHeader {
         system_id: 255,
         component_id: 190,
@@ -121,11 +132,12 @@ pub fn send(link: &mut Link, shared: &Shared, parameters: &[(String, f32)]) -> R
     for p in parameters {
         put(link, p)?;
     }
+    // Only the vehicle's own PARAM_VALUE, after the PARAM_SET, confirms.
     let answered = |name: &str| {
-        shared
-            .lock()
-            .params
-            .get(name)
+        let s = shared.lock();
+        s.heard
+            .get(&(system, component))
+            .and_then(|h| h.params.get(name))
             .filter(|(_, at)| *at >= started)
             .map(|(v, _)| *v)
     };
@@ -179,6 +191,9 @@ mod tests {
         );
         assert!(parameters("# only comments\n").is_err());
         assert!(parameters("COMPASS_OFS_X -30\n").is_err());
-        assert!(same(1.012_345_7, 1.012_345_7) && !same(1.0, 1.001) && same(0.0, 0.0));
+        assert!(same(1.012_345_7, 1.012_345_7) && !same(1.0, 1.001) && same(0.0, -0.0));
+        // One unit in the last place of a float apart is not the value sent.
+        let x = 91.8f32;
+        assert!(!same(x, f32::from_bits(x.to_bits() + 1)));
     }
 }

@@ -3,6 +3,7 @@
 //! file or standard input. A reader thread per source turns what arrives into records (a
 //! telemetry log's records, or CSV rows) in the shared [`Ring`], and into the `--record` file.
 
+use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream, ToSocketAddrs, UdpSocket};
@@ -24,6 +25,8 @@ use crate::scenario::site::Units;
 const PARAM_VALUE: u32 = 22;
 /// `HEARTBEAT`'s message id: the autopilot's says which system to send parameters to.
 const HEARTBEAT: u32 = 0;
+/// The compass messages a vehicle streams: `RAW_IMU`, `SCALED_IMU2`, `SCALED_IMU3`.
+const IMU: [u32; 3] = [27, 116, 129];
 /// The longest text line taken, bytes; a longer one is counted as malformed.
 const MAX_LINE: usize = 4096;
 /// How often a waiting reader looks whether the command is ending.
@@ -108,6 +111,24 @@ pub struct Counts {
     pub malformed_lines: u64,
     /// When the last bytes arrived.
     pub last: Option<Instant>,
+    /// UDP datagrams from another address than the vehicle's, once it is known: counted, kept
+    /// out of the fits, never answered.
+    pub foreign: u64,
+}
+
+/// What was heard of one system and component on a MAVLink source.
+#[derive(Debug, Clone, Default)]
+pub struct Heard {
+    /// Its order of first appearance.
+    pub first: usize,
+    /// Its `HEARTBEAT`'s autopilot type (`MAV_AUTOPILOT`) where it is an autopilot's.
+    pub autopilot: Option<u8>,
+    /// Compass frames (`RAW_IMU`, `SCALED_IMU2`, `SCALED_IMU3`).
+    pub imu: u64,
+    /// The address of its first datagram (UDP).
+    pub addr: Option<SocketAddr>,
+    /// Its parameters: each one's last value with its arrival.
+    pub params: BTreeMap<String, (f32, Instant)>,
 }
 
 /// The state the reader and the fit share.
@@ -121,11 +142,54 @@ pub struct State {
     pub ended: Option<Result<(), String>>,
     /// The readings' units where the lines fix them (MotionCal's `Raw:` lines: uT).
     pub units: Option<Units>,
-    /// MAVLink: the autopilot's system and component (from its `HEARTBEAT`), the address its
-    /// datagrams come from (UDP), and each parameter's last value with its arrival.
+    /// MAVLink: every system and component heard; the vehicle (`--vehicle`, else the first
+    /// autopilot whose `HEARTBEAT` came with compass frames); the one `--vehicle` asks for.
+    pub heard: BTreeMap<(u8, u8), Heard>,
     pub vehicle: Option<(u8, u8)>,
-    pub peer: Option<SocketAddr>,
-    pub params: std::collections::BTreeMap<String, (f32, Instant)>,
+    pub wanted: Option<(u8, Option<u8>)>,
+    /// What was asked of the autopilots ([`super::ask`]).
+    pub asked: super::ask::Asked,
+}
+
+impl State {
+    /// The vehicle's address (UDP): where its first datagram came from.
+    pub fn peer(&self) -> Option<SocketAddr> {
+        self.vehicle.and_then(|v| self.heard.get(&v)).and_then(|h| h.addr)
+    }
+
+    /// The vehicle's parameters (none while it is unknown).
+    pub fn params(&self) -> Option<&BTreeMap<String, (f32, Instant)>> {
+        self.vehicle.and_then(|v| self.heard.get(&v)).map(|h| &h.params)
+    }
+
+    /// Whether `id` is the one `--vehicle` asks for (any, without it).
+    pub fn wanted(&self, id: (u8, u8)) -> bool {
+        self.wanted
+            .is_none_or(|(s, c)| s == id.0 && c.is_none_or(|c| c == id.1))
+    }
+
+    /// The autopilots heard that `--vehicle` allows, in order of first appearance.
+    pub fn autopilots(&self) -> Vec<(u8, u8)> {
+        let mut a: Vec<(&(u8, u8), &Heard)> = self
+            .heard
+            .iter()
+            .filter(|(id, h)| h.autopilot.is_some() && self.wanted(**id))
+            .collect();
+        a.sort_by_key(|(_, h)| h.first);
+        a.into_iter().map(|(id, _)| *id).collect()
+    }
+
+    /// Autopilots with compass frames other than the vehicle, where `--vehicle` did not choose
+    /// it: a vehicle chosen by arrival alone cannot be sent parameters.
+    pub fn contested(&self) -> Vec<(u8, u8)> {
+        if self.wanted.is_some() {
+            return Vec::new();
+        }
+        self.autopilots()
+            .into_iter()
+            .filter(|id| Some(*id) != self.vehicle && self.heard[id].imu > 0)
+            .collect()
+    }
 }
 
 /// The shared state and the signal of new records.
@@ -146,9 +210,10 @@ impl Shared {
                 head: Vec::new(),
                 ended: None,
                 units: None,
+                heard: BTreeMap::new(),
                 vehicle: None,
-                peer: None,
-                params: std::collections::BTreeMap::new(),
+                wanted: None,
+                asked: super::ask::Asked::default(),
             }),
             changed: Condvar::new(),
             stop: AtomicBool::new(false),
@@ -396,17 +461,23 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
             return Ok(());
         }
         let stamp = now_us();
+        let from = input.peer();
+        {
+            // A datagram from elsewhere than the vehicle, once it is known, is counted and no more.
+            let mut state = shared.lock();
+            if from.is_some() && state.peer().is_some() && from != state.peer() {
+                state.counts.foreign += 1;
+                state.counts.bytes += n as u64;
+                continue;
+            }
+        }
         let mut records = Vec::new();
-        let mut vehicle = None;
-        let mut params = Vec::new();
+        let mut frames = Vec::new();
         framer.push(&buf[..n], |frame, id| {
-            let pin = (id == PARAM_VALUE).then(|| param_name(frame));
-            if let Some(name) = &pin {
-                params.push((String::from_utf8_lossy(name).into_owned(), param_value(frame)));
-            }
-            if id == HEARTBEAT && vehicle.is_none() {
-                vehicle = autopilot(frame);
-            }
+            let ids = sender(frame);
+            // Parameters are pinned by their system, component and name.
+            let pin = (id == PARAM_VALUE).then(|| [&[ids.0, ids.1][..], &param_name(frame)].concat());
+            frames.push((ids, heard_of(frame, id)));
             records.push((record(stamp, frame), pin));
         });
         if let Some(w) = recorder.as_mut() {
@@ -417,12 +488,11 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
         }
         let mut state = shared.lock();
         let now = Instant::now();
-        state.peer = input.peer();
-        if state.vehicle.is_none() {
-            state.vehicle = vehicle;
+        for (ids, what) in frames {
+            hear(&mut state, ids, what, from, now);
         }
-        for (name, value) in params {
-            state.params.insert(name, (value, now));
+        if state.vehicle.is_none() {
+            state.vehicle = state.autopilots().into_iter().find(|id| state.heard[id].imu > 0);
         }
         let c = &mut state.counts;
         c.bytes += n as u64;
@@ -453,17 +523,57 @@ fn param_value(frame: &[u8]) -> f32 {
     f32::from_le_bytes([p[0], p[1], p[2], p[3]])
 }
 
-/// The system and component of a `HEARTBEAT` frame sent by an autopilot (not a ground station,
-/// whose `autopilot` is `MAV_AUTOPILOT_INVALID`).
-fn autopilot(frame: &[u8]) -> Option<(u8, u8)> {
-    const INVALID: u8 = 8;
-    let p = payload(frame, 9);
-    let (system, component) = if frame.first() == Some(&0xFD) {
+/// The system and component that sent a frame.
+fn sender(frame: &[u8]) -> (u8, u8) {
+    if frame.first() == Some(&0xFD) {
         (frame[5], frame[6])
     } else {
         (frame[3], frame[4])
-    };
-    (p[5] != INVALID).then_some((system, component))
+    }
+}
+
+/// What one frame says of its sender.
+enum Said {
+    /// A `HEARTBEAT` of an autopilot (`MAV_AUTOPILOT`), or of a ground station (`None`:
+    /// `MAV_AUTOPILOT_INVALID`).
+    Heartbeat(Option<u8>),
+    Imu,
+    Param(String, f32),
+    Other,
+}
+
+fn heard_of(frame: &[u8], id: u32) -> Said {
+    const INVALID: u8 = 8;
+    match id {
+        HEARTBEAT => {
+            let autopilot = payload(frame, 9)[5];
+            Said::Heartbeat((autopilot != INVALID).then_some(autopilot))
+        }
+        PARAM_VALUE => Said::Param(
+            String::from_utf8_lossy(&param_name(frame)).into_owned(),
+            param_value(frame),
+        ),
+        _ if IMU.contains(&id) => Said::Imu,
+        _ => Said::Other,
+    }
+}
+
+/// Adds what a frame of `ids` said, from the address `from`, to the state.
+fn hear(state: &mut State, ids: (u8, u8), what: Said, from: Option<SocketAddr>, now: Instant) {
+    let n = state.heard.len();
+    let h = state.heard.entry(ids).or_insert_with(|| Heard {
+        first: n,
+        addr: from,
+        ..Heard::default()
+    });
+    match what {
+        Said::Heartbeat(a) => h.autopilot = h.autopilot.or(a),
+        Said::Imu => h.imu += 1,
+        Said::Param(name, value) => {
+            h.params.insert(name, (value, now));
+        }
+        Said::Other => {}
+    }
 }
 
 /// The name of the parameter of a `PARAM_VALUE` frame (its key among the pinned records).
