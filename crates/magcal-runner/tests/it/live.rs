@@ -20,14 +20,14 @@ use tempfile::TempDir;
 use crate::common::{magcal, magcal_process};
 
 /// The offsets in force on the test vehicle, mGauss: the raw readings are sent with them added.
-const OFS: [f32; 3] = [-30.0, 12.5, 44.0];
+pub(crate) const OFS: [f32; 3] = [-30.0, 12.5, 44.0];
 
 /// The glider's sensor bias (scenarios/glider.toml: 2500, -1800, 4200 nT in [P1]'s nose, up,
 /// right) in the forward, right, down axes the vehicle sends, mGauss.
 const GLIDER_BIAS_FRD: [f64; 3] = [25.0, 42.0, 18.0];
 
 /// One MAVLink 2 frame from the vehicle (system 1, component 1).
-fn frame(msg: &MavMessage) -> Vec<u8> {
+pub(crate) fn frame(msg: &MavMessage) -> Vec<u8> {
     let mut bytes = Vec::new();
     let header = MavHeader {
         system_id: 1,
@@ -40,7 +40,7 @@ fn frame(msg: &MavMessage) -> Vec<u8> {
 
 /// The rows of a simulated log: roll, pitch, true heading (degrees) and the reading (nT) in the
 /// paper's body frame (nose, up, right).
-fn simulated(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6]> {
+pub(crate) fn simulated(dir: &Path, scenario: &str, design: &str, seed: u64) -> Vec<[f64; 6]> {
     round_and_round(&in_plan_order(dir, scenario, design, seed))
 }
 
@@ -118,7 +118,7 @@ fn vehicle_frames(rows: &[[f64; 6]]) -> Vec<Vec<u8>> {
 
 /// Per row an `ATTITUDE` and a `RAW_IMU` with the reading turned into forward, right, down
 /// (mGauss, offsets added), 20 ms apart from `first_ms` after boot.
-fn turns(rows: &[[f64; 6]], first_ms: u32) -> Vec<Vec<u8>> {
+pub(crate) fn turns(rows: &[[f64; 6]], first_ms: u32) -> Vec<Vec<u8>> {
     let mut out = Vec::new();
     for (i, r) in rows.iter().enumerate() {
         let t_ms = first_ms + 20 * i as u32;
@@ -143,7 +143,7 @@ fn turns(rows: &[[f64; 6]], first_ms: u32) -> Vec<Vec<u8>> {
 }
 
 /// The address a `udpin:` source was bound to, from `live`'s first line.
-fn udp_address(first: &str) -> String {
+pub(crate) fn udp_address(first: &str) -> String {
     first
         .strip_prefix("live: reading udpin:")
         .and_then(|s| s.split(';').next())
@@ -152,7 +152,7 @@ fn udp_address(first: &str) -> String {
 }
 
 /// The vehicle's frames sent to `addr`, five to a datagram as a radio bridge sends them.
-fn fly(vehicle: &UdpSocket, frames: &[Vec<u8>], addr: &str) {
+pub(crate) fn fly(vehicle: &UdpSocket, frames: &[Vec<u8>], addr: &str) {
     for chunk in frames.chunks(5) {
         vehicle.send_to(&chunk.concat(), addr).unwrap();
         std::thread::sleep(Duration::from_millis(2));
@@ -161,7 +161,7 @@ fn fly(vehicle: &UdpSocket, frames: &[Vec<u8>], addr: &str) {
 
 /// `magcal live` started with `args`, its standard error read by a thread: the first line (what
 /// it reads) comes back at once, the rest when it ends.
-fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<String>>) {
+pub(crate) fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<String>>) {
     let (child, mut first, all) = start_live_lines(args, 1);
     (child, first.remove(0), all)
 }
@@ -200,7 +200,7 @@ fn start_live_lines(args: &[&str], n: usize) -> (Child, Vec<String>, mpsc::Recei
 }
 
 /// The JSON `live --json` printed, its standard error, and its exit code.
-fn finish_live(mut child: Child, stderr: &mpsc::Receiver<Vec<String>>) -> (Value, Vec<String>, i32) {
+pub(crate) fn finish_live(mut child: Child, stderr: &mpsc::Receiver<Vec<String>>) -> (Value, Vec<String>, i32) {
     let mut out = String::new();
     std::io::Read::read_to_string(&mut child.stdout.take().unwrap(), &mut out).unwrap();
     let status = child.wait().unwrap();
@@ -209,7 +209,7 @@ fn finish_live(mut child: Child, stderr: &mpsc::Receiver<Vec<String>>) -> (Value
     (json, lines, status.code().unwrap())
 }
 
-fn json_of(path: &Path) -> Value {
+pub(crate) fn json_of(path: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
@@ -423,7 +423,7 @@ fn sources_and_options_that_cannot_work_are_refused_before_anything_is_written()
 }
 
 /// MotionCal's `Raw:` lines of `rows` (nT in [P1]'s axes; the sketch's units are 0.1 uT).
-fn raw_lines(rows: &[[f64; 6]]) -> String {
+pub(crate) fn raw_lines(rows: &[[f64; 6]]) -> String {
     rows.iter()
         .map(|r| {
             format!(
@@ -555,7 +555,7 @@ fn a_stream_that_ends_without_a_usable_fit_writes_the_last_and_exits_3() {
 }
 
 /// One HTTP/1.1 request to the page's server: the status code and the body.
-fn http(addr: &str, method: &str, path: &str, host: &str) -> (u16, Vec<u8>) {
+pub(crate) fn http(addr: &str, method: &str, path: &str, host: &str) -> (u16, Vec<u8>) {
     use std::io::Read;
     let mut stream = std::net::TcpStream::connect(addr).unwrap();
     write!(
@@ -663,8 +663,8 @@ fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_ser
     tab.wait_for("Page.loadEventFired", Duration::from_secs(60)).unwrap();
     let vehicle = UdpSocket::bind("127.0.0.1:0").unwrap();
     let send = |frames: &[Vec<u8>]| fly(&vehicle, frames, &udp);
-    // The heartbeat, the parameters and the first third of the turns, then the rest.
-    let third = 4 + 2 * (rows.len() / 3);
+    // The heartbeat, the nine parameters and the first third of the turns, then the rest.
+    let third = 10 + 2 * (rows.len() / 3);
     send(&frames[..third]);
     let early = status_when(&addr, |s| s["readings"] == rows.len() / 3);
     let fit = early["fit"].as_u64().unwrap();
@@ -825,8 +825,9 @@ fn a_flood_beyond_the_memory_bound_keeps_the_newest_readings_and_counts_what_it_
     let tmp = TempDir::new().unwrap();
     let rows = simulated(tmp.path(), "../../scenarios/glider.toml", "plan300", 9);
     let frames = vehicle_frames(&rows);
-    // The heartbeat and parameters once, then the turns forty times over: 24,000 records.
-    let mut flood: Vec<Vec<u8>> = frames[..4].to_vec();
+    // The heartbeat and the nine parameters in force once, then the turns forty times over:
+    // 24,000 records.
+    let mut flood: Vec<Vec<u8>> = frames[..10].to_vec();
     for k in 0..40 {
         flood.extend(turns(&rows, 1000 + 20 * (k * rows.len()) as u32));
     }
@@ -867,9 +868,9 @@ fn a_flood_beyond_the_memory_bound_keeps_the_newest_readings_and_counts_what_it_
         "every record arrived and was written"
     );
     assert!(dropped > 5_000, "{live}");
-    // Held: the three parameters pinned, and the newest records, two a reading (the oldest
+    // Held: the nine parameters pinned, and the newest records, two a reading (the oldest
     // reading held may have lost its attitude).
-    assert!(readings.abs_diff((frames_in - dropped - 3) / 2) <= 1, "{live}");
+    assert!(readings.abs_diff((frames_in - dropped - 9) / 2) <= 1, "{live}");
     assert!(readings < 6_500, "{live}");
     // The parameters outlived the drop: the offsets in force are undone, the bias is the
     // simulated sensor's, not less the offsets (-30 and 12.5 mG on x and y). The flood repeats
@@ -908,16 +909,26 @@ fn mavlink_from_a_tcp_server_and_through_a_serial_line_calibrate_as_their_record
     let tmp = TempDir::new().unwrap();
     let scenario = "../../scenarios/glider.toml";
     let frames = vehicle_frames(&simulated(tmp.path(), scenario, "plan300", 13));
-    // A TCP server (as SITL's 5760) that streams the vehicle's frames, then closes: the end.
+    // A TCP server (as SITL's 5760) that streams the vehicle's frames, then ends its side: the
+    // end. It reads what live asks of it (as an autopilot does) until live closes, so that its
+    // close is orderly rather than a reset.
     let server = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let port = server.local_addr().unwrap().port();
     let bytes = frames.concat();
     let serving = std::thread::spawn(move || {
         let (mut client, _) = server.accept().unwrap();
+        let mut reader = client.try_clone().unwrap();
+        let draining = std::thread::spawn(move || {
+            let mut asked = Vec::new();
+            std::io::Read::read_to_end(&mut reader, &mut asked).unwrap();
+            asked.len()
+        });
         for chunk in bytes.chunks(700) {
             client.write_all(chunk).unwrap();
             std::thread::sleep(Duration::from_millis(1));
         }
+        client.shutdown(std::net::Shutdown::Write).unwrap();
+        draining.join().unwrap()
     });
     let (out, record) = (tmp.path().join("tcp"), tmp.path().join("tcp.tlog"));
     let source = format!("tcp:127.0.0.1:{port}");
@@ -929,8 +940,8 @@ fn mavlink_from_a_tcp_server_and_through_a_serial_line_calibrate_as_their_record
         record.to_str().unwrap(),
         "--json",
     ]);
-    serving.join().unwrap();
     let (live, lines, code) = finish_live(child, &stderr);
+    serving.join().unwrap();
     assert_eq!(code, 0, "{lines:#?}");
     assert_eq!(live["frames"], frames.len() as u64);
     let again = tmp.path().join("tcp-again");

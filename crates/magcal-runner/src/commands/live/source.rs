@@ -111,8 +111,9 @@ pub struct Counts {
     pub malformed_lines: u64,
     /// When the last bytes arrived.
     pub last: Option<Instant>,
-    /// UDP datagrams from another address than the vehicle's, once it is known: counted, kept
-    /// out of the fits, never answered.
+    /// UDP datagrams from another address than the vehicle's once it is known, and frames in the
+    /// name of a system first heard from another address: counted, kept out of the fits and the
+    /// recording, never answered.
     pub foreign: u64,
 }
 
@@ -471,25 +472,28 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
                 continue;
             }
         }
-        let mut records = Vec::new();
         let mut frames = Vec::new();
         framer.push(&buf[..n], |frame, id| {
             let ids = sender(frame);
             // Parameters are pinned by their system, component and name.
             let pin = (id == PARAM_VALUE).then(|| [&[ids.0, ids.1][..], &param_name(frame)].concat());
-            frames.push((ids, heard_of(frame, id)));
-            records.push((record(stamp, frame), pin));
+            frames.push((ids, heard_of(frame, id), record(stamp, frame), pin));
         });
+        let mut state = shared.lock();
+        let now = Instant::now();
+        let mut records = Vec::with_capacity(frames.len());
+        for (ids, what, r, pin) in frames {
+            if hear(&mut state, ids, what, from, now) {
+                records.push((r, pin));
+            } else {
+                state.counts.foreign += 1;
+            }
+        }
         if let Some(w) = recorder.as_mut() {
             for (r, _) in &records {
                 w.write_all(r).context("--record")?;
             }
             w.flush().context("--record")?;
-        }
-        let mut state = shared.lock();
-        let now = Instant::now();
-        for (ids, what) in frames {
-            hear(&mut state, ids, what, from, now);
         }
         if state.vehicle.is_none() {
             state.vehicle = state.autopilots().into_iter().find(|id| state.heard[id].imu > 0);
@@ -558,14 +562,19 @@ fn heard_of(frame: &[u8], id: u32) -> Said {
     }
 }
 
-/// Adds what a frame of `ids` said, from the address `from`, to the state.
-fn hear(state: &mut State, ids: (u8, u8), what: Said, from: Option<SocketAddr>, now: Instant) {
+/// Adds what a frame of `ids` said, from the address `from`, to the state; `false` (nothing
+/// added) when that system and component were first heard from another address: a frame in
+/// their name from elsewhere.
+fn hear(state: &mut State, ids: (u8, u8), what: Said, from: Option<SocketAddr>, now: Instant) -> bool {
     let n = state.heard.len();
     let h = state.heard.entry(ids).or_insert_with(|| Heard {
         first: n,
         addr: from,
         ..Heard::default()
     });
+    if h.addr != from {
+        return false;
+    }
     match what {
         Said::Heartbeat(a) => h.autopilot = h.autopilot.or(a),
         Said::Imu => h.imu += 1,
@@ -574,6 +583,7 @@ fn hear(state: &mut State, ids: (u8, u8), what: Said, from: Option<SocketAddr>, 
         }
         Said::Other => {}
     }
+    true
 }
 
 /// The name of the parameter of a `PARAM_VALUE` frame (its key among the pinned records).
