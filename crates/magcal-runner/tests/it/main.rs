@@ -21,6 +21,7 @@ mod fuzz;
 mod gps;
 mod hostile;
 mod live;
+mod live_guide;
 mod live_send;
 mod log_outputs;
 mod loop_design_log;

@@ -9,9 +9,9 @@
 //! device held in the hand, the same increment over the whole sphere, [`sphere_targets`]); the
 //! plan follows them only when its own first target is flown, or when that target's variance
 //! `d(h) = h^T M^-1 h` under the readings so far (\[P1\] eq. (12): `det(M + h h^T) = det M (1 + d)`)
-//! has fallen below [`SUPERSEDE`] of the best fresh target's before any reading was flown there:
-//! then flying it gains clearly less than flying the new one. A target being flown is kept until
-//! it has its readings. Between two fits the best fresh target moves about on a flat
+//! has fallen below [`SUPERSEDE`] of the best fresh target's before any reading came within twice
+//! the flown cone: then flying it gains clearly less than flying the new one. A target being
+//! flown (or neared) is kept until it has its readings. Between two fits the best fresh target moves about on a flat
 //! variance surface; the plan does not.
 
 // Index loops mirror the matrix algebra they implement.
@@ -51,9 +51,11 @@ pub const PLAN_LEN: usize = 3;
 pub const FLOWN_DEG: f64 = 15.0;
 
 /// The plan is replaced when its first target's variance falls below this share of the best
-/// fresh target's: flying it would add at most `ln(1 + SUPERSEDE d)` against `ln(1 + d)` to
-/// `ln det M` per reading.
-pub const SUPERSEDE: f64 = 0.5;
+/// fresh target's: a reading there would add `ln(1 + SUPERSEDE d)` to `ln det M` against
+/// `ln(1 + d)` at the best. At a half, the plan of a hand turning at 90 deg/s through a sphere
+/// was superseded more often than it was flown (3 against 2); a quarter keeps a target the hand
+/// is on its way to unless another is clearly better.
+pub const SUPERSEDE: f64 = 0.25;
 
 /// Readings asked at a target on the sphere (a device in the hand: a pose held for about a
 /// second at common rates).
@@ -78,9 +80,11 @@ pub struct Target {
     pub flown: usize,
     /// The target in words: the attitude, or how to hold the sensor.
     pub words: String,
-    /// Readings near the direction when the target was set.
+    /// Readings near the direction, and within twice as far, when the target was set.
     #[serde(skip)]
     near_at_set: usize,
+    #[serde(skip)]
+    approach_at_set: usize,
 }
 
 impl Target {
@@ -105,6 +109,7 @@ impl Target {
             flown: 0,
             words,
             near_at_set: 0,
+            approach_at_set: 0,
         }
     }
 
@@ -121,6 +126,7 @@ impl Target {
             flown: 0,
             words: hold_words(u),
             near_at_set: 0,
+            approach_at_set: 0,
         }
     }
 }
@@ -282,10 +288,12 @@ impl Guide {
         fresh: Vec<Target>,
     ) -> Change {
         let units: Vec<Vec3> = directions.iter().map(|&d| unit(d)).collect();
-        let near = |u: Vec3| {
-            let c = FLOWN_DEG.to_radians().cos();
+        let within = |u: Vec3, deg: f64| {
+            let c = deg.to_radians().cos();
             units.iter().filter(|&&d| dot(d, u) >= c).count()
         };
+        let near = |u: Vec3| within(u, FLOWN_DEG);
+        let approach = |u: Vec3| within(u, 2.0 * FLOWN_DEG);
         for t in &mut self.plan {
             // The ring may have dropped readings near it since: flown counts never go back.
             t.flown = t.flown.max(near(t.field_direction).saturating_sub(t.near_at_set));
@@ -297,9 +305,11 @@ impl Guide {
             change = Change::Flown;
         }
         let d = |t: &Target| variance.map(|v| v.at(raw_at(cal, t.field_direction)));
-        // A target with readings flown there is being flown: it is kept until it has them all
-        // (its variance falls with each, as it should).
-        let superseded = match (self.plan.first().filter(|t| t.flown == 0), fresh.first()) {
+        // A target the hand has come within twice the flown cone of since it was set is being
+        // flown: it is kept until it has its readings (its variance falls as they come, as it
+        // should).
+        let reached = |t: &Target| t.flown > 0 || approach(t.field_direction) > t.approach_at_set;
+        let superseded = match (self.plan.first().filter(|t| !reached(t)), fresh.first()) {
             (Some(now), Some(best)) => match (d(now), d(best)) {
                 (Some(a), Some(b)) => a < SUPERSEDE * b,
                 _ => false,
@@ -320,6 +330,7 @@ impl Guide {
                 .into_iter()
                 .map(|mut t| {
                     t.near_at_set = near(t.field_direction);
+                    t.approach_at_set = approach(t.field_direction);
                     t.flown = 0;
                     t
                 })
@@ -353,6 +364,7 @@ pub fn progress(predicted_deg: Option<f64>, budget_deg: f64, usable: bool) -> St
 #[cfg(test)]
 mod tests {
     use super::*;
+    use magcal_core::small::sub;
 
     /// A calibration of an ideal sensor (P = K = I, no bias) in a field of 500.
     fn ideal() -> Sensor {
@@ -445,12 +457,26 @@ mod tests {
         let mut g = Guide::default();
         g.update(&cal, &raw, Some(&v), sphere_targets(&cal, &v));
         let first = g.plan[0].field_direction;
-        // Many readings land 20 degrees from the target (outside its cone, so not flown there),
-        // which takes most of its variance away.
-        let (x, z) = (20f64.to_radians().sin(), 20f64.to_radians().cos());
-        let beside = unit([first[0] * z + x, first[1] * z, first[2] * z]);
+        // Many readings land on a ring 35 degrees round the target (beyond twice its cone: not
+        // flown there, nor on the way to it), which takes most of its variance away.
+        let e1 = unit(if first[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        });
+        let e1 = unit(sub(e1, scale(dot(e1, first), first)));
+        let e2 = [
+            first[1] * e1[2] - first[2] * e1[1],
+            first[2] * e1[0] - first[0] * e1[2],
+            first[0] * e1[1] - first[1] * e1[0],
+        ];
+        let (s35, c35) = (35f64.to_radians().sin(), 35f64.to_radians().cos());
         let mut more = raw.clone();
-        more.extend(std::iter::repeat_n(scale(500.0, beside), 200));
+        for k in 0..8 {
+            let a = f64::from(k) * std::f64::consts::FRAC_PI_4;
+            let on = unit([0, 1, 2].map(|i| c35 * first[i] + s35 * (a.cos() * e1[i] + a.sin() * e2[i])));
+            more.extend(std::iter::repeat_n(scale(500.0, on), 40));
+        }
         let v2 = Variance::new(&more, 500.0).unwrap();
         let d_old = v2.at(raw_at(&cal, first));
         let fresh = sphere_targets(&cal, &v2);
