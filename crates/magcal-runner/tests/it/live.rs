@@ -595,6 +595,32 @@ fn canvas(tab: &crate::browser::Tab, id: &str) -> Vec<u8> {
     base64::engine::general_purpose::STANDARD.decode(data).unwrap()
 }
 
+/// A drag of the mouse across the element `id`, from its centre by (`dx`, `dy`) CSS pixels, as
+/// DevTools sends a real one (the page sees pointer events).
+fn drag(tab: &crate::browser::Tab, id: &str, dx: f64, dy: f64) {
+    let at = tab
+        .evaluate(&format!(
+            "(() => {{ const e = document.getElementById('{id}'); e.scrollIntoView({{block: 'center'}}); const r = e.getBoundingClientRect(); return [r.left + r.width / 2, r.top + r.height / 2]; }})()"
+        ))
+        .unwrap();
+    let (x, y) = (at[0].as_f64().unwrap(), at[1].as_f64().unwrap());
+    let steps = [
+        ("mousePressed", 0.0, 1),
+        ("mouseMoved", 0.5, 1),
+        ("mouseMoved", 1.0, 1),
+        ("mouseReleased", 1.0, 0),
+    ];
+    for (kind, part, buttons) in steps {
+        let event = serde_json::json!({
+            "type": kind, "x": x + part * dx, "y": y + part * dy,
+            "button": "left", "buttons": buttons, "clickCount": 1,
+        });
+        tab.call("Input.dispatchMouseEvent", event).unwrap();
+    }
+    // A frame or two, for the drawing.
+    std::thread::sleep(Duration::from_millis(300));
+}
+
 /// The page's text of `id` once the page shows the fit `fit` (at most 30 s).
 fn page_text_at(tab: &crate::browser::Tab, fit: u64, id: &str) -> String {
     let started = std::time::Instant::now();
@@ -680,8 +706,13 @@ fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_ser
         assert_ne!(a, b, "figure {k} unchanged");
     }
     assert!(late["attitudes"].as_array().unwrap().len() > early["attitudes"].as_array().unwrap().len());
-    // The page says the attitude of each status, as the status gives it.
+    // The page says the attitude of each status, as the status gives it: the plan's first target
+    // in its words where the status has a plan, else the next attitude.
     for (text, status) in [(&early_next, &early), (&late_next, &late)] {
+        if let Some(words) = status["plan"][0]["words"].as_str() {
+            assert_eq!(text, words, "{status}");
+            continue;
+        }
         // Rounded as the page rounds: -0.3 is "0".
         let roll = status["next"]["roll_deg"].as_f64().unwrap().round() + 0.0;
         assert!(text.starts_with(&format!("roll {roll:.0}, pitch ")), "{text} {status}");
@@ -690,6 +721,26 @@ fn the_live_page_follows_the_stream_in_a_browser_and_asks_nothing_beyond_its_ser
     let (live, lines, code) = finish_live(child, &stderr);
     assert_eq!(code, 0, "{lines:#?}");
     assert_eq!(live["usable"], true);
+    // The sphere to turn, with the last status: drawn (the shaded ball is a third of its canvas),
+    // held still once dragged, in the view it has when a status is shown again, and turned by a
+    // drag.
+    let globe = || canvas(&tab, "globe");
+    let drawn = image::load_from_memory(&globe()).unwrap().to_rgba8();
+    let (share, colours) = crate::browser::pixel_statistics(&drawn);
+    assert!(
+        share > 0.2 && colours > 20,
+        "the sphere: {share} of its pixels drawn, {colours} colours"
+    );
+    drag(&tab, "globe", 40.0, 15.0);
+    let held = globe();
+    tab.evaluate("show(globe.status)").unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(
+        globe() == held,
+        "the sphere turned back (or on) when its status was shown again"
+    );
+    drag(&tab, "globe", 60.0, -30.0);
+    assert!(globe() != held, "a drag did not turn the sphere");
     // Nothing but the page's own server was asked for anything, and nothing failed.
     let mut asked = Vec::new();
     for event in tab.events() {
