@@ -23,6 +23,7 @@ mod hostile;
 mod live;
 mod live_guide;
 mod live_send;
+mod live_sitl;
 mod log_outputs;
 mod loop_design_log;
 mod motor;
