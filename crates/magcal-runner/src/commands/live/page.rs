@@ -5,11 +5,42 @@
 //! else), and `/status.json`, the last fit's status with the counts of the stream as they are at
 //! the request. A request whose `Host` is not the server's own address (a page elsewhere that
 //! rebinds a name to 127.0.0.1) is refused, as is every method but `GET` and `HEAD`.
+//!
+//! # The server
+//! No client holds up another: each connection has its own thread, at most [`MAX_CONNECTIONS`]
+//! at once (one more is answered 503 and closed by the accepting thread, so that memory and
+//! threads stay bounded), and each is bounded in what it may send and how long it may take:
+//! - the request head (request line, headers, blank line) within [`MAX_HEAD`] bytes, each of its
+//!   lines within [`MAX_LINE`] and at most [`MAX_HEADERS`] headers: beyond, 414 (the request
+//!   line) or 431 (the headers), and the connection is closed, so that a client's memory is at
+//!   most one head's buffer whatever it sends;
+//! - the whole head within [`READ_TIMEOUT`] of the connection (a client that sends a byte at a
+//!   time is dropped then, with a 408), the whole response within [`WRITE_TIMEOUT`];
+//! - one request a connection: the response says `Connection: close` and the server closes, so
+//!   that a client that pipelines requests and never reads its responses holds one thread for at
+//!   most the timeouts above, never the server.
+//!
+//! Every response has its `Content-Length` (never chunked) and the headers `Content-Type`,
+//! `Content-Security-Policy` ([`POLICY`]), `Cache-Control: no-store` and
+//! `X-Content-Type-Options: nosniff`; a response to `HEAD` has no body.
+//!
+//! # Why not a server crate
+//! The request head is parsed by `httparse`; the connections, bounds and timeouts are here.
+//! `tiny_http` 0.12, which served the page before, answers on one thread and bounds neither the
+//! request nor its headers: a client that pipelined 3,000 requests and never read its responses
+//! blocked every other client until it closed (the answering thread blocked in a write without a
+//! timeout), and one header line of 1.4 GB took the process from 117 MB to 1.5 GB. The servers
+//! that bound both (hyper and those over it) bring an asynchronous runtime (tokio), which the
+//! build keeps out for the sake of its compile time. What is left to this module is small: a
+//! thread per connection under a count, a deadline on each read and write, one request a
+//! connection.
 
-use std::net::SocketAddr;
-use std::sync::atomic::Ordering;
+use std::borrow::Cow;
+use std::io::{ErrorKind, Read, Write};
+use std::net::{Ipv4Addr, Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -90,76 +121,366 @@ struct Now<'a> {
     ended: bool,
 }
 
+/// The longest line of a request head (the request line, or a header line), bytes before its
+/// CR LF (or its bare LF).
+pub const MAX_LINE: usize = 8 * 1024;
+/// The most headers of a request.
+pub const MAX_HEADERS: usize = 64;
+/// The longest request head, bytes: request line, headers and the blank line that ends them.
+pub const MAX_HEAD: usize = 32 * 1024;
+/// The most connections open at once, each with its thread; one more is answered 503.
+pub const MAX_CONNECTIONS: usize = 32;
+/// How long a client has, from its connection, to send the whole request head.
+pub const READ_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a client has to take the whole response.
+pub const WRITE_TIMEOUT: Duration = Duration::from_secs(5);
+/// After the response, how long and how much the server reads and discards of what the client
+/// still sends: its close is then a FIN that the client reads after the response, not a reset
+/// that may discard the response before the client read it.
+const LINGER: Duration = Duration::from_millis(500);
+const LINGER_BYTES: usize = 64 * 1024;
+/// How often the accepting thread looks at `shared.stop` while no client connects.
+const POLL: Duration = Duration::from_millis(25);
+/// The stack of a connection's thread, bytes: a request head is on the heap, the status is
+/// serialised on the heap.
+const STACK: usize = 256 * 1024;
+
 /// Starts the server on 127.0.0.1:`port` (0: a free port). Returns its address.
+///
+/// The server's thread accepts connections until `shared.stop` is set; each connection's own
+/// thread ends within [`READ_TIMEOUT`] + [`WRITE_TIMEOUT`] + 0.5 s of its start.
 ///
 /// # Errors
 /// The port cannot be bound.
 pub fn serve(port: u16, shared: &Arc<Shared>, status: &Arc<Mutex<Status>>) -> Result<SocketAddr> {
-    let server = tiny_http::Server::http(("127.0.0.1", port))
-        .map_err(|e| anyhow::anyhow!("--page {port}: cannot listen on 127.0.0.1:{port}: {e}"))?;
-    let addr = server
-        .server_addr()
-        .to_ip()
-        .context("--page: the server has no IP address")?;
+    let listener = TcpListener::bind((Ipv4Addr::LOCALHOST, port))
+        .with_context(|| format!("--page {port}: cannot listen on 127.0.0.1:{port}"))?;
+    let addr = listener.local_addr().context("--page: the server has no address")?;
+    // Not blocking, so that the accepting thread sees `stop` while no one connects.
+    listener
+        .set_nonblocking(true)
+        .context("--page: cannot make the server's socket non-blocking")?;
     let (shared, status) = (Arc::clone(shared), Arc::clone(status));
     std::thread::Builder::new()
         .name("magcal-live-page".into())
-        .spawn(move || {
-            while !shared.stop.load(Ordering::Relaxed) {
-                match server.recv_timeout(Duration::from_millis(200)) {
-                    Ok(Some(request)) => {
-                        let _ = answer(request, addr, &shared, &status);
-                    }
-                    Ok(None) => {}
-                    Err(_) => break,
-                }
-            }
-        })
+        .spawn(move || accept(&listener, addr.port(), &shared, &status))
         .context("starting the page's server")?;
     Ok(addr)
 }
 
-fn header(name: &str, value: &str) -> tiny_http::Header {
-    tiny_http::Header::from_bytes(name.as_bytes(), value.as_bytes()).unwrap_or_else(|()| unreachable!("a valid header"))
+/// Accepts connections until `shared.stop`: each on its own thread while fewer than
+/// [`MAX_CONNECTIONS`] are open, else answered 503 at once.
+fn accept(listener: &TcpListener, port: u16, shared: &Arc<Shared>, status: &Arc<Mutex<Status>>) {
+    let open = Arc::new(AtomicUsize::new(0));
+    while !shared.stop.load(Ordering::Relaxed) {
+        let stream = match listener.accept() {
+            Ok((stream, _)) => stream,
+            // Nothing to accept, or a failure of one connection or of the moment (a client that
+            // reset before it was accepted, no file descriptor left): look again shortly.
+            Err(_) => {
+                std::thread::sleep(POLL);
+                continue;
+            }
+        };
+        let Some(slot) = Slot::take(&open) else {
+            turn_away(stream);
+            continue;
+        };
+        let (shared, status) = (Arc::clone(shared), Arc::clone(status));
+        // A thread that cannot start drops its closure, and with it the stream and the slot.
+        let _ = std::thread::Builder::new()
+            .name("magcal-live-page-client".into())
+            .stack_size(STACK)
+            .spawn(move || {
+                connection(stream, port, &shared, &status);
+                drop(slot);
+            });
+    }
 }
 
-fn answer(
-    request: tiny_http::Request,
-    addr: SocketAddr,
-    shared: &Shared,
-    status: &Mutex<Status>,
-) -> std::io::Result<()> {
-    use tiny_http::{Method, Response};
-    let host_ok = request
-        .headers()
-        .iter()
-        .find(|h| h.field.equiv("Host"))
-        .is_some_and(|h| {
-            let v = h.value.as_str();
-            v == format!("127.0.0.1:{}", addr.port()) || v == format!("localhost:{}", addr.port())
-        });
-    if !host_ok {
-        return request.respond(Response::from_string("not this host\n").with_status_code(403));
+/// One of the [`MAX_CONNECTIONS`] places, given back when dropped.
+struct Slot(Arc<AtomicUsize>);
+
+impl Slot {
+    fn take(open: &Arc<AtomicUsize>) -> Option<Self> {
+        open.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+            (n < MAX_CONNECTIONS).then_some(n + 1)
+        })
+        .ok()
+        .map(|_| Self(Arc::clone(open)))
     }
-    if !matches!(request.method(), Method::Get | Method::Head) {
-        return request.respond(Response::from_string("GET only\n").with_status_code(405));
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
     }
-    let (body, kind) = match request.url() {
-        "/" | "/index.html" => (PAGE.as_bytes().to_vec(), "text/html; charset=utf-8"),
-        "/live.js" => (SCRIPT.as_bytes().to_vec(), "text/javascript; charset=utf-8"),
-        "/live.css" => (STYLE.as_bytes().to_vec(), "text/css; charset=utf-8"),
-        "/status.json" => (now(shared, status), "application/json"),
-        _ => return request.respond(Response::from_string("not found\n").with_status_code(404)),
+}
+
+/// Answers 503 to a connection beyond the bound, without ever waiting on it: one write to the
+/// new connection's empty send buffer, then what the client already sent is read and discarded,
+/// so that the close is a FIN after the answer rather than a reset.
+fn turn_away(mut stream: TcpStream) {
+    if stream.set_nonblocking(true).is_err() {
+        return;
+    }
+    let _ = stream.write(&Reply::refusal(503).bytes(false));
+    let _ = stream.shutdown(Shutdown::Write);
+    let mut sink = [0u8; 4096];
+    for _ in 0..4 {
+        if !matches!(stream.read(&mut sink), Ok(n) if n > 0) {
+            break;
+        }
+    }
+}
+
+/// Serves one connection: one request head read within the bounds, one response, the close.
+fn connection(mut stream: TcpStream, port: u16, shared: &Shared, status: &Mutex<Status>) {
+    // Accepted sockets inherit the listener's non-blocking mode on some systems.
+    if stream.set_nonblocking(false).is_err() {
+        return;
+    }
+    let _ = stream.set_nodelay(true);
+    let mut buf = vec![0u8; MAX_HEAD];
+    let (reply, head_only) = match read_head(&mut stream, &mut buf, Instant::now() + READ_TIMEOUT) {
+        Ok(head) => (answer(&head, port, shared, status), head.method == "HEAD"),
+        Err(Refused::Answer(code)) => (Reply::refusal(code), false),
+        Err(Refused::Drop) => return,
     };
-    // Whole, with its length: no chunked encoding, whatever its size (a status of 1500 points is
-    // about 100 kB; tiny_http chunks above 32 kB by default).
-    let response = Response::from_data(body)
-        .with_chunked_threshold(usize::MAX)
-        .with_header(header("Content-Type", kind))
-        .with_header(header("Content-Security-Policy", POLICY))
-        .with_header(header("Cache-Control", "no-store"))
-        .with_header(header("X-Content-Type-Options", "nosniff"));
-    request.respond(response)
+    drop(buf);
+    if send(&mut stream, &reply.bytes(head_only), Instant::now() + WRITE_TIMEOUT).is_ok() {
+        linger(&mut stream);
+    }
+}
+
+/// What a request head says that the server needs.
+struct Head<'a> {
+    method: &'a str,
+    /// The request target as sent: the path, with its query if any.
+    path: &'a str,
+    /// The value of the `Host` header when there is exactly one.
+    host: Option<&'a [u8]>,
+}
+
+/// Why a request is not answered: with a status code and the close, or with the close alone (the
+/// client closed, failed, or sent nothing within the time).
+enum Refused {
+    Answer(u16),
+    Drop,
+}
+
+/// Reads a request head into `buf` (of [`MAX_HEAD`] bytes) by `deadline`.
+fn read_head<'b>(stream: &mut TcpStream, buf: &'b mut [u8], deadline: Instant) -> Result<Head<'b>, Refused> {
+    let mut scan = Scan::default();
+    let mut len = 0;
+    let end = loop {
+        let Some(left) = left(deadline) else {
+            return Err(if len == 0 { Refused::Drop } else { Refused::Answer(408) });
+        };
+        stream.set_read_timeout(Some(left)).map_err(|_| Refused::Drop)?;
+        match stream.read(&mut buf[len..]) {
+            Ok(0) => return Err(Refused::Drop),
+            Ok(n) => len += n,
+            Err(e) if e.kind() == ErrorKind::Interrupted => continue,
+            // The deadline passed: the next turn says so.
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => continue,
+            Err(_) => return Err(Refused::Drop),
+        }
+        if let Some(end) = scan.more(&buf[..len]).map_err(Refused::Answer)? {
+            break end;
+        }
+        if len == buf.len() {
+            return Err(Refused::Answer(431));
+        }
+    };
+    parse(&buf[..end])
+}
+
+/// Parses a whole request head (its blank line included).
+fn parse(head: &[u8]) -> Result<Head<'_>, Refused> {
+    let mut headers = [httparse::EMPTY_HEADER; MAX_HEADERS];
+    let mut request = httparse::Request::new(&mut headers);
+    match request.parse(head) {
+        Ok(httparse::Status::Complete(_)) => {}
+        // `Scan` found the blank line where httparse did not: not a head httparse can read.
+        Ok(httparse::Status::Partial) => return Err(Refused::Answer(400)),
+        Err(httparse::Error::TooManyHeaders) => return Err(Refused::Answer(431)),
+        Err(_) => return Err(Refused::Answer(400)),
+    }
+    let (Some(method), Some(path)) = (request.method, request.path) else {
+        return Err(Refused::Answer(400));
+    };
+    let mut hosts = request.headers.iter().filter(|h| h.name.eq_ignore_ascii_case("Host"));
+    let host = match (hosts.next(), hosts.next()) {
+        (Some(h), None) => Some(h.value),
+        _ => None,
+    };
+    Ok(Head { method, path, host })
+}
+
+/// Finds the end of a request head as its bytes arrive, each line bounded to [`MAX_LINE`].
+#[derive(Default)]
+struct Scan {
+    /// Bytes already looked at.
+    seen: usize,
+    /// Where the line under way starts.
+    line: usize,
+    /// Lines of the head so far that were not empty (empty lines before the request line are
+    /// skipped, as httparse does).
+    lines: usize,
+}
+
+impl Scan {
+    /// Looks at the bytes of `buf` beyond those seen: the end of the head (just past the blank
+    /// line) once it arrived, `None` while it did not.
+    ///
+    /// # Errors
+    /// A line longer than [`MAX_LINE`]: 414 for the request line, 431 for a header.
+    fn more(&mut self, buf: &[u8]) -> Result<Option<usize>, u16> {
+        let too_long = |lines| if lines == 0 { 414 } else { 431 };
+        while let Some(at) = buf[self.seen..].iter().position(|&b| b == b'\n') {
+            let end = self.seen + at + 1;
+            let line = &buf[self.line..end - 1];
+            let line = line.strip_suffix(b"\r").unwrap_or(line);
+            if line.len() > MAX_LINE {
+                return Err(too_long(self.lines));
+            }
+            (self.seen, self.line) = (end, end);
+            if !line.is_empty() {
+                self.lines += 1;
+            } else if self.lines > 0 {
+                return Ok(Some(end));
+            }
+        }
+        self.seen = buf.len();
+        // Room for the CR of a line of MAX_LINE bytes.
+        if buf.len() - self.line > MAX_LINE + 1 {
+            return Err(too_long(self.lines));
+        }
+        Ok(None)
+    }
+}
+
+/// The time left before `deadline`, if any.
+fn left(deadline: Instant) -> Option<Duration> {
+    deadline.checked_duration_since(Instant::now()).filter(|d| !d.is_zero())
+}
+
+/// Writes `bytes` whole by `deadline`.
+fn send(stream: &mut TcpStream, mut bytes: &[u8], deadline: Instant) -> std::io::Result<()> {
+    while !bytes.is_empty() {
+        let left = left(deadline).ok_or(ErrorKind::TimedOut)?;
+        stream.set_write_timeout(Some(left))?;
+        match stream.write(bytes) {
+            Ok(0) => return Err(ErrorKind::WriteZero.into()),
+            Ok(n) => bytes = &bytes[n..],
+            Err(e) if e.kind() == ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// Closes the sending side, then reads and discards what the client still sends, for at most
+/// [`LINGER`] and [`LINGER_BYTES`], before the connection is closed.
+fn linger(stream: &mut TcpStream) {
+    let _ = stream.shutdown(Shutdown::Write);
+    let deadline = Instant::now() + LINGER;
+    let mut sink = [0u8; 4096];
+    let mut read = 0;
+    while read < LINGER_BYTES {
+        let Some(left) = left(deadline) else { break };
+        if stream.set_read_timeout(Some(left)).is_err() {
+            break;
+        }
+        match stream.read(&mut sink) {
+            Ok(0) => break,
+            Ok(n) => read += n,
+            Err(e) if e.kind() == ErrorKind::Interrupted => {}
+            Err(_) => break,
+        }
+    }
+}
+
+/// A response.
+struct Reply {
+    code: u16,
+    kind: &'static str,
+    body: Cow<'static, [u8]>,
+}
+
+impl Reply {
+    /// A refusal: the code, and a line that says why.
+    fn refusal(code: u16) -> Self {
+        Self {
+            code,
+            kind: "text/plain; charset=utf-8",
+            body: Cow::Borrowed(reason(code).1.as_bytes()),
+        }
+    }
+
+    /// The response as sent: status line, headers and, unless `head_only`, the body.
+    fn bytes(&self, head_only: bool) -> Vec<u8> {
+        let Self { code, kind, ref body } = *self;
+        let mut out = format!(
+            "HTTP/1.1 {code} {reason}\r\nContent-Type: {kind}\r\nContent-Length: {len}\r\n\
+             Content-Security-Policy: {POLICY}\r\nCache-Control: no-store\r\n\
+             X-Content-Type-Options: nosniff\r\nConnection: close\r\n",
+            reason = reason(code).0,
+            len = body.len(),
+        );
+        match code {
+            405 => out.push_str("Allow: GET, HEAD\r\n"),
+            503 => out.push_str("Retry-After: 1\r\n"),
+            _ => {}
+        }
+        out.push_str("\r\n");
+        let mut out = out.into_bytes();
+        if !head_only {
+            out.extend_from_slice(body);
+        }
+        out
+    }
+}
+
+/// The reason phrase of a status code, and the body of a refusal with that code.
+fn reason(code: u16) -> (&'static str, &'static str) {
+    match code {
+        200 => ("OK", ""),
+        400 => ("Bad Request", "not an HTTP/1.x request head\n"),
+        403 => ("Forbidden", "not this host\n"),
+        404 => ("Not Found", "not found\n"),
+        405 => ("Method Not Allowed", "GET or HEAD only\n"),
+        408 => ("Request Timeout", "the request head took too long\n"),
+        414 => ("URI Too Long", "the request line is too long\n"),
+        431 => (
+            "Request Header Fields Too Large",
+            "the headers are too long or too many\n",
+        ),
+        503 => ("Service Unavailable", "too many connections\n"),
+        _ => ("Error", "error\n"),
+    }
+}
+
+/// The response to a request head.
+fn answer(head: &Head, port: u16, shared: &Shared, status: &Mutex<Status>) -> Reply {
+    let host_ok = head
+        .host
+        .is_some_and(|h| h == format!("127.0.0.1:{port}").as_bytes() || h == format!("localhost:{port}").as_bytes());
+    if !host_ok {
+        return Reply::refusal(403);
+    }
+    if !matches!(head.method, "GET" | "HEAD") {
+        return Reply::refusal(405);
+    }
+    let (body, kind) = match head.path {
+        "/" | "/index.html" => (Cow::Borrowed(PAGE.as_bytes()), "text/html; charset=utf-8"),
+        "/live.js" => (Cow::Borrowed(SCRIPT.as_bytes()), "text/javascript; charset=utf-8"),
+        "/live.css" => (Cow::Borrowed(STYLE.as_bytes()), "text/css; charset=utf-8"),
+        "/status.json" => (Cow::Owned(now(shared, status)), "application/json"),
+        _ => return Reply::refusal(404),
+    };
+    Reply { code: 200, kind, body }
 }
 
 /// The status JSON at this moment.
@@ -190,3 +511,4 @@ pub fn thinned(len: usize, max: usize) -> impl Iterator<Item = usize> {
     let step = len.div_ceil(max.max(1)).max(1);
     (0..len).step_by(step)
 }
+
