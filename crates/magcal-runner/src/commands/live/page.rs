@@ -512,3 +512,466 @@ pub fn thinned(len: usize, max: usize) -> impl Iterator<Item = usize> {
     (0..len).step_by(step)
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::thread::JoinHandle;
+
+    /// A server on a free port, told to stop when dropped.
+    struct Server {
+        addr: SocketAddr,
+        shared: Arc<Shared>,
+    }
+
+    impl Server {
+        fn start() -> Self {
+            Self::with(Status::default())
+        }
+
+        fn with(status: Status) -> Self {
+            let shared = Shared::new(1 << 20);
+            let status = Arc::new(Mutex::new(status));
+            let addr = serve(0, &shared, &status).unwrap();
+            Self { addr, shared }
+        }
+
+        /// A new connection whose reads and writes give up after 10 s.
+        fn connect(&self) -> TcpStream {
+            let stream = TcpStream::connect(self.addr).unwrap();
+            stream.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+            stream.set_write_timeout(Some(Duration::from_secs(10))).unwrap();
+            stream
+        }
+
+        /// `request` sent whole on a new connection, and what came back.
+        fn exchange(&self, request: &[u8]) -> Response {
+            let mut stream = self.connect();
+            stream.write_all(request).unwrap();
+            Response::read(&mut stream)
+        }
+
+        fn request(&self, method: &str, path: &str, host: &str) -> Response {
+            self.exchange(format!("{method} {path} HTTP/1.1\r\nHost: {host}\r\n\r\n").as_bytes())
+        }
+
+        fn get(&self, path: &str) -> Response {
+            self.request("GET", path, &self.addr.to_string())
+        }
+    }
+
+    impl Drop for Server {
+        fn drop(&mut self) {
+            self.shared.stop.store(true, Ordering::Relaxed);
+        }
+    }
+
+    /// A response as a client read it up to the server's close.
+    #[derive(Debug)]
+    struct Response {
+        /// None: the connection closed before a whole response head came.
+        code: Option<u16>,
+        /// Names in lower case.
+        headers: Vec<(String, String)>,
+        body: Vec<u8>,
+    }
+
+    impl Response {
+        /// Reads to the close, or to a reset or the stream's timeout (what came before them counts).
+        fn read(stream: &mut TcpStream) -> Self {
+            let mut raw = Vec::new();
+            let _ = stream.read_to_end(&mut raw);
+            let Some(end) = raw.windows(4).position(|w| w == b"\r\n\r\n") else {
+                return Self {
+                    code: None,
+                    headers: Vec::new(),
+                    body: raw,
+                };
+            };
+            let head = String::from_utf8_lossy(&raw[..end]).into_owned();
+            let mut lines = head.split("\r\n");
+            let code = lines
+                .next()
+                .and_then(|l| l.split(' ').nth(1))
+                .and_then(|c| c.parse().ok());
+            let headers = lines
+                .filter_map(|l| l.split_once(':'))
+                .map(|(n, v)| (n.to_ascii_lowercase(), v.trim().to_string()))
+                .collect();
+            Self {
+                code,
+                headers,
+                body: raw[end + 4..].to_vec(),
+            }
+        }
+
+        fn header(&self, name: &str) -> Option<&str> {
+            self.headers.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_str())
+        }
+
+        /// The headers every response carries, with the length of the body that `GET` sends.
+        #[track_caller]
+        fn assert_headers(&self, length: usize) {
+            assert_eq!(
+                self.header("content-length"),
+                Some(length.to_string().as_str()),
+                "{self:?}"
+            );
+            assert_eq!(self.header("content-security-policy"), Some(POLICY), "{self:?}");
+            assert_eq!(self.header("cache-control"), Some("no-store"), "{self:?}");
+            assert_eq!(self.header("x-content-type-options"), Some("nosniff"), "{self:?}");
+            assert_eq!(self.header("transfer-encoding"), None, "{self:?}");
+        }
+    }
+
+    #[test]
+    fn answers_its_four_resources_to_its_own_host_with_get_and_head_only() {
+        let server = Server::start();
+        assert_eq!(server.addr.ip(), Ipv4Addr::LOCALHOST);
+        let port = server.addr.port();
+        for (path, kind, body) in [
+            ("/", "text/html; charset=utf-8", Some(PAGE)),
+            ("/index.html", "text/html; charset=utf-8", Some(PAGE)),
+            ("/live.js", "text/javascript; charset=utf-8", Some(SCRIPT)),
+            ("/live.css", "text/css; charset=utf-8", Some(STYLE)),
+            ("/status.json", "application/json", None),
+        ] {
+            for host in [format!("127.0.0.1:{port}"), format!("localhost:{port}")] {
+                let got = server.request("GET", path, &host);
+                assert_eq!(got.code, Some(200), "{path} {got:?}");
+                assert_eq!(got.header("content-type"), Some(kind), "{path}");
+                got.assert_headers(got.body.len());
+                if let Some(body) = body {
+                    assert_eq!(got.body, body.as_bytes(), "{path}");
+                }
+                // HEAD: the same head, the length of the body it does not send.
+                let head = server.request("HEAD", path, &host);
+                assert_eq!(head.code, Some(200), "{path} {head:?}");
+                head.assert_headers(got.body.len());
+                assert!(head.body.is_empty(), "{path} {head:?}");
+            }
+        }
+        let status: serde_json::Value = serde_json::from_slice(&server.get("/status.json").body).unwrap();
+        assert_eq!(status["fit"], 0, "{status}");
+        assert_eq!(status["ended"], false, "{status}");
+
+        // Another host's name for the address, another port, no port, no Host, two Hosts.
+        let own = format!("127.0.0.1:{port}");
+        for request in [
+            "GET / HTTP/1.1\r\nHost: attacker.example:80\r\n\r\n".to_string(),
+            format!("GET / HTTP/1.1\r\nHost: attacker.example:{port}\r\n\r\n"),
+            format!("GET / HTTP/1.1\r\nHost: 127.0.0.1:{}\r\n\r\n", port.wrapping_add(1)),
+            "GET / HTTP/1.1\r\nHost: localhost\r\n\r\n".to_string(),
+            "GET / HTTP/1.1\r\n\r\n".to_string(),
+            "GET / HTTP/1.0\r\n\r\n".to_string(),
+            format!("GET / HTTP/1.1\r\nHost: {own}\r\nHost: attacker.example\r\n\r\n"),
+        ] {
+            let got = server.exchange(request.as_bytes());
+            assert_eq!(got.code, Some(403), "{request:?} {got:?}");
+            got.assert_headers(got.body.len());
+        }
+        for method in ["POST", "PUT", "DELETE", "OPTIONS", "get"] {
+            let got = server.request(method, "/status.json", &own);
+            assert_eq!(got.code, Some(405), "{method} {got:?}");
+            assert_eq!(got.header("allow"), Some("GET, HEAD"), "{method}");
+            got.assert_headers(got.body.len());
+        }
+        for path in ["/../calibration.json", "/status.json?x=1", "/STATUS.JSON", "/live", "*"] {
+            let got = server.get(path);
+            assert_eq!(got.code, Some(404), "{path} {got:?}");
+            got.assert_headers(got.body.len());
+            let head = server.request("HEAD", path, &own);
+            assert_eq!(head.code, Some(404), "{path} {head:?}");
+            head.assert_headers(got.body.len());
+            assert!(head.body.is_empty(), "{path} {head:?}");
+        }
+    }
+
+    #[test]
+    fn refuses_a_request_head_beyond_its_bounds_and_serves_one_within_them() {
+        let server = Server::start();
+        let host = format!("Host: {}\r\n", server.addr);
+        // A header line of `len` bytes before its CR LF.
+        let pad = |len: usize| format!("X-Pad: {}\r\n", "p".repeat(len - "X-Pad: ".len()));
+        let head = |line: &str, headers: &[String]| format!("{line}\r\n{host}{}\r\n", headers.concat());
+        let path_of = |len: usize| format!("/{}", "a".repeat(len - "GET / HTTP/1.1".len()));
+        let cases = [
+            (
+                "request line of MAX_LINE",
+                head(&format!("GET {} HTTP/1.1", path_of(MAX_LINE)), &[]),
+                404,
+            ),
+            (
+                "request line of MAX_LINE + 1",
+                head(&format!("GET {} HTTP/1.1", path_of(MAX_LINE + 1)), &[]),
+                414,
+            ),
+            ("header line of MAX_LINE", head("GET / HTTP/1.1", &[pad(MAX_LINE)]), 200),
+            (
+                "header line of MAX_LINE + 1",
+                head("GET / HTTP/1.1", &[pad(MAX_LINE + 1)]),
+                431,
+            ),
+            (
+                "MAX_HEADERS headers",
+                head("GET / HTTP/1.1", &vec![pad(10); MAX_HEADERS - 1]),
+                200,
+            ),
+            (
+                "MAX_HEADERS + 1 headers",
+                head("GET / HTTP/1.1", &vec![pad(10); MAX_HEADERS]),
+                431,
+            ),
+            // 16 + 23 + 4 × 8002 + 2 = 32,049 bytes, then 40,059.
+            (
+                "a head below MAX_HEAD",
+                head("GET / HTTP/1.1", &vec![pad(8000); 4]),
+                200,
+            ),
+            (
+                "a head beyond MAX_HEAD",
+                head("GET / HTTP/1.1", &vec![pad(8000); 5]),
+                431,
+            ),
+            (
+                "bare line feeds",
+                head("GET / HTTP/1.1", &[]).replace("\r\n", "\n"),
+                200,
+            ),
+            ("not HTTP", "\u{1}\u{2}\u{3}\r\n\r\n".to_string(), 400),
+            (
+                "a header without a colon",
+                head("GET / HTTP/1.1", &["no colon\r\n".to_string()]),
+                400,
+            ),
+            ("no version", head("GET /", &[]), 400),
+        ];
+        for (what, request, code) in cases {
+            let got = server.exchange(request.as_bytes());
+            assert_eq!(got.code, Some(code), "{what}: {got:?}");
+            got.assert_headers(got.body.len());
+        }
+    }
+
+    #[test]
+    fn scan_finds_the_end_of_a_head_that_arrives_a_byte_at_a_time() {
+        let head = b"\r\nGET / HTTP/1.1\r\nHost: h\r\n\r\nGET /next HTTP/1.1\r\n";
+        let end = head.len() - "GET /next HTTP/1.1\r\n".len();
+        let mut scan = Scan::default();
+        for len in 1..end {
+            assert_eq!(scan.more(&head[..len]), Ok(None), "{len}");
+        }
+        assert_eq!(scan.more(&head[..end]), Ok(Some(end)));
+        let mut scan = Scan::default();
+        assert_eq!(scan.more(&head[..]), Ok(Some(end)));
+        // A request line or a header line longer than MAX_LINE, before its end arrived.
+        let long = vec![b'a'; MAX_LINE + 2];
+        assert_eq!(Scan::default().more(&long), Err(414));
+        assert_eq!(
+            Scan::default().more(&[b"GET / HTTP/1.1\r\n", &long[..]].concat()),
+            Err(431)
+        );
+        assert_eq!(Scan::default().more(&long[..MAX_LINE + 1]), Ok(None), "room for the CR");
+    }
+
+    #[test]
+    fn a_client_that_pipelines_and_never_reads_blocks_no_one() {
+        // A status as large as a fit's (MAX_POINTS directions and attitudes, about 150 kB): the
+        // answers to a few of the requests fill the greedy client's socket buffers, so that a
+        // server that answered its requests in turn would block in a write.
+        let points = (0..MAX_POINTS).map(|k| k as f64 * 0.123_456_789_012_3);
+        let server = Server::with(Status {
+            directions: points.clone().map(|x| [x, -x]).collect(),
+            attitudes: points.map(|x| [x, -x, x / 3.0]).collect(),
+            ..Status::default()
+        });
+        let request = format!("GET /status.json HTTP/1.1\r\nHost: {}\r\n\r\n", server.addr);
+        let mut greedy = server.connect();
+        // Its first request is in before the other client connects, the rest follow.
+        greedy.write_all(request.as_bytes()).unwrap();
+        let rest = request.repeat(9_999);
+        let greedy = std::thread::spawn(move || {
+            // Fails once the server closes.
+            let _ = greedy.write_all(rest.as_bytes());
+            greedy
+        });
+        // The other client is answered at once by a server that serves each connection on its
+        // own; by one that answers in turn, never (the greedy client stays open and does not
+        // read). 5 s tells the two apart with room for a loaded machine.
+        let started = Instant::now();
+        let got = server.get("/status.json");
+        let waited = started.elapsed();
+        assert_eq!(got.code, Some(200), "{got:?}");
+        assert!(waited < Duration::from_secs(5), "{waited:?}");
+        // The greedy client got one answer, then the close: nothing beyond the answer's length
+        // came (and maybe less: the server's close with requests unread is a reset, which drops
+        // the part of the answer the client's full buffers had not yet let through).
+        let mut greedy = greedy.join().unwrap();
+        let answered = Response::read(&mut greedy);
+        assert_eq!(answered.code, Some(200), "{:?}", answered.code);
+        let length: usize = answered.header("content-length").unwrap().parse().unwrap();
+        assert!(length > 100_000, "{length}");
+        assert!(answered.body.len() <= length, "{} > {length}", answered.body.len());
+    }
+
+    #[test]
+    fn a_huge_header_line_is_refused_after_a_bounded_read_and_others_are_served() {
+        let server = Server::start();
+        let mut stream = server.connect();
+        // The client's own send buffer small (loopback's grows to megabytes by itself), so that
+        // what its writes hand over is what the server's side took in, within 32 kB.
+        #[cfg(unix)]
+        small_send_buffer(&stream);
+        let mut reader = stream.try_clone().unwrap();
+        let answer = std::thread::spawn(move || Response::read(&mut reader));
+        stream
+            .write_all(format!("GET / HTTP/1.1\r\nHost: {}\r\nX-Huge: ", server.addr).as_bytes())
+            .unwrap();
+        // Up to 16 MiB of one header line, until the server closes.
+        let chunk = vec![b'h'; 64 * 1024];
+        let mut sent = 0;
+        let closed = loop {
+            if sent >= 16 << 20 {
+                break None;
+            }
+            match stream.write(&chunk) {
+                Ok(n) => sent += n,
+                Err(e) => break Some(e.kind()),
+            }
+        };
+        let got = answer.join().unwrap();
+        assert_eq!(got.code, Some(431), "{got:?}");
+        got.assert_headers(got.body.len());
+        // The server closed (a timeout of the write would mean it neither read nor closed), after
+        // taking in MAX_HEAD, LINGER_BYTES and what its socket's receive buffer holds: far less
+        // than 1 MiB.
+        assert!(
+            matches!(
+                closed,
+                Some(ErrorKind::BrokenPipe | ErrorKind::ConnectionReset | ErrorKind::ConnectionAborted)
+            ),
+            "{closed:?} after {sent} bytes"
+        );
+        #[cfg(unix)]
+        assert!(sent < 1 << 20, "{sent} bytes taken in");
+        assert_eq!(server.get("/status.json").code, Some(200));
+    }
+
+    /// Sets the send buffer of `stream` to 16 kB (Linux doubles it), which also stops its growth.
+    #[cfg(unix)]
+    fn small_send_buffer(stream: &TcpStream) {
+        use std::os::fd::AsRawFd;
+        let size: libc::c_int = 16 * 1024;
+        // SAFETY: a valid socket, and a pointer to an int with its length.
+        let done = unsafe {
+            libc::setsockopt(
+                stream.as_raw_fd(),
+                libc::SOL_SOCKET,
+                libc::SO_SNDBUF,
+                std::ptr::from_ref(&size).cast(),
+                libc::socklen_t::try_from(std::mem::size_of_val(&size)).unwrap(),
+            )
+        };
+        assert_eq!(done, 0, "{}", std::io::Error::last_os_error());
+    }
+
+    /// Sends a byte every 500 ms until the server answers or closes (10 s at most): how long after
+    /// `started` that came, and the code of the answer if any.
+    fn drip(mut stream: TcpStream, started: Instant) -> (Duration, Option<u16>) {
+        stream.set_read_timeout(Some(Duration::from_millis(500))).unwrap();
+        loop {
+            match stream.peek(&mut [0u8; 1]) {
+                Ok(0) => return (started.elapsed(), None),
+                Ok(_) => {
+                    let at = started.elapsed();
+                    stream.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+                    return (at, Response::read(&mut stream).code);
+                }
+                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                    if started.elapsed() > Duration::from_secs(10) || stream.write_all(b"s").is_err() {
+                        return (started.elapsed(), None);
+                    }
+                }
+                Err(_) => return (started.elapsed(), None),
+            }
+        }
+    }
+
+    #[test]
+    fn slow_clients_block_no_one_and_are_dropped_after_the_read_timeout() {
+        let server = Server::start();
+        let slow: Vec<JoinHandle<(Duration, Option<u16>)>> = (0..4)
+            .map(|_| {
+                let started = Instant::now();
+                let mut stream = server.connect();
+                stream.write_all(b"GET / HTTP/1.1\r\nX-Slow: ").unwrap();
+                std::thread::spawn(move || drip(stream, started))
+            })
+            .collect();
+        // Four clients hold a head open: a server that took its clients in turn would answer the
+        // fifth after 4 × READ_TIMEOUT = 8 s; one that serves each on its own, at once. 5 s tells
+        // the two apart with room for a loaded machine.
+        let started = Instant::now();
+        let got = server.get("/status.json");
+        let waited = started.elapsed();
+        assert_eq!(got.code, Some(200), "{got:?}");
+        assert!(waited < Duration::from_secs(5), "{waited:?}");
+        for slow in slow {
+            let (held, code) = slow.join().unwrap();
+            // Never before READ_TIMEOUT (counted from the server's accept, after `started`), and
+            // soon after it (3 s of room for a loaded machine).
+            assert!(held >= READ_TIMEOUT, "{held:?}");
+            assert!(held < READ_TIMEOUT + Duration::from_secs(3), "{held:?}");
+            assert_eq!(code, Some(408));
+        }
+    }
+
+    #[test]
+    fn connections_beyond_the_bound_are_turned_away_until_some_close() {
+        let server = Server::start();
+        // MAX_CONNECTIONS clients that began a head: each holds its place until it closes or
+        // READ_TIMEOUT passes.
+        let held: Vec<TcpStream> = (0..MAX_CONNECTIONS)
+            .map(|_| {
+                let mut stream = server.connect();
+                stream.write_all(b"GET / HTTP/1.1\r\n").unwrap();
+                stream
+            })
+            .collect();
+        // One more that only listens is answered 503 at once.
+        let mut listening = server.connect();
+        let got = Response::read(&mut listening);
+        assert_eq!(got.code, Some(503), "{got:?}");
+        assert_eq!(got.header("retry-after"), Some("1"));
+        got.assert_headers(got.body.len());
+        // One that sends a request is answered 503 too, or closed before it read the answer (when
+        // its request came after the server's close), but never served.
+        for _ in 0..3 {
+            let got = server.get("/status.json");
+            assert!(matches!(got.code, Some(503) | None), "{got:?}");
+        }
+        drop(held);
+        // Served again once they closed: their threads see the close at once (and give their
+        // places back after READ_TIMEOUT at the latest; 5 s leaves room for a loaded machine).
+        let started = Instant::now();
+        loop {
+            let got = server.get("/status.json");
+            if got.code == Some(200) {
+                break;
+            }
+            assert!(started.elapsed() < Duration::from_secs(5), "{got:?}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    #[test]
+    fn the_server_closes_its_port_when_the_command_stops() {
+        let server = Server::start();
+        assert_eq!(server.get("/").code, Some(200));
+        server.shared.stop.store(true, Ordering::Relaxed);
+        let started = Instant::now();
+        while TcpStream::connect(server.addr).is_ok() {
+            assert!(started.elapsed() < Duration::from_secs(5), "still listening");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
