@@ -21,7 +21,7 @@
 //!   most the timeouts above, never the server.
 //!
 //! Every response has its `Content-Length` (never chunked) and the headers `Content-Type`,
-//! `Content-Security-Policy` ([`POLICY`]), `Cache-Control: no-store` and
+//! `Content-Security-Policy` (`POLICY`, its own origin only), `Cache-Control: no-store` and
 //! `X-Content-Type-Options: nosniff`; a response to `HEAD` has no body.
 //!
 //! # Why not a server crate
