@@ -489,12 +489,13 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
                 state.counts.foreign += 1;
             }
         }
-        if let Some(w) = recorder.as_mut() {
-            for (r, _) in &records {
-                w.write_all(r).context("--record")?;
-            }
-            w.flush().context("--record")?;
-        }
+        // The recording is written after the state is released: a reader that waits on the disk
+        // under the lock would hold up the fits, and a fit the reader (datagrams dropped).
+        let recorded: Vec<Vec<u8>> = if recorder.is_some() {
+            records.iter().map(|(r, _)| r.clone()).collect()
+        } else {
+            Vec::new()
+        };
         if state.vehicle.is_none() {
             state.vehicle = state.autopilots().into_iter().find(|id| state.heard[id].imu > 0);
         }
@@ -507,6 +508,12 @@ fn read_mavlink(mut input: Box<dyn Input>, shared: &Shared, mut recorder: Option
         }
         drop(state);
         shared.changed.notify_all();
+        if let Some(w) = recorder.as_mut() {
+            for r in &recorded {
+                w.write_all(r).context("--record")?;
+            }
+            w.flush().context("--record")?;
+        }
     }
     Ok(())
 }
