@@ -62,7 +62,7 @@ pub const SUPERSEDE: f64 = 0.25;
 pub const SPHERE_READINGS: usize = 10;
 
 /// Directions searched on the sphere.
-const SPHERE_POINTS: usize = 2000;
+pub const SPHERE_POINTS: usize = 2000;
 
 /// One target of the plan.
 #[derive(Debug, Clone, Serialize, PartialEq)]
