@@ -9,9 +9,11 @@
 //! device held in the hand, the same increment over the whole sphere, [`sphere_targets`]); the
 //! plan follows them only when its own first target is flown, or when that target's variance
 //! `d(h) = h^T M^-1 h` under the readings so far (\[P1\] eq. (12): `det(M + h h^T) = det M (1 + d)`)
-//! has fallen below [`SUPERSEDE`] of the best fresh target's before any reading came within twice
-//! the flown cone: then flying it gains clearly less than flying the new one. A target being
-//! flown (or neared) is kept until it has its readings. Between two fits the best fresh target moves about on a flat
+//! has fallen below [`SUPERSEDE`] of the best fresh target's while the person is not on the way to
+//! it: then flying it gains clearly less than flying the new one. A target being flown, neared
+//! (a reading within twice the flown cone) or closed on (the newest reading a flown cone nearer
+//! than when it was shown) is kept until it has its readings, and a target shown for less than
+//! [`REACT_S`] is not judged. Between two fits the best fresh target moves about on a flat
 //! variance surface; the plan does not.
 
 // Index loops mirror the matrix algebra they implement.
@@ -21,6 +23,7 @@ use magcal_core::Vec3;
 use magcal_core::linear_model::{InformationMatrix, regression_row};
 use magcal_core::small::{Mat9, dot, mat_vec, norm, scale, spd_inverse};
 use serde::Serialize;
+use std::time::Instant;
 
 use crate::log::calibration::CalibrationJson;
 
@@ -54,8 +57,13 @@ pub const FLOWN_DEG: f64 = 15.0;
 /// fresh target's: a reading there would add `ln(1 + SUPERSEDE d)` to `ln det M` against
 /// `ln(1 + d)` at the best. At a half, the plan of a hand turning at 90 deg/s through a sphere
 /// was superseded more often than it was flown (3 against 2); a quarter keeps a target the hand
-/// is on its way to unless another is clearly better.
+/// is on its way to unless another is clearly better ([`REACT_S`] and the closing rule keep the
+/// one it is turning to).
 pub const SUPERSEDE: f64 = 0.25;
+
+/// Seconds a fresh plan is shown before it may be superseded: a person's time to read it and
+/// start to turn (the page is polled every half second, a fit comes every `--every`).
+pub const REACT_S: f64 = 2.0;
 
 /// Readings asked at a target on the sphere (a device in the hand: a pose held for about a
 /// second at common rates).
@@ -80,11 +88,17 @@ pub struct Target {
     pub flown: usize,
     /// The target in words: the attitude, or how to hold the sensor.
     pub words: String,
-    /// Readings near the direction, and within twice as far, when the target was set.
+    /// Readings near the direction when the target was set, and within twice as far when it was
+    /// shown (became the first).
     #[serde(skip)]
     near_at_set: usize,
     #[serde(skip)]
     approach_at_set: usize,
+    /// When the target was set, and how far (degrees) the newest reading then was from it.
+    #[serde(skip)]
+    set_at: Option<Instant>,
+    #[serde(skip)]
+    start_deg: f64,
 }
 
 impl Target {
@@ -110,6 +124,8 @@ impl Target {
             words,
             near_at_set: 0,
             approach_at_set: 0,
+            set_at: None,
+            start_deg: 180.0,
         }
     }
 
@@ -127,6 +143,8 @@ impl Target {
             words: hold_words(u),
             near_at_set: 0,
             approach_at_set: 0,
+            set_at: None,
+            start_deg: 180.0,
         }
     }
 }
@@ -277,15 +295,16 @@ pub struct Guide {
 }
 
 impl Guide {
-    /// The plan after a fit whose calibrated field directions (sensor frame) are `directions`,
-    /// whose readings' variance function is `variance`, and whose fresh targets are `fresh`
-    /// (empty where there are none: the plan is kept as it is).
+    /// The plan after a fit, at `now`, whose calibrated field directions (sensor frame, oldest
+    /// first) are `directions`, whose readings' variance function is `variance`, and whose fresh
+    /// targets are `fresh` (empty where there are none: the plan is kept as it is).
     pub fn update(
         &mut self,
         cal: &Sensor,
         directions: &[Vec3],
         variance: Option<&Variance>,
         fresh: Vec<Target>,
+        now: Instant,
     ) -> Change {
         let units: Vec<Vec3> = directions.iter().map(|&d| unit(d)).collect();
         let within = |u: Vec3, deg: f64| {
@@ -298,19 +317,38 @@ impl Guide {
             // The ring may have dropped readings near it since: flown counts never go back.
             t.flown = t.flown.max(near(t.field_direction).saturating_sub(t.near_at_set));
         }
+        let newest = units.last().copied();
+        let from_newest = |u: Vec3| newest.map_or(180.0, |d| dot(d, u).clamp(-1.0, 1.0).acos().to_degrees());
+        // A target is shown from `now` when it becomes the plan's first: the person turns to it
+        // from where the newest reading is.
+        let show = |t: &mut Target| {
+            t.approach_at_set = approach(t.field_direction);
+            t.set_at = Some(now);
+            t.start_deg = from_newest(t.field_direction);
+        };
         let mut change = Change::Kept;
         while self.plan.first().is_some_and(|t| t.flown >= t.readings) {
             self.plan.remove(0);
             self.flown += 1;
             change = Change::Flown;
+            if let Some(t) = self.plan.first_mut() {
+                show(t);
+            }
         }
         let d = |t: &Target| variance.map(|v| v.at(raw_at(cal, t.field_direction)));
-        // A target the hand has come within twice the flown cone of since it was set is being
-        // flown: it is kept until it has its readings (its variance falls as they come, as it
-        // should).
-        let reached = |t: &Target| t.flown > 0 || approach(t.field_direction) > t.approach_at_set;
+        // A target is being flown, and kept until it has its readings (its variance falls as
+        // they come, as it should), once the hand has come within twice the flown cone of it, or
+        // is closing on it: its newest reading a flown cone nearer than when it was shown. And a
+        // target shown for less than a person's reaction time is not judged.
+        let reached = |t: &Target| {
+            t.flown > 0
+                || approach(t.field_direction) > t.approach_at_set
+                || from_newest(t.field_direction) <= t.start_deg - FLOWN_DEG
+                || t.set_at
+                    .is_some_and(|at| now.duration_since(at).as_secs_f64() < REACT_S)
+        };
         let superseded = match (self.plan.first().filter(|t| !reached(t)), fresh.first()) {
-            (Some(now), Some(best)) => match (d(now), d(best)) {
+            (Some(head), Some(best)) => match (d(head), d(best)) {
                 (Some(a), Some(b)) => a < SUPERSEDE * b,
                 _ => false,
             },
@@ -330,11 +368,13 @@ impl Guide {
                 .into_iter()
                 .map(|mut t| {
                     t.near_at_set = near(t.field_direction);
-                    t.approach_at_set = approach(t.field_direction);
                     t.flown = 0;
                     t
                 })
                 .collect();
+            if let Some(t) = self.plan.first_mut() {
+                show(t);
+            }
         }
         change
     }
@@ -365,6 +405,7 @@ pub fn progress(predicted_deg: Option<f64>, budget_deg: f64, usable: bool) -> St
 mod tests {
     use super::*;
     use magcal_core::small::sub;
+    use std::time::Duration;
 
     /// A calibration of an ideal sensor (P = K = I, no bias) in a field of 500.
     fn ideal() -> Sensor {
@@ -424,12 +465,13 @@ mod tests {
         let v = Variance::new(&raw, 500.0).unwrap();
         let fresh = sphere_targets(&cal, &v);
         let mut g = Guide::default();
-        assert_eq!(g.update(&cal, &raw, Some(&v), fresh.clone()), Change::Started);
+        let t0 = Instant::now();
+        assert_eq!(g.update(&cal, &raw, Some(&v), fresh.clone(), t0), Change::Started);
         let first = g.plan[0].clone();
         // A fresh plan that differs a little (its first target 20 degrees away) does not move it.
         let mut moved = fresh.clone();
         moved[0] = Target::direction([0.34, 0.0, -0.94], SPHERE_READINGS);
-        assert_eq!(g.update(&cal, &raw, Some(&v), moved), Change::Kept);
+        assert_eq!(g.update(&cal, &raw, Some(&v), moved, later(t0, 5.0)), Change::Kept);
         assert_eq!(g.plan[0], first);
         // Readings at the target: it is flown after as many as it asked.
         let mut flown = raw.clone();
@@ -437,28 +479,30 @@ mod tests {
         flown.extend(std::iter::repeat_n(at, SPHERE_READINGS - 1));
         let v2 = Variance::new(&flown, 500.0).unwrap();
         let fresh2 = sphere_targets(&cal, &v2);
-        assert_eq!(g.update(&cal, &flown, Some(&v2), fresh2.clone()), Change::Kept);
+        assert_eq!(
+            g.update(&cal, &flown, Some(&v2), fresh2.clone(), later(t0, 6.0)),
+            Change::Kept
+        );
         assert_eq!(g.plan[0].flown, SPHERE_READINGS - 1);
         flown.push(at);
         let v3 = Variance::new(&flown, 500.0).unwrap();
         assert_eq!(
-            g.update(&cal, &flown, Some(&v3), sphere_targets(&cal, &v3)),
+            g.update(&cal, &flown, Some(&v3), sphere_targets(&cal, &v3), later(t0, 7.0)),
             Change::Flown
         );
         assert_eq!(g.flown, 1);
         assert_ne!(g.plan[0].field_direction, first.field_direction);
     }
 
-    #[test]
-    fn a_plan_whose_target_was_filled_otherwise_is_superseded() {
-        let cal = ideal();
-        let raw = cap(80);
-        let v = Variance::new(&raw, 500.0).unwrap();
-        let mut g = Guide::default();
-        g.update(&cal, &raw, Some(&v), sphere_targets(&cal, &v));
-        let first = g.plan[0].field_direction;
-        // Many readings land on a ring 35 degrees round the target (beyond twice its cone: not
-        // flown there, nor on the way to it), which takes most of its variance away.
+    /// `t0` and `s` seconds.
+    fn later(t0: Instant, s: f64) -> Instant {
+        t0 + Duration::from_secs_f64(s)
+    }
+
+    /// `first` and readings landing, 40 each, on a ring 35 degrees round it (beyond twice its
+    /// cone: not flown there, nor within its approach), which take most of its variance away,
+    /// then `tail` readings back on the cap the hand started from.
+    fn filled_round(raw: &[Vec3], first: Vec3, tail: usize) -> Vec<Vec3> {
         let e1 = unit(if first[0].abs() < 0.9 {
             [1.0, 0.0, 0.0]
         } else {
@@ -471,19 +515,62 @@ mod tests {
             first[0] * e1[1] - first[1] * e1[0],
         ];
         let (s35, c35) = (35f64.to_radians().sin(), 35f64.to_radians().cos());
-        let mut more = raw.clone();
+        let mut more = raw.to_vec();
         for k in 0..8 {
             let a = f64::from(k) * std::f64::consts::FRAC_PI_4;
             let on = unit([0, 1, 2].map(|i| c35 * first[i] + s35 * (a.cos() * e1[i] + a.sin() * e2[i])));
             more.extend(std::iter::repeat_n(scale(500.0, on), 40));
         }
+        more.extend(raw.iter().rev().take(tail).copied());
+        more
+    }
+
+    #[test]
+    fn a_plan_whose_target_was_filled_otherwise_is_superseded_once_shown_long_enough() {
+        let cal = ideal();
+        let raw = cap(80);
+        let v = Variance::new(&raw, 500.0).unwrap();
+        let mut g = Guide::default();
+        let t0 = Instant::now();
+        g.update(&cal, &raw, Some(&v), sphere_targets(&cal, &v), t0);
+        let first = g.plan[0].field_direction;
+        // The hand went round the target and back where it began.
+        let more = filled_round(&raw, first, 5);
         let v2 = Variance::new(&more, 500.0).unwrap();
         let d_old = v2.at(raw_at(&cal, first));
         let fresh = sphere_targets(&cal, &v2);
         let d_new = v2.at(raw_at(&cal, fresh[0].field_direction));
         assert!(d_old < SUPERSEDE * d_new, "{d_old} against {d_new}");
-        assert_eq!(g.update(&cal, &more, Some(&v2), fresh), Change::Superseded);
+        // Within a person's reaction time the plan stands; after it, it is superseded.
+        assert_eq!(
+            g.update(&cal, &more, Some(&v2), fresh.clone(), later(t0, 0.9 * REACT_S)),
+            Change::Kept
+        );
+        assert_eq!(g.plan[0].field_direction, first);
+        assert_eq!(
+            g.update(&cal, &more, Some(&v2), fresh, later(t0, REACT_S)),
+            Change::Superseded
+        );
         assert_eq!((g.superseded, g.flown), (1, 0));
+    }
+
+    #[test]
+    fn a_target_the_hand_is_closing_on_is_not_superseded() {
+        let cal = ideal();
+        let raw = cap(80);
+        let v = Variance::new(&raw, 500.0).unwrap();
+        let mut g = Guide::default();
+        let t0 = Instant::now();
+        g.update(&cal, &raw, Some(&v), sphere_targets(&cal, &v), t0);
+        let first = g.plan[0].field_direction;
+        // The same readings, but the newest is 35 degrees from the target: far nearer than the
+        // cap it was shown from, so the hand is on its way.
+        let more = filled_round(&raw, first, 0);
+        let v2 = Variance::new(&more, 500.0).unwrap();
+        let fresh = sphere_targets(&cal, &v2);
+        assert!(v2.at(raw_at(&cal, first)) < SUPERSEDE * v2.at(raw_at(&cal, fresh[0].field_direction)));
+        assert_eq!(g.update(&cal, &more, Some(&v2), fresh, later(t0, 10.0)), Change::Kept);
+        assert_eq!((g.superseded, g.plan[0].field_direction), (0, first));
     }
 
     #[test]

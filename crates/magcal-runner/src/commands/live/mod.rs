@@ -828,7 +828,13 @@ fn steer(args: &LiveArgs, progress: &mut Progress, f: &Fitted) {
             .map(|v| guide::sphere_targets(&sensor, v))
             .unwrap_or_default()
     };
-    progress.guide.update(&sensor, &directions, variance.as_ref(), fresh);
+    progress.guide.update(
+        &sensor,
+        &directions,
+        variance.as_ref(),
+        fresh,
+        std::time::Instant::now(),
+    );
 }
 
 /// One line on stderr: what arrived, what was kept and dropped, the fit and the next attitude;
