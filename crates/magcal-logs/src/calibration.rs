@@ -579,8 +579,9 @@ pub struct Coverage {
     /// every design of as many readings in the scenario's box, under the fitted sensor.
     pub d_efficiency_per_reading: Option<f64>,
     /// Why `d_efficiency_per_reading` is `null` where a box was given and the certificate was not
-    /// computed (`live` bounds each fit in time: `skipped: the coverage certificate did not finish
-    /// within 2 s`); absent otherwise.
+    /// computed: a fit that does not determine the sensor the certificate would be made under
+    /// (`not computed: ...`), or a bound in time (`live`'s: `skipped: the coverage certificate did
+    /// not finish within 2 s`); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub d_efficiency_why_not: Option<String>,
     /// The scenario that gave the box.

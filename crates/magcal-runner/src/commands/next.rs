@@ -531,17 +531,8 @@ fn augment(
         vehicle.seed,
         &budget,
     );
-    // What the passes gave once the deadline passed (a choice of attitudes it cut short, logs
-    // whose fits it stopped) is no verdict of them.
-    if deadline.expired() {
-        let stage = if tried.is_err() {
-            "next's choice of attitudes"
-        } else {
-            "next's simulated logs"
-        };
-        bail!("{}", deadline.skipped(stage));
-    }
-    let (passes, after_fit, chosen, added, flown) = tried.with_context(|| format!("{shown}: noise {noise}"))?;
+    let (passes, after_fit, chosen, added, flown) =
+        unless_expired(tried, deadline)?.with_context(|| format!("{shown}: noise {noise}"))?;
     drop(base);
     // The information of noise-free readings ([P1] eq. (12)).
     readings.extend(model.measure_all(&added));
@@ -574,6 +565,21 @@ fn augment(
         after_fit,
         flown,
     })
+}
+
+/// What the passes gave, unless `deadline` passed while they ran: a choice of attitudes it cut
+/// short (the passes' error then) or logs whose fits it stopped are no verdict of them, and the
+/// error says which was skipped.
+fn unless_expired(tried: Result<Tried>, deadline: &Deadline) -> Result<Result<Tried>> {
+    if !deadline.expired() {
+        return Ok(tried);
+    }
+    let stage = if tried.is_err() {
+        "next's choice of attitudes"
+    } else {
+        "next's simulated logs"
+    };
+    bail!("{}", deadline.skipped(stage))
 }
 
 /// The certified D-efficiency per reading of each information with its number of readings, in
