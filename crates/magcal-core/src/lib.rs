@@ -85,6 +85,7 @@ pub mod replay;
 pub mod rng;
 pub mod sensor;
 pub mod small;
+pub mod stop;
 pub mod vector;
 pub mod wmm;
 

@@ -578,6 +578,12 @@ pub struct Coverage {
     /// With `--scenario`: the certified D-efficiency per reading of the log's information against
     /// every design of as many readings in the scenario's box, under the fitted sensor.
     pub d_efficiency_per_reading: Option<f64>,
+    /// Why `d_efficiency_per_reading` is `null` where a box was given and the certificate was not
+    /// computed: a fit that does not determine the sensor the certificate would be made under
+    /// (`not computed: ...`), or a bound in time (`live`'s: `skipped: the coverage certificate did
+    /// not finish within 2 s`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub d_efficiency_why_not: Option<String>,
     /// The scenario that gave the box.
     pub box_from: Option<String>,
     /// With attitudes in the log: the roll, pitch and heading it visited, against the box.

@@ -16,6 +16,7 @@
 
 pub mod cli;
 pub mod commands;
+pub mod deadline;
 pub mod help;
 pub use magcal_logs::digest;
 pub mod limits;

@@ -44,6 +44,10 @@ pub enum CalibrationError {
         /// What failed.
         reason: &'static str,
     },
+    /// The fit's [`crate::stop::Stop`] was requested before it finished (a deadline passed, a
+    /// signal came): there is no estimate, whatever the readings determine.
+    #[error("stopped before it finished")]
+    Stopped,
 }
 
 /// The status of a calibration, as written in a trial's row.
@@ -118,6 +122,9 @@ impl CalibrationError {
             Self::NonFiniteReading { .. } | Self::InvalidFieldMagnitude { .. } => CalibrationStatus::NonFiniteInput,
             Self::RankDeficient { .. } => CalibrationStatus::RankDeficient,
             Self::NotPositiveDefinite { .. } => CalibrationStatus::NotPositiveDefinite,
+            // A fit given up before it converged; no status of its own, so that the tables that
+            // count every status keep their columns.
+            Self::Stopped => CalibrationStatus::NotConverged,
         }
     }
 }

@@ -24,6 +24,7 @@ pub use step2::Termination;
 use crate::linear_model::UNKNOWNS;
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, mat_vec, norm, sub, upper_triangular_inverse};
+use crate::stop::Stop;
 
 /// The estimate of one step: `P` and `O`, the error model they imply, and the fit's residual.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -90,6 +91,9 @@ pub struct TwoStep {
     pub noise_nt: Option<f64>,
     /// The residual step 2 minimises. Default [`step2::Residual::Paper`], \[P1\]'s.
     pub residual: step2::Residual,
+    /// Asked before every iteration of step 2, which ends with [`step2::Termination::Stopped`]
+    /// when it is requested. Default [`Stop::NEVER`].
+    pub stop: Stop,
 }
 
 impl Default for TwoStep {
@@ -101,6 +105,7 @@ impl Default for TwoStep {
             cost_tolerance: 1e-12,
             noise_nt: None,
             residual: step2::Residual::Paper,
+            stop: Stop::NEVER,
         }
     }
 }
@@ -153,7 +158,8 @@ impl TwoStep {
     ///
     /// # Errors
     /// See [`CalibrationError`]; none of them panics, and step 2 reaching its iteration limit is not
-    /// an error but [`CalibrationStatus::NotConverged`].
+    /// an error but [`CalibrationStatus::NotConverged`]. [`CalibrationError::Stopped`] when
+    /// [`Self::stop`] is requested before it returns.
     pub fn calibrate(&self, readings: &[Vec3], field_magnitude_nt: f64) -> CalibrationOutcome {
         let step1 = match step1::linear_fit(readings, field_magnitude_nt) {
             Err(CalibrationError::NotPositiveDefinite { .. }) if self.residual == step2::Residual::Readings => {
@@ -162,6 +168,9 @@ impl TwoStep {
             fit => fit?,
         };
         let refined = step2::refine(self, &step1, readings, field_magnitude_nt)?;
+        if self.stop.requested() {
+            return Err(CalibrationError::Stopped);
+        }
         Ok(Calibration {
             step1,
             step2: refined.estimate,
@@ -198,6 +207,9 @@ impl TwoStep {
         };
         let free = std::array::from_fn(|i| i >= 6 || free_p[i]);
         let refined = step2::refine_holding(&settings, &start, readings, field_magnitude_nt, free)?;
+        if self.stop.requested() {
+            return Err(CalibrationError::Stopped);
+        }
         Ok(Calibration {
             step1: start,
             step2: refined.estimate,

@@ -72,17 +72,20 @@ pub enum Termination {
     /// iterations is typically running along such a valley, where the least-squares minimum of
     /// noisy readings can lie at infinity (the ship of `scenarios/ship.toml`).
     FlatDirection,
+    /// The settings' [`crate::stop::Stop`] was requested (a deadline passed, a signal came):
+    /// asked before every iteration.
+    Stopped,
 }
 
 impl Termination {
-    /// `true` for the three convergence tests, `false` for the iteration limit and a flat
-    /// direction.
+    /// `true` for the three convergence tests, `false` for the iteration limit, a flat direction
+    /// and a stop.
     pub fn converged(&self) -> bool {
-        !matches!(self, Self::MaxIterations | Self::FlatDirection)
+        !matches!(self, Self::MaxIterations | Self::FlatDirection | Self::Stopped)
     }
 
     /// A stable snake_case name: `gradient`, `step_size`, `cost_reduction`, `max_iterations`,
-    /// `flat_direction`.
+    /// `flat_direction`, `stopped`.
     pub fn as_str(&self) -> &'static str {
         match self {
             Self::Gradient => "gradient",
@@ -90,6 +93,7 @@ impl Termination {
             Self::CostReduction => "cost_reduction",
             Self::MaxIterations => "max_iterations",
             Self::FlatDirection => "flat_direction",
+            Self::Stopped => "stopped",
         }
     }
 }
@@ -686,6 +690,9 @@ pub(crate) fn levenberg_marquardt<const N: usize>(
         }
         if iterations >= settings.max_iterations {
             break Termination::MaxIterations;
+        }
+        if settings.stop.requested() {
+            break Termination::Stopped;
         }
         if stop_on_flat
             && iterations >= FLAT_CHECK_FROM

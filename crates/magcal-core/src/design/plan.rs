@@ -311,7 +311,7 @@ impl PlanSearch {
         let mut weights: Vec<f64> = chosen.iter().map(|&i| approximate.weights[i] / total).collect();
         information_inverse(&rows, &weights)?;
         for _ in 0..self.rounds {
-            rex(&rows, &mut weights, 1e-6, 200, rng)?;
+            rex(&rows, &mut weights, 1e-6, 200, rng, &crate::stop::Stop::NEVER)?;
             refine(problem, &optimum, &mut points, &mut rows, &mut weights);
         }
         let kept: Vec<(Attitude, f64)> = points

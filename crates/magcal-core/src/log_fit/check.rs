@@ -222,14 +222,16 @@ pub(super) fn run(u: &[Vec3], fit: &LogFit, settings: &FitSettings) -> Option<(T
         // log's own fit measured how far its cost bends (six more fits, which would more than
         // double each trial's time).
         profile: false,
-        ..*settings
+        ..settings.clone()
     };
     // In rounds of ROUND trials, in trial order: once more trials have failed than a passing
     // check allows, the rest cannot change the verdict and are not run (the words say how many
     // ran). Each trial draws on its own stream, so the counts do not depend on the threads.
     let allowed = settings.trials - needed(settings.trials);
     let mut outcomes: Vec<Outcome> = Vec::with_capacity(settings.trials);
-    while outcomes.len() < settings.trials {
+    // A stop requested ends the check at the next round (each trial's fit also asks it): the
+    // caller throws away what a stopped check counted.
+    while outcomes.len() < settings.trials && !settings.stop.requested() {
         let from = outcomes.len();
         let to = (from + ROUND).min(settings.trials);
         outcomes.par_extend((from..to).into_par_iter().map(|t| {

@@ -307,7 +307,7 @@ pub(super) fn run(u: &[Vec3], f: &LogFit, settings: &FitSettings) -> Option<Held
         trials: 0,
         profile: false,
         held_out: false,
-        ..*settings
+        ..settings.clone()
     };
     let (kind, cuts) = cut(m, settings.order, settings.seed);
     let fits: Vec<Vec<Option<FoldFit>>> = cuts

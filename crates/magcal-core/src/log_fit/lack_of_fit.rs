@@ -6,6 +6,7 @@
 use super::{FitModel, LogFit, levenberg_marquardt};
 use crate::calibration::TwoStep;
 use crate::small::{Mat3, Vec3, mat_t_vec, mat_vec, norm, sub};
+use crate::stop::Stop;
 
 /// The lack-of-fit F test of a reduced fit against a richer one of the same readings: with
 /// residual sums of squares `Q_r`, `Q_f` in the readings' units (each residual divided by
@@ -55,7 +56,14 @@ pub(super) fn raw_sum_of_squares(p: &Mat3, bias: Vec3, readings: &[Vec3], magnit
 /// residuals: Levenberg-Marquardt with the weights `1 / |P^T u_i|` frozen in each step's gradient
 /// (the objective itself is exact, and only steps that lower it are taken; at most 200). Returns
 /// the sum reached, never above the start's.
-fn distance_refine(model: FitModel, p: &Mat3, bias: Vec3, readings: &[Vec3], magnitude: f64) -> Option<f64> {
+fn distance_refine(
+    model: FitModel,
+    p: &Mat3,
+    bias: Vec3,
+    readings: &[Vec3],
+    magnitude: f64,
+    stop: &Stop,
+) -> Option<f64> {
     // The parameters theta = (P11, P12, P13, P22, P23, P33, o1, o2, o3) of the full model are
     // linear in each model's own: theta = T x.
     let full: [[f64; 9]; 9] = std::array::from_fn(|i| std::array::from_fn(|j| f64::from(u8::from(i == j))));
@@ -71,21 +79,28 @@ fn distance_refine(model: FitModel, p: &Mat3, bias: Vec3, readings: &[Vec3], mag
     });
     let theta = crate::calibration::step2::pack(p, bias.map(|v| v / magnitude));
     let q = match model {
-        FitModel::Full => distance_lm(&full, theta, readings, magnitude),
-        FitModel::Diagonal => distance_lm(&diagonal, theta, readings, magnitude),
-        FitModel::Offset => distance_lm(&offset, theta, readings, magnitude),
+        FitModel::Full => distance_lm(&full, theta, readings, magnitude, stop),
+        FitModel::Diagonal => distance_lm(&diagonal, theta, readings, magnitude, stop),
+        FitModel::Offset => distance_lm(&offset, theta, readings, magnitude, stop),
     }?;
     Some(q.min(raw_sum_of_squares(p, bias, readings, magnitude)))
 }
 
 /// [`distance_refine`] in the parameters `x` of a model with `theta = T x`, from the `x` that
 /// reproduces `theta0` (its components read at the first 1 of each column of `T`).
-fn distance_lm<const N: usize>(T: &[[f64; N]; 9], theta0: [f64; 9], readings: &[Vec3], magnitude: f64) -> Option<f64> {
+fn distance_lm<const N: usize>(
+    T: &[[f64; N]; 9],
+    theta0: [f64; 9],
+    readings: &[Vec3],
+    magnitude: f64,
+    stop: &Stop,
+) -> Option<f64> {
     let theta = |x: &[f64; N]| -> [f64; 9] { std::array::from_fn(|i| (0..N).map(|j| T[i][j] * x[j]).sum()) };
     let x0: [f64; N] = std::array::from_fn(|j| (0..9).find(|&i| T[i][j] != 0.0).map_or(0.0, |i| theta0[i]));
     let u: Vec<Vec3> = readings.iter().map(|s| s.map(|v| v / magnitude)).collect();
     let settings = TwoStep {
         max_iterations: 200,
+        stop: stop.clone(),
         ..TwoStep::default()
     };
     let (x, _, _) = levenberg_marquardt(x0, &u, 1.0, &settings, |x, u| {
@@ -121,6 +136,12 @@ impl LackOfFit {
     /// the reduced fit. A reduced fit within 1e-9 of the magnitude everywhere (noise-free
     /// readings) is not rejected: its residual sum is rounding.
     pub fn test(reduced: &LogFit, richer: &[&LogFit], readings: &[Vec3]) -> Option<Self> {
+        Self::test_until(reduced, richer, readings, &Stop::NEVER)
+    }
+
+    /// [`Self::test`] whose fits ask `stop` before every iteration; what it returns once `stop` is
+    /// requested is cut short, for the caller to throw away.
+    pub(super) fn test_until(reduced: &LogFit, richer: &[&LogFit], readings: &[Vec3], stop: &Stop) -> Option<Self> {
         use statrs::distribution::{ContinuousCDF, FisherSnedecor};
         let m = readings.len();
         let R = reduced.magnitude;
@@ -142,7 +163,13 @@ impl LackOfFit {
             rms_residual_nt: reduced.residual_rms,
         };
         let step2 = (reduced.model != FitModel::Full)
-            .then(|| crate::calibration::step2::refine(&TwoStep::default(), &start, readings, R))
+            .then(|| {
+                let settings = TwoStep {
+                    stop: stop.clone(),
+                    ..TwoStep::default()
+                };
+                crate::calibration::step2::refine(&settings, &start, readings, R)
+            })
             .and_then(Result::ok)
             .map(|r| raw_sum_of_squares(&r.estimate.p, r.estimate.bias_nt, readings, R));
         // Each model at the smallest distance sum found: the reduced one refined from its fit,
@@ -151,7 +178,7 @@ impl LackOfFit {
         let least = |model: FitModel, own: Option<&LogFit>| {
             [
                 own.map(|f| raw_sum_of_squares(&f.p, f.bias, readings, R)),
-                distance_refine(model, &reduced.p, reduced.bias, readings, R),
+                distance_refine(model, &reduced.p, reduced.bias, readings, R, stop),
                 if model == FitModel::Full { step2 } else { None },
             ]
             .into_iter()

@@ -94,6 +94,7 @@ use rayon::prelude::*;
 use crate::calibration::{CalibrationError, CalibrationStatus, Termination, TwoStep, step2};
 use crate::sensor::ErrorModel;
 use crate::small::{Mat3, Vec3, cholesky_in_place, cholesky_solve, mat_t_vec, mat_vec, norm, sub};
+use crate::stop::Stop;
 
 /// The ellipsoid test's limit on the residual rms, percent of the magnitude. Readings on a
 /// magnetometer's ellipsoid scatter by the sensor's noise (the public logs: 0.85 % to 2.64 %);
@@ -170,7 +171,7 @@ pub enum Order {
 }
 
 /// What a fit knows beyond the readings, and how it is judged.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct FitSettings {
     /// The readings' noise per component, in the log's units, when known (a data sheet, a
     /// stationary recording). Default `None`: estimated from the residuals. A given noise that
@@ -198,6 +199,11 @@ pub struct FitSettings {
     /// Whether the fit is also made without each fold of the log and its standard errors set
     /// against the spread of those fits ([`HeldOut`]). Default `true`.
     pub held_out: bool,
+    /// When to give up: asked before every iteration of every fit the fit makes (its own, its
+    /// profile's, its trials', its held-out folds', its lack-of-fit test's) and before every
+    /// round of its trials. A fit whose stop is requested before it returns is
+    /// [`CalibrationError::Stopped`]. Default [`Stop::NEVER`].
+    pub stop: Stop,
 }
 
 impl Default for FitSettings {
@@ -211,6 +217,7 @@ impl Default for FitSettings {
             seed: CHECK_SEED,
             profile: true,
             held_out: true,
+            stop: Stop::NEVER,
         }
     }
 }
@@ -657,7 +664,18 @@ pub fn fit_with(
 ) -> Result<LogFit, CalibrationError> {
     let (frame, u) = prepare(readings, magnitude, model, settings)?;
     let unit = unit_settings(&frame, settings);
-    checked(fit_unit(&u, model, &unit)?, &u, &unit).out_of_frame(&frame, magnitude)
+    let fitted = fit_unit(&u, model, &unit).and_then(|f| checked(f, &u, &unit).out_of_frame(&frame, magnitude));
+    unless_stopped(settings, fitted)
+}
+
+/// `fitted`, or [`CalibrationError::Stopped`] where the settings' stop is requested: a fit whose
+/// parts were cut short is never returned as a fit. The stop stays requested once it has been,
+/// so this one look covers every part.
+fn unless_stopped<T>(settings: &FitSettings, fitted: Result<T, CalibrationError>) -> Result<T, CalibrationError> {
+    settings
+        .stop
+        .unless_requested(fitted)
+        .unwrap_or(Err(CalibrationError::Stopped))
 }
 
 /// `f` (a fit of `u` under `settings`, in its frame) with its check by trials and its held-out
@@ -836,7 +854,7 @@ fn unit_settings(frame: &Frame, settings: &FitSettings) -> FitSettings {
     FitSettings {
         noise: settings.noise.map(|s| s / frame.length),
         truncation: settings.truncation.map(|t| t / frame.length),
-        ..*settings
+        ..settings.clone()
     }
 }
 
@@ -845,6 +863,7 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
     let two_step = TwoStep {
         noise_nt: settings.noise,
         residual: settings.residual,
+        stop: settings.stop.clone(),
         ..TwoStep::default()
     };
     let (p, bias, iterations, termination) = match (model, settings.residual) {
@@ -859,6 +878,7 @@ fn fit_unit(u: &[Vec3], model: FitModel, settings: &FitSettings) -> Result<LogFi
     // Step 2's local check at the estimate is a first screen only: the statistics below judge
     // the fit, and a log's verdict is its check by trials (`check`).
     let status = match termination {
+        Termination::Stopped => return Err(CalibrationError::Stopped),
         Termination::FlatDirection => CalibrationStatus::NotIdentifiable,
         t if t.converged() => CalibrationStatus::Ok,
         _ => CalibrationStatus::NotConverged,
@@ -1076,7 +1096,7 @@ fn judged_profile(
         let part = every(u, k);
         let part_settings = FitSettings {
             profile: false,
-            ..*settings
+            ..settings.clone()
         };
         let Ok(g) = fit_unit(&part, model, &part_settings) else {
             continue;
@@ -1347,23 +1367,26 @@ pub fn fit_tested(
 ) -> Result<LogFit, CalibrationError> {
     let (frame, u) = prepare(readings, magnitude, model, settings)?;
     let unit = unit_settings(&frame, settings);
-    let f = fit_unit(&u, model, &unit)?;
-    let richer: Vec<LogFit> = [FitModel::Full, FitModel::Diagonal]
-        .into_iter()
-        .filter(|r| r.parameters() > model.parameters() && u.len() >= r.parameters())
-        .filter_map(|r| fit_unit(&u, r, &unit).ok())
-        .collect();
-    let f = checked(f, &u, &unit);
-    with_test(f, &richer.iter().collect::<Vec<_>>(), &u).out_of_frame(&frame, magnitude)
+    let tested = fit_unit(&u, model, &unit).and_then(|f| {
+        let richer: Vec<LogFit> = [FitModel::Full, FitModel::Diagonal]
+            .into_iter()
+            .filter(|r| r.parameters() > model.parameters() && u.len() >= r.parameters())
+            .filter_map(|r| fit_unit(&u, r, &unit).ok())
+            .collect();
+        let f = checked(f, &u, &unit);
+        with_test(f, &richer.iter().collect::<Vec<_>>(), &u, &unit.stop).out_of_frame(&frame, magnitude)
+    });
+    unless_stopped(settings, tested)
 }
 
-/// `f` with its lack-of-fit test against `richer`, the verdict extended when the log rejects it.
-fn with_test(mut f: LogFit, richer: &[&LogFit], readings: &[Vec3]) -> LogFit {
+/// `f` with its lack-of-fit test against `richer`, the verdict extended when the log rejects it;
+/// the test's fits ask `stop`.
+fn with_test(mut f: LogFit, richer: &[&LogFit], readings: &[Vec3], stop: &Stop) -> LogFit {
     // A fit the log does not determine is no hypothesis to test: its verdict says so already.
     if !f.identifiable {
         return f;
     }
-    f.lack_of_fit = LackOfFit::test(&f, richer, readings);
+    f.lack_of_fit = LackOfFit::test_until(&f, richer, readings, stop);
     if let Some(t) = f.lack_of_fit.as_ref().filter(|t| t.rejected) {
         f.verdict = format!("{}; but {}", f.verdict, t.words());
     }
@@ -1475,6 +1498,16 @@ pub fn fit_auto(
     magnitude: f64,
     settings: &FitSettings,
 ) -> Result<(LogFit, Vec<AutoReason>), CalibrationError> {
+    unless_stopped(settings, auto(readings, magnitude, settings))
+}
+
+/// [`fit_auto`], cut short where the settings' stop is requested.
+#[track_caller]
+fn auto(
+    readings: &[Vec3],
+    magnitude: f64,
+    settings: &FitSettings,
+) -> Result<(LogFit, Vec<AutoReason>), CalibrationError> {
     let (frame, u) = prepare(readings, magnitude, FitModel::Offset, settings)?;
     let unit = unit_settings(&frame, settings);
     let mut reasons = Vec::new();
@@ -1499,7 +1532,7 @@ pub fn fit_auto(
                     continue;
                 }
                 reasons.push(AutoReason::Identifiable(model));
-                let f = with_test(f, &richer.iter().collect::<Vec<_>>(), &u);
+                let f = with_test(f, &richer.iter().collect::<Vec<_>>(), &u, &unit.stop);
                 push_test(&mut reasons, &f);
                 return Ok((f.out_of_frame(&frame, magnitude)?, reasons));
             }
@@ -1520,7 +1553,7 @@ pub fn fit_auto(
     } else {
         AutoReason::NoneIdentifiable(FitModel::Offset)
     });
-    let f = with_test(f, &richer.iter().collect::<Vec<_>>(), &u);
+    let f = with_test(f, &richer.iter().collect::<Vec<_>>(), &u, &unit.stop);
     push_test(&mut reasons, &f);
     Ok((f.out_of_frame(&frame, magnitude)?, reasons))
 }
@@ -1718,6 +1751,59 @@ mod tests {
             .into_iter()
             .map(|s| s.map(|v| v / 1e5))
             .collect()
+    }
+
+    /// A stop that is never requested leaves every number of a fit as it is; one requested at
+    /// any question (before the first iteration, inside the fit, its profile, its trials or its
+    /// held-out folds, or at the last look before it returns) makes it no fit. The questions are
+    /// counted on the full fit of 300 readings over every attitude, its check and folds included.
+    #[test]
+    fn a_fit_stopped_at_any_step_is_no_fit() {
+        use std::sync::Arc;
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let readings = log(&paper::true_error_model(), &crate::AttitudeBox::full(), 300, 30.0, 21);
+        let field = paper::changsha_field().magnitude() / 1e5;
+        let json = |f: &LogFit| serde_json::to_string(f).unwrap();
+        let plain = fit_tested(&readings, field, FitModel::Full, &FitSettings::default()).unwrap();
+        assert!(
+            plain.usable && plain.check.is_some() && plain.held_out.is_some(),
+            "{:?}",
+            plain.reasons
+        );
+        // Requested after `k` questions: it stays requested from then on, as a stop must.
+        let after = |k: usize| {
+            let asked = Arc::new(AtomicUsize::new(0));
+            let counter = Arc::clone(&asked);
+            let settings = FitSettings {
+                stop: Stop::when(move || counter.fetch_add(1, Ordering::Relaxed) >= k),
+                ..FitSettings::default()
+            };
+            let fitted = fit_tested(&readings, field, FitModel::Full, &settings);
+            (fitted, asked.load(Ordering::Relaxed))
+        };
+        let (never, questions) = after(usize::MAX);
+        assert_eq!(json(&never.unwrap()), json(&plain));
+        // Every iteration of the fit, of its profile's six refits and of each of 200 trials and
+        // five folds asks once.
+        assert!(questions > 1000, "{questions}");
+        for k in [0, 1, questions / 3, 2 * questions / 3, questions - 1] {
+            assert_eq!(
+                after(k).0.unwrap_err(),
+                CalibrationError::Stopped,
+                "requested after {k} of {questions}"
+            );
+        }
+        assert_eq!(json(&after(questions).0.unwrap()), json(&plain));
+        // The automatic choice of model says the same.
+        let stopped = FitSettings {
+            stop: Stop::when(|| true),
+            ..FitSettings::default()
+        };
+        assert_eq!(
+            fit_auto(&readings, field, &stopped).unwrap_err(),
+            CalibrationError::Stopped
+        );
+        assert_eq!(CalibrationError::Stopped.status(), CalibrationStatus::NotConverged);
     }
 
     /// A long log's profile is a part's where the part's is straight, and the whole log's own

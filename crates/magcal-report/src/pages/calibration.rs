@@ -196,10 +196,16 @@ fn d_efficiency_row(cal: &CalibrationJson) -> Vec<Cell> {
             Cell::text(format!("certified D-efficiency per reading in the box of {box_from}")),
             Cell::number(e, 4),
         ],
-        None => vec![
-            Cell::text("certified D-efficiency per reading"),
-            Cell::text("- (no --scenario or box given to calibrate)"),
-        ],
+        None => match &cal.coverage.d_efficiency_why_not {
+            Some(why) => vec![
+                Cell::text(format!("certified D-efficiency per reading in the box of {box_from}")),
+                Cell::text(format!("- ({why})")),
+            ],
+            None => vec![
+                Cell::text("certified D-efficiency per reading"),
+                Cell::text("- (no --scenario or box given to calibrate)"),
+            ],
+        },
     }
 }
 

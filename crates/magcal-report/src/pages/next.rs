@@ -41,6 +41,10 @@ pub struct NextJson {
     /// information per reading than any design inside the box.
     pub d_efficiency_before: Option<f64>,
     pub d_efficiency_after: Option<f64>,
+    /// Why both are `null` where the certificate was not computed (`live` bounds each fit in
+    /// time: `skipped: next's coverage certificate did not finish within 2 s`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub d_efficiency_why_not: Option<String>,
     /// MotionCal's gaps (percent) of the calibrated field directions, before and after.
     pub motioncal_gap_percent_before: f64,
     pub motioncal_gap_percent_after: f64,

@@ -7,9 +7,11 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use magcal_core::aviation::{NavFrame, dcm_of_euler, euler_of_dcm, from_ned, roll_pitch_heading_deg};
 use magcal_core::small::Mat3;
+use magcal_core::stop::Stop;
 use magcal_core::{CramerRao, InformationMatrix, PhysicalScales, Vec3, log_fit};
 
 use super::Failure;
+use crate::deadline::Deadline;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
 use crate::log::read::HELD_BYTES_PER_READING;
 use crate::log::source::{self, Log, LogArgs};
@@ -166,7 +168,7 @@ fn next_inner(args: &NextArgs) -> Result<()> {
     }
     let page = page_output(args)?;
     let cal = read_calibration(&args.calibration)?;
-    let (json, counts) = suggest(args, &cal)?;
+    let (json, counts) = suggest(args, &cal, &Deadline::none())?;
     // The report is formatted in memory (a few kilobytes) and written at the end, so that a
     // failed write is one error.
     let mut w = Vec::new();
@@ -226,7 +228,7 @@ pub fn json(args: &NextArgs, cal: &CalibrationJson) -> Result<String> {
     if args.scenario.is_none() && args.site.is_none() {
         serde_json::to_writer_pretty(&mut w, &flight_json(args, cal)?)?;
     } else {
-        serde_json::to_writer_pretty(&mut w, &suggest(args, cal)?.0)?;
+        serde_json::to_writer_pretty(&mut w, &suggest(args, cal, &Deadline::none())?.0)?;
     }
     writeln!(w)?;
     Ok(String::from_utf8(w)?)
@@ -344,8 +346,10 @@ struct Augmented {
     body: Vec<Vec3>,
     /// The Cramer-Rao bounds before and after.
     crb: [CramerRao; 2],
-    /// The certified D-efficiency per reading before and after.
+    /// The certified D-efficiency per reading before and after, and why they are `None` where the
+    /// deadline left the certificate unfinished.
     efficiency: [Option<f64>; 2],
+    efficiency_why_not: Option<String>,
     /// The full fit of the log with the added readings simulated (the first of its logs).
     after_fit: Result<log_fit::LogFit, magcal_core::CalibrationError>,
     /// The logs flown at the passes settled on (or the last tried).
@@ -358,12 +362,31 @@ struct Augmented {
 /// # Errors
 /// As [`run`].
 pub fn suggestion(args: &NextArgs, cal: &CalibrationJson) -> Result<NextJson> {
-    Ok(suggest(args, cal)?.0)
+    suggestion_within(args, cal, &Deadline::none())
+}
+
+/// [`suggestion`] within `deadline`: what `live` asks of each fit, so that it never holds the
+/// stream up for longer than the deadline, and a signal ends it.
+///
+/// The choice of attitudes (every attitude added, every start of its local search) and the logs
+/// simulated with them (every iteration of their fits, every round of their trials) ask the
+/// deadline; where it cuts either short or leaves it no time, there is no suggestion, and the
+/// error says so ([`Deadline::skipped`]: `skipped: next's simulated logs did not finish within
+/// 2 s`). The coverage certificate comes last: where the deadline cuts it short, the suggestion
+/// stands with `d_efficiency_before` and `d_efficiency_after` `null` and why in
+/// `d_efficiency_why_not`. Reading the log again and the simulation of its readings are single
+/// passes, run to their end. With [`Deadline::none`] it is [`suggestion`], number for number.
+///
+/// # Errors
+/// As [`suggestion`]; the deadline, where it ended the work before the attitudes were settled.
+pub fn suggestion_within(args: &NextArgs, cal: &CalibrationJson, deadline: &Deadline) -> Result<NextJson> {
+    Ok(suggest(args, cal, deadline)?.0)
 }
 
 /// The attitudes to add and every figure of them, with the readings per MotionCal region of the
-/// log's calibrated field directions before and after.
-fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize; 100]; 2])> {
+/// log's calibrated field directions before and after; within `deadline`
+/// ([`suggestion_within`]).
+fn suggest(args: &NextArgs, cal: &CalibrationJson, deadline: &Deadline) -> Result<(NextJson, [[usize; 100]; 2])> {
     let shown = args.calibration.display().to_string();
     let place = args.site.zip(args.date).map(|(site, date)| Place {
         site,
@@ -376,7 +399,14 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize;
     let log = read_log(args, cal)?;
     let (planned, planned_under) = planning_sensor(cal, &log.readings);
     let (problem, factor) = fitted_problem(&planned, &vehicle).with_context(|| shown.clone())?;
-    let a = augment(args, &planned, &vehicle, &problem, factor, (log.readings, log.in_time))?;
+    let a = augment(
+        args,
+        &planned,
+        (&vehicle, &problem),
+        factor,
+        (log.readings, log.in_time),
+        deadline,
+    )?;
     let (body_log, body_all) = (&a.body[..a.m], &a.body[..]);
     let counts = [
         log_fit::motioncal_region_counts(body_log),
@@ -399,6 +429,7 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson) -> Result<(NextJson, [[usize;
         parameters: parameters(&a.crb, factor),
         d_efficiency_before: a.efficiency[0],
         d_efficiency_after: a.efficiency[1],
+        d_efficiency_why_not: a.efficiency_why_not,
         motioncal_gap_percent_before: log_fit::motioncal_gaps(body_log),
         motioncal_gap_percent_after: log_fit::motioncal_gaps(body_all),
         microstrain_coverage_percent_before: log_fit::microstrain_coverage_percent(body_log),
@@ -439,16 +470,18 @@ fn few_attitudes(why: String, attitudes: usize) -> String {
     )
 }
 
-/// The D-optimal augmentation of the log's `readings` (its units) under the planning sensor, the
-/// passes over it that make the log usable, and what they give.
+/// The D-optimal augmentation of the log's `readings` (its units) under the planning sensor (the
+/// vehicle's `problem`), the passes over it that make the log usable, and what they give; within
+/// `deadline` ([`suggestion_within`]).
 fn augment(
     args: &NextArgs,
     cal: &CalibrationJson,
-    vehicle: &Vehicle,
-    problem: &magcal_core::design::DesignProblem,
+    (vehicle, problem): (&Vehicle, &magcal_core::design::DesignProblem),
     factor: f64,
     (log_readings, in_time): (Vec<Vec3>, bool),
+    deadline: &Deadline,
 ) -> Result<Augmented> {
+    let stop = deadline.stop();
     let shown = args.calibration.display().to_string();
     let m = log_readings.len();
     let field = vehicle.field;
@@ -468,7 +501,8 @@ fn augment(
         let info = before.matrix().map(|row| row.map(|v| v / passes as f64));
         vehicle
             .certificate
-            .augment(problem, &info, args.count as usize)
+            .augment_until(problem, &info, args.count as usize, &stop)
+            .map_err(|_| anyhow::anyhow!("{}", deadline.skipped("next's choice of attitudes")))?
             .with_context(|| format!("{}: the log's information is singular", args.log.display()))
     };
     let noise = cal
@@ -488,16 +522,17 @@ fn augment(
     } else {
         log_fit::Order::Unknown
     };
-    let (passes, after_fit, chosen, added, flown) = passes_to_usable(
+    let tried = passes_to_usable(
         &mut base,
         &model,
         |p| choose(p).map(|c| (body_fields(&c), c)),
-        (noise * factor, order),
+        (noise * factor, order, &stop),
         r,
         vehicle.seed,
         &budget,
-    )
-    .with_context(|| format!("{shown}: noise {noise}"))?;
+    );
+    let (passes, after_fit, chosen, added, flown) =
+        unless_expired(tried, deadline)?.with_context(|| format!("{shown}: noise {noise}"))?;
     drop(base);
     // The information of noise-free readings ([P1] eq. (12)).
     readings.extend(model.measure_all(&added));
@@ -510,9 +545,8 @@ fn augment(
     }
     let n_added = added.len();
     readings.extend(added);
-    let certificate = vehicle.certificate(problem);
-    let efficiency =
-        |info: &InformationMatrix, m: usize| certificate.as_ref().map(|c| c.efficiency_bound(info.ln_det_nt(), m));
+    let (efficiency, efficiency_why_not) =
+        efficiencies((vehicle, problem), [(&before, m), (&after, m + n_added)], deadline);
     // Standard errors under the planning sensor at the log's noise.
     let scales = PhysicalScales::default();
     let sigma = noise * factor;
@@ -522,7 +556,8 @@ fn augment(
     ];
     Ok(Augmented {
         m,
-        efficiency: [efficiency(&before, m), efficiency(&after, m + n_added)],
+        efficiency,
+        efficiency_why_not,
         chosen,
         passes,
         body: readings,
@@ -530,6 +565,38 @@ fn augment(
         after_fit,
         flown,
     })
+}
+
+/// What the passes gave, unless `deadline` passed while they ran: a choice of attitudes it cut
+/// short (the passes' error then) or logs whose fits it stopped are no verdict of them, and the
+/// error says which was skipped.
+fn unless_expired(tried: Result<Tried>, deadline: &Deadline) -> Result<Result<Tried>> {
+    if !deadline.expired() {
+        return Ok(tried);
+    }
+    let stage = if tried.is_err() {
+        "next's choice of attitudes"
+    } else {
+        "next's simulated logs"
+    };
+    bail!("{}", deadline.skipped(stage))
+}
+
+/// The certified D-efficiency per reading of each information with its number of readings, in
+/// the vehicle's box under `problem`'s sensor (`None` where no design in the box determines the
+/// model); both `None`, and why, where `deadline` cuts the certificate short.
+fn efficiencies(
+    (vehicle, problem): (&Vehicle, &magcal_core::design::DesignProblem),
+    informations: [(&InformationMatrix, usize); 2],
+    deadline: &Deadline,
+) -> ([Option<f64>; 2], Option<String>) {
+    match vehicle.certificate_until(problem, &deadline.stop()) {
+        Ok(c) => (
+            informations.map(|(info, m)| c.as_ref().map(|c| c.efficiency_bound(info.ln_det_nt(), m))),
+            None,
+        ),
+        Err(_) => ([None; 2], Some(deadline.skipped("next's coverage certificate"))),
+    }
 }
 
 /// The log's readings (nT) as the planning sensor reads them. Added readings of the planning
@@ -604,12 +671,12 @@ struct SimulatedLogs {
 /// so) in [`NEXT_LOGS_USABLE`] of [`NEXT_LOGS`] logs whose added readings are drawn afresh (the
 /// first drawn; the others only where it is usable). Returns the passes (`None` where even the
 /// most do not), the first log's fit, the attitudes and the body fields added at the last tried,
-/// and its logs. `readings` holds the log and the last readings tried.
+/// and its logs. `readings` holds the log and the last readings tried. The fits ask `stop`.
 fn passes_to_usable(
     readings: &mut Vec<Vec3>,
     model: &magcal_core::ErrorModel,
     choose: impl Fn(usize) -> Result<Chosen>,
-    (sigma, order): (f64, log_fit::Order),
+    (sigma, order, stop): (f64, log_fit::Order, &Stop),
     r: f64,
     seed: u64,
     budget: &(magcal_core::budget::BudgetGrid, f64),
@@ -627,6 +694,7 @@ fn passes_to_usable(
             r,
             order,
             (&budget.0, budget.1),
+            stop,
         ))
     };
     let figure = |f: &FitResult| {

@@ -5,6 +5,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use magcal_core::stop::{Stop, Stopped};
 
 use super::calibration::CalibrationJson;
 pub use super::gps::Place;
@@ -72,10 +73,21 @@ impl Vehicle {
         &self,
         problem: &magcal_core::design::DesignProblem,
     ) -> Option<magcal_core::design::approximate::Certificate> {
-        self.certificate
-            .compute(problem, &mut crate::pipeline::certificate_rng(self.seed))
-            .ok()
-            .map(|a| a.certificate)
+        self.certificate_until(problem, &Stop::NEVER).ok().flatten()
+    }
+
+    /// [`Self::certificate`], given up when `stop` is requested ([`Stopped`]).
+    ///
+    /// # Errors
+    /// [`Stopped`] when `stop` was requested before the search finished.
+    pub fn certificate_until(
+        &self,
+        problem: &magcal_core::design::DesignProblem,
+        stop: &Stop,
+    ) -> Result<Option<magcal_core::design::approximate::Certificate>, Stopped> {
+        let mut rng = crate::pipeline::certificate_rng(self.seed);
+        let design = self.certificate.compute_until(problem, &mut rng, stop)?;
+        Ok(design.ok().map(|a| a.certificate))
     }
 
     pub fn from_scenario(path: &Path) -> Result<Self> {
@@ -173,7 +185,8 @@ pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magc
 
 /// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box:
 /// `None` when no design in the box determines the linear model. Above 1 when the readings hold
-/// more information per reading than any design in the box: they come from outside it.
+/// more information per reading than any design in the box: they come from outside it. Inside,
+/// [`Stopped`] when `stop` was requested before the box's certificate was found.
 ///
 /// # Errors
 /// As [`fitted_problem`].
@@ -181,13 +194,14 @@ pub fn log_efficiency(
     cal: &CalibrationJson,
     scenario: &Vehicle,
     readings: &[magcal_core::Vec3],
-) -> Result<Option<f64>> {
+    stop: &Stop,
+) -> Result<Result<Option<f64>, Stopped>> {
     let (problem, factor) = fitted_problem(cal, scenario)?;
     let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|s| s.map(|v| v * factor)).collect();
     let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
     Ok(scenario
-        .certificate(&problem)
-        .map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len())))
+        .certificate_until(&problem, stop)
+        .map(|c| c.map(|c| c.efficiency_bound(info.ln_det_nt(), readings.len()))))
 }
 
 #[cfg(test)]

@@ -236,6 +236,7 @@ fn logs_usable(scenario: &Scenario, stream: &[u64], body: &[magcal_core::Vec3], 
                 magnitude,
                 magcal_core::log_fit::Order::Unknown,
                 (&grid, scenario.heading_budget_deg),
+                &magcal_core::stop::Stop::NEVER,
             );
             Ok(fit.is_ok_and(|f| f.usable))
         })
@@ -254,18 +255,21 @@ fn trial_rng(seed: u64, stream: &[u64], t: usize) -> magcal_core::rng::MagcalRng
 
 /// The full fit of a log's `readings` (in `order`) to the field's `magnitude`, judged as
 /// `calibrate` judges a log: its check by trials, its held-out fits and its heading over `grid`
-/// against `budget_deg` (`usable` says all of it).
+/// against `budget_deg` (`usable` says all of it); its fits ask `stop`.
 ///
 /// # Errors
-/// Where the readings determine no fit.
+/// Where the readings determine no fit; [`magcal_core::CalibrationError::Stopped`] where `stop`
+/// was requested.
 pub fn judged_as_calibrate(
     readings: &[magcal_core::Vec3],
     magnitude: f64,
     order: magcal_core::log_fit::Order,
     (grid, budget_deg): (&magcal_core::budget::BudgetGrid, f64),
+    stop: &magcal_core::stop::Stop,
 ) -> Result<magcal_core::log_fit::LogFit, magcal_core::CalibrationError> {
     let settings = magcal_core::log_fit::FitSettings {
         order,
+        stop: stop.clone(),
         ..magcal_core::log_fit::FitSettings::default()
     };
     magcal_core::log_fit::fit_with(readings, magnitude, FitModel::Full, &settings).map(|mut f| {

@@ -167,7 +167,7 @@ pub(crate) fn start_live(args: &[&str]) -> (Child, String, mpsc::Receiver<Vec<St
 }
 
 /// As [`start_live`], with its first `n` lines.
-fn start_live_lines(args: &[&str], n: usize) -> (Child, Vec<String>, mpsc::Receiver<Vec<String>>) {
+pub(crate) fn start_live_lines(args: &[&str], n: usize) -> (Child, Vec<String>, mpsc::Receiver<Vec<String>>) {
     let mut child = magcal_process()
         .arg("live")
         .args(args)

@@ -17,6 +17,7 @@ mod dataflash;
 mod evaluate;
 mod exit_codes;
 mod export;
+mod fit_bound;
 mod fuzz;
 mod gps;
 mod hostile;

@@ -8,6 +8,7 @@ use magcal_core::reference::Alignment;
 use magcal_core::small::{Mat3, mat_mul, transpose};
 
 use super::CalibrateArgs;
+use crate::deadline::Deadline;
 use crate::log::calibration::{CalibrationJson, HeadingBudgetJson};
 use crate::log::flight::Format;
 use crate::log::source::Log;
@@ -172,8 +173,9 @@ fn to_json(v: HeadingVerdict, field: String, axes: String) -> HeadingBudgetJson 
 /// Where the budget is not met and the vehicle's box is known: the attitudes `next` would add
 /// (its D-optimal augmentation of the log in the box) and the heading the log with them is
 /// predicted to leave, in words, added to the reason; `None` where `next` does not apply (no box,
-/// a vector fit, a log from standard input) or finds nothing.
-pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
+/// a vector fit, a log from standard input) or finds nothing. Within `deadline`: where it leaves
+/// `next` no time or cuts it short, that is said instead.
+pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson, deadline: &Deadline) {
     let unmet = json.heading_budget.as_ref().is_some_and(|b| !b.verdict.met);
     let boxed = args.scenario.is_some() || args.attitude.any();
     if !unmet || !boxed || args.fit.vector_model().is_some() || args.log.as_os_str() == "-" {
@@ -205,8 +207,16 @@ pub fn what_to_fly(args: &CalibrateArgs, json: &mut CalibrationJson) {
         input: args.input.clone(),
         heading_budget: args.heading_budget,
     };
+    if deadline.expired() {
+        return add_to_reason(json, deadline.skipped("what to fly next (`magcal next`)"));
+    }
     // Quietly: what next would warn of a log it reads again is calibrate's to say.
-    let Ok(n) = crate::output::capture::capturing(|| crate::commands::next::suggestion(&next, json)).0 else {
+    let suggested =
+        crate::output::capture::capturing(|| crate::commands::next::suggestion_within(&next, json, deadline)).0;
+    if deadline.expired() {
+        return add_to_reason(json, deadline.skipped("what to fly next (`magcal next`)"));
+    }
+    let Ok(n) = suggested else {
         return;
     };
     let Some(first) = n.attitudes.first() else { return };

@@ -16,9 +16,11 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use magcal_core::log_fit::{self, AutoReason, FitModel, FitSettings, LogFit, Noise, Order};
 use magcal_core::small::upper_triangular_inverse;
+use magcal_core::stop::Stopped;
 use magcal_logs::text::significant;
 
 use super::Failure;
+use crate::deadline::Deadline;
 use crate::digest::{Hashing, sha256_hex};
 use crate::log::calibration::{
     CalibrationJson, CheckJson, CorrelationJson, Coverage, EllipsoidJson, HeldOutJson, IntervalJson, LackOfFitJson,
@@ -300,20 +302,54 @@ pub fn run(args: &CalibrateArgs) -> Result<(), Failure> {
 /// # Errors
 /// A bad option, or one that does not apply to the log (exit 2 on the command line).
 pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Failure> {
+    calibrate_within(args, log, &Deadline::none())
+}
+
+/// [`calibrate`] within `deadline`: what `live` fits each snapshot of the stream with, so that a
+/// fit never holds the stream up for longer than the deadline, and a signal ends it.
+///
+/// Every stage asks the deadline: the fit (its iterations, its check by trials, its held-out
+/// folds, `--reject`'s and the motors' refits), the heading budget, the one-field checks, the
+/// coverage certificate of the box and what to fly next. A stage it leaves no time for is
+/// skipped, and one it cuts short is thrown away, each said in words
+/// ([`Deadline::skipped`]: `skipped: the coverage certificate did not finish within 2 s`):
+/// - the fit: [`Calibrated::NoFit`], that the reason;
+/// - the heading budget or the one-field checks (part of the verdict): the calibration, not
+///   usable, that among its reasons;
+/// - the coverage certificate: `coverage.d_efficiency_per_reading` `null`, that in
+///   `coverage.d_efficiency_why_not` (the verdict does not rest on it);
+/// - what to fly next: that in the heading budget's `next`.
+///
+/// The work left when the deadline passes is one step of a loop: an iteration of a fit (up to
+/// about 0.2 s on a million readings), a round of trials, a support point of the certificate's
+/// exchanges (under a millisecond). Stages that are one pass over the readings (reading the
+/// glitches, the heading against the log's attitudes) and a vector fit (`--fit vector*`) run to
+/// their end, and the deadline is looked at after them. With [`Deadline::none`] it is
+/// [`calibrate`], step for step and number for number.
+///
+/// # Errors
+/// As [`calibrate`].
+pub fn calibrate_within(args: &CalibrateArgs, log: &mut Log, deadline: &Deadline) -> Result<Calibrated, Failure> {
     positive_options(args)?;
     let shown = args.log.display().to_string();
     if let Some(m) = args.motor {
         motor::inputs(log, m).with_context(|| shown.clone())?;
     }
-    let mut settings = fit_settings(args, log);
+    let mut settings = fit_settings(args, log, deadline);
     let glitches = glitch::find(&log.readings);
     // Without --reject the glitches stay in the log, named first among the reasons.
     let glitch_reason = (args.reject.is_none() && !glitches.is_empty())
         .then(|| format!("{}; --reject K drops them", glitches.words(log)));
-    let rejected = rejected(args, log, &mut settings, &glitches).with_context(|| shown.clone())?;
+    let rejected = rejected(args, log, &mut settings, &glitches);
+    // Fits the deadline stopped are not the log's, whatever they gave.
+    if deadline.expired() {
+        return Ok(skipped_fit(args, log, deadline));
+    }
+    let rejected = rejected.with_context(|| shown.clone())?;
     let (place, place_source) = place_of(args, log)?;
     let units = units_of(args, log)?;
     let (fit, why, source) = match fit_at_magnitude(args, log, &settings, magnitude_of(args, units, place.as_ref())?)? {
+        _ if deadline.expired() => return Ok(skipped_fit(args, log, deadline)),
         Ok(fitted) => fitted,
         Err(why) => {
             let why = glitch_reason.map_or(why.clone(), |g| format!("{why}; {g}"));
@@ -331,6 +367,9 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
         }
         None => None,
     };
+    if deadline.expired() {
+        return Ok(skipped_fit(args, log, deadline));
+    }
     // A magnitude from the field's model in the log's units makes the scale factors absolute;
     // one given by --magnitude may be in other units on purpose (counts in, microtesla out).
     let absolute = args.magnitude.is_none() && source != FITTED_RADIUS && vector.is_none();
@@ -358,9 +397,9 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
         place.as_ref(),
         alignment.as_ref(),
     );
-    budget::record(&mut json, &fit, judged, args.heading_budget, args.seed);
     // `fit` is the plain fit of the log's readings unless a vector fit or the motor's replaced it.
-    one_field::judge(&mut json, log, &fit, &settings, vector.is_none() && joint.is_none());
+    let plain = vector.is_none() && joint.is_none();
+    verdict_within(&mut json, log, (&fit, judged, &settings, plain), args, deadline);
     json.rejected = rejected;
     if let Some(g) = glitch_reason {
         json.usable = false;
@@ -380,12 +419,53 @@ pub fn calibrate(args: &CalibrateArgs, log: &mut Log) -> Result<Calibrated, Fail
         json.reasons
             .push(format!("the calibration fails the checks of apply and next: {why}"));
     }
-    coverage_in_box(&mut json, args, log, vehicle.as_ref())?;
-    budget::what_to_fly(args, &mut json);
+    coverage_in_box(&mut json, args, log, vehicle.as_ref(), deadline)?;
+    budget::what_to_fly(args, &mut json, deadline);
     Ok(Calibrated::Fit {
         json: Box::new(json),
         why,
     })
+}
+
+/// The report that the fit of `log` is skipped: the deadline cut it short, or left no time for it.
+fn skipped_fit(args: &CalibrateArgs, log: &Log, deadline: &Deadline) -> Calibrated {
+    let stage = if args.fit.vector_model().is_some() {
+        "the vector fit"
+    } else {
+        "the fit"
+    };
+    Calibrated::NoFit(Box::new(no_fit::json(args, log, 0, deadline.skipped(stage))))
+}
+
+/// The stages of the verdict after the fit, within `deadline`: the heading budget over `judged`
+/// and the one-field checks of `fit` (`plain`: the fit of the log's readings under `settings`).
+/// A stage the deadline leaves no time for is skipped, and the one-field checks it cuts short (their
+/// fits ask it) are undone; either leaves the calibration not usable, saying so.
+fn verdict_within(
+    json: &mut CalibrationJson,
+    log: &Log,
+    (fit, judged, settings, plain): (&LogFit, budget::Judged, &FitSettings, bool),
+    args: &CalibrateArgs,
+    deadline: &Deadline,
+) {
+    let skip = |json: &mut CalibrationJson, stage: &str| {
+        json.usable = false;
+        json.reasons.push(deadline.skipped(stage));
+    };
+    if deadline.expired() {
+        skip(json, "the heading budget");
+    } else {
+        budget::record(json, fit, judged, args.heading_budget, args.seed);
+    }
+    if deadline.expired() {
+        return skip(json, "the one-field checks");
+    }
+    let before = json.clone();
+    one_field::judge(json, log, fit, settings, plain);
+    if deadline.expired() {
+        *json = before;
+        skip(json, "the one-field checks");
+    }
 }
 
 /// Where the site and date of the field come from.
@@ -475,8 +555,9 @@ fn positive_options(args: &CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// What the fit knows beyond the readings and how it is judged, from the options and the log.
-fn fit_settings(args: &CalibrateArgs, log: &Log) -> FitSettings {
+/// What the fit knows beyond the readings and how it is judged, from the options and the log;
+/// its fits ask `deadline`.
+fn fit_settings(args: &CalibrateArgs, log: &Log, deadline: &Deadline) -> FitSettings {
     FitSettings {
         noise: args.noise,
         truncation: None,
@@ -497,20 +578,46 @@ fn fit_settings(args: &CalibrateArgs, log: &Log) -> FitSettings {
         profile: true,
         // As the trials: the vector fit makes its own held-out fits.
         held_out: args.fit.vector_model().is_none(),
+        stop: deadline.stop(),
     }
 }
 
+/// Why a fit that does not determine its sensor has no certified D-efficiency in the box.
+const NOT_DETERMINED: &str = "not computed: the box's certificate is made under the fitted sensor, which the log does not determine (not identifiable)";
+
 /// The coverage against the vehicle's box (`--scenario` or the box flags): the certified
-/// D-efficiency per reading, and the share of the log's attitudes inside the box.
+/// D-efficiency per reading (within `deadline`, and of a fit that determines its sensor; else
+/// `null` and why), and the share of the log's attitudes inside the box.
+///
+/// The certificate bounds every design in the box under the fitted sensor. A fit that does not
+/// determine its sensor stopped somewhere along a direction the readings leave open (the stalled
+/// fit of 43 readings: psi -86 deg, scale factors 4 to 1), so its bound is of no sensor the
+/// vehicle carries, and such a sensor's certificate need not converge (12 rounds of REX, 73 to
+/// 92 s, against 0.03 s for the fit): it is not computed.
 fn coverage_in_box(
     json: &mut CalibrationJson,
     args: &CalibrateArgs,
     log: &Log,
     vehicle: Option<&Vehicle>,
+    deadline: &Deadline,
 ) -> Result<()> {
     if let Some(vehicle) = vehicle {
-        json.coverage.d_efficiency_per_reading = log_efficiency(json, vehicle, &log.readings)
-            .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?;
+        let stage = "the coverage certificate";
+        json.coverage.d_efficiency_why_not = if !json.identifiable {
+            Some(NOT_DETERMINED.to_string())
+        } else if deadline.expired() {
+            Some(deadline.skipped(stage))
+        } else {
+            match log_efficiency(json, vehicle, &log.readings, &deadline.stop())
+                .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?
+            {
+                Ok(e) => {
+                    json.coverage.d_efficiency_per_reading = e;
+                    None
+                }
+                Err(Stopped) => Some(deadline.skipped(stage)),
+            }
+        };
         json.coverage.box_from = Some(vehicle.label.clone());
     }
     if let Some(attitudes) = &log.attitudes {
@@ -628,6 +735,7 @@ fn to_json(path: &Path, log: &Log, fit: &LogFit, why: &[AutoReason], source: Str
             motioncal_gap_percent,
             microstrain_coverage_percent,
             d_efficiency_per_reading: None,
+            d_efficiency_why_not: None,
             box_from: None,
             flown: None,
         },

@@ -201,7 +201,7 @@ fn shift_without(
     let refit_settings = FitSettings {
         trials: 0,
         held_out: false,
-        ..*settings
+        ..settings.clone()
     };
     log_fit::fit_with(&kept, fit.magnitude, fit.model, &refit_settings)
         .map_err(|e| format!("the log without them does not fit: {e}"))
@@ -336,7 +336,7 @@ fn field_change(
         truncation: None,
         trials: 0,
         held_out: false,
-        ..*settings
+        ..settings.clone()
     };
     // Fitted to a unit field and taken to its mean radius, as the fit of a whole log: the
     // magnitudes come out in the log's units.

@@ -300,6 +300,9 @@ fn print_verdicts(w: &mut dyn Write, j: &CalibrationJson) -> std::io::Result<()>
                 "; certified D-efficiency per reading {} in the box of {b}",
                 significant(*e, 4)
             ),
+            (None, Some(b)) => j.coverage.d_efficiency_why_not.as_ref().map_or(String::new(), |why| {
+                format!("; certified D-efficiency per reading in the box of {b}: none ({why})")
+            }),
             _ => String::new(),
         }
     )?;

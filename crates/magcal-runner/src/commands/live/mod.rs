@@ -35,6 +35,7 @@ use self::source::{Counts, Shared, Source};
 use super::Failure;
 use super::calibrate::{CalibrateArgs, Calibrated, Fit, ResidualArg};
 use super::next::NextArgs;
+use crate::deadline::Deadline;
 use crate::log::calibration::CalibrationJson;
 use crate::log::export::Target as ExportTarget;
 use crate::log::read::HELD_BYTES_PER_READING;
@@ -72,6 +73,12 @@ pub struct LiveArgs {
     /// Seconds between the starts of two fits, at least.
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0, value_parser = crate::limits::finite)]
     pub every: f64,
+    /// Seconds a fit may take, at most (default: 5 s and 20 us for each reading it holds, three
+    /// times what a full fit of 200,000 readings takes on two cores): a stage with no time left
+    /// is skipped and one cut short thrown away, each said in the fit's reasons, so that the plan
+    /// and the page keep up with the stream. Ctrl-C ends a fit under way.
+    #[arg(long, value_name = "SECONDS", value_parser = crate::limits::finite)]
+    pub fit_within: Option<f64>,
     /// Serve a page that follows the fits on http://127.0.0.1:PORT/ (0: a free port, printed):
     /// the verdict, the attitude to visit next, the field directions and attitudes covered, the
     /// export. Bound to this machine only.
@@ -287,6 +294,11 @@ fn check(args: &LiveArgs) -> Result<()> {
     }
     if args.every <= 0.0 {
         bail!("--every {}: give a positive number of seconds", args.every);
+    }
+    if let Some(b) = args.fit_within
+        && b <= 0.0
+    {
+        bail!("--fit-within {b}: give a positive number of seconds");
     }
     if let Some(i) = args.idle
         && i <= 0.0
@@ -541,34 +553,24 @@ fn fit_loop(
         if let Some(Err(why)) = &ended {
             return Err(source_failed(args, &progress, why));
         }
-        if let Some(bytes) = bytes {
+        // A signal ends the fit under way and starts none: what it would give is not a result.
+        let signalled = || shared.stop.load(Ordering::Relaxed);
+        if let Some(bytes) = bytes.filter(|_| !signalled()) {
             last_start = Some(Instant::now());
             std::fs::write(&snapshot.path, &bytes).context("the live snapshot")?;
+            let flag = Arc::clone(shared);
+            let fitted = fit(args, &snapshot.path, units, in_force_unknown(args, shared), move || {
+                flag.stop.load(Ordering::Relaxed)
+            });
+            if signalled() {
+                break;
+            }
             progress.fits += 1;
             progress.counts = counts.clone();
             progress.dropped = dropped;
-            let fitted = fit(args, &snapshot.path, units, in_force_unknown(args, shared));
             steer(args, &mut progress, &fitted);
             status(args, &progress, &fitted, &counts, dropped, held, tty);
-            let mut export = None;
-            if let Some(json) = fitted.json.as_ref().filter(|j| j.usable) {
-                write_set(args, &fitted, inputs)?;
-                let (text, problems) = export_text(args, json);
-                progress.export = Some(Export {
-                    samples: json.samples,
-                    text: text.clone(),
-                });
-                progress.written = Some((progress.fits, true));
-                if args.send {
-                    let sent = send_export(args, (&text, &problems), link, shared);
-                    match &sent {
-                        Ok(j) => to_stderr!("live: {}", j.words()),
-                        Err(e) => to_stderr!("live: nothing sent: {e}"),
-                    }
-                    progress.sent = Some(sent);
-                }
-                export = Some(text);
-            }
+            let export = keep(args, &mut progress, &fitted, inputs, (link, shared))?;
             publish(view, &progress, &fitted, export);
             let done = (args.until_usable || args.send) && progress.written.is_some_and(|w| w.1);
             progress.last = Some(fitted);
@@ -587,6 +589,36 @@ fn fit_loop(
     let end = ended_words(args, shared, &progress);
     view.status.lock().unwrap_or_else(PoisonError::into_inner).stream_end = Some(end);
     finish(args, progress, inputs)
+}
+
+/// A usable fit's set written, its export kept (and sent, with `--send`); the export's text, or
+/// `None` for a fit that is not usable.
+fn keep(
+    args: &LiveArgs,
+    progress: &mut Progress,
+    fitted: &Fitted,
+    inputs: &[&Path],
+    (link, shared): (Option<&Mutex<source::Link>>, &Shared),
+) -> Result<Option<String>, Failure> {
+    let Some(json) = fitted.json.as_ref().filter(|j| j.usable) else {
+        return Ok(None);
+    };
+    write_set(args, fitted, inputs)?;
+    let (text, problems) = export_text(args, json);
+    progress.export = Some(Export {
+        samples: json.samples,
+        text: text.clone(),
+    });
+    progress.written = Some((progress.fits, true));
+    if args.send {
+        let sent = send_export(args, (&text, &problems), link, shared);
+        match &sent {
+            Ok(j) => to_stderr!("live: {}", j.words()),
+            Err(e) => to_stderr!("live: nothing sent: {e}"),
+        }
+        progress.sent = Some(sent);
+    }
+    Ok(Some(text))
 }
 
 /// Why live ended, in words, for the page.
@@ -629,7 +661,20 @@ fn count_the_rest(shared: &Shared, progress: &mut Progress) {
 
 /// The fit of the snapshot at `path`: `calibrate`'s calibration and verdict, and `next`'s first
 /// attitude where a box is given.
-fn fit(args: &LiveArgs, path: &Path, units: Option<Units>, unknown: Option<String>) -> Fitted {
+/// The bound on a fit without `--fit-within`: seconds, and seconds for each reading it holds.
+const FIT_SECONDS: f64 = 5.0;
+const FIT_SECONDS_PER_READING: f64 = 2e-5;
+
+/// The fit of the snapshot at `path` and `next`'s attitudes for it, within `--fit-within` of its
+/// start (or [`FIT_SECONDS`] and [`FIT_SECONDS_PER_READING`]), or until `ended` says the command
+/// is ending.
+fn fit(
+    args: &LiveArgs,
+    path: &Path,
+    units: Option<Units>,
+    unknown: Option<String>,
+    ended: impl Fn() -> bool + Send + Sync + 'static,
+) -> Fitted {
     let started = Instant::now();
     let (cal_args, input) = calibrate_args(args, path, units);
     let mut fitted = Fitted {
@@ -653,14 +698,23 @@ fn fit(args: &LiveArgs, path: &Path, units: Option<Units>, unknown: Option<Strin
     };
     fitted.readings = log.readings.len();
     fitted.rows = log.readings.len() + log.skipped.len();
-    match super::calibrate::calibrate(&cal_args, &mut log) {
+    let bound = args
+        .fit_within
+        .unwrap_or(FIT_SECONDS + FIT_SECONDS_PER_READING * fitted.readings as f64);
+    // A bound beyond what a Duration holds is no bound.
+    let deadline = match Duration::try_from_secs_f64(bound) {
+        Ok(b) => Deadline::since(started, b),
+        Err(_) => Deadline::none(),
+    }
+    .or_when(ended);
+    match super::calibrate::calibrate_within(&cal_args, &mut log, &deadline) {
         Ok(Calibrated::Fit { mut json, .. }) => {
             if let Some(why) = unknown {
                 json.usable = false;
                 json.reasons.insert(0, why);
             }
             fitted.why = json.reasons.join("; ");
-            match next_attitudes(args, path, &input, &json) {
+            match next_attitudes(args, path, &input, &json, &deadline) {
                 Ok(all) => {
                     fitted.next = Ok(all.first().cloned());
                     fitted.fresh = all;
@@ -777,6 +831,7 @@ fn next_attitudes(
     path: &Path,
     input: &LogArgs,
     cal: &CalibrationJson,
+    deadline: &Deadline,
 ) -> Result<Vec<magcal_report::pages::next::AttitudeJson>, String> {
     if !boxed(args) {
         return Ok(Vec::new());
@@ -795,7 +850,7 @@ fn next_attitudes(
         input: input.clone(),
         heading_budget: args.heading_budget,
     };
-    super::next::suggestion(&next, cal)
+    super::next::suggestion_within(&next, cal, deadline)
         .map(|j| j.attitudes)
         .map_err(|e| first_words(&format!("{e:#}"), path))
 }
@@ -1051,7 +1106,7 @@ fn finish(args: &LiveArgs, mut progress: Progress, inputs: &[&Path]) -> Result<(
             if written.is_some() {
                 format!("its set is in {}", args.out.display())
             } else {
-                format!("no model fits it: nothing written to {}", args.out.display())
+                format!("nothing written to {}", args.out.display())
             }
         ))),
         (_, None) => Err(Failure::Unusable(format!(
