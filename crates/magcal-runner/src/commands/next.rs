@@ -15,7 +15,7 @@ use crate::deadline::Deadline;
 use crate::log::calibration::{CalibrationJson, RadiusMedian, columns_for, read_calibration};
 use crate::log::read::HELD_BYTES_PER_READING;
 use crate::log::source::{self, Log, LogArgs};
-use crate::log::vehicle::{BoxFlags, Place, Vehicle, check_box, fitted_problem};
+use crate::log::vehicle::{BoxFlags, DesignAxes, Place, Vehicle, check_box, fitted_problem};
 use crate::output::file::{Output, replace, to_stdout};
 use crate::output::stderr::to_stderr;
 use crate::report::next::{AttitudeJson, MAX_PASSES, NextJson, ParameterJson, RelativeJson};
@@ -344,8 +344,8 @@ struct Augmented {
     /// The body fields (nT): the log's calibrated readings, then the added readings' (the
     /// chosen attitudes, `passes` times, or [`MAX_PASSES`] times).
     body: Vec<Vec3>,
-    /// The Cramer-Rao bounds before and after.
-    crb: [CramerRao; 2],
+    /// The noise of the readings, nT.
+    sigma: f64,
     /// The certified D-efficiency per reading before and after, and why they are `None` where the
     /// deadline left the certificate unfinished.
     efficiency: [Option<f64>; 2],
@@ -398,15 +398,30 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson, deadline: &Deadline) -> Resul
     check_box(&vehicle)?;
     let log = read_log(args, cal)?;
     let (planned, planned_under) = planning_sensor(cal, &log.readings);
-    let (problem, factor) = fitted_problem(&planned, &vehicle).with_context(|| shown.clone())?;
-    let a = augment(
+    // Planned in the design problem's axes, said in the readings' (see DesignAxes).
+    let axes = DesignAxes::of(&planned, &log.frame);
+    let designed = axes.calibration(&planned, &log.frame);
+    let (problem, factor) = fitted_problem(&designed, &vehicle).with_context(|| shown.clone())?;
+    let turned = log.readings.into_iter().map(|s| axes.turn(s)).collect();
+    let mut a = augment(
         args,
-        &planned,
+        &designed,
         (&vehicle, &problem),
         factor,
-        (log.readings, log.in_time),
+        (turned, log.in_time),
         deadline,
     )?;
+    for b in &mut a.body {
+        *b = magcal_core::small::mat_vec(&log.frame, *b);
+    }
+    // Standard errors of the sensor's parameters in the readings' axes, at the log's noise.
+    let sensor = magcal_core::ErrorModel::new(planned.psi_deg, planned.scale, planned.bias.map(|b| b * factor))
+        .context("the fitted sensor is outside what the model takes")?;
+    let scales = PhysicalScales::default();
+    let crb = [
+        CramerRao::new(&sensor, &a.body[..a.m], a.sigma, &scales),
+        CramerRao::new(&sensor, &a.body, a.sigma, &scales),
+    ];
     let (body_log, body_all) = (&a.body[..a.m], &a.body[..]);
     let counts = [
         log_fit::motioncal_region_counts(body_log),
@@ -421,12 +436,12 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson, deadline: &Deadline) -> Resul
         attitude_box: vehicle.label.clone(),
         declination_deg: vehicle.field.declination_deg(),
         field_source: vehicle.field_source.clone(),
-        attitudes: attitude_rows(&a.chosen, &vehicle.field, a.passes.unwrap_or(MAX_PASSES)),
+        attitudes: attitude_rows(&a.chosen, (&vehicle.field, &log.frame), a.passes.unwrap_or(MAX_PASSES)),
         relative_to_log: log
             .flown
             .as_ref()
             .map(|f| relative(&a.chosen, vehicle.field.yaw_offset_deg(), f)),
-        parameters: parameters(&a.crb, factor),
+        parameters: parameters(&crb, factor),
         d_efficiency_before: a.efficiency[0],
         d_efficiency_after: a.efficiency[1],
         d_efficiency_why_not: a.efficiency_why_not,
@@ -547,13 +562,6 @@ fn augment(
     readings.extend(added);
     let (efficiency, efficiency_why_not) =
         efficiencies((vehicle, problem), [(&before, m), (&after, m + n_added)], deadline);
-    // Standard errors under the planning sensor at the log's noise.
-    let scales = PhysicalScales::default();
-    let sigma = noise * factor;
-    let crb = [
-        CramerRao::new(&model, &readings[..m], sigma, &scales),
-        CramerRao::new(&model, &readings, sigma, &scales),
-    ];
     Ok(Augmented {
         m,
         efficiency,
@@ -561,7 +569,7 @@ fn augment(
         chosen,
         passes,
         body: readings,
-        crb,
+        sigma: noise * factor,
         after_fit,
         flown,
     })
@@ -854,6 +862,7 @@ fn read_log(args: &NextArgs, cal: &CalibrationJson) -> Result<LogRead> {
     Ok(LogRead {
         readings: log_readings,
         in_time: times.is_some(),
+        frame: crate::log::vehicle::readings_frame(origin.format),
         flown,
         before,
     })
@@ -866,6 +875,8 @@ struct LogRead {
     /// Whether they are in time order (the log has times): the log with readings added is then
     /// fitted as `calibrate` fits it, its held-out folds consecutive blocks that see a drift.
     in_time: bool,
+    /// The rotation of [P1]'s body axes into the readings' axes.
+    frame: Mat3,
     /// The attitudes the log flew, where it has them.
     flown: Option<Flown>,
     /// Whether the log's full calibration was usable before, and on what that rests.
@@ -891,7 +902,7 @@ fn table_rows(chosen: &[(magcal_core::Attitude, f64)]) -> Vec<(magcal_core::Atti
 /// chosen again is one row with its readings.
 fn attitude_rows(
     chosen: &[(magcal_core::Attitude, f64)],
-    field: &magcal_core::ReferenceField,
+    (field, frame): (&magcal_core::ReferenceField, &Mat3),
     passes: usize,
 ) -> Vec<AttitudeJson> {
     // The headings a pilot reads: true, and magnetic from the declination of the vehicle's field.
@@ -913,7 +924,7 @@ fn attitude_rows(
                 magnetic_heading_deg: headings.magnetic_heading(a).map(|h| h.0),
                 readings: *n * passes,
                 variance: *d,
-                field_direction: f.map(|c| c / length),
+                field_direction: magcal_core::small::mat_vec(frame, f.map(|c| c / length)),
             }
         })
         .collect()

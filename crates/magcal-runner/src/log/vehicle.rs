@@ -5,6 +5,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use magcal_core::Vec3;
+use magcal_core::budget::{IDENTITY, PAPER_TO_FRD};
+use magcal_core::small::{Mat3, dot, mat_mul, mat_vec, norm, scale, sub, upper_triangular_inverse};
 use magcal_core::stop::{Stop, Stopped};
 
 use super::calibration::CalibrationJson;
@@ -183,7 +186,84 @@ pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magc
     ))
 }
 
-/// The certified D-efficiency per reading of `readings` (the log's units) in the scenario's box:
+/// The axes a log's readings are planned in against a box.
+///
+/// The design problem's attitudes give body fields in \[P1\]'s axes (nose, up, right); a sensor
+/// whose readings are in other axes (an autopilot's forward, right, down: `frame` turns \[P1\]'s
+/// axes into them) reads `s = K frame b + O` there, which is no sensor of the problem's form
+/// (`K` upper triangular in \[P1\]'s axes). A fixed rotation of every reading leaves the
+/// D-criterion as it is (the regression row of a turned reading, \[P1\] eq. (9), is a fixed linear
+/// map of its row, of determinant 1), so the readings are turned by `R` with `R K frame = T`
+/// upper triangular (a QR decomposition) and the sensor planned with is `(T, R O)`: its
+/// calibrated readings are then the body fields in \[P1\]'s axes. Readings already in \[P1\]'s
+/// axes (a CSV log planned against a box) are left as they are, bit for bit.
+#[derive(Debug, Clone, Copy)]
+pub struct DesignAxes {
+    /// `R`; `None`: the identity.
+    turn: Option<Mat3>,
+}
+
+impl DesignAxes {
+    /// The axes of a log whose readings are in `frame` (see [`readings_frame`]) under the sensor
+    /// of `cal`.
+    pub fn of(cal: &CalibrationJson, frame: &Mat3) -> Self {
+        if *frame == IDENTITY {
+            return Self { turn: None };
+        }
+        // Gram-Schmidt on the columns of M = K frame: M = Q T, R = Q^T.
+        let m = mat_mul(&cal.k, frame);
+        let column = |j: usize| [m[0][j], m[1][j], m[2][j]];
+        let mut q: Vec<Vec3> = Vec::with_capacity(3);
+        for j in 0..3 {
+            let mut v = column(j);
+            for u in &q {
+                let c = dot(*u, v);
+                v = sub(v, scale(c, *u));
+            }
+            q.push(scale(1.0 / norm(v), v));
+        }
+        Self {
+            turn: Some([q[0], q[1], q[2]]),
+        }
+    }
+
+    /// A reading turned into these axes.
+    pub fn turn(&self, s: Vec3) -> Vec3 {
+        self.turn.map_or(s, |r| mat_vec(&r, s))
+    }
+
+    /// `cal` as the sensor of these axes: `K = T = R K frame`, `P = T^-1`, the bias turned, and
+    /// `psi` and the scale factors of `T`.
+    pub fn calibration(&self, cal: &CalibrationJson, frame: &Mat3) -> CalibrationJson {
+        let Some(r) = self.turn else {
+            return cal.clone();
+        };
+        let mut t = mat_mul(&r, &mat_mul(&cal.k, frame));
+        // Below the diagonal is rounding.
+        (t[1][0], t[2][0], t[2][1]) = (0.0, 0.0, 0.0);
+        let sensor = magcal_core::ErrorModel::from_k(&t, mat_vec(&r, cal.bias));
+        let mut out = cal.clone();
+        out.k = t;
+        out.p = upper_triangular_inverse(&t).unwrap_or(cal.p);
+        out.bias = sensor.bias_nt();
+        out.psi_deg = sensor.psi_deg();
+        out.scale = sensor.scale();
+        out
+    }
+}
+
+/// The rotation of \[P1\]'s body axes into the axes of a log's readings: an autopilot's forward,
+/// right, down for a flight log, \[P1\]'s own for a CSV log (whose box is given in them), as the
+/// heading budget takes them (docs/conventions.md "Heading budget").
+pub fn readings_frame(format: crate::log::flight::Format) -> Mat3 {
+    match format {
+        crate::log::flight::Format::Csv => IDENTITY,
+        _ => PAPER_TO_FRD,
+    }
+}
+
+/// The certified D-efficiency per reading of `readings` (the log's units, in `frame`: see
+/// [`DesignAxes`]) in the scenario's box:
 /// `None` when no design in the box determines the linear model. Above 1 when the readings hold
 /// more information per reading than any design in the box: they come from outside it. Inside,
 /// [`Stopped`] when `stop` was requested before the box's certificate was found.
@@ -193,11 +273,12 @@ pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magc
 pub fn log_efficiency(
     cal: &CalibrationJson,
     scenario: &Vehicle,
-    readings: &[magcal_core::Vec3],
+    (readings, frame): (&[magcal_core::Vec3], &Mat3),
     stop: &Stop,
 ) -> Result<Result<Option<f64>, Stopped>> {
-    let (problem, factor) = fitted_problem(cal, scenario)?;
-    let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|s| s.map(|v| v * factor)).collect();
+    let axes = DesignAxes::of(cal, frame);
+    let (problem, factor) = fitted_problem(&axes.calibration(cal, frame), scenario)?;
+    let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|&s| axes.turn(s).map(|v| v * factor)).collect();
     let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
     Ok(scenario
         .certificate_until(&problem, stop)

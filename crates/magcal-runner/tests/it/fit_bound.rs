@@ -146,7 +146,13 @@ fn the_stalled_fit_ends_within_its_bound_and_says_what_it_skipped() {
     let log = source::open(&path, &args.input, HELD_BYTES_PER_READING).unwrap();
     let certificate = |deadline: &Deadline| {
         let started = Instant::now();
-        let efficiency = log_efficiency(&json, &vehicle, &log.readings, &deadline.stop()).unwrap();
+        let efficiency = log_efficiency(
+            &json,
+            &vehicle,
+            (&log.readings, &magcal_core::budget::IDENTITY),
+            &deadline.stop(),
+        )
+        .unwrap();
         (efficiency, started.elapsed())
     };
     let (efficiency, took) = certificate(&Deadline::after(BOUND));

@@ -28,7 +28,7 @@ fn frame_as(system: u8, component: u8, msg: &MavMessage) -> Vec<u8> {
     bytes
 }
 
-fn heartbeat(system: u8) -> Vec<u8> {
+pub(crate) fn heartbeat(system: u8) -> Vec<u8> {
     frame_as(
         system,
         1,
@@ -56,7 +56,7 @@ fn param_value(system: u8, name: &str, value: f32) -> Vec<u8> {
 
 /// The calibration in force on the test vehicle: its offsets, no soft iron, and
 /// `COMPASS_OFFS_MAX`.
-fn in_force(offs_max: f32) -> Vec<(String, f32)> {
+pub(crate) fn in_force(offs_max: f32) -> Vec<(String, f32)> {
     let mut p = Vec::new();
     for (c, a) in ["X", "Y", "Z"].iter().enumerate() {
         p.push((format!("COMPASS_OFS_{a}"), OFS[c]));
@@ -70,9 +70,9 @@ fn in_force(offs_max: f32) -> Vec<(String, f32)> {
 /// What one datagram held: the `PARAM_SET`s (name, value) and the `PARAM_REQUEST_READ`s
 /// (name), and whether it held anything else.
 #[derive(Default, Debug)]
-struct Heard {
-    sets: Vec<(String, f32)>,
-    reads: Vec<String>,
+pub(crate) struct Heard {
+    pub(crate) sets: Vec<(String, f32)>,
+    pub(crate) reads: Vec<String>,
     other: usize,
 }
 
@@ -103,7 +103,7 @@ fn parse(bytes: &[u8]) -> Heard {
 /// of one it holds when `answers_reads`, and each `PARAM_SET` with the value then held (its
 /// reply preceded, when `spoof`, by a `PARAM_VALUE` of another value from system 42 through the
 /// same socket, as another component on the vehicle's link might send). Returns what reached it.
-fn autopilot(
+pub(crate) fn autopilot(
     socket: UdpSocket,
     params: Vec<(String, f32)>,
     answers_reads: bool,

@@ -23,6 +23,7 @@ mod gps;
 mod hostile;
 mod live;
 mod live_guide;
+mod live_quad;
 mod live_send;
 mod live_sitl;
 mod log_outputs;

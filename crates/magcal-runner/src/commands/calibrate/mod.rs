@@ -608,7 +608,8 @@ fn coverage_in_box(
         } else if deadline.expired() {
             Some(deadline.skipped(stage))
         } else {
-            match log_efficiency(json, vehicle, &log.readings, &deadline.stop())
+            let frame = crate::log::vehicle::readings_frame(log.origin.format);
+            match log_efficiency(json, vehicle, (&log.readings, &frame), &deadline.stop())
                 .with_context(|| format!("{}: coverage in {}", args.log.display(), vehicle.label))?
             {
                 Ok(e) => {
