@@ -400,7 +400,7 @@ fn suggest(args: &NextArgs, cal: &CalibrationJson, deadline: &Deadline) -> Resul
     let (planned, planned_under) = planning_sensor(cal, &log.readings);
     // Planned in the design problem's axes, said in the readings' (see DesignAxes).
     let axes = DesignAxes::of(&planned, &log.frame);
-    let designed = axes.calibration(&planned, &log.frame);
+    let designed = axes.calibration(&planned);
     let (problem, factor) = fitted_problem(&designed, &vehicle).with_context(|| shown.clone())?;
     let turned = log.readings.into_iter().map(|s| axes.turn(s)).collect();
     let mut a = augment(

@@ -199,8 +199,8 @@ pub fn fitted_problem(cal: &CalibrationJson, scenario: &Vehicle) -> Result<(magc
 /// axes (a CSV log planned against a box) are left as they are, bit for bit.
 #[derive(Debug, Clone, Copy)]
 pub struct DesignAxes {
-    /// `R`; `None`: the identity.
-    turn: Option<Mat3>,
+    /// `R` and `T`; `None`: the identity and the calibration's own `K`.
+    turn: Option<(Mat3, Mat3)>,
 }
 
 impl DesignAxes {
@@ -222,25 +222,24 @@ impl DesignAxes {
             }
             q.push(scale(1.0 / norm(v), v));
         }
-        Self {
-            turn: Some([q[0], q[1], q[2]]),
-        }
+        let r = [q[0], q[1], q[2]];
+        let mut t = mat_mul(&r, &m);
+        // Below the diagonal is rounding.
+        (t[1][0], t[2][0], t[2][1]) = (0.0, 0.0, 0.0);
+        Self { turn: Some((r, t)) }
     }
 
     /// A reading turned into these axes.
     pub fn turn(&self, s: Vec3) -> Vec3 {
-        self.turn.map_or(s, |r| mat_vec(&r, s))
+        self.turn.map_or(s, |(r, _)| mat_vec(&r, s))
     }
 
-    /// `cal` as the sensor of these axes: `K = T = R K frame`, `P = T^-1`, the bias turned, and
-    /// `psi` and the scale factors of `T`.
-    pub fn calibration(&self, cal: &CalibrationJson, frame: &Mat3) -> CalibrationJson {
-        let Some(r) = self.turn else {
+    /// `cal` (the one these axes are [`Self::of`]) as the sensor of these axes: `K = T`,
+    /// `P = T^-1`, the bias turned, and `psi` and the scale factors of `T`.
+    pub fn calibration(&self, cal: &CalibrationJson) -> CalibrationJson {
+        let Some((r, t)) = self.turn else {
             return cal.clone();
         };
-        let mut t = mat_mul(&r, &mat_mul(&cal.k, frame));
-        // Below the diagonal is rounding.
-        (t[1][0], t[2][0], t[2][1]) = (0.0, 0.0, 0.0);
         let sensor = magcal_core::ErrorModel::from_k(&t, mat_vec(&r, cal.bias));
         let mut out = cal.clone();
         out.k = t;
@@ -277,7 +276,7 @@ pub fn log_efficiency(
     stop: &Stop,
 ) -> Result<Result<Option<f64>, Stopped>> {
     let axes = DesignAxes::of(cal, frame);
-    let (problem, factor) = fitted_problem(&axes.calibration(cal, frame), scenario)?;
+    let (problem, factor) = fitted_problem(&axes.calibration(cal), scenario)?;
     let scaled: Vec<magcal_core::Vec3> = readings.iter().map(|&s| axes.turn(s).map(|v| v * factor)).collect();
     let info = magcal_core::InformationMatrix::from_readings(&scaled, scenario.field.magnitude());
     Ok(scenario

@@ -554,6 +554,21 @@ fn a_stream_that_ends_without_a_usable_fit_writes_the_last_and_exits_3() {
     assert!(err.contains("its set is in"), "{err}");
 }
 
+/// The page's `/status.json`, or `None` once the page is gone (live ended).
+pub(crate) fn page_status(page: &str) -> Option<Vec<u8>> {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(page).ok()?;
+    write!(
+        stream,
+        "GET /status.json HTTP/1.1\r\nHost: {page}\r\nConnection: close\r\n\r\n"
+    )
+    .ok()?;
+    let mut reply = Vec::new();
+    stream.read_to_end(&mut reply).ok()?;
+    let end = reply.windows(4).position(|w| w == b"\r\n\r\n")?;
+    reply.starts_with(b"HTTP/1.1 200").then(|| reply[end + 4..].to_vec())
+}
+
 /// One HTTP/1.1 request to the page's server: the status code and the body.
 pub(crate) fn http(addr: &str, method: &str, path: &str, host: &str) -> (u16, Vec<u8>) {
     use std::io::Read;

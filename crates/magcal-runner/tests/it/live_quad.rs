@@ -17,7 +17,7 @@ use rand_distr::{Distribution, Normal};
 use serde_json::Value;
 use tempfile::TempDir;
 
-use crate::live::{OFS, finish_live, frame, json_of, start_live_lines, udp_address};
+use crate::live::{OFS, finish_live, frame, json_of, page_status, start_live_lines, udp_address};
 use crate::live_send::{autopilot, heartbeat, in_force};
 
 /// The quad's sensor, forward, right, down, mGauss: `r = K b + BIAS` (the readings before the
@@ -90,21 +90,6 @@ fn held_correction(params: &[(String, f32)]) -> (Mat3, [f64; 3]) {
     let d = [[dx, ox, oy], [ox, dy, oz], [oy, oz, dz]];
     let ofs = ["X", "Y", "Z"].map(|a| get(&format!("COMPASS_OFS_{a}")));
     (d, ofs.map(|o| -o))
-}
-
-/// The page's `/status.json`, or `None` once the page is gone (live ended).
-fn status(page: &str) -> Option<Vec<u8>> {
-    use std::io::{Read, Write};
-    let mut stream = std::net::TcpStream::connect(page).ok()?;
-    write!(
-        stream,
-        "GET /status.json HTTP/1.1\r\nHost: {page}\r\nConnection: close\r\n\r\n"
-    )
-    .ok()?;
-    let mut reply = Vec::new();
-    stream.read_to_end(&mut reply).ok()?;
-    let end = reply.windows(4).position(|w| w == b"\r\n\r\n")?;
-    reply.starts_with(b"HTTP/1.1 200").then(|| reply[end + 4..].to_vec())
 }
 
 #[test]
@@ -217,7 +202,7 @@ fn a_quad_flying_the_plan_with_its_calibration_unknown_reaches_done_and_holds_wh
         if last_poll.elapsed() >= Duration::from_millis(300) {
             last_poll = Instant::now();
             // Live ends at DONE with --send: its page may be gone between two looks.
-            let Some(body) = status(&page) else {
+            let Some(body) = page_status(&page) else {
                 continue;
             };
             last = serde_json::from_slice(&body).unwrap();

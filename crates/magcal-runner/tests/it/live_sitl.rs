@@ -351,7 +351,7 @@ fn live_guides_the_firmware_to_done_and_the_calibration_it_sends_is_what_the_fir
         std::thread::sleep(Duration::from_millis(50));
         if last_look.elapsed() > Duration::from_millis(500) {
             last_look = Instant::now();
-            let Some(body) = page_status(&page) else {
+            let Some(body) = crate::live::page_status(&page) else {
                 continue;
             };
             let status: serde_json::Value = serde_json::from_slice(&body).unwrap();
@@ -420,19 +420,4 @@ fn live_guides_the_firmware_to_done_and_the_calibration_it_sends_is_what_the_fir
     );
     assert!(p95 <= 1.5 * budget, "{errors:?}");
     assert!(worst_magnitude < 0.02, "{magnitudes:?}");
-}
-
-/// The page's `/status.json`, or `None` once the page is gone (live ended).
-fn page_status(page: &str) -> Option<Vec<u8>> {
-    use std::io::{Read, Write};
-    let mut stream = std::net::TcpStream::connect(page).ok()?;
-    write!(
-        stream,
-        "GET /status.json HTTP/1.1\r\nHost: {page}\r\nConnection: close\r\n\r\n"
-    )
-    .ok()?;
-    let mut reply = Vec::new();
-    stream.read_to_end(&mut reply).ok()?;
-    let end = reply.windows(4).position(|w| w == b"\r\n\r\n")?;
-    reply.starts_with(b"HTTP/1.1 200").then(|| reply[end + 4..].to_vec())
 }

@@ -525,14 +525,21 @@ mod tests {
         more
     }
 
-    #[test]
-    fn a_plan_whose_target_was_filled_otherwise_is_superseded_once_shown_long_enough() {
+    /// An ideal sensor, 80 readings on a cap, and the guide's plan for them set at the time
+    /// returned.
+    fn planned_on_a_cap() -> (Sensor, Vec<Vec3>, Guide, Instant) {
         let cal = ideal();
         let raw = cap(80);
         let v = Variance::new(&raw, 500.0).unwrap();
         let mut g = Guide::default();
         let t0 = Instant::now();
         g.update(&cal, &raw, Some(&v), sphere_targets(&cal, &v), t0);
+        (cal, raw, g, t0)
+    }
+
+    #[test]
+    fn a_plan_whose_target_was_filled_otherwise_is_superseded_once_shown_long_enough() {
+        let (cal, raw, mut g, t0) = planned_on_a_cap();
         let first = g.plan[0].field_direction;
         // The hand went round the target and back where it began.
         let more = filled_round(&raw, first, 5);
@@ -556,12 +563,7 @@ mod tests {
 
     #[test]
     fn a_target_the_hand_is_closing_on_is_not_superseded() {
-        let cal = ideal();
-        let raw = cap(80);
-        let v = Variance::new(&raw, 500.0).unwrap();
-        let mut g = Guide::default();
-        let t0 = Instant::now();
-        g.update(&cal, &raw, Some(&v), sphere_targets(&cal, &v), t0);
+        let (cal, raw, mut g, t0) = planned_on_a_cap();
         let first = g.plan[0].field_direction;
         // The same readings, but the newest is 35 degrees from the target: far nearer than the
         // cap it was shown from, so the hand is on its way.
